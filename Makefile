@@ -1,0 +1,32 @@
+# `make demo` and `make test` set everything up on a fresh machine (a .venv beside this file).
+SHELL := /bin/bash
+VENV := .venv
+BIN := $(VENV)/bin
+# qi's wheels exist for CPython 3.10-3.12 only: take the first interpreter that runs and fits.
+PYTHON ?= $(shell for p in python3.11 python3.12 python3.10 python3; do \
+	$$p -c 'import sys; sys.exit(not (3,10) <= sys.version_info[:2] <= (3,12))' 2>/dev/null && { echo $$p; break; }; done)
+SHARED ?= ../shared
+# Lab Streaming Layer stays on this machine: the shared config when present, the project's otherwise.
+export LSLAPICFG ?= $(abspath $(if $(wildcard $(SHARED)/lsl_api.cfg),$(SHARED)/lsl_api.cfg,config/lsl_api.cfg))
+export QI_LOG_LEVEL := silent
+export NAO_TRAINER_SHARED ?= $(abspath $(SHARED))
+
+.PHONY: demo test bench figures clean
+$(VENV)/.installed: setup.py
+	@test -n "$(PYTHON)" || { echo "error: needs Python 3.10-3.12 (qi has no wheels for others)"; exit 1; }
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q -e '.[all,test]'
+	touch $@
+
+demo: $(VENV)/.installed
+	$(BIN)/nao-trainer run
+
+test: $(VENV)/.installed
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile
+
+bench: $(VENV)/.installed
+	for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache

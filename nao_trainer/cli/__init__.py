@@ -1,0 +1,53 @@
+"""Command line: a thin layer that parses arguments and calls library functions.
+
+Each subcommand lives in its own module exposing ``register(subparsers)``; the parser's
+``func(args) -> int`` does the work. User errors end as one line on stderr, never a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+
+from .. import __version__
+from ..errors import Interrupted, UserError
+
+#: Subcommand modules, in the order ``--help`` lists them.
+COMMANDS = ("run", "mock_robot", "simulate_muse", "engagement", "import_data", "fit", "train")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="nao-trainer",
+        description="Personalised robot-assisted cognitive training with a NAO and a Muse.",
+    )
+    parser.add_argument("--version", action="version", version=f"nao-trainer {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMANDS:
+        importlib.import_module(f".{name}", __name__).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise
+    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv:
+        argv = ["run"]  # no command: the demo study
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except UserError as exc:
+        print(f"nao-trainer {args.command}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except (KeyboardInterrupt, Interrupted):
+        print(f"nao-trainer {args.command}: interrupted", file=sys.stderr)
+        return Interrupted.exit_code
+
+
+def entry_point() -> None:
+    sys.exit(main())

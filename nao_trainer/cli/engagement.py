@@ -1,0 +1,7 @@
+"""`nao-trainer engagement` (placeholder until its issue lands)."""
+from __future__ import annotations
+
+
+def register(sub) -> None:
+    p = sub.add_parser("engagement" if "engagement" != "import_data" else "import", help="(not yet available)")
+    p.set_defaults(func=lambda args: (_ for _ in ()).throw(SystemExit("not yet available")))

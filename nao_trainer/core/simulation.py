@@ -1,0 +1,163 @@
+"""User simulation (paper section 5.1): a simulated user as tables over the whole state space.
+
+Pure: no I/O. A ``UserSimulator`` holds, for every turn state of ``core.mdp``:
+
+* ``p_success[s]``: the performance model P(success | s);
+* ``engagement[s, o]``: the engagement model Phi(s, o) in [0, 1] for outcome o (0 failure, 1 success);
+* per-level quantiles of reaction and completion times (seconds from the beep), sampled by
+  inverse-CDF interpolation.
+
+Fitting from data lives in ``core.usermodel`` / ``nao_trainer.fitting``; files in
+``nao_trainer.artifacts``. Tables make simulation a lookup, which is what lets training vectorise.
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from . import mdp
+
+#: Probability levels of the stored time quantiles (0, 0.05, ..., 1).
+TIME_QUANTILES = np.linspace(0.0, 1.0, 21)
+FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True, eq=False)
+class UserSimulator:
+    """A simulated user. ``name`` is e.g. ``"cluster-1"``; ``metadata`` is free-form JSON data."""
+
+    name: str
+    p_success: np.ndarray  # (108,)
+    engagement: np.ndarray  # (108, 2)
+    reaction_quantiles: np.ndarray  # (4, len(TIME_QUANTILES)), per level
+    completion_quantiles: np.ndarray  # (4, len(TIME_QUANTILES)), per level
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for attr, shape in (
+            ("p_success", (mdp.N_TURN_STATES,)),
+            ("engagement", (mdp.N_TURN_STATES, 2)),
+            ("reaction_quantiles", (4, len(TIME_QUANTILES))),
+            ("completion_quantiles", (4, len(TIME_QUANTILES))),
+        ):
+            value = np.array(getattr(self, attr), dtype=float)
+            if value.shape != shape:
+                raise ValueError(f"{self.name}: {attr} must have shape {shape}, got {value.shape}")
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f"{self.name}: {attr} has non-finite values")
+            value.setflags(write=False)
+            object.__setattr__(self, attr, value)
+        for attr in ("p_success", "engagement"):
+            value = getattr(self, attr)
+            if value.min() < 0 or value.max() > 1:
+                raise ValueError(f"{self.name}: {attr} must lie in [0, 1], got {value.min():.3g}..{value.max():.3g}")
+        for attr in ("reaction_quantiles", "completion_quantiles"):
+            value = getattr(self, attr)
+            if value.min() < 0 or np.any(np.diff(value, axis=1) < 0):
+                raise ValueError(f"{self.name}: {attr} must be non-negative and non-decreasing per level")
+
+    # -- simulation ---------------------------------------------------------------------------
+
+    def sample_success(self, state: int, rng: np.random.Generator) -> bool:
+        """Draw the outcome of a turn played in turn state ``state``."""
+        return bool(rng.random() < self.p_success[state])
+
+    def engagement_of(self, state: int, success: bool) -> float:
+        """Phi(state, outcome): the turn's expected normalised engagement."""
+        return float(self.engagement[state, int(success)])
+
+    def sample_times(self, level: int, rng: np.random.Generator) -> tuple[float, float]:
+        """(reaction, completion) seconds from the beep, drawn from the level's distributions."""
+        u = rng.random(2)
+        rt = float(np.interp(u[0], TIME_QUANTILES, self.reaction_quantiles[level - 1]))
+        ct = float(np.interp(u[1], TIME_QUANTILES, self.completion_quantiles[level - 1]))
+        return rt, max(rt, ct)
+
+    def level_success_rates(self, states: np.ndarray | None = None) -> np.ndarray:
+        """Mean P(success) per level over ``states`` (default: all reachable turn states)."""
+        mask = mdp.REACHABLE if states is None else np.isin(np.arange(mdp.N_TURN_STATES), states)
+        return np.array([self.p_success[mask & (mdp.LEVEL == lv)].mean() for lv in (1, 2, 3, 4)])
+
+    # -- identity and serialisation -------------------------------------------------------------
+
+    def fingerprint(self) -> str:
+        """SHA-256 of the tables: policies record it so they are never used with another user."""
+        h = hashlib.sha256(mdp.DEFINITION.encode())
+        for table in (self.p_success, self.engagement, self.reaction_quantiles, self.completion_quantiles):
+            h.update(np.ascontiguousarray(table, dtype="<f8").tobytes())
+        return h.hexdigest()
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (floats round-trip exactly through ``json``)."""
+        return {
+            "format": "nao-trainer/user-simulator",
+            "format_version": FORMAT_VERSION,
+            "name": self.name,
+            "mdp_definition": mdp.DEFINITION,
+            "state_encoding": "p_success[i] and engagement[i] are for core.mdp.decode(i) = (L, RF, PR)",
+            "time_quantiles": TIME_QUANTILES.tolist(),
+            "p_success": self.p_success.tolist(),
+            "engagement": self.engagement.tolist(),
+            "reaction_quantiles": self.reaction_quantiles.tolist(),
+            "completion_quantiles": self.completion_quantiles.tolist(),
+            "fingerprint": self.fingerprint(),
+            "metadata": self.metadata,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], source: str = "simulator") -> "UserSimulator":
+        """Rebuild from ``to_dict`` output; ValueError naming ``source`` on any mismatch."""
+        if data.get("format") != "nao-trainer/user-simulator":
+            raise ValueError(f"{source}: not a nao-trainer user simulator (format={data.get('format')!r})")
+        if data.get("format_version") != FORMAT_VERSION:
+            raise ValueError(f"{source}: simulator format version {data.get('format_version')!r}, expected {FORMAT_VERSION}")
+        if data.get("mdp_definition") != mdp.DEFINITION:
+            raise ValueError(f"{source}: made for another state/action definition; refit it with `nao-trainer fit`")
+        try:
+            sim = cls(
+                name=str(data["name"]),
+                p_success=np.asarray(data["p_success"], dtype=float),
+                engagement=np.asarray(data["engagement"], dtype=float),
+                reaction_quantiles=np.asarray(data["reaction_quantiles"], dtype=float),
+                completion_quantiles=np.asarray(data["completion_quantiles"], dtype=float),
+                metadata=dict(data.get("metadata", {})),
+            )
+        except KeyError as exc:
+            raise ValueError(f"{source}: missing field {exc.args[0]!r}") from None
+        if "fingerprint" in data and data["fingerprint"] != sim.fingerprint():
+            raise ValueError(f"{source}: tables do not match their fingerprint (file altered or torn)")
+        return sim
+
+    @classmethod
+    def from_level_rates(
+        cls,
+        name: str,
+        success_by_level: "list[float] | np.ndarray",
+        engagement_by_level: "list[float] | np.ndarray" = (0.5, 0.5, 0.5, 0.5),
+        reaction_s: "tuple[float, float]" = (0.8, 2.5),
+        seconds_per_letter: "tuple[float, float]" = (0.6, 1.2),
+    ) -> "UserSimulator":
+        """A simple simulator from per-level rates (no dependence on feedback or previous result).
+
+        Used by the demo and by tests until a data-driven simulator is chosen. Times are uniform
+        between the given bounds; completion adds ``seconds_per_letter`` per letter.
+        """
+        p = np.asarray(success_by_level, dtype=float)
+        e = np.asarray(engagement_by_level, dtype=float)
+        if p.shape != (4,) or e.shape != (4,):
+            raise ValueError("success_by_level and engagement_by_level need 4 values (levels 1..4)")
+        levels = mdp.LEVEL - 1
+        rt = np.tile(np.linspace(*reaction_s, len(TIME_QUANTILES)), (4, 1))
+        per_letter = np.linspace(*seconds_per_letter, len(TIME_QUANTILES))
+        ct = rt + np.outer([3, 5, 7, 9], per_letter)
+        return cls(
+            name=name,
+            p_success=p[levels],
+            engagement=np.repeat(e[levels][:, None], 2, axis=1),
+            reaction_quantiles=rt,
+            completion_quantiles=ct,
+            metadata={"kind": "per-level rates"},
+        )

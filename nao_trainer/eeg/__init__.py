@@ -1,0 +1,1 @@
+"""EEG adapters: LSL streams (Muse), markers, a simulated Muse, and the published recordings."""

@@ -1,0 +1,47 @@
+"""Keep Lab Streaming Layer discovery on this machine unless a study asks otherwise.
+
+liblsl multicasts stream discovery beyond the machine by default. The project sets machine scope
+before its first stream object: the Muse bridge (muselsl) runs on the same laptop.
+``LSLAPICFG`` (a liblsl config file) wins when the environment sets it.
+"""
+from __future__ import annotations
+
+import os
+
+MACHINE_SCOPE_CONFIG = """\
+[multicast]
+ResolveScope = machine
+[ports]
+IPv6 = disable
+[lab]
+KnownPeers = {127.0.0.1}
+[log]
+level = -3
+"""
+
+SCOPES = ("machine", "link", "site", "organization", "global")
+_configured: str | None = None
+
+
+def configure_lsl(scope: str = "machine") -> str:
+    """Set liblsl's discovery scope before any stream object exists; returns what applies.
+
+    Call it before creating any StreamInfo, outlet or inlet. Calling it again is a no-op
+    (liblsl reads its configuration once per process).
+    """
+    global _configured
+    if scope not in SCOPES:
+        raise ValueError(f"LSL scope must be one of {', '.join(SCOPES)}, got {scope!r}")
+    if _configured is not None:
+        return _configured
+    if os.environ.get("LSLAPICFG"):
+        _configured = f"file:{os.environ['LSLAPICFG']}"
+        return _configured
+    import pylsl
+
+    text = MACHINE_SCOPE_CONFIG.replace("ResolveScope = machine", f"ResolveScope = {scope}")
+    if scope != "machine":
+        text = text.replace("KnownPeers = {127.0.0.1}\n", "")
+    pylsl.set_config_content(text)
+    _configured = scope
+    return _configured

@@ -1,0 +1,1 @@
+"""Figures (matplotlib, imported lazily by the commands that draw)."""

@@ -1,0 +1,200 @@
+"""The contracts between the session (orchestration) and its adapters.
+
+The session depends only on these protocols; the qi robot, the answer inputs, the EEG monitor and
+the policies implement them. Dependencies point inward: adapters import this module, never the
+session.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Protocol, runtime_checkable
+
+import numpy as np
+
+# ----------------------------------------------------------------------------------------------
+# Robot
+# ----------------------------------------------------------------------------------------------
+
+#: Head buttons of the NAO mapped to the task's letters (front/middle/rear = A/B/C).
+BUTTON_LETTERS: dict[str, str] = {
+    "FrontTactilTouched": "A",
+    "MiddleTactilTouched": "B",
+    "RearTactilTouched": "C",
+}
+
+
+class RobotConnectionLost(Exception):
+    """A call to the robot failed because the connection dropped; the session may reconnect."""
+
+
+@runtime_checkable
+class Robot(Protocol):
+    """What the session asks of a robot. ``nao_trainer.robot.naoqi.NaoqiRobot`` implements it."""
+
+    def say(self, text: str, animated: bool = False, mode: str = "contextual") -> None:
+        """Speak ``text`` and return when done (ALTextToSpeech / ALAnimatedSpeech)."""
+
+    def beep(self, frequency_hz: int, duration_s: float, gain: float = 0.5) -> None:
+        """Play a sine beep (ALAudioPlayer.playSine); returns when it has been played."""
+
+    def set_eye_leds(self, rgb: int, duration_s: float) -> None:
+        """Fade the eye LEDs to 0xRRGGBB (ALLeds.fadeRGB)."""
+
+    def go_to_posture(self, name: str, speed: float) -> None:
+        """Go to a predefined posture (ALRobotPosture.goToPosture)."""
+
+    def subscribe_buttons(self, callback: Callable[[str, float], None]) -> None:
+        """Call ``callback(letter, monotonic_time)`` on each head-button press (value 1.0)."""
+
+    def unsubscribe_buttons(self) -> None:
+        """Disconnect the button signals (required before exit, see platform notes)."""
+
+    def reconnect(self, deadline_s: float) -> None:
+        """Connect again after a loss, re-fetch services and re-subscribe the buttons."""
+
+    def close(self) -> None:
+        """Disconnect signals and close the qi session."""
+
+
+# ----------------------------------------------------------------------------------------------
+# Answers
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TurnContext:
+    """What an answer source may know of the turn (a simulated participant uses all of it)."""
+
+    turn: int
+    state: int  # turn-state index (core.mdp)
+    length: int
+    sequence: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Press:
+    """One button press: its raw key/button and letter (None when invalid), seconds after the beep."""
+
+    key: str
+    letter: str | None
+    t: float
+
+
+@dataclass(frozen=True)
+class Answer:
+    """All presses of one answer window."""
+
+    presses: tuple[Press, ...]
+    timed_out: bool
+
+    @property
+    def response(self) -> tuple[str, ...]:
+        return tuple(p.letter or "?" for p in self.presses)
+
+    @property
+    def reaction_time(self) -> float | None:
+        return self.presses[0].t if self.presses else None
+
+    @property
+    def completion_time(self) -> float | None:
+        return self.presses[-1].t if self.presses else None
+
+
+class AnswerSource(Protocol):
+    """Collects a participant's answer. Presses before ``open_window`` are discarded."""
+
+    def prepare(self, context: TurnContext) -> None:
+        """Called before the robot speaks the sequence (a simulated participant decides here)."""
+
+    def open_window(self) -> None:
+        """Called right after the beep: the answer window opens, time 0 for press times."""
+
+    def collect(self, n_expected: int, timeout_s: float) -> Answer:
+        """Block until ``n_expected`` presses or the timeout; return what was pressed."""
+
+    def close(self) -> None: ...
+
+
+# ----------------------------------------------------------------------------------------------
+# Engagement (EEG)
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PhaseEngagement:
+    """Engagement over one phase of a turn, or why there is none."""
+
+    engagement: float | None  # normalised to [0, 1]
+    index: float | None  # raw E = beta / (alpha + theta)
+    quality: float  # fraction of clean signal in the phase, 0..1
+    reason: str = ""  # why engagement is None, empty otherwise
+    series: np.ndarray | None = field(default=None, compare=False)  # per-window values
+
+
+class EngagementMonitor(Protocol):
+    """Marks session phases and returns per-phase engagement. ``NullMonitor`` when EEG is off."""
+
+    def mark(self, event: str, turn: int | None = None) -> None:
+        """Publish an event (session, turn, phase) on the LSL clock."""
+
+    def begin_phase(self, phase: str, turn: int | None) -> None:
+        """Start aggregating a phase: "baseline", "listening" or "answer"."""
+
+    def end_phase(self) -> PhaseEngagement:
+        """Stop aggregating and return the phase's engagement."""
+
+    def set_target(self, engagement: float | None) -> None:
+        """For a simulated Muse: the engagement its signal should show next (ignored otherwise)."""
+
+    def close(self) -> None: ...
+
+
+class NullMonitor:
+    """EEG off: no markers, no engagement."""
+
+    def mark(self, event: str, turn: int | None = None) -> None:
+        pass
+
+    def begin_phase(self, phase: str, turn: int | None) -> None:
+        pass
+
+    def end_phase(self) -> PhaseEngagement:
+        return PhaseEngagement(None, None, 0.0, "EEG off")
+
+    def set_target(self, engagement: float | None) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+# ----------------------------------------------------------------------------------------------
+# Policies
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Transition:
+    """One step of the MDP as the session saw it (see ``core.mdp``)."""
+
+    state: int
+    action: int
+    score: int  # equation (1) of the turn played in next_state
+    engagement: float | None  # that turn's normalised engagement, None when unavailable
+    next_state: int
+    done: bool
+
+
+class Policy(Protocol):
+    """Chooses the next action; learners also learn from ``observe``."""
+
+    name: str
+
+    def act(self, state: int, rng: np.random.Generator) -> int:
+        """An allowed action for ``state`` (respecting ``core.mdp.action_mask``)."""
+
+    def observe(self, transition: Transition) -> None:
+        """Called after every turn with the transition that produced it."""
+
+    def close(self) -> None:
+        """Persist whatever must survive the session."""

@@ -1,0 +1,41 @@
+"""nao-trainer: personalised robot-assisted cognitive training (NAO + Muse EEG + Q-learning)."""
+import re
+from pathlib import Path
+
+from setuptools import find_packages, setup
+
+here = Path(__file__).parent
+version = re.search(r'__version__ = "([^"]+)"', (here / "nao_trainer" / "__init__.py").read_text()).group(1)
+
+setup(
+    name="nao-trainer",
+    version=version,
+    description="Personalised robot-assisted cognitive training with a NAO robot and a Muse EEG headband",
+    long_description=(here / "README.md").read_text() if (here / "README.md").exists() else "",
+    long_description_content_type="text/markdown",
+    packages=find_packages(include=["nao_trainer", "nao_trainer.*"]),
+    # qi (the NAOqi SDK) ships wheels for CPython 3.8-3.12 on Linux x86_64 only.
+    python_requires=">=3.10,<3.13",
+    install_requires=[
+        "qi==3.1.5",
+        "numpy>=1.24",
+        "scikit-learn>=1.5",
+        "pyyaml>=6",
+        "pylsl>=1.16",
+        "transitions>=0.9",
+    ],
+    extras_require={
+        "plots": ["matplotlib>=3.7"],
+        "gym": ["gymnasium>=1.0"],
+        "test": ["pytest>=7", "pytest-xdist>=3"],
+        "all": ["matplotlib>=3.7", "gymnasium>=1.0"],
+    },
+    entry_points={"console_scripts": ["nao-trainer=nao_trainer.cli:entry_point"]},
+    include_package_data=True,
+    classifiers=[
+        "Programming Language :: Python :: 3.10",
+        "Programming Language :: Python :: 3.11",
+        "Programming Language :: Python :: 3.12",
+        "Operating System :: POSIX :: Linux",
+    ],
+)

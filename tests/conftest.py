@@ -1,0 +1,45 @@
+"""Shared test set-up: LSL in machine scope, qi quiet, the published dataset extracted to a temp folder."""
+from __future__ import annotations
+
+import os
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("NAO_TRAINER_SHARED", ROOT.parent / "shared")).resolve()
+DATA = SHARED / "data" / "sequence-learning"
+
+# Before anything imports pylsl or qi: keep LSL discovery on this machine and qi's logs silent.
+if not os.environ.get("LSLAPICFG"):
+    cfg = SHARED / "lsl_api.cfg"
+    os.environ["LSLAPICFG"] = str(cfg if cfg.exists() else ROOT / "config" / "lsl_api.cfg")
+os.environ.setdefault("QI_LOG_LEVEL", "silent")
+
+
+def _extract(archive: str, dest: Path) -> Path:
+    path = DATA / archive
+    if not path.exists():
+        pytest.fail(f"{path} is missing: the tests need ../shared/data/sequence-learning beside the repo")
+    dest.mkdir(parents=True, exist_ok=True)
+    subprocess.run(["tar", "-xJf", str(path), "-C", str(dest)], check=True)
+    return dest / "clean_data"
+
+
+@pytest.fixture(scope="session")
+def dataset_root(tmp_path_factory) -> Path:
+    """The 50 published sessions (band files) as ``<root>/user_<id>/session_<k>/``."""
+    return _extract("clean_data_bands.tar.xz", tmp_path_factory.mktemp("bands"))
+
+
+@pytest.fixture(scope="session")
+def raw_root(tmp_path_factory) -> Path:
+    """The 4 published sessions with raw Muse recordings (``robot_N``, ``user_N``, ``intro``)."""
+    return _extract("raw_sessions.tar.xz", tmp_path_factory.mktemp("raw"))
+
+
+@pytest.fixture(scope="session")
+def derived_dir() -> Path:
+    """The authors' derived tables (read-only, space-separated)."""
+    return DATA / "derived"
