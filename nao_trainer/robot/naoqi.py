@@ -1,0 +1,553 @@
+"""The robot over NAOqi: a ``qi`` client implementing ``nao_trainer.ports.Robot``.
+
+Works with a NAO on NAOqi <= 2.8 (``tcp://IP:9559``), NAOqi 2.9 (``tcps://IP:9503`` plus a user
+and password from ``NAO_USER`` / ``NAO_PASSWORD``) and the project's stand-in
+(``nao-trainer mock-robot``). Every remote call runs as a ``qi.Future`` waited on with a deadline,
+so a silent robot cannot freeze a session; a dropped link surfaces as
+``ports.RobotConnectionLost`` so the session can pause and call ``reconnect``.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import re
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise; must precede `import qi`
+import qi  # noqa: E402
+
+from ..errors import ConfigError, RobotUnavailable  # noqa: E402
+from ..ports import BUTTON_LETTERS, RobotConnectionLost  # noqa: E402
+
+log = logging.getLogger(__name__)
+
+#: Environment variables holding NAOqi 2.9 credentials (never read from files, never logged).
+USER_ENV, PASSWORD_ENV = "NAO_USER", "NAO_PASSWORD"
+DEFAULT_PORTS = {"tcp": 9559, "tcps": 9503}
+BODY_LANGUAGE_MODES = ("disabled", "random", "contextual")
+STANDIN_HINT = "for a session without a robot start `nao-trainer mock-robot` and use tcp://127.0.0.1:9559"
+
+# qi reports every failure as RuntimeError; these messages mean the link to the robot is gone.
+_LOST_MARKERS = (
+    "session closed",
+    "socket is not connected",
+    "not connected",
+    "connection refused",
+    "connection reset",
+    "broken pipe",
+    "disconnected",
+    "socket was closed",
+    "socket closed",
+    "network is unreachable",
+    "no route to host",
+)
+_URL_RE = re.compile(r"^(?P<scheme>[a-zA-Z][a-zA-Z0-9+.-]*)://(?:(?P<userinfo>[^@/]*)@)?(?P<host>\[[^\]]+\]|[^:/]+)(?::(?P<port>\d+))?/?$")
+
+
+class MissingService(RobotUnavailable):
+    """The robot is connected but does not offer a NAOqi service the project needs."""
+
+
+# ------------------------------------------------------------------------------------------------
+# Addresses and credentials
+# ------------------------------------------------------------------------------------------------
+
+
+def redact_url(url: str) -> str:
+    """``url`` with any user-info (``user:password@``) replaced by ``***@``; safe to print or log."""
+    return re.sub(r"^([a-zA-Z][a-zA-Z0-9+.-]*://)[^@/]*@", r"\1***@", url.strip())
+
+
+def normalize_url(url: str) -> str:
+    """Turn a robot address into a qi URL: ``IP`` -> ``tcp://IP:9559``; ``tcps://IP`` -> ``tcps://IP:9503``.
+
+    Raises ConfigError for other schemes and for credentials written into the URL (they belong
+    in ``NAO_USER`` / ``NAO_PASSWORD``).
+    """
+    text = url.strip()
+    if "://" not in text:
+        text = f"tcp://{text}"
+    m = _URL_RE.match(text)
+    if not m:
+        raise ConfigError(
+            f"robot address {redact_url(url)!r} is not of the form tcp://IP:9559 (NAOqi <= 2.8) "
+            "or tcps://IP:9503 (NAOqi 2.9)"
+        )
+    if m.group("userinfo") is not None:
+        raise ConfigError(
+            f"robot address {redact_url(url)!r} contains credentials: remove them from the address and set "
+            f"{USER_ENV} / {PASSWORD_ENV} in the environment instead"
+        )
+    scheme = m.group("scheme").lower()
+    if scheme not in DEFAULT_PORTS:
+        raise ConfigError(
+            f"robot address {url!r}: scheme {scheme!r} is not supported; use tcp://IP:9559 (NAOqi <= 2.8) "
+            "or tcps://IP:9503 (NAOqi 2.9)"
+        )
+    port = int(m.group("port")) if m.group("port") else DEFAULT_PORTS[scheme]
+    if not 0 < port < 65536:
+        raise ConfigError(f"robot address {url!r}: port {port} is out of range 1..65535")
+    return f"{scheme}://{m.group('host')}:{port}"
+
+
+@dataclass(frozen=True)
+class Credentials:
+    """A NAOqi 2.9 user and password; ``repr`` never shows the password."""
+
+    user: str
+    password: str
+
+    def __repr__(self) -> str:
+        return f"Credentials(user={self.user!r}, password='***')"
+
+    __str__ = __repr__
+
+    def __iter__(self):  # allows ``user, password = creds`` like the tuple form
+        return iter((self.user, self.password))
+
+
+def credentials_from_env(environ: dict[str, str] | None = None) -> Credentials | None:
+    """The robot credentials from ``NAO_USER`` / ``NAO_PASSWORD``; None when neither is set."""
+    env = os.environ if environ is None else environ
+    user, password = env.get(USER_ENV, ""), env.get(PASSWORD_ENV, "")
+    if not user and not password:
+        return None
+    if not user or not password:
+        missing = USER_ENV if not user else PASSWORD_ENV
+        raise ConfigError(f"{missing} is not set: NAOqi 2.9 needs both {USER_ENV} and {PASSWORD_ENV} in the environment")
+    return Credentials(user, password)
+
+
+class _Authenticator:
+    """libqi client authenticator: sends the user and token once, when the robot asks."""
+
+    def __init__(self, creds: Credentials) -> None:
+        self._creds = creds
+
+    def initialAuthData(self) -> dict[str, str]:
+        return {"user": self._creds.user, "token": self._creds.password}
+
+    def _processAuth(self, data: Any) -> dict[str, str]:  # noqa: N802 - libqi's name
+        return {}
+
+
+class _AuthenticatorFactory:
+    def __init__(self, creds: Credentials) -> None:
+        self._creds = creds
+
+    def newAuthenticator(self) -> _Authenticator:  # noqa: N802 - libqi's name
+        return _Authenticator(self._creds)
+
+
+# ------------------------------------------------------------------------------------------------
+# Deadlines and error translation
+# ------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class CallTimeouts:
+    """Deadlines for remote calls (seconds); speech gets extra time per character of text."""
+
+    default_s: float = 10.0
+    say_base_s: float = 15.0
+    say_per_char_s: float = 0.25
+    posture_s: float = 60.0
+    subscribe_s: float = 5.0
+
+    def say(self, text: str) -> float:
+        return self.say_base_s + self.say_per_char_s * len(text)
+
+
+def is_connection_lost(error: BaseException | str) -> bool:
+    """Whether a qi error message means the link to the robot is gone."""
+    text = str(error).lower()
+    return any(marker in text for marker in _LOST_MARKERS)
+
+
+def _wait(future: Any, timeout_s: float) -> bool:
+    """Wait for a qi future; True when it finished within ``timeout_s``."""
+    state = future.wait(max(1, int(timeout_s * 1000)))
+    return state != qi.FutureState.Running
+
+
+# ------------------------------------------------------------------------------------------------
+# The robot
+# ------------------------------------------------------------------------------------------------
+
+
+class NaoqiRobot:
+    """A NAO (or the stand-in) reached over ``qi``; implements ``nao_trainer.ports.Robot``.
+
+    Create it with ``NaoqiRobot.connect(url)``. Head-button callbacks run on qi's threads; the
+    robot guards its own state, the callback must guard the caller's. Call ``close()`` before the
+    process exits (live signal subscriptions can abort the process at exit).
+    """
+
+    def __init__(
+        self,
+        session: Any,
+        url: str,
+        credentials: Credentials | None = None,
+        timeouts: CallTimeouts = CallTimeouts(),
+        debounce_s: float = 0.15,
+    ) -> None:
+        self._session = session
+        self.url = url
+        self._credentials = credentials
+        self.timeouts = timeouts
+        self.debounce_s = float(debounce_s)
+        self._lock = threading.RLock()
+        self._services: dict[str, Any] = {}
+        self._button_callback: Callable[[str, float], None] | None = None
+        self._subscriptions: list[tuple[str, Any, Any]] = []  # (key, subscriber proxy, link id)
+        self._last_press: dict[str, float] = {}
+        self._closed = False
+
+    # -- connection ------------------------------------------------------------------------------
+
+    @classmethod
+    def connect(
+        cls,
+        url: str,
+        deadline_s: float = 10.0,
+        credentials: tuple[str, str] | Credentials | None = None,
+        *,
+        timeouts: CallTimeouts = CallTimeouts(),
+        debounce_s: float = 0.15,
+    ) -> "NaoqiRobot":
+        """Connect within ``deadline_s`` or raise RobotUnavailable (a one-line, user-fixable message).
+
+        ``tcps://`` (NAOqi 2.9) needs credentials: given here or, when None, from
+        ``NAO_USER`` / ``NAO_PASSWORD``.
+        """
+        qi_url = normalize_url(url)
+        if debounce_s < 0:
+            raise ConfigError(f"button debounce must be >= 0 seconds, got {debounce_s!r}")
+        if deadline_s <= 0:
+            raise ConfigError(f"robot connect deadline must be > 0 seconds, got {deadline_s!r}")
+        creds = _as_credentials(credentials) if credentials is not None else credentials_from_env()
+        if qi_url.startswith("tcps://") and creds is None:
+            raise ConfigError(
+                f"robot address {qi_url} is NAOqi 2.9 (tcps): set {USER_ENV} and {PASSWORD_ENV} in the environment"
+            )
+        session = _new_session(creds)
+        _connect_session(session, qi_url, deadline_s)
+        log.info("connected to the robot at %s", qi_url)
+        return cls(session, qi_url, creds, timeouts, debounce_s)
+
+    def is_connected(self) -> bool:
+        """True while the qi session is up (it turns False soon after the robot drops)."""
+        if self._closed:
+            return False
+        try:
+            return bool(self._session.isConnected())
+        except RuntimeError:
+            return False
+
+    def reconnect(self, deadline_s: float) -> None:
+        """Connect the session again, re-fetch services and re-subscribe the buttons.
+
+        Raises RobotUnavailable when the robot is not back within ``deadline_s``; the caller
+        may try again later (the session does, with backoff).
+        """
+        if self._closed:
+            raise RobotUnavailable(f"the connection to the robot at {self.url} was closed; create a new one")
+        callback = self._button_callback
+        self._drop_subscriptions()
+        with self._lock:
+            self._services.clear()
+        start = time.monotonic()
+        if self._session.isConnected():
+            self._session.close()
+        try:
+            _connect_session(self._session, self.url, deadline_s)
+        except RobotUnavailable:
+            # A timed-out connect leaves the session closed mid-handshake; start the next try afresh.
+            self._session = _new_session(self._credentials)
+            raise
+        if callback is not None:
+            remaining = max(0.5, deadline_s - (time.monotonic() - start))
+            self._wait_for_service("ALMemory", remaining)
+            self.subscribe_buttons(callback)
+        log.info("reconnected to the robot at %s", self.url)
+
+    def close(self) -> None:
+        """Unsubscribe the buttons and close the qi session. Idempotent."""
+        if self._closed:
+            return
+        try:
+            self.unsubscribe_buttons()
+        finally:
+            self._closed = True
+            with self._lock:
+                self._services.clear()
+            try:
+                self._session.close()
+            except RuntimeError as exc:  # already gone: nothing left to release
+                log.debug("closing the qi session: %s", exc)
+
+    def __enter__(self) -> "NaoqiRobot":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"NaoqiRobot(url={redact_url(self.url)!r}, connected={self.is_connected()})"
+
+    # -- speech, sound, LEDs, posture ----------------------------------------------------------------
+
+    def say(self, text: str, animated: bool = False, mode: str = "contextual") -> None:
+        """Speak ``text`` and return when done; ``animated`` adds gestures (body language ``mode``)."""
+        if not isinstance(text, str):
+            raise TypeError(f"say() needs a str, got {type(text).__name__}")
+        if animated:
+            if mode not in BODY_LANGUAGE_MODES:
+                raise ValueError(f"body language mode must be one of {', '.join(BODY_LANGUAGE_MODES)}, got {mode!r}")
+            self._call("ALAnimatedSpeech", "say", text, {"bodyLanguageMode": mode}, timeout_s=self.timeouts.say(text))
+        else:
+            self._call("ALTextToSpeech", "say", text, timeout_s=self.timeouts.say(text))
+
+    def beep(self, frequency_hz: int, duration_s: float, gain: float = 0.5) -> None:
+        """Play a sine beep and return once played (gain 0..1, centred)."""
+        if not 20 <= int(frequency_hz) <= 20000:
+            raise ValueError(f"beep frequency must be 20..20000 Hz, got {frequency_hz!r}")
+        if not 0.0 < float(duration_s) <= 60.0:
+            raise ValueError(f"beep duration must be in (0, 60] seconds, got {duration_s!r}")
+        if not 0.0 <= float(gain) <= 1.0:
+            raise ValueError(f"beep gain must be in [0, 1], got {gain!r}")
+        self._call(
+            "ALAudioPlayer",
+            "playSine",
+            int(frequency_hz),
+            int(round(float(gain) * 100)),
+            0,
+            float(duration_s),
+            timeout_s=self.timeouts.default_s + float(duration_s),
+        )
+
+    def set_eye_leds(self, rgb: int, duration_s: float) -> None:
+        """Fade the face LEDs to ``0xRRGGBB`` over ``duration_s`` seconds."""
+        if not isinstance(rgb, int) or not 0 <= rgb <= 0xFFFFFF:
+            raise ValueError(f"eye colour must be an int 0x000000..0xFFFFFF, got {rgb!r}")
+        if not 0.0 <= float(duration_s) <= 60.0:
+            raise ValueError(f"LED fade duration must be in [0, 60] seconds, got {duration_s!r}")
+        self._call("ALLeds", "fadeRGB", "FaceLeds", int(rgb), float(duration_s),
+                   timeout_s=self.timeouts.default_s + float(duration_s))
+
+    def go_to_posture(self, name: str, speed: float) -> bool:
+        """Go to a predefined posture (Stand, StandInit, Crouch, Sit...); False if the robot could not."""
+        if not 0.0 < float(speed) <= 1.0:
+            raise ValueError(f"posture speed must be in (0, 1], got {speed!r}")
+        ok = bool(self._call("ALRobotPosture", "goToPosture", str(name), float(speed), timeout_s=self.timeouts.posture_s))
+        if not ok:
+            log.warning("the robot could not reach posture %s", name)
+        return ok
+
+    def wake_up(self) -> None:
+        """Stiffen the joints and stand (ALMotion.wakeUp)."""
+        self._call("ALMotion", "wakeUp", timeout_s=self.timeouts.posture_s)
+
+    def rest(self) -> None:
+        """The safe end state: crouch and release the joints' stiffness (ALMotion.rest)."""
+        self._call("ALMotion", "rest", timeout_s=self.timeouts.posture_s)
+
+    # -- head buttons ------------------------------------------------------------------------------
+
+    def subscribe_buttons(self, callback: Callable[[str, float], None]) -> None:
+        """Call ``callback(letter, time.monotonic())`` on each head-button press (debounced).
+
+        Replaces an earlier subscription. The callback runs on a qi thread.
+        """
+        self.unsubscribe_buttons()
+        memory = self._service("ALMemory")
+        subscriptions: list[tuple[str, Any, Any]] = []
+        try:
+            for key in BUTTON_LETTERS:
+                sub = self._remote(memory, "subscriber", key, timeout_s=self.timeouts.subscribe_s, what=f"ALMemory.subscriber({key})")
+                link = self._remote(
+                    sub.signal, "connect", _ButtonHandler(self, key),
+                    timeout_s=self.timeouts.subscribe_s, what=f"{key} signal connect",
+                )
+                subscriptions.append((key, sub, link))  # keep the proxy: dropping it silences the signal
+        except BaseException:
+            self._disconnect_all(subscriptions)
+            raise
+        with self._lock:
+            self._subscriptions = subscriptions
+            self._button_callback = callback
+            self._last_press.clear()
+
+    def unsubscribe_buttons(self) -> None:
+        """Disconnect the head-button signals; no more callbacks after this returns."""
+        with self._lock:
+            self._button_callback = None
+        self._drop_subscriptions()
+
+    def _drop_subscriptions(self) -> None:
+        with self._lock:
+            subscriptions, self._subscriptions = self._subscriptions, []
+        self._disconnect_all(subscriptions)
+
+    def _disconnect_all(self, subscriptions: list[tuple[str, Any, Any]]) -> None:
+        for key, sub, link in subscriptions:
+            try:
+                fut = sub.signal.disconnect(link, _async=True)
+                if not _wait(fut, min(2.0, self.timeouts.subscribe_s)):
+                    log.debug("disconnecting %s timed out", key)
+            except RuntimeError as exc:  # the robot is gone: nothing to disconnect from
+                log.debug("disconnecting %s: %s", key, exc)
+
+    def _on_button(self, key: str, value: Any) -> None:
+        """A value arrived on a button key (qi thread): forward presses, drop releases and bounces."""
+        try:
+            pressed = float(value) >= 0.5
+        except (TypeError, ValueError):
+            return
+        if not pressed:
+            return
+        now = time.monotonic()
+        with self._lock:
+            callback = self._button_callback
+            if callback is None:
+                return
+            last = self._last_press.get(key)
+            if last is not None and now - last < self.debounce_s:
+                return
+            self._last_press[key] = now
+        try:
+            callback(BUTTON_LETTERS[key], now)
+        except Exception:  # an exception here would vanish inside qi: log it loudly instead
+            log.exception("head-button callback failed for %s", key)
+
+    # -- calls ---------------------------------------------------------------------------------
+
+    def _service(self, name: str) -> Any:
+        with self._lock:
+            proxy = self._services.get(name)
+        if proxy is not None:
+            return proxy
+        self._check_open()
+        try:
+            proxy = self._remote(self._session, "service", name, timeout_s=self.timeouts.default_s, what=f"service {name}")
+        except RuntimeError as exc:
+            if "cannot find service" in str(exc).lower():
+                raise MissingService(
+                    f"the robot at {self.url} offers no {name} service; check its NAOqi version "
+                    "or turn off the feature that needs it"
+                ) from None
+            raise
+        with self._lock:
+            self._services[name] = proxy
+        return proxy
+
+    def _wait_for_service(self, name: str, timeout_s: float) -> None:
+        """After a robot restart its services register one by one: wait until ``name`` is there."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                self._service(name)
+                return
+            except (RobotConnectionLost, MissingService):
+                if time.monotonic() >= deadline or not self._session.isConnected():
+                    raise RobotUnavailable(
+                        f"the robot at {self.url} came back without its {name} service within {timeout_s:g} s; "
+                        "wait until it has finished booting and try again"
+                    ) from None
+                time.sleep(0.1)
+
+    def _call(self, service: str, method: str, *args: Any, timeout_s: float) -> Any:
+        proxy = self._service(service)
+        return self._remote(proxy, method, *args, timeout_s=timeout_s, what=f"{service}.{method}")
+
+    def _remote(self, target: Any, method: str, *args: Any, timeout_s: float, what: str) -> Any:
+        """Run a qi call as a future with a deadline; map a lost link to RobotConnectionLost."""
+        self._check_open()
+        try:
+            future = getattr(target, method)(*args, _async=True)
+        except RuntimeError as exc:
+            raise self._translate(exc, what) from None
+        if not _wait(future, timeout_s):
+            raise RobotConnectionLost(
+                f"{what} on the robot at {self.url} did not answer within {timeout_s:g} s; the robot may be frozen or unreachable"
+            )
+        if future.hasError():
+            raise self._translate(RuntimeError(future.error()), what) from None
+        return future.value()
+
+    def _translate(self, exc: RuntimeError, what: str) -> Exception:
+        # Remote Python errors arrive with a traceback ("At: ..."): keep the first line.
+        lines = [ln.strip() for ln in str(exc).strip().splitlines() if ln.strip()]
+        message = lines[0] if lines else type(exc).__name__
+        if is_connection_lost(message) or not self.is_connected():
+            return RobotConnectionLost(f"{what}: lost the robot at {self.url} ({message})")
+        return RuntimeError(f"{what} failed on the robot at {self.url}: {message}")
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError(f"the connection to the robot at {self.url} is closed")
+
+
+class _ButtonHandler:
+    """A signal callback bound to one key; a class (not a lambda) so qi keeps a stable reference."""
+
+    def __init__(self, robot: NaoqiRobot, key: str) -> None:
+        self._robot = robot
+        self._key = key
+
+    def __call__(self, value: Any) -> None:
+        self._robot._on_button(self._key, value)
+
+
+def _as_credentials(credentials: tuple[str, str] | Credentials) -> Credentials:
+    if isinstance(credentials, Credentials):
+        return credentials
+    try:
+        user, password = credentials
+    except (TypeError, ValueError):
+        raise ConfigError("robot credentials must be a (user, password) pair") from None
+    return Credentials(str(user), str(password))
+
+
+def _new_session(creds: Credentials | None) -> Any:
+    session = qi.Session()
+    if creds is not None:
+        session.setClientAuthenticatorFactory(_AuthenticatorFactory(creds))
+    return session
+
+
+def _connect_session(session: Any, url: str, deadline_s: float) -> None:
+    """Connect ``session`` to ``url`` within ``deadline_s``; close it and raise RobotUnavailable otherwise.
+
+    ``Session.connect`` has no timeout of its own against a port that accepts TCP but never
+    speaks qi, hence the future and the close on deadline.
+    """
+    where = redact_url(url)
+    future = session.connect(url, _async=True)
+    if not _wait(future, deadline_s):
+        session.close()
+        raise RobotUnavailable(
+            f"no answer from the robot at {where} within {deadline_s:g} s (something listens there but does not "
+            f"speak NAOqi): is the address right and NAOqi running? {STANDIN_HINT}"
+        )
+    if future.hasError():
+        error = future.error()
+        session.close()
+        raise RobotUnavailable(f"cannot reach the robot at {where}: {_explain(error)}; {STANDIN_HINT}")
+
+
+def _explain(error: str) -> str:
+    """A short, user-facing reading of a qi connect error."""
+    text = error.lower()
+    if "refused" in text:
+        return "connection refused - is the robot on, is the address right, is NAOqi running on that port?"
+    if "auth" in text:
+        return f"authentication failed - check {USER_ENV} / {PASSWORD_ENV} (NAOqi 2.9)"
+    if "unreachable" in text or "no route" in text or "timed out" in text:
+        return "network unreachable - is the laptop on the robot's network?"
+    if "resolve" in text or "host not found" in text or "name" in text:
+        return "unknown host name - check the address"
+    return f"{error.strip()} - is the robot on and the address right?"
