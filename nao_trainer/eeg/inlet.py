@@ -1,0 +1,208 @@
+"""Find an EEG stream over Lab Streaming Layer (a Muse as muselsl publishes it) and read it.
+
+``resolve_eeg`` looks for streams of a type (default ``EEG``), optionally a name or source_id, and
+prefers a stream named ``Muse``. ``EEGInlet`` reads the channel labels from the stream description
+(``channels/channel/label``), keeps the scalp channels TP9, AF7, AF8, TP10 (dropping ``Right AUX``),
+and returns samples stamped on this machine's LSL clock: it applies the inlet's time correction
+and also maps streams stamped with wall-clock time (muselsl without ``--lsltime``).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import EEGUnavailable
+from .lsl_scope import configure_lsl
+
+log = logging.getLogger(__name__)
+
+SCALP_LABELS = ("TP9", "AF7", "AF8", "TP10")
+#: Stamps further than this from the local clock are not on the LSL clock (seconds).
+CLOCK_MISMATCH_S = 5.0
+
+
+@dataclass(frozen=True)
+class StreamQuery:
+    """Which stream to use: a type, and optionally an exact name and/or source_id."""
+
+    stream_type: str = "EEG"
+    name: str | None = None
+    source_id: str | None = None
+    prefer_name: str = "Muse"
+
+    def predicate(self) -> str:
+        """An XPath predicate for ``pylsl.resolve_bypred``."""
+        parts = [f"type='{_quote(self.stream_type)}'"]
+        if self.name:
+            parts.append(f"name='{_quote(self.name)}'")
+        if self.source_id:
+            parts.append(f"source_id='{_quote(self.source_id)}'")
+        return " and ".join(parts)
+
+    def describe(self) -> str:
+        bits = [f"type {self.stream_type!r}"]
+        if self.name:
+            bits.append(f"name {self.name!r}")
+        if self.source_id:
+            bits.append(f"source_id {self.source_id!r}")
+        return ", ".join(bits)
+
+
+def _quote(value: str) -> str:
+    if "'" in value:
+        raise ValueError(f"LSL stream properties cannot contain a quote: {value!r}")
+    return value
+
+
+def resolve_eeg(query: StreamQuery, timeout_s: float, scope: str = "machine"):
+    """The best matching ``pylsl.StreamInfo`` within ``timeout_s``, or None.
+
+    Returns as soon as one match is found. Several matches: a stream named ``prefer_name`` wins,
+    then the first found (logged, so the operator sees which one was taken).
+    """
+    configure_lsl(scope)
+    import pylsl
+
+    found = pylsl.resolve_bypred(query.predicate(), 1, float(timeout_s))
+    if not found:
+        return None
+    more = pylsl.resolve_bypred(query.predicate(), 2, 0.2)  # any others announced by now
+    candidates = {(i.source_id(), i.name(), i.hostname()): i for i in [*found, *more]}
+    infos = list(candidates.values())
+    preferred = [i for i in infos if i.name() == query.prefer_name]
+    chosen = (preferred or infos)[0]
+    if len(infos) > 1:
+        log.warning("%d EEG streams match %s; using %r (source_id %r)", len(infos), query.describe(),
+                    chosen.name(), chosen.source_id())
+    return chosen
+
+
+def channel_labels(info) -> list[str]:
+    """Channel labels from ``desc/channels/channel/label`` (empty strings where missing)."""
+    labels = []
+    ch = info.desc().child("channels").child("channel")
+    while not ch.empty() and len(labels) < info.channel_count():
+        labels.append(ch.child_value("label").strip())
+        ch = ch.next_sibling()
+    return labels
+
+
+def scalp_channels(labels: list[str], n_channels: int) -> tuple[tuple[int, ...], tuple[str, ...], str]:
+    """Indices and names of the scalp channels, and a warning ("" if none).
+
+    Known Muse labels are used in stream order; without them, the first four channels are assumed
+    to be TP9, AF7, AF8, TP10 (muselsl's order) and a warning says so.
+    """
+    upper = [label.upper() for label in labels]
+    idx = tuple(i for i, label in enumerate(upper) if label in SCALP_LABELS)
+    if idx:
+        return idx, tuple(labels[i] for i in idx), ""
+    n = min(4, n_channels)
+    warning = (f"the stream has no Muse channel labels ({', '.join(labels) or 'none'}); "
+               f"assuming its first {n} channels are {', '.join(SCALP_LABELS[:n])}")
+    return tuple(range(n)), SCALP_LABELS[:n], warning
+
+
+@dataclass
+class EEGInlet:
+    """An open LSL inlet on one EEG stream, reading scalp channels stamped on the local LSL clock."""
+
+    inlet: object
+    name: str
+    source_id: str
+    hostname: str
+    fs: float
+    n_channels: int
+    labels: tuple[str, ...]  # all channel labels of the stream
+    scalp_index: tuple[int, ...]
+    scalp_labels: tuple[str, ...]
+    warnings: list[str] = field(default_factory=list)
+    offset: float = 0.0  # add to a stream stamp to get local LSL time
+    wall_clock: bool | None = None  # None until the first samples tell
+    _max_samples: int = 1024
+
+    @classmethod
+    def open(cls, info, scope: str = "machine", correction_timeout_s: float = 2.0) -> "EEGInlet":
+        """Open an inlet on ``info`` (from :func:`resolve_eeg`); ``recover=True`` reconnects by itself."""
+        configure_lsl(scope)
+        import pylsl
+
+        inlet = pylsl.StreamInlet(info, max_buflen=60, recover=True)
+        full = inlet.info(correction_timeout_s)
+        labels = channel_labels(full)
+        idx, scalp, warning = scalp_channels(labels, full.channel_count())
+        fs = full.nominal_srate()
+        if fs <= 0:
+            raise EEGUnavailable(f"LSL stream {full.name()!r} (source_id {full.source_id()!r}) has an irregular "
+                                 "rate; an EEG stream needs a nominal sampling rate")
+        obj = cls(inlet=inlet, name=full.name(), source_id=full.source_id(), hostname=full.hostname(), fs=fs,
+                  n_channels=full.channel_count(), labels=tuple(labels), scalp_index=idx, scalp_labels=scalp)
+        if warning:
+            obj.warnings.append(warning)
+            log.warning("%s", warning)
+        obj.refresh_offset(correction_timeout_s)
+        return obj
+
+    def refresh_offset(self, timeout_s: float = 2.0) -> None:
+        """Ask liblsl for the clock offset to the stream's host (blocks ~0.6 s the first time)."""
+        try:
+            self.offset = float(self.inlet.time_correction(timeout_s))
+        except Exception as exc:  # pylsl's TimeoutError/LostError are not builtins
+            log.warning("LSL time correction for %r failed (%s); keeping offset %.4f s", self.name, exc, self.offset)
+
+    def pull(self, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Scalp samples ``(n, n_scalp)`` float64 and local LSL stamps ``(n,)``; empty when none came.
+
+        Waits up to ``timeout_s`` for the first sample, then returns what is available.
+        """
+        x, ts = self.inlet.pull_chunk(timeout=timeout_s, max_samples=self._max_samples, min_samples=1,
+                                      as_numpy=True)
+        if x is None or len(ts) == 0:
+            return np.empty((0, len(self.scalp_index))), np.empty(0)
+        ts = np.asarray(ts, dtype=float) + self.offset
+        self._check_clock(float(ts[-1]))
+        if self.wall_clock:
+            ts = ts - self._wall_shift()
+        return np.asarray(x, dtype=float)[:, self.scalp_index], ts
+
+    @staticmethod
+    def _wall_shift() -> float:
+        import pylsl
+
+        return time.time() - pylsl.local_clock()
+
+    def _check_clock(self, last_stamp: float) -> None:
+        """Detect (again after a reconnection) whether the source stamps with wall-clock time."""
+        import pylsl
+
+        now = pylsl.local_clock()
+        on_lsl = abs(last_stamp - now) < CLOCK_MISMATCH_S
+        on_wall = abs(last_stamp - time.time()) < CLOCK_MISMATCH_S
+        if on_lsl and self.wall_clock is not False:
+            self.wall_clock = False
+        elif on_wall and not on_lsl and self.wall_clock is not True:
+            self.wall_clock = True
+            msg = (f"stream {self.name!r} is stamped with wall-clock time (muselsl without --lsltime?); "
+                   "mapping its stamps to the LSL clock")
+            self.warnings.append(msg)
+            log.warning("%s", msg)
+
+    def describe(self) -> dict:
+        """JSON-ready facts about the stream, for the session folder."""
+        return {"name": self.name, "source_id": self.source_id, "hostname": self.hostname,
+                "nominal_srate": self.fs, "channel_count": self.n_channels, "labels": list(self.labels),
+                "scalp_channels": list(self.scalp_labels), "time_offset_s": self.offset,
+                "wall_clock_stamps": self.wall_clock, "warnings": list(self.warnings)}
+
+    def close(self) -> None:
+        """Drop the inlet (liblsl disconnects when the last reference goes)."""
+        inlet, self.inlet = self.inlet, None
+        if inlet is not None:
+            try:
+                inlet.close_stream()
+            except Exception:  # already gone: nothing to release
+                pass
+            del inlet

@@ -1,0 +1,70 @@
+"""Session events as an LSL marker stream, so EEG and events land in one synchronised recording.
+
+The outlet is named and typed ``Markers`` (what LabRecorder and ``muselsl record`` look for), has one
+string channel at an irregular rate and a stable source_id, so recorders reconnect after a restart.
+Events are stamped with ``pylsl.local_clock()`` at the moment they are pushed. Names follow
+``session_start``, ``turn_3_start``, ``turn_3_listening_start``, ``turn_3_listening_end``, ...
+"""
+from __future__ import annotations
+
+import re
+import socket
+import threading
+
+from .lsl_scope import configure_lsl
+
+_SAFE = re.compile(r"[^A-Za-z0-9_.-]+")
+
+
+def marker_source_id(pseudonym: str | None = None) -> str:
+    """``nao-trainer-markers-<pseudonym or host>``: stable across runs for the same participant/host."""
+    who = pseudonym or socket.gethostname() or "host"
+    return f"nao-trainer-markers-{_SAFE.sub('-', who)}"
+
+
+def event_name(event: str, turn: int | None = None) -> str:
+    """``event`` prefixed with ``turn_<n>_`` when a turn is given: ``event_name("listening_start", 3)``."""
+    event = _SAFE.sub("_", event.strip()) or "event"
+    return event if turn is None else f"turn_{int(turn)}_{event}"
+
+
+class MarkerOutlet:
+    """One ``Markers`` outlet. ``push`` is thread-safe and returns the LSL time it stamped."""
+
+    def __init__(self, source_id: str | None = None, name: str = "Markers", scope: str = "machine") -> None:
+        configure_lsl(scope)
+        import pylsl
+
+        self._pylsl = pylsl
+        self.source_id = source_id or marker_source_id()
+        info = pylsl.StreamInfo(name, "Markers", 1, pylsl.IRREGULAR_RATE, pylsl.cf_string, self.source_id)
+        info.desc().append_child_value("manufacturer", "nao-trainer")
+        self._outlet = pylsl.StreamOutlet(info)
+        self._lock = threading.Lock()
+        self.pushed = 0
+
+    def push(self, event: str, turn: int | None = None) -> float:
+        """Publish one event now; returns its LSL timestamp (0.0 when the outlet is closed)."""
+        name = event_name(event, turn)
+        with self._lock:
+            if self._outlet is None:
+                return 0.0
+            stamp = self._pylsl.local_clock()
+            self._outlet.push_sample([name], stamp)
+            self.pushed += 1
+        return stamp
+
+    def has_consumers(self) -> bool:
+        with self._lock:
+            return bool(self._outlet is not None and self._outlet.have_consumers())
+
+    def close(self) -> None:
+        """Destroy the outlet (recorders see the stream end)."""
+        with self._lock:
+            self._outlet = None
+
+    def __enter__(self) -> "MarkerOutlet":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,586 @@
+"""The live engagement monitor: an EEG stream over LSL turned into per-phase engagement for a session.
+
+``open_monitor(mode, eeg_cfg, session_dir, rng)`` is what the session calls. It returns an
+``EngagementMonitor`` (see ``nao_trainer.ports``):
+
+* ``"lsl"``: resolves a stream (a Muse via muselsl, or any EEG stream named in the study config);
+* ``"simulated"``: starts a :class:`~nao_trainer.eeg.simulated_muse.SimulatedMuse` in this process and
+  monitors it over a real LSL stream; ``set_target`` drives its engagement;
+* ``"off"``: ``ports.NullMonitor``.
+
+A background thread pulls chunks, feeds ``core.engagement.OnlineEngagement`` (sliding windows,
+band powers, EWMA) and keeps the window results on the local LSL clock. Phases are delimited by
+``local_clock()`` at ``begin_phase`` / ``end_phase``; ``end_phase`` aggregates the windows that end
+inside the phase (``core.engagement.aggregate_phase``). Normalisation: an ``EngagementNormaliser``
+fitted on the baseline phase (greeting and instructions), then updated with every phase's windows
+(running bounds). Without a baseline the running bounds alone apply, so the first phases have no
+normalised value until enough windows were seen (``engagement`` None, ``index`` still given).
+
+Nothing is invented: a phase without enough clean signal returns ``engagement=None`` with the
+reason. A stream that stops delivering for ``loss_timeout_s`` is marked lost (event, gap record);
+the inlet reconnects by itself when a stream with the same source_id returns, and the gap is
+closed. Files in ``<session>/eeg/``: ``stream.json``, ``events.csv``, ``windows.csv``,
+``phases.csv``, ``gaps.csv`` and ``raw.csv`` (scalp samples with LSL stamps), all flushed as written.
+"""
+from __future__ import annotations
+
+import csv
+import itertools
+import os
+import json
+import logging
+import threading
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..core.engagement import (EngagementNormaliser, OnlineEngagement, QualityThresholds, WindowResult,
+                               aggregate_phase)
+from ..errors import ConfigError, EEGUnavailable
+from ..ports import EngagementMonitor, NullMonitor, PhaseEngagement
+from .inlet import EEGInlet, StreamQuery, resolve_eeg
+from .lsl_scope import SCOPES, configure_lsl
+from .markers import MarkerOutlet, event_name, marker_source_id
+
+log = logging.getLogger(__name__)
+
+MODES = ("off", "simulated", "lsl")
+PHASES = ("baseline", "listening", "answer")
+_SIM_COUNTER = itertools.count(1)
+
+
+# ----------------------------------------------------------------------------------------------
+# Configuration
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Processing:
+    """Engagement processing options (``eeg.processing`` in a study config).
+
+    window_s / hop_s: analysis window and step (2 s windows every 0.25 s: 1 Hz Welch resolution,
+    four values a second). ewma_a: smoothing factor a of ``s_t = a s_(t-1) + (1-a) y_t``; 0.75 at
+    4 windows/s gives a time constant hop/(1-a) = 1 s, the authors' 0.9 at their 10 Hz band rate.
+    resolve_timeout_s: how long to look for the stream at start. loss_timeout_s: silence after
+    which the stream counts as lost. min_quality: clean fraction a phase needs for a value.
+    min_clean_channels: clean scalp channels a window needs. gap_tolerance_s: a jump in sample
+    stamps larger than this restarts the windows. end_wait_s: longest wait at a phase end for
+    samples still in flight. record_raw: save the scalp samples to ``eeg/raw.csv``.
+    """
+
+    window_s: float = 2.0
+    hop_s: float = 0.25
+    ewma_a: float = 0.75
+    resolve_timeout_s: float = 5.0
+    loss_timeout_s: float = 1.0
+    min_quality: float = 0.5
+    min_clean_channels: int = 2
+    gap_tolerance_s: float = 0.1
+    end_wait_s: float = 0.04
+    record_raw: bool = True
+
+    def __post_init__(self) -> None:
+        rules = {
+            "window_s": (0.25, 30.0), "hop_s": (0.01, 30.0), "ewma_a": (0.0, 0.999),
+            "resolve_timeout_s": (0.0, 120.0), "loss_timeout_s": (0.1, 60.0), "min_quality": (0.0, 1.0),
+            "min_clean_channels": (1, 4), "gap_tolerance_s": (0.0, 10.0), "end_wait_s": (0.0, 1.0),
+        }
+        for key, (lo, hi) in rules.items():
+            value = getattr(self, key)
+            if not lo <= value <= hi:
+                raise ConfigError(f"eeg.processing.{key}: {value!r} is out of range; use a value in [{lo}, {hi}]")
+        if self.hop_s > self.window_s:
+            raise ConfigError(f"eeg.processing.hop_s: {self.hop_s} exceeds window_s {self.window_s}; "
+                              "use a hop no longer than the window")
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any] | None) -> "Processing":
+        """Validate ``eeg.processing``; unknown keys and wrong types raise ``ConfigError`` naming the key."""
+        data = dict(data or {})
+        known = {f.name: f for f in fields(cls)}
+        values: dict[str, Any] = {}
+        for key, value in data.items():
+            if key not in known:
+                raise ConfigError(f"eeg.processing.{key}: unknown key; known keys are {', '.join(known)}")
+            default = known[key].default
+            if isinstance(default, bool):
+                if not isinstance(value, bool):
+                    raise ConfigError(f"eeg.processing.{key}: must be true or false, got {value!r}")
+            elif isinstance(default, int):
+                if isinstance(value, bool) or not isinstance(value, int):
+                    raise ConfigError(f"eeg.processing.{key}: must be an integer, got {value!r}")
+            elif isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ConfigError(f"eeg.processing.{key}: must be a number, got {value!r}")
+            values[key] = float(value) if isinstance(default, float) else value
+        return cls(**values)
+
+
+@dataclass(frozen=True)
+class EEGSettings:
+    """The ``eeg`` section of a study config, validated."""
+
+    mode: str = "simulated"
+    required: bool = False
+    stream_type: str = "EEG"
+    stream_name: str | None = None
+    source_id: str | None = None
+    lsl_scope: str = "machine"
+    processing: Processing = field(default_factory=Processing)
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any] | None, mode: str | None = None) -> "EEGSettings":
+        data = dict(data or {})
+        known = {f.name for f in fields(cls)}
+        for key in data:
+            if key not in known:
+                raise ConfigError(f"eeg.{key}: unknown key; known keys are {', '.join(sorted(known))}")
+        mode = mode or data.get("mode", "simulated")
+        if mode not in MODES:
+            raise ConfigError(f"eeg.mode: {mode!r} is not one of {', '.join(MODES)}")
+        scope = data.get("lsl_scope", "machine")
+        if scope not in SCOPES:
+            raise ConfigError(f"eeg.lsl_scope: {scope!r} is not one of {', '.join(SCOPES)}")
+        for key in ("stream_type", "stream_name", "source_id"):
+            value = data.get(key)
+            if value is not None and (not isinstance(value, str) or not value.strip() or "'" in value):
+                raise ConfigError(f"eeg.{key}: must be a non-empty text without quotes, got {value!r}")
+        if not isinstance(data.get("required", False), bool):
+            raise ConfigError(f"eeg.required: must be true or false, got {data['required']!r}")
+        return cls(mode=mode, required=data.get("required", False), stream_type=data.get("stream_type") or "EEG",
+                   stream_name=data.get("stream_name"), source_id=data.get("source_id"), lsl_scope=scope,
+                   processing=Processing.from_mapping(data.get("processing")))
+
+
+# ----------------------------------------------------------------------------------------------
+# Session files
+# ----------------------------------------------------------------------------------------------
+
+
+class _CsvLog:
+    """An append-only CSV file that is flushed after every write (nothing lost on a crash)."""
+
+    def __init__(self, path: Path, header: list[str]) -> None:
+        self.path = path
+        new = not path.exists()
+        self._fh = open(path, "a", newline="", encoding="utf-8")
+        self._w = csv.writer(self._fh)
+        if new:
+            self._w.writerow(header)
+            self._fh.flush()
+
+    def write(self, rows: list[list[Any]], flush: bool = True) -> None:
+        self._w.writerows(rows)
+        if flush:
+            self._fh.flush()
+
+    def raw_file(self):
+        return self._fh
+
+    def close(self) -> None:
+        if not self._fh.closed:
+            self._fh.flush()
+            self._fh.close()
+
+
+def _fmt(v: float | None, digits: int = 6) -> str:
+    return "" if v is None or not np.isfinite(v) else f"{v:.{digits}g}"
+
+
+class _SessionFiles:
+    """The monitor's files in ``<session>/eeg/`` (no files when there is no session folder)."""
+
+    def __init__(self, session_dir: Path | None) -> None:
+        self.dir = None if session_dir is None else Path(session_dir) / "eeg"
+        self._logs: dict[str, _CsvLog] = {}
+        self.lock = threading.Lock()  # the reader thread and the session both write
+        if self.dir is not None:
+            self.dir.mkdir(parents=True, exist_ok=True)
+
+    def log(self, name: str, header: list[str]) -> _CsvLog | None:
+        if self.dir is None:
+            return None
+        with self.lock:
+            if name not in self._logs:
+                self._logs[name] = _CsvLog(self.dir / name, header)
+            return self._logs[name]
+
+    def write(self, name: str, header: list[str], rows: list[list[Any]], flush: bool = True) -> None:
+        log_ = self.log(name, header)
+        if log_ is not None:
+            with self.lock:
+                log_.write(rows, flush)
+
+    def write_json(self, name: str, data: dict) -> None:
+        if self.dir is not None:
+            (self.dir / name).write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+
+    def close(self) -> None:
+        with self.lock:
+            for log_ in self._logs.values():
+                log_.close()
+
+
+EVENTS_HEADER = ["lsl_time", "event", "detail"]
+WINDOWS_HEADER = ["turn", "phase", "t_end", "index_raw", "index_smoothed", "engagement", "clean_fraction", "reason"]
+PHASES_HEADER = ["turn", "phase", "t_begin", "t_end", "engagement", "engagement_index", "eeg_quality",
+                 "n_windows", "lost_s", "reason"]
+GAPS_HEADER = ["start", "end", "duration_s", "kind"]
+
+
+# ----------------------------------------------------------------------------------------------
+# The monitor
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Phase:
+    name: str
+    turn: int | None
+    t0: float
+
+
+@dataclass
+class Gap:
+    """A period without samples: ``end`` is None while it lasts."""
+
+    start: float
+    end: float | None = None
+    kind: str = "stream lost"
+
+    def overlap(self, t0: float, t1: float, now: float) -> float:
+        end = now if self.end is None else self.end
+        return max(0.0, min(t1, end) - max(t0, self.start))
+
+
+class LslMonitor:
+    """``ports.EngagementMonitor`` over one LSL EEG stream. Build it with :func:`open_monitor`."""
+
+    def __init__(self, settings: EEGSettings, query: StreamQuery, session_dir: Path | None,
+                 inlet: EEGInlet | None, markers: MarkerOutlet | None, unavailable_reason: str = "",
+                 simulator=None) -> None:
+        import pylsl
+
+        self._clock = pylsl.local_clock
+        self.settings = settings
+        self.proc = settings.processing
+        self.query = query
+        self.files = _SessionFiles(session_dir)
+        self.markers = markers
+        self.simulator = simulator
+        self.inlet: EEGInlet | None = None
+        self.engine: OnlineEngagement | None = None
+        self.normaliser = EngagementNormaliser()
+        self.windows: list[WindowResult] = []
+        self.gaps: list[Gap] = []
+        self.phases: list[tuple[_Phase, float, PhaseEngagement]] = []
+        self.unavailable_reason = unavailable_reason
+        self.errors = 0
+        self.samples_received = 0
+        self.thread_cpu_s = 0.0  # CPU time of the reader thread (benchmarks)
+        self._phase: _Phase | None = None
+        self._cond = threading.Condition()
+        self._stop = threading.Event()
+        self._last_arrival = self._clock()
+        self._last_stamp = -np.inf
+        self._raw_flushed = -np.inf
+        self._lost = False
+        self._closed = False
+        if inlet is not None:
+            self._attach(inlet)
+        self._thread = threading.Thread(target=self._run, name="eeg-monitor", daemon=True)
+        self._thread.start()
+
+    # -- state --------------------------------------------------------------------------------
+
+    @property
+    def available(self) -> bool:
+        """True while a stream is attached and delivering."""
+        return self.inlet is not None and not self._lost
+
+    @property
+    def status(self) -> str:
+        if self.inlet is None:
+            return "unavailable"
+        return "lost" if self._lost else "streaming"
+
+    def _attach(self, inlet: EEGInlet) -> None:
+        self.inlet = inlet
+        p = self.proc
+        self.engine = OnlineEngagement(
+            inlet.fs, len(inlet.scalp_index), window_s=p.window_s, hop_s=p.hop_s, a=p.ewma_a,
+            thresholds=QualityThresholds(), min_clean_channels=min(p.min_clean_channels, len(inlet.scalp_index)),
+            gap_factor=max(2.0, p.gap_tolerance_s * inlet.fs), channel_names=inlet.scalp_labels)
+        self.unavailable_reason = ""
+        self._last_arrival = self._clock()
+        self.files.write_json("stream.json", {**inlet.describe(), "lsl_scope": self.settings.lsl_scope,
+                                              "processing": asdict(self.proc)})
+        self._event("eeg_stream_found", f"{inlet.name} {inlet.source_id} {inlet.fs:g} Hz "
+                                        f"{'/'.join(inlet.scalp_labels)}")
+
+    def _event(self, event: str, detail: str = "", turn: int | None = None, publish: bool = True) -> float:
+        name = event_name(event, turn)
+        stamp = self.markers.push(name) if (publish and self.markers is not None) else 0.0
+        stamp = stamp or self._clock()
+        self.files.write("events.csv", EVENTS_HEADER, [[f"{stamp:.6f}", name, detail]])
+        return stamp
+
+    # -- reader thread --------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        import time as _time
+
+        cpu0 = _time.thread_time()
+        consecutive = 0
+        while not self._stop.is_set():
+            try:
+                if self.inlet is None:
+                    self._try_resolve()
+                else:
+                    self._pull_once()
+                consecutive = 0
+            except Exception as exc:  # no exception may escape: log, count, mark, carry on
+                consecutive += 1
+                self.errors += 1
+                log.warning("EEG monitor: %s: %s", type(exc).__name__, exc)
+                self.files.write("events.csv", EVENTS_HEADER,
+                                 [[f"{self._clock():.6f}", "eeg_error", f"{type(exc).__name__}: {exc}"]])
+                if consecutive >= 20:
+                    self.unavailable_reason = f"EEG reader failed repeatedly ({type(exc).__name__}: {exc})"
+                    self._mark_lost("reader failed")
+                    self._stop.wait(1.0)
+                else:
+                    self._stop.wait(0.05)
+            self.thread_cpu_s = _time.thread_time() - cpu0
+
+    def _try_resolve(self) -> None:
+        info = resolve_eeg(self.query, 0.5, self.settings.lsl_scope)
+        if info is not None and not self._stop.is_set():
+            self._attach(EEGInlet.open(info, self.settings.lsl_scope))
+        else:
+            self._stop.wait(1.5)
+
+    def _pull_once(self) -> None:
+        x, ts = self.inlet.pull(0.05)
+        now = self._clock()
+        if len(ts) == 0:
+            if not self._lost and now - self._last_arrival > self.proc.loss_timeout_s:
+                self._mark_lost("no samples for %.1f s" % (now - self._last_arrival))
+            return
+        results = self.engine.push(x, ts)
+        if self.proc.record_raw:
+            self._record_raw(x, ts)
+        with self._cond:
+            if self._lost:
+                self._mark_restored(float(ts[0]))
+            self._last_arrival = now
+            self._last_stamp = float(ts[-1])
+            self.samples_received += len(ts)
+            self.windows.extend(results)
+            self._prune()
+            self._cond.notify_all()
+
+    def _record_raw(self, x: np.ndarray, ts: np.ndarray) -> None:
+        labels = list(self.inlet.scalp_labels)
+        log_ = self.files.log("raw.csv", ["lsl_time", *labels])
+        if log_ is None:
+            return
+        block = np.column_stack([ts, x])
+        fh = log_.raw_file()
+        np.savetxt(fh, block, fmt=["%.6f"] + ["%.3f"] * len(labels), delimiter=",")
+        if ts[-1] - self._raw_flushed > 1.0:  # at most a second of samples is ever unflushed
+            fh.flush()
+            self._raw_flushed = float(ts[-1])
+
+    def _prune(self) -> None:
+        """Forget windows no open phase can still need (keeps ``end_phase`` cheap in long sessions)."""
+        if len(self.windows) > 4000:
+            horizon = (self._phase.t0 if self._phase else self._last_stamp) - 60.0
+            self.windows = [w for w in self.windows if w.t_end > horizon]
+
+    def _mark_lost(self, why: str) -> None:
+        with self._cond:
+            if self._lost:
+                return
+            self._lost = True
+            start = self._last_stamp if np.isfinite(self._last_stamp) else self._clock()
+            self.gaps.append(Gap(start))
+            self._cond.notify_all()
+        log.warning("EEG stream %r lost (%s); waiting for it to return", self.inlet.name if self.inlet else "?", why)
+        self._event("eeg_stream_lost", why)
+
+    def _mark_restored(self, first_stamp: float) -> None:
+        """Called with ``_cond`` held when samples arrive again after a loss."""
+        self._lost = False
+        gap = self.gaps[-1]
+        gap.end = first_stamp
+        self.files.write("gaps.csv", GAPS_HEADER,
+                         [[f"{gap.start:.6f}", f"{gap.end:.6f}", f"{gap.end - gap.start:.3f}", gap.kind]])
+        log.warning("EEG stream %r is back after %.1f s", self.inlet.name, gap.end - gap.start)
+        self._event("eeg_stream_restored", f"gap {gap.end - gap.start:.3f} s")
+
+    # -- EngagementMonitor ----------------------------------------------------------------------
+
+    def mark(self, event: str, turn: int | None = None) -> None:
+        """Publish a session event on the marker stream and log it to ``eeg/events.csv``."""
+        self._event(event, "", turn)
+
+    def set_target(self, engagement: float | None) -> None:
+        """Drive the simulated Muse (simulated mode); ignored for a real headband or None."""
+        if self.simulator is not None and engagement is not None:
+            self.simulator.set_target(float(np.clip(engagement, 0.0, 1.0)))
+
+    def begin_phase(self, phase: str, turn: int | None) -> None:
+        """Open a phase ("baseline", "listening" or "answer") now, on the LSL clock."""
+        if phase not in PHASES:
+            raise ValueError(f"phase must be one of {', '.join(PHASES)}, got {phase!r}")
+        if self._phase is not None:
+            log.warning("EEG phase %s of turn %s was not ended; discarding it", self._phase.name, self._phase.turn)
+        t0 = self._event(f"{phase}_start", "", turn)
+        self._phase = _Phase(phase, turn, t0)
+
+    def end_phase(self) -> PhaseEngagement:
+        """Close the open phase and return its engagement (or why there is none)."""
+        ph = self._phase
+        if ph is None:
+            return PhaseEngagement(None, None, 0.0, "no EEG phase was open")
+        self._phase = None
+        t1 = self._event(f"{ph.name}_end", "", ph.turn)
+        windows = self._windows_until(ph.t0, t1)
+        result, rows = self._summarise(ph, t1, windows)
+        self.phases.append((ph, t1, result))
+        self._write_phase(ph, t1, result, rows)
+        return result
+
+    def _windows_until(self, t0: float, t1: float) -> list[WindowResult]:
+        """The phase's windows, after waiting (at most ``end_wait_s``) for samples still in flight."""
+        deadline = t1 + self.proc.end_wait_s
+        hop = self.proc.hop_s
+        with self._cond:
+            while self.available:
+                # done once samples reach t1, or once the next window would end after t1 anyway
+                done = self._last_stamp >= t1 or bool(self.windows and self.windows[-1].t_end + hop > t1 + 1e-3)
+                remaining = deadline - self._clock()
+                if done or remaining <= 0:
+                    break
+                self._cond.wait(remaining)
+            return [w for w in self.windows if t0 < w.t_end <= t1]
+
+    def _summarise(self, ph: _Phase, t1: float, windows: list[WindowResult]):
+        now = self._clock()
+        lost_s = sum(g.overlap(ph.t0, t1, now) for g in self.gaps)
+        smooth = np.array([w.index_smoothed if w.usable else np.nan for w in windows], dtype=float)
+        finite = smooth[np.isfinite(smooth)]
+        if ph.name == "baseline":
+            self.normaliser.fit_baseline(finite)
+        else:
+            for v in finite:  # running bounds: every phase value widens the scale
+                self.normaliser.update(float(v))
+        agg = aggregate_phase(windows, ph.t0, t1, self.proc.hop_s, self.normaliser, self.proc.min_quality)
+        reason = agg.reason
+        if self.inlet is None:
+            reason = f"EEG unavailable: {self.unavailable_reason or 'no stream'}"
+        elif agg.index is None and lost_s > 0:
+            reason = f"stream lost for {lost_s:.1f} s of the phase ({reason})"
+        elif agg.engagement is None and agg.index is not None:
+            reason = (f"no normalisation scale yet ({len(self.normaliser.history)} windows seen, "
+                      f"{self.normaliser.min_values} needed; no baseline phase)"
+                      if self.normaliser.baseline_n_ < self.normaliser.min_values else "normalisation scale is flat")
+        engagement = agg.engagement if agg.index is not None else None
+        norm = self.normaliser.normalise(smooth)
+        result = PhaseEngagement(engagement, agg.index, round(agg.quality, 4), reason if engagement is None else "",
+                                 series=smooth)
+        rows = [[ph.turn if ph.turn is not None else "", ph.name, f"{w.t_end:.6f}", _fmt(w.index_raw),
+                 _fmt(w.index_smoothed), _fmt(float(n)), f"{w.clean_fraction:.3f}", w.reason]
+                for w, n in zip(windows, norm)]
+        return result, (rows, lost_s)
+
+    def _write_phase(self, ph: _Phase, t1: float, result: PhaseEngagement, rows_lost) -> None:
+        rows, lost_s = rows_lost
+        self.files.write("windows.csv", WINDOWS_HEADER, rows)
+        self.files.write("phases.csv", PHASES_HEADER, [[
+            ph.turn if ph.turn is not None else "", ph.name, f"{ph.t0:.6f}", f"{t1:.6f}", _fmt(result.engagement),
+            _fmt(result.index), f"{result.quality:.3f}", len(rows), f"{lost_s:.3f}", result.reason]])
+
+    def close(self) -> None:
+        """Stop the reader, record an open gap, close the inlet, the marker outlet, the simulator, files."""
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        self._thread.join(3.0)
+        if self.gaps and self.gaps[-1].end is None:
+            g = self.gaps[-1]
+            self.files.write("gaps.csv", GAPS_HEADER, [[f"{g.start:.6f}", "", "", f"{g.kind} (until the end)"]])
+        self._event("eeg_monitor_closed", f"{self.samples_received} samples, {len(self.gaps)} gaps")
+        if self.inlet is not None:
+            self.inlet.close()
+        if self.markers is not None:
+            self.markers.close()
+        if self.simulator is not None:
+            self.simulator.stop()
+        self.files.close()
+
+    def __enter__(self) -> "LslMonitor":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# ----------------------------------------------------------------------------------------------
+# Factory
+# ----------------------------------------------------------------------------------------------
+
+
+def _no_stream_message(query: StreamQuery, settings: EEGSettings) -> str:
+    return (f"no EEG stream ({query.describe()}) found by LSL in scope {settings.lsl_scope!r} within "
+            f"{settings.processing.resolve_timeout_s:g} s (eeg.stream_type / eeg.stream_name in the study config); "
+            "start the headband bridge (`muselsl stream --lsltime`) or `nao-trainer simulate-muse`, "
+            "or run with --eeg off / eeg.required: false")
+
+
+def open_monitor(mode: str, eeg_cfg: Mapping[str, Any] | None, session_dir: Path | None,
+                 rng: np.random.Generator, pseudonym: str | None = None) -> EngagementMonitor:
+    """The session's engagement monitor for ``mode`` "lsl", "simulated" or "off".
+
+    ``eeg_cfg`` is the study's ``eeg`` section (validated here: a wrong key raises ``ConfigError``
+    naming it). "lsl" without a stream: ``EEGUnavailable`` when ``required``, otherwise a monitor
+    whose phases say "EEG unavailable" and that attaches if a stream appears later.
+    "simulated" starts a simulated Muse (seeded from ``rng``) that ``set_target`` drives.
+    """
+    settings = EEGSettings.from_mapping(eeg_cfg, mode)
+    if settings.mode == "off":
+        return NullMonitor()
+    configure_lsl(settings.lsl_scope)
+    simulator = None
+    query = StreamQuery(settings.stream_type, settings.stream_name, settings.source_id)
+    if settings.mode == "simulated":
+        from .simulated_muse import SimulatedMuse, fake_mac
+
+        # The simulator draws from its own generator (seeded from the session's) in its own thread,
+        # so the session's random stream stays reproducible.
+        sim_rng = np.random.default_rng(int(rng.integers(0, 2**63 - 1)))
+        # pid + a counter keep source_ids unique across parallel processes and monitors (no cross-talk)
+        source_id = f"Muse{fake_mac(sim_rng)}-sim{os.getpid()}-{next(_SIM_COUNTER)}"
+        simulator = SimulatedMuse.start(sim_rng, target=0.5, source_id=source_id, scope=settings.lsl_scope)
+        query = StreamQuery("EEG", None, source_id)
+    markers = None
+    try:
+        timeout = settings.processing.resolve_timeout_s if simulator is None else max(5.0, settings.processing.resolve_timeout_s)
+        info = resolve_eeg(query, timeout, settings.lsl_scope)
+        if info is None and (settings.required or simulator is not None):
+            raise EEGUnavailable(_no_stream_message(query, settings))
+        inlet = EEGInlet.open(info, settings.lsl_scope) if info is not None else None
+        reason = "" if inlet is not None else _no_stream_message(query, settings)
+        if inlet is None:
+            log.warning("EEG unavailable: %s", reason)
+        markers = MarkerOutlet(marker_source_id(pseudonym), scope=settings.lsl_scope)
+        return LslMonitor(settings, query, session_dir, inlet, markers, reason, simulator)
+    except BaseException:
+        if simulator is not None:
+            simulator.stop()
+        if markers is not None:
+            markers.close()
+        raise
