@@ -436,6 +436,16 @@ class EngagementNormaliser:
             self._refresh()
         return float(self.normalise(np.array([value]))[0])
 
+    def extend(self, values: Iterable[float]) -> np.ndarray:
+        """Add a batch of values (e.g. one phase) to the running bounds, then return them normalised.
+
+        Same rule as calling :meth:`update` for each, but the bounds are refreshed once, after the batch.
+        """
+        v = np.asarray(list(values) if not isinstance(values, np.ndarray) else values, dtype=float)
+        self.history.extend(float(x) for x in v[np.isfinite(v)])
+        self._refresh()
+        return self.normalise(v)
+
     @property
     def ready(self) -> bool:
         return bool(np.isfinite(self.lo_) and self.hi_ - self.lo_ >= self.min_span)
