@@ -28,7 +28,7 @@ log = logging.getLogger(__name__)
 USER_ENV, PASSWORD_ENV = "NAO_USER", "NAO_PASSWORD"
 DEFAULT_PORTS = {"tcp": 9559, "tcps": 9503}
 BODY_LANGUAGE_MODES = ("disabled", "random", "contextual")
-STANDIN_HINT = "for a session without a robot start `nao-trainer mock-robot` and use tcp://127.0.0.1:9559"
+STANDIN_HINT = "(no robot at hand? start `nao-trainer mock-robot` and use tcp://127.0.0.1:9559)"
 
 # qi reports every failure as RuntimeError; these messages mean the link to the robot is gone.
 _LOST_MARKERS = (
@@ -536,7 +536,7 @@ def _connect_session(session: Any, url: str, deadline_s: float) -> None:
     if future.hasError():
         error = future.error()
         session.close()
-        raise RobotUnavailable(f"cannot reach the robot at {where}: {_explain(error)}; {STANDIN_HINT}")
+        raise RobotUnavailable(f"cannot reach the robot at {where}: {_explain(error)} {STANDIN_HINT}")
 
 
 def _explain(error: str) -> str:

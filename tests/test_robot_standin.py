@@ -1,0 +1,334 @@
+"""The NAO stand-in over real qi on 127.0.0.1: NAOqi names and signatures, timing, buttons, transcript, CLI."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+import qi
+
+from nao_trainer.errors import ConfigError, RobotUnavailable
+from nao_trainer.robot.standin import (
+    READY_PREFIX,
+    SECONDS_PER_CHARACTER,
+    StandIn,
+    StandInClient,
+    button_key,
+    check_listen_url,
+    spawn_standin,
+)
+
+FAST = 50.0  # stand-in speed for tests that do not measure timing
+
+
+@pytest.fixture
+def standin():
+    s = StandIn.start(speed=FAST)
+    yield s
+    s.stop()
+
+
+@pytest.fixture
+def client(standin):
+    """A plain qi client session, as NAOqi SDK code would use it."""
+    session = qi.Session()
+    session.connect(standin.url)
+    yield session
+    session.close()
+
+
+def _calls(standin, service=None):
+    return [(e["service"], e["method"], e["args"]) for e in standin.transcript() if service in (None, e["service"])]
+
+
+class _Collector:
+    """Collects signal values from qi threads."""
+
+    def __init__(self):
+        self.values = []
+        self._cond = threading.Condition()
+
+    def __call__(self, value):
+        with self._cond:
+            self.values.append(value)
+            self._cond.notify_all()
+
+    def wait_for(self, n, timeout=3.0):
+        with self._cond:
+            self._cond.wait_for(lambda: len(self.values) >= n, timeout)
+        return list(self.values)
+
+
+@pytest.fixture
+def button_signal(client):
+    """Subscribe to FrontTactilTouched through ALMemory.subscriber; disconnected at teardown."""
+    memory = client.service("ALMemory")
+    sub = memory.subscriber("FrontTactilTouched")
+    got = _Collector()
+    link = sub.signal.connect(got)
+    yield memory, got
+    sub.signal.disconnect(link)
+
+
+def test_url_is_loopback_with_chosen_port(standin):
+    assert standin.url.startswith("tcp://127.0.0.1:")
+    assert int(standin.url.rsplit(":", 1)[1]) > 0
+
+
+def test_speech_sound_leds_posture_with_naoqi_signatures(standin, client):
+    client.service("ALTextToSpeech").say("Hello")
+    anim = client.service("ALAnimatedSpeech")
+    anim.say("Well done")
+    anim.say("Again", {"bodyLanguageMode": "disabled"})
+    client.service("ALAudioPlayer").playSine(440, 50, 0, 0.25)
+    leds = client.service("ALLeds")
+    leds.fadeRGB("FaceLeds", 0x00FF00, 0.1)
+    leds.fadeRGB("FaceLeds", 1.0, 0.5, 0.0, 0.1)
+    posture = client.service("ALRobotPosture")
+    assert posture.goToPosture("StandInit", 0.5) is True
+    assert posture.getPosture() == "StandInit"
+    assert _calls(standin) == [
+        ("ALTextToSpeech", "say", ["Hello"]),
+        ("ALAnimatedSpeech", "say", ["Well done"]),
+        ("ALAnimatedSpeech", "say", ["Again", {"bodyLanguageMode": "disabled"}]),
+        ("ALAudioPlayer", "playSine", [440, 50, 0, 0.25]),
+        ("ALLeds", "fadeRGB", ["FaceLeds", 0x00FF00, 0.1]),
+        ("ALLeds", "fadeRGB", ["FaceLeds", 1.0, 0.5, 0.0, 0.1]),
+        ("ALRobotPosture", "goToPosture", ["StandInit", 0.5]),
+    ]
+
+
+def test_text_to_speech_settings_round_trip(client):
+    tts = client.service("ALTextToSpeech")
+    tts.setLanguage("Greek")
+    assert tts.getLanguage() == "Greek"
+    tts.setParameter("speed", 80.0)
+    assert tts.getParameter("speed") == pytest.approx(80.0)
+    with pytest.raises(RuntimeError, match="unknown parameter"):
+        tts.getParameter("nonsense")
+
+
+@pytest.mark.parametrize(
+    "args, problem",
+    [
+        (("FaceLeds", 0xFF),  "expects"),
+        (("FaceLeds", 0x1000000, 0.1), "0xRRGGBB"),
+        (("FaceLeds", 2.0, 0.0, 0.0, 0.1), "0..1"),
+    ],
+)
+def test_fade_rgb_rejects_what_naoqi_rejects(client, args, problem):
+    with pytest.raises(RuntimeError, match=problem):
+        client.service("ALLeds").fadeRGB(*args)
+
+
+def test_bad_posture_and_gain_are_errors(client):
+    with pytest.raises(RuntimeError, match="unknown posture"):
+        client.service("ALRobotPosture").goToPosture("Moonwalk", 0.5)
+    with pytest.raises(RuntimeError, match="gain"):
+        client.service("ALAudioPlayer").playSine(440, 150, 0, 0.1)
+
+
+def _timed(fn, *args):
+    t0 = time.monotonic()
+    fn(*args)
+    return time.monotonic() - t0
+
+
+def test_speaking_time_scales_with_text_length_and_speed():
+    with StandIn.start(speed=10.0) as s:
+        session = qi.Session()
+        session.connect(s.url)
+        try:
+            tts = session.service("ALTextToSpeech")
+            short, long_ = "x" * 10, "x" * 50
+            d_short, d_long = _timed(tts.say, short), _timed(tts.say, long_)
+            s.set_speed(20.0)
+            d_long_fast = _timed(tts.say, long_)
+            beep = _timed(session.service("ALAudioPlayer").playSine, 440, 50, 0, 2.0)
+        finally:
+            session.close()
+    expected_long = SECONDS_PER_CHARACTER * 50 / 10.0  # 0.3 s
+    assert expected_long <= d_long < expected_long + 0.25
+    assert SECONDS_PER_CHARACTER * 10 / 10.0 <= d_short < d_long - 0.15
+    assert expected_long / 2 <= d_long_fast < d_long - 0.1
+    assert 2.0 / 20.0 <= beep < 2.0 / 20.0 + 0.25
+
+
+def test_long_speech_does_not_block_memory(standin, client):
+    """ALTextToSpeech is multi-threaded: a long say must not delay ALMemory or the control service."""
+    standin.set_speed(1.0)
+    fut = client.service("ALTextToSpeech").say("x" * 30, _async=True)  # 1.8 s
+    t0 = time.monotonic()
+    client.service("ALMemory").insertData("FrontTactilTouched", 0.0)
+    standin.press("B")
+    assert time.monotonic() - t0 < 0.8
+    assert fut.isRunning()
+    standin.set_speed(FAST)
+    fut.wait()
+
+
+def test_memory_raise_event_reaches_subscribers_of_that_key_only(client, button_signal):
+    memory, got = button_signal
+    memory.raiseEvent("MiddleTactilTouched", 1.0)
+    memory.raiseEvent("FrontTactilTouched", 1.0)
+    memory.raiseEvent("FrontTactilTouched", 0.0)
+    assert got.wait_for(2) == [1.0, 0.0]
+    assert memory.getData("FrontTactilTouched") == 0.0
+    assert memory.getData("MiddleTactilTouched") == 1.0
+    memory.insertData("Custom/Key", "hello")
+    assert memory.getData("Custom/Key") == "hello"
+    with pytest.raises(RuntimeError, match="no data for key"):
+        memory.getData("Missing/Key")
+
+
+def test_press_via_control_service_emits_touch_then_release(standin, client, button_signal):
+    _, got = button_signal
+    control = client.service("NaoTrainerStandIn")
+    assert control.press("A") == "FrontTactilTouched"
+    assert control.press("front") == "FrontTactilTouched"
+    assert control.press("RearTactilTouched") == "RearTactilTouched"
+    assert got.wait_for(4) == [1.0, 0.0, 1.0, 0.0]
+    assert ("NaoTrainerStandIn", "press", ["RearTactilTouched"]) in _calls(standin)
+    with pytest.raises(RuntimeError, match="unknown head button"):
+        control.press("Z")
+
+
+def test_standin_client_controls_a_standin(standin, button_signal):
+    _, got = button_signal
+    with StandInClient.connect(standin.url) as remote:
+        assert remote.press("a") == "FrontTactilTouched"
+        remote.set_speed(7.0)
+        assert remote.speed() == pytest.approx(7.0)
+        assert standin.speed == pytest.approx(7.0)
+        assert remote.transcript()[-1]["method"] == "press"
+        remote.clear()
+        assert standin.transcript() == []
+        with pytest.raises(ValueError, match="unknown head button"):
+            remote.press("D")
+        with pytest.raises(ConfigError, match="positive"):
+            remote.set_speed(0)
+    assert got.wait_for(2) == [1.0, 0.0]
+
+
+def test_button_names():
+    assert [button_key(b) for b in ("A", "b", "Rear", "MiddleTactilTouched")] == [
+        "FrontTactilTouched", "MiddleTactilTouched", "RearTactilTouched", "MiddleTactilTouched",
+    ]
+    with pytest.raises(ValueError, match="unknown head button 'X'"):
+        button_key("X")
+
+
+def test_transcript_file_is_jsonl_flushed_per_line(tmp_path):
+    path = tmp_path / "sub" / "transcript.jsonl"
+    with StandIn.start(speed=FAST, transcript_path=path) as s:
+        session = qi.Session()
+        session.connect(s.url)
+        try:
+            session.service("ALTextToSpeech").say("one")
+            lines = path.read_text().splitlines()  # readable while the stand-in still runs
+            assert [json.loads(x)["args"] for x in lines] == [["one"]]
+            session.service("ALLeds").fadeRGB("FaceLeds", 0xFF0000, 0.0)
+        finally:
+            session.close()
+        in_memory = s.transcript()
+    entries = [json.loads(x) for x in path.read_text().splitlines()]
+    assert entries == in_memory
+    assert set(entries[0]) == {"t", "service", "method", "args"}
+    assert entries[0]["t"] <= entries[1]["t"]
+
+
+def test_unwritable_transcript_is_a_config_error(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    with pytest.raises(ConfigError, match="cannot open the transcript file"):
+        StandIn.start(transcript_path=blocker / "t.jsonl")
+
+
+def test_listen_address_checks():
+    assert check_listen_url("tcp://127.0.0.1:0") == "tcp://127.0.0.1:0"
+    assert check_listen_url("tcp://localhost:9559") == "tcp://localhost:9559"
+    with pytest.raises(ConfigError, match="not a loopback address.*--allow-remote"):
+        check_listen_url("tcp://192.168.1.20:9559")
+    assert check_listen_url("tcp://192.168.1.20:9559", allow_remote=True)
+    with pytest.raises(ConfigError, match="plain tcp"):
+        check_listen_url("tcps://127.0.0.1:9503")
+    with pytest.raises(ConfigError, match="not of the form"):
+        check_listen_url("127.0.0.1")
+    with pytest.raises(ConfigError, match="positive"):
+        StandIn.start(speed=0)
+
+
+def test_port_in_use_is_a_clear_error(standin):
+    with pytest.raises(RobotUnavailable, match="cannot listen on .*pick another port"):
+        StandIn.start(standin.url)
+
+
+def test_stop_ends_a_pending_say_at_once():
+    s = StandIn.start(speed=0.01)  # a 10-character say would take a minute
+    session = qi.Session()
+    session.connect(s.url)
+    try:
+        fut = session.service("ALTextToSpeech").say("0123456789", _async=True)
+        time.sleep(0.2)
+        t0 = time.monotonic()
+        s.stop()
+        fut.wait(3000)
+        assert time.monotonic() - t0 < 2.0
+    finally:
+        session.close()
+
+
+# --- the command line -------------------------------------------------------------------------
+
+
+def _cli(*args):
+    env = dict(os.environ, QI_LOG_LEVEL="silent")
+    return subprocess.Popen(
+        [sys.executable, "-m", "nao_trainer", "mock-robot", *args],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+    )
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_cli_prints_ready_line_serves_and_exits_cleanly(tmp_path, sig):
+    transcript = tmp_path / "t.jsonl"
+    proc = _cli("--listen", "tcp://127.0.0.1:0", "--speed", "40", "--transcript", str(transcript))
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith(READY_PREFIX)
+        url = line[len(READY_PREFIX):].strip()
+        assert url.startswith("tcp://127.0.0.1:") and not url.endswith(":0")
+        with StandInClient.connect(url) as remote:
+            remote.press("C")
+            assert remote.speed() == pytest.approx(40.0)
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert json.loads(transcript.read_text().splitlines()[0])["args"] == ["RearTactilTouched"]
+
+
+def test_cli_refuses_a_remote_address_in_one_line():
+    proc = _cli("--listen", "tcp://10.1.2.3:9559")
+    out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 2
+    assert err.count("\n") == 1 and "not a loopback address" in err and "Traceback" not in err
+    assert out == ""
+
+
+def test_spawn_standin_returns_process_and_url():
+    proc, url = spawn_standin(speed=30)
+    try:
+        with StandInClient.connect(url) as remote:
+            assert remote.speed() == pytest.approx(30.0)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=10) == 0
