@@ -82,6 +82,7 @@ class MuseSignal:
         self._target = _check_target(target)
         self._weights = self._component_weights(self._target)
         self.faults: dict[int, str] = {}
+        self._n = 0  # samples generated so far
 
     def set_target(self, target: float) -> None:
         self._target = _check_target(target)
@@ -124,7 +125,10 @@ class MuseSignal:
             if kind == "flat":
                 x[:, ch] = self._dc[ch]
             elif kind == "saturated":
-                x[:, ch] = 1000.0  # the rail of muselsl's +-1000 uV range
+                # pinned at the rail of muselsl's +-1000 uV range, with brief returns every 0.5 s
+                idx = self._n + np.arange(n)
+                x[:, ch] = np.where(idx % int(self.fs / 2) < 4, x[:, ch], 1000.0)
+        self._n += n
         return x
 
 
