@@ -1,0 +1,346 @@
+"""Study configuration: YAML files validated against a schema, with file:line in every error.
+
+A study file (``config/studies/*.yaml``) overlays the documented defaults (``config/default.yaml``);
+command-line flags overlay both. Validation happens once, at load, so an invalid study never
+starts a session. Errors are one line: ``file:line: key 'timing.beep_hz': what is wrong; how to fix``.
+
+NAOqi 2.9 credentials are never read from files: the robot client takes them from ``NAO_USER`` /
+``NAO_PASSWORD``, and a robot URL holding ``user:password@`` is refused.
+"""
+from __future__ import annotations
+
+import difflib
+import hashlib
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import yaml
+
+from .errors import ConfigError
+
+#: Repository root (parent of the package). Relative paths in configs resolve against it, so
+#: ``nao-trainer run`` works from any folder of a clone (installs are editable).
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_CONFIG = PROJECT_ROOT / "config" / "default.yaml"
+DEMO_STUDY = PROJECT_ROOT / "config" / "studies" / "demo.yaml"
+
+ACTION_NAMES = ("L1", "L2", "L3", "L4", "RF1", "RF2")
+INPUTS = ("simulated", "tactile", "keyboard")
+EEG_MODES = ("off", "simulated", "lsl")
+LSL_SCOPES = ("machine", "link", "site", "organization", "global")
+
+
+# ----------------------------------------------------------------------------------------------
+# Schema
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Field:
+    """One configuration key: its type, allowed values and a fix hint for error messages."""
+
+    kind: type | tuple[type, ...]
+    nullable: bool = False
+    min: float | None = None
+    max: float | None = None
+    choices: tuple[Any, ...] | None = None
+    item: type | tuple[type, ...] | None = None  # element type of a list
+    length: int | None = None  # exact list length
+    check: Callable[[Any], str | None] | None = None  # extra rule: returns a problem or None
+    free: bool = False  # a free-form mapping (keys not checked)
+
+
+def _robot_url(value: str) -> str | None:
+    if value == "mock":
+        return None
+    m = re.fullmatch(r"(tcps?)://([^/:@]+@)?([^/:@]+)(:\d+)?", value)
+    if not m:
+        return "must be 'mock' or tcp://HOST:9559 (NAOqi <= 2.8) or tcps://HOST:9503 (NAOqi 2.9)"
+    if m.group(2):
+        return "must not contain credentials; set NAO_USER and NAO_PASSWORD in the environment instead"
+    return None
+
+
+def _policy_spec(value: str) -> str | None:
+    if value in ("schedule", "random") or re.fullmatch(r"usp:[^:\s]+(:[A-Za-z0-9_-]+)?", value):
+        return None
+    return "must be 'schedule', 'random' or 'usp:CLUSTER[:METHOD]'"
+
+
+def _schedule(value: list) -> str | None:
+    bad = [a for a in value if a not in ACTION_NAMES]
+    if bad:
+        return f"unknown action {bad[0]!r}; use {', '.join(ACTION_NAMES)}"
+    if not value:
+        return "needs at least one action"
+    if value[0] not in ACTION_NAMES[:4]:
+        return f"must start with a level action (L1..L4), got {value[0]!r}: there is no outcome to give feedback on yet"
+    return None
+
+
+def _color(value: Any) -> str | None:
+    return None if isinstance(value, str) and re.fullmatch(r"#?[0-9A-Fa-f]{6}", value) else "must be a colour '#RRGGBB'"
+
+
+SCHEMA: dict[str, Any] = {
+    "study": {"name": Field(str), "description": Field(str, nullable=True)},
+    "participant": {"pseudonym": Field(str, check=lambda v: None if re.fullmatch(r"[A-Za-z0-9_-]{1,40}", v)
+                                        else "must be 1-40 letters, digits, '_' or '-' (it names the session folder; never a real name)")},
+    "robot": {
+        "url": Field(str, check=_robot_url),
+        "connect_deadline_s": Field((int, float), min=0.5, max=120),
+        "max_reconnect_s": Field((int, float), min=0, max=3600),
+        "backoff_initial_s": Field((int, float), min=0.05, max=60),
+        "backoff_max_s": Field((int, float), min=0.1, max=300),
+        "posture_speed": Field((int, float), min=0.05, max=1.0),
+    },
+    "session": {
+        "turns": Field(int, min=1, max=500),
+        "practice": Field(bool),
+        "seed": Field(int, nullable=True, min=0),
+        "language": Field(str, choices=("en",)),
+        "dialogue": Field(str),
+        "behaviors": Field(str),
+        "output": Field(str),
+    },
+    "timing": {
+        "speed": Field((int, float), min=0.1, max=200),
+        "pause_before_level_s": Field((int, float), min=0, max=30),
+        "letter_gap_s": Field((int, float), min=0, max=10),
+        "beep_hz": Field(int, min=100, max=8000),
+        "beep_s": Field((int, float), min=0.05, max=3),
+        "beep_gain": Field((int, float), min=0.0, max=1.0),
+        "response_timeout_base_s": Field((int, float), min=1, max=300),
+        "response_timeout_per_letter_s": Field((int, float), min=0, max=60),
+        "grace_s": Field((int, float), min=0, max=5),
+        "listening_tail_s": Field((int, float), min=0, max=5),
+    },
+    "answers": {
+        "input": Field(str, choices=INPUTS),
+        "debounce_s": Field((int, float), min=0, max=1),
+    },
+    "participant_model": {
+        "success_by_level": Field(list, item=(int, float), length=4, check=lambda v: None if all(0 <= x <= 1 for x in v) else "values must lie in [0, 1]"),
+        "engagement_by_level": Field(list, item=(int, float), length=4, check=lambda v: None if all(0 <= x <= 1 for x in v) else "values must lie in [0, 1]"),
+        "user_model": Field(str, nullable=True),
+    },
+    "policy": {
+        "kind": Field(str, check=_policy_spec),
+        "schedule": Field(list, item=str, check=_schedule),
+        "learning": Field(bool),
+        "state_path": Field(str, nullable=True),
+    },
+    "eeg": {
+        "mode": Field(str, choices=EEG_MODES),
+        "required": Field(bool),
+        "stream_type": Field(str),
+        "stream_name": Field(str, nullable=True),
+        "lsl_scope": Field(str, choices=LSL_SCOPES),
+        "processing": Field(dict, free=True),
+    },
+}
+
+
+# ----------------------------------------------------------------------------------------------
+# Typed configuration
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """A validated study configuration. ``values`` is the merged nested dict (JSON-ready)."""
+
+    values: dict[str, Any]
+    sources: tuple[str, ...]  # files that were merged, in order
+    text_sha256: str  # sha256 over the texts of those files and the overrides
+
+    def get(self, dotted: str) -> Any:
+        node: Any = self.values
+        for part in dotted.split("."):
+            node = node[part]
+        return node
+
+    def __getitem__(self, section: str) -> dict[str, Any]:
+        return self.values[section]
+
+    def path(self, dotted: str) -> Path:
+        """A project file (dialogue, behaviors) resolved against the project root when relative."""
+        p = Path(os.path.expanduser(str(self.get(dotted))))
+        return p if p.is_absolute() else PROJECT_ROOT / p
+
+    def output_dir(self) -> Path:
+        """``session.output`` resolved against the current folder when relative (``./sessions/``)."""
+        return Path(os.path.expanduser(str(self.get("session.output")))).resolve()
+
+    def response_timeout_s(self, length: int) -> float:
+        """Answer window in session seconds: base + per-letter x length (10 s + 2.5 s x L by default)."""
+        t = self.values["timing"]
+        return float(t["response_timeout_base_s"] + t["response_timeout_per_letter_s"] * length)
+
+    def snapshot(self) -> dict[str, Any]:
+        """What session.json stores: the merged values (never holds credentials)."""
+        return {"values": self.values, "sources": list(self.sources), "sha256": self.text_sha256}
+
+
+@dataclass
+class _Loc:
+    file: str
+    line: int | None
+
+    def __str__(self) -> str:
+        return f"{self.file}:{self.line}" if self.line else self.file
+
+
+# ----------------------------------------------------------------------------------------------
+# Loading
+# ----------------------------------------------------------------------------------------------
+
+
+def _read_yaml(path: Path) -> tuple[Any, dict[str, _Loc], str]:
+    """Parse ``path``; returns (data, dotted-key -> location, text)."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: file not found; check the path (relative paths resolve against {PROJECT_ROOT})") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}" if mark else str(path)
+        raise ConfigError(f"{where}: not valid YAML ({getattr(exc, 'problem', exc)}); fix the syntax") from None
+    locs: dict[str, _Loc] = {}
+    _collect_lines(node, "", str(path), locs)
+    return data, locs, text
+
+
+def _collect_lines(node: yaml.Node | None, prefix: str, file: str, out: dict[str, _Loc]) -> None:
+    if isinstance(node, yaml.MappingNode):
+        for key_node, value_node in node.value:
+            key = f"{prefix}.{key_node.value}" if prefix else str(key_node.value)
+            out[key] = _Loc(file, key_node.start_mark.line + 1)
+            _collect_lines(value_node, key, file, out)
+
+
+def _merge(base: dict, over: Mapping, schema: dict, prefix: str, locs: dict[str, _Loc], file: str) -> None:
+    """Overlay ``over`` on ``base`` in place, rejecting keys the schema does not know."""
+    if not isinstance(over, Mapping):
+        where = locs.get(prefix, _Loc(file, None))
+        raise ConfigError(f"{where}: key '{prefix or '(top level)'}' must be a mapping of keys, got {type(over).__name__}")
+    for key, value in over.items():
+        dotted = f"{prefix}.{key}" if prefix else str(key)
+        where = locs.get(dotted, _Loc(file, None))
+        if key not in schema:
+            hint = difflib.get_close_matches(str(key), [str(k) for k in schema], n=1)
+            fix = f"did you mean '{(prefix + '.') if prefix else ''}{hint[0]}'?" if hint else f"valid keys here: {', '.join(schema)}"
+            raise ConfigError(f"{where}: unknown key '{dotted}'; {fix}")
+        spec = schema[key]
+        if isinstance(spec, dict):
+            base.setdefault(key, {})
+            _merge(base[key], value if value is not None else {}, spec, dotted, locs, file)
+        else:
+            base[key] = value
+            locs[f"@{dotted}"] = where  # where the value in force came from
+
+
+def _type_name(kind: type | tuple[type, ...]) -> str:
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    names = {int: "an integer", float: "a number", str: "a text", bool: "true/false", list: "a list", dict: "a mapping"}
+    return " or ".join(names.get(k, k.__name__) for k in kinds if not (k is int and float in kinds))
+
+
+def _is_kind(value: Any, kind: type | tuple[type, ...]) -> bool:
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    if isinstance(value, bool) and bool not in kinds:
+        return False
+    return isinstance(value, kinds)
+
+
+def _validate(values: dict, schema: dict, prefix: str, locs: dict[str, _Loc]) -> None:
+    for key, spec in schema.items():
+        dotted = f"{prefix}.{key}" if prefix else key
+        where = locs.get(f"@{dotted}", locs.get(dotted, _Loc(str(DEFAULT_CONFIG), None)))
+        if isinstance(spec, dict):
+            if key not in values:
+                raise ConfigError(f"{where}: section '{dotted}' is missing; copy it from {DEFAULT_CONFIG}")
+            _validate(values[key], spec, dotted, locs)
+            continue
+        if key not in values:
+            raise ConfigError(f"{where}: key '{dotted}' is missing; add it (see {DEFAULT_CONFIG})")
+        problem = _check(values[key], spec)
+        if problem:
+            raise ConfigError(f"{where}: key '{dotted}' {problem}")
+        if isinstance(spec.kind, tuple) and float in spec.kind and isinstance(values[key], int):
+            values[key] = float(values[key])
+
+
+def _check(value: Any, spec: Field) -> str | None:
+    if value is None:
+        return None if spec.nullable else f"needs a value ({_type_name(spec.kind)}), got nothing"
+    if not _is_kind(value, spec.kind):
+        return f"must be {_type_name(spec.kind)}, got {value!r}"
+    if spec.choices is not None and value not in spec.choices:
+        return f"must be one of {', '.join(map(str, spec.choices))}, got {value!r}"
+    if spec.min is not None and value < spec.min:
+        return f"must be >= {spec.min:g}, got {value!r}"
+    if spec.max is not None and value > spec.max:
+        return f"must be <= {spec.max:g}, got {value!r}"
+    if isinstance(value, list):
+        if spec.length is not None and len(value) != spec.length:
+            return f"must have {spec.length} values, got {len(value)}"
+        for item in value:
+            if spec.item is not None and not _is_kind(item, spec.item):
+                return f"values must each be {_type_name(spec.item)}, got {item!r}"
+    if spec.check is not None:
+        problem = spec.check(value)
+        if problem:
+            return f"{problem} (got {value!r})" if "got" not in problem else problem
+    return None
+
+
+def _set_dotted(values: dict, dotted: str, value: Any) -> None:
+    *parents, last = dotted.split(".")
+    node = values
+    for part in parents:
+        node = node.setdefault(part, {})
+    node[last] = value
+
+
+def load_config(study: str | Path | None = None, overrides: Mapping[str, Any] | None = None,
+                default: str | Path | None = None) -> StudyConfig:
+    """Defaults, then ``study`` (a file; None = the demo study), then ``overrides`` (dotted keys).
+
+    Raises ``ConfigError`` naming file, line and key for the first problem found.
+    """
+    default_path = Path(default) if default else DEFAULT_CONFIG
+    study_path = Path(study) if study is not None else DEMO_STUDY
+    values: dict[str, Any] = {}
+    locs: dict[str, _Loc] = {}
+    digest = hashlib.sha256()
+    sources = []
+    for path in (default_path, study_path) if study_path.resolve() != default_path.resolve() else (default_path,):
+        data, file_locs, text = _read_yaml(path)
+        locs.update(file_locs)
+        _merge(values, data or {}, SCHEMA, "", locs, str(path))
+        digest.update(text.encode())
+        sources.append(str(path))
+    for dotted, value in (overrides or {}).items():
+        if value is None:
+            continue
+        flag_loc = _Loc(f"command line ({dotted})", None)
+        section, _, key = dotted.partition(".")
+        if section not in SCHEMA or key not in SCHEMA[section]:
+            raise ConfigError(f"command line: unknown configuration key '{dotted}'")
+        _set_dotted(values, dotted, value)
+        locs[f"@{dotted}"] = flag_loc
+        digest.update(f"{dotted}={value!r}".encode())
+    _validate(values, SCHEMA, "", locs)
+    t = values["robot"]
+    if t["backoff_max_s"] < t["backoff_initial_s"]:
+        raise ConfigError(f"{locs.get('@robot.backoff_max_s')}: key 'robot.backoff_max_s' must be >= robot.backoff_initial_s")
+    return StudyConfig(values=values, sources=tuple(sources), text_sha256=digest.hexdigest())

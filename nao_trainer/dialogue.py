@@ -1,0 +1,103 @@
+"""What the robot says: dialogue files with several variants per event, validated at load.
+
+A variant is picked with the session's seeded generator, so a session replays identically for
+the same seed. Placeholders (``{level}``, ``{total}``) are checked against the event's allowed set
+when the file is loaded, so a typo is found before a participant sits in front of the robot.
+"""
+from __future__ import annotations
+
+import string
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from .errors import ConfigError
+
+#: Every event the session speaks, with the placeholders its variants may use.
+EVENTS: dict[str, frozenset[str]] = {
+    "greeting": frozenset({"pseudonym"}),
+    "instructions": frozenset({"turns"}),
+    "practice_intro": frozenset(),
+    "practice_success": frozenset(),
+    "practice_failure": frozenset(),
+    "level": frozenset({"level", "length"}),
+    "encouraging_success": frozenset({"level"}),
+    "encouraging_failure": frozenset({"level"}),
+    "challenging_success": frozenset({"level"}),
+    "challenging_failure": frozenset({"level"}),
+    "paused": frozenset(),
+    "resumed": frozenset(),
+    "goodbye": frozenset({"total", "turns"}),
+}
+
+
+@dataclass(frozen=True)
+class Dialogue:
+    """Variants per event of one language."""
+
+    language: str
+    variants: dict[str, tuple[str, ...]]
+    source: str = ""
+
+    def say(self, event: str, rng: np.random.Generator, **fields: Any) -> str:
+        """One variant of ``event`` (drawn with ``rng``) with its placeholders filled."""
+        options = self.variants[event]
+        text = options[int(rng.integers(len(options)))] if len(options) > 1 else options[0]
+        return text.format(**fields)
+
+    def feedback(self, kind: int, success: bool, rng: np.random.Generator, **fields: Any) -> str:
+        """The feedback utterance of an RF action: ``kind`` 1 encouraging / 2 challenging, on the last outcome."""
+        style = {1: "encouraging", 2: "challenging"}[kind]
+        return self.say(f"{style}_{'success' if success else 'failure'}", rng, **fields)
+
+
+def _line_of(node: yaml.Node | None, key: str) -> int | None:
+    if isinstance(node, yaml.MappingNode):
+        for k, _ in node.value:
+            if k.value == key:
+                return k.start_mark.line + 1
+    return None
+
+
+def load_dialogue(path: str | Path) -> Dialogue:
+    """Load and validate a dialogue file; ``ConfigError`` names file, line and event on a problem."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        data = yaml.safe_load(text)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: dialogue file not found; fix session.dialogue in the study config") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        raise ConfigError(f"{path}:{mark.line + 1 if mark else '?'}: not valid YAML; fix the syntax") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: a dialogue file is a mapping of events to lists of sentences")
+    language = data.pop("language", None)
+    if not isinstance(language, str):
+        raise ConfigError(f"{path}: key 'language' is missing; add e.g. 'language: en'")
+    variants: dict[str, tuple[str, ...]] = {}
+    for event, items in data.items():
+        where = f"{path}:{_line_of(node, str(event)) or '?'}"
+        if event not in EVENTS:
+            raise ConfigError(f"{where}: unknown event '{event}'; events are {', '.join(EVENTS)}")
+        if isinstance(items, str):
+            items = [items]
+        if not isinstance(items, list) or not items:
+            raise ConfigError(f"{where}: event '{event}' needs a list of at least one sentence")
+        for item in items:
+            if not isinstance(item, str) or not item.strip():
+                raise ConfigError(f"{where}: event '{event}' has an empty or non-text variant {item!r}")
+            used = {name for _, name, _, _ in string.Formatter().parse(item) if name is not None}
+            unknown = used - EVENTS[event]
+            if unknown:
+                allowed = ", ".join("{%s}" % a for a in sorted(EVENTS[event])) or "none"
+                raise ConfigError(f"{where}: event '{event}' uses unknown placeholder {{{sorted(unknown)[0]}}}; allowed: {allowed}")
+        variants[event] = tuple(items)
+    missing = [e for e in EVENTS if e not in variants]
+    if missing:
+        raise ConfigError(f"{path}: event '{missing[0]}' is missing; add at least one sentence for it")
+    return Dialogue(language=language, variants=variants, source=str(path))

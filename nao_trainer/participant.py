@@ -1,0 +1,209 @@
+"""A simulated participant: answers turns the way a user model says a person would.
+
+It draws the outcome of each turn from a ``core.simulation.UserSimulator`` for the turn's MDP
+state, builds the response (the sequence, or a plausible mistake: one letter changed, two
+letters swapped, one letter forgotten), draws reaction and completion times, and tells a
+simulated Muse which engagement to show. When the robot is the NAO stand-in, the presses go
+through the robot's head buttons (the stand-in's control service over qi), so the session's
+tactile path is exercised end to end; otherwise the answer is handed back directly.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from .core import task
+from .core.simulation import UserSimulator
+from .ports import Answer, AnswerSource, EngagementMonitor, NullMonitor, Press, TurnContext
+
+#: Relative frequency of mistake kinds when a turn fails.
+MISTAKES: dict[str, float] = {"substitute": 0.6, "swap": 0.25, "omit": 0.15}
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What the participant will do in one answer window (times in session seconds from the beep)."""
+
+    success: bool
+    response: tuple[str, ...]
+    times: tuple[float, ...]
+    mistake: str = ""
+
+
+def make_mistake(sequence: tuple[str, ...], rng: np.random.Generator) -> tuple[tuple[str, ...], str]:
+    """A response that differs from ``sequence`` the way people err; returns (response, kind)."""
+    kinds = list(MISTAKES)
+    kind = kinds[int(rng.choice(len(kinds), p=np.array(list(MISTAKES.values()))))]
+    seq = list(sequence)
+    if kind == "swap":
+        pairs = [i for i in range(len(seq) - 1) if seq[i] != seq[i + 1]]
+        if pairs:
+            i = pairs[int(rng.integers(len(pairs)))]
+            seq[i], seq[i + 1] = seq[i + 1], seq[i]
+            return tuple(seq), kind
+        kind = "substitute"
+    if kind == "omit":
+        del seq[int(rng.integers(len(seq)))]
+        return tuple(seq), kind
+    i = int(rng.integers(len(seq)))
+    others = [c for c in task.LETTERS if c != seq[i]]
+    seq[i] = others[int(rng.integers(len(others)))]
+    return tuple(seq), "substitute"
+
+
+class SimulatedParticipant:
+    """``ports.AnswerSource`` driven by a user simulator.
+
+    ``press`` delivers one letter to the robot's head buttons and ``inner`` (a ``TactileAnswers``)
+    collects them; with ``press=None`` the answer is returned directly. ``speed`` divides every
+    waiting time; ``min_gap_s`` (session seconds) keeps presses of a fast simulated hand apart
+    from the debounce interval.
+    """
+
+    def __init__(self, simulator: UserSimulator, rng: np.random.Generator, speed: float = 1.0,
+                 monitor: EngagementMonitor | None = None, press: Callable[[str], object] | None = None,
+                 inner: AnswerSource | None = None, min_gap_s: float = 0.2) -> None:
+        if (press is None) != (inner is None):
+            raise ValueError("press and inner go together: presses need an answer source that receives them")
+        self.simulator = simulator
+        self.rng = rng
+        self.speed = float(speed)
+        self.monitor = monitor or NullMonitor()
+        self.press = press
+        self.inner = inner
+        self.min_gap_s = float(min_gap_s)
+        self.plan: Plan | None = None
+        self._opened = 0.0
+        self._presser: threading.Thread | None = None
+        self.press_errors: list[str] = []
+        self._generation = 0
+
+    def prepare(self, context: TurnContext) -> None:
+        """Decide the turn's outcome, response and timing; set the simulated Muse's target."""
+        success = self.simulator.sample_success(context.state, self.rng)
+        response, mistake = (context.sequence, "") if success else make_mistake(context.sequence, self.rng)
+        rt, ct = self.simulator.sample_times(task.level_of(context.length), self.rng)
+        n = len(response)
+        times = np.linspace(rt, max(ct, rt + self.min_gap_s * (n - 1)), n) if n else np.array([])
+        self.plan = Plan(success, tuple(response), tuple(float(t) for t in times), mistake)
+        self.monitor.set_target(self.simulator.engagement_of(context.state, success))
+
+    def open_window(self) -> None:
+        self._opened = time.monotonic()
+        self._generation += 1
+        if self.inner is not None:
+            self.inner.open_window()
+            self._presser = threading.Thread(target=self._press_all, args=(self.plan, self._opened, self._generation),
+                                             name="simulated-presses", daemon=True)
+            self._presser.start()
+
+    def _press_all(self, plan: Plan, opened: float, generation: int) -> None:
+        assert self.press is not None
+        for letter, t in zip(plan.response, plan.times):
+            delay = opened + t / self.speed - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            if generation != self._generation:
+                return  # the turn was abandoned (robot lost): never press into a later window
+            try:
+                self.press(letter)
+            except Exception as exc:  # noqa: BLE001 - robot gone: the session sees it on its next call
+                self.press_errors.append(str(exc))
+                return
+
+    def collect(self, n_expected: int, timeout_s: float) -> Answer:
+        if self.plan is None:
+            raise RuntimeError("collect() before prepare()")
+        if self.inner is not None:
+            answer = self.inner.collect(n_expected, timeout_s)
+            if self._presser is not None:
+                self._presser.join(timeout=max(0.0, self._opened + timeout_s - time.monotonic()) + 1.0)
+            return answer
+        presses = tuple(Press(key=l, letter=l, t=t / self.speed)
+                        for l, t in zip(self.plan.response, self.plan.times) if t / self.speed <= timeout_s)
+        timed_out = len(presses) < n_expected
+        end = timeout_s if timed_out else presses[-1].t if presses else 0.0
+        delay = self._opened + end - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        return Answer(presses=presses, timed_out=timed_out)
+
+    def abandon(self) -> None:
+        """The turn was interrupted: stop pressing (presses must not land in a later window)."""
+        self._generation += 1
+
+    def resubscribe(self) -> None:
+        """After a reconnection: the inner tactile source subscribes to the buttons again."""
+        if self.inner is not None and hasattr(self.inner, "resubscribe"):
+            self.inner.resubscribe()
+
+    def close(self) -> None:
+        self._generation += 1
+        if self.inner is not None:
+            self.inner.close()
+
+
+class StandInButtons:
+    """Presses the NAO stand-in's head buttons through its control service, over its own qi session.
+
+    A separate client, like a finger: it connects lazily, and after a failure (the stand-in was
+    restarted) it reconnects on the next press.
+    """
+
+    SERVICE = "NaoTrainerStandIn"
+
+    def __init__(self, url: str, deadline_s: float = 5.0) -> None:
+        self.url = url
+        self.deadline_s = deadline_s
+        self._session = None
+        self._control = None
+        self._lock = threading.Lock()
+
+    def _connect(self) -> None:
+        import qi
+
+        session = qi.Session()
+        future = session.connect(self.url, _async=True)
+        future.wait(int(self.deadline_s * 1000))
+        if not future.isFinished() or future.hasError():
+            session.close()
+            raise ConnectionError(f"stand-in at {self.url} not reachable")
+        self._session = session
+        self._control = session.service(self.SERVICE)
+
+    def __call__(self, letter: str) -> None:
+        with self._lock:
+            try:
+                if self._control is None:
+                    self._connect()
+                self._control.press(letter)
+            except RuntimeError:
+                self._drop()
+                raise
+
+    def _drop(self) -> None:
+        if self._session is not None:
+            try:
+                self._session.close()
+            except RuntimeError:
+                pass
+        self._session = self._control = None
+
+    def close(self) -> None:
+        with self._lock:
+            self._drop()
+
+    @classmethod
+    def probe(cls, url: str, deadline_s: float = 3.0) -> "StandInButtons | None":
+        """A presser when ``url`` serves the stand-in's control service, else None (a real NAO)."""
+        buttons = cls(url, deadline_s)
+        try:
+            buttons._connect()
+        except (ConnectionError, RuntimeError):
+            buttons.close()
+            return None
+        return buttons

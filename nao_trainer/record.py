@@ -1,0 +1,156 @@
+"""The session record: a folder per session that a killed process still leaves readable.
+
+Layout of ``<out>/<pseudonym>_<YYYYmmdd-HHMMSS>[_n]/``:
+
+* ``turns.csv``: one row per turn (also interrupted ones), appended, flushed and fsynced before
+  the next turn starts, so every completed turn survives a crash or a kill;
+* ``events.jsonl``: every state-machine event, robot failure, pause and reconnection, one JSON
+  object per line, flushed per line;
+* ``session.json``: configuration snapshot and hash, versions, seed, robot URL (never
+  credentials), start/end time and exit status; written at start, rewritten atomically at the end.
+
+A folder is never reused: an existing name gets a ``_2``, ``_3``... suffix.
+"""
+from __future__ import annotations
+
+import csv
+import datetime as dt
+import json
+import os
+import platform
+import time
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+TURN_COLUMNS: tuple[str, ...] = (
+    "turn", "start_time", "state", "length", "level", "feedback", "previous_score", "action",
+    "sequence", "response", "success", "score", "signed_score", "reaction_time", "completion_time",
+    "engagement", "engagement_index", "eeg_quality", "answer_engagement", "engagement_note", "notes",
+)
+VERSIONED = ("nao-trainer", "qi", "numpy", "pylsl", "transitions", "PyYAML", "scikit-learn")
+
+
+def now_iso() -> str:
+    return dt.datetime.now(dt.timezone.utc).isoformat(timespec="milliseconds")
+
+
+def versions() -> dict[str, str]:
+    """Versions of Python and the libraries a session depends on (for session.json)."""
+    out = {"python": platform.python_version(), "platform": platform.platform()}
+    for name in VERSIONED:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+def _fsync(f) -> None:
+    f.flush()
+    os.fsync(f.fileno())
+
+
+def create_session_dir(out: Path, pseudonym: str, when: dt.datetime | None = None) -> Path:
+    """A new, empty folder ``<out>/<pseudonym>_<stamp>[_n]``; never an existing one."""
+    stamp = (when or dt.datetime.now()).strftime("%Y%m%d-%H%M%S")
+    out.mkdir(parents=True, exist_ok=True)
+    for n in range(1, 1000):
+        path = out / (f"{pseudonym}_{stamp}" + (f"_{n}" if n > 1 else ""))
+        try:
+            path.mkdir()  # atomic: fails if another process took the name
+            return path
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{out}: too many sessions named {pseudonym}_{stamp}")
+
+
+@dataclass
+class SessionRecorder:
+    """Writes one session folder. Events logged before ``open`` are kept and written by it."""
+
+    out: Path
+    pseudonym: str
+    path: Path | None = None
+    _pending: list[dict[str, Any]] = field(default_factory=list)
+    _info: dict[str, Any] = field(default_factory=dict)
+    _turns = None
+    _writer = None
+    _events = None
+    rows: int = 0
+
+    def open(self, info: dict[str, Any]) -> Path:
+        """Create the folder and its files; ``info`` is the initial content of session.json."""
+        self.path = create_session_dir(Path(self.out), self.pseudonym)
+        self._info = dict(info, status="running", started=now_iso())
+        self._write_json()
+        self._turns = open(self.path / "turns.csv", "w", newline="", encoding="utf-8")
+        self._writer = csv.DictWriter(self._turns, fieldnames=TURN_COLUMNS, extrasaction="raise")
+        self._writer.writeheader()
+        _fsync(self._turns)
+        self._events = open(self.path / "events.jsonl", "w", encoding="utf-8")
+        for ev in self._pending:
+            self._write_event(ev)
+        self._pending.clear()
+        return self.path
+
+    @property
+    def is_open(self) -> bool:
+        return self._turns is not None
+
+    def event(self, name: str, **data: Any) -> None:
+        """Log one event (kept in memory until the folder exists)."""
+        ev = {"t": now_iso(), "mono": round(time.monotonic(), 4), "event": name, **data}
+        if self._events is None:
+            self._pending.append(ev)
+        else:
+            self._write_event(ev)
+
+    def _write_event(self, ev: dict[str, Any]) -> None:
+        self._events.write(json.dumps(ev, default=str) + "\n")
+        self._events.flush()
+
+    def turn(self, row: dict[str, Any]) -> None:
+        """Append one turn row and make it durable before returning."""
+        clean = {k: ("" if row.get(k) is None else row.get(k)) for k in TURN_COLUMNS}
+        unknown = set(row) - set(TURN_COLUMNS)
+        if unknown:
+            raise KeyError(f"unknown turns.csv columns: {sorted(unknown)}")
+        self._writer.writerow(clean)
+        _fsync(self._turns)
+        self.rows += 1
+
+    def update(self, **info: Any) -> None:
+        self._info.update(info)
+
+    def _write_json(self) -> None:
+        tmp = self.path / ".session.json.tmp"
+        with open(tmp, "w", encoding="utf-8") as f:
+            json.dump(self._info, f, indent=2, default=str)
+            f.write("\n")
+            _fsync(f)
+        os.replace(tmp, self.path / "session.json")
+
+    def close(self, status: str, exit_code: int, **info: Any) -> None:
+        """Final session.json (atomic rewrite) and close every file. Safe to call twice."""
+        if self.path is None:
+            return
+        if self._turns is not None:
+            self._info.update(info, status=status, exit_code=exit_code, ended=now_iso(), turns_recorded=self.rows)
+            self._write_json()
+            self._turns.close()
+            self._events.close()
+            self._turns = self._events = None
+
+
+def read_turns(path: Path) -> list[dict[str, str]]:
+    """The rows of a session's turns.csv (a helper for tests and analysis)."""
+    with open(Path(path) / "turns.csv", newline="", encoding="utf-8") as f:
+        return list(csv.DictReader(f))
+
+
+def read_events(path: Path) -> list[dict[str, Any]]:
+    with open(Path(path) / "events.jsonl", encoding="utf-8") as f:
+        return [json.loads(line) for line in f if line.strip()]
+
