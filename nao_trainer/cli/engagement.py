@@ -1,7 +1,66 @@
-"""`nao-trainer engagement` (placeholder until its issue lands)."""
+"""`nao-trainer engagement SESSION_DIR`: per-turn engagement of recorded sessions of the published layout."""
 from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
 
 
 def register(sub) -> None:
-    p = sub.add_parser("engagement" if "engagement" != "import_data" else "import", help="(not yet available)")
-    p.set_defaults(func=lambda args: (_ for _ in ()).throw(SystemExit("not yet available")))
+    p = sub.add_parser(
+        "engagement",
+        help="per-turn engagement of a recorded session (published layout)",
+        description="Print one row per turn (turn, engagement_index, engagement, quality, contact, reason) "
+        "computed from a session folder of the published layout (user_<id>/session_<k>/ with state_EEG and "
+        "EEG/bands_robot_N or raw robot_N recordings). Given a dataset root, every session is computed and a "
+        "session column is added. Empty values come with the reason.",
+    )
+    p.add_argument("session", metavar="SESSION_DIR", type=Path, help="a session folder, or a dataset root")
+    p.add_argument("--compat", choices=["authors2018"], default=None,
+                   help="reproduce the authors' published index_1.csv / normalized_1.csv values exactly")
+    p.add_argument("--format", choices=["csv", "json"], default="csv", help="output format (default csv)")
+    p.add_argument("--source", choices=["bands", "raw"], default=None,
+                   help="Muse band lines, or band powers computed from the raw EEG "
+                   "(default: band lines when the session has them)")
+    p.add_argument("--fs", type=float, default=None, metavar="HZ",
+                   help="sampling rate of raw EEG lines (default 220, the published recordings' rate)")
+    p.add_argument("--out", "-o", type=Path, default=None, metavar="FILE", help="write to FILE instead of stdout")
+    p.add_argument("--plot", type=Path, default=None, metavar="PNG",
+                   help="also save a figure of the per-turn engagement (one session only)")
+    p.add_argument("--workers", type=int, default=2, help="processes for a dataset root (default 2)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..errors import ConfigError
+    from ..eeg.offline import OfflineSettings, plot_session, session_engagement_many, to_csv, to_json
+
+    if args.fs is not None and not args.fs > 0:
+        raise ConfigError(f"--fs must be > 0 Hz, got {args.fs}")
+    if args.workers < 1:
+        raise ConfigError(f"--workers must be >= 1, got {args.workers}")
+    settings = OfflineSettings() if args.fs is None else OfflineSettings(fs=args.fs)
+
+    tty = sys.stderr.isatty()
+
+    def progress(done: int, total: int, sid: str) -> None:
+        if total <= 1:
+            return
+        if tty:  # one line, rewritten in place
+            print(f"\r[{done}/{total}] {sid}    ", end="" if done < total else "\n", file=sys.stderr, flush=True)
+        elif done % 10 == 0 or done == total:
+            print(f"[{done}/{total}] sessions", file=sys.stderr, flush=True)
+
+    results = session_engagement_many(args.session, args.compat, args.source, settings, args.workers, progress)
+    text = to_json(results) if args.format == "json" else to_csv(results)
+    if args.out:
+        args.out.write_text(text)
+        print(f"{args.out}: {sum(len(r.turns) for r in results)} turns of {len(results)} session(s)", file=sys.stderr)
+    else:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    if args.plot:
+        if len(results) != 1:
+            raise ConfigError("--plot needs a single session folder, not a dataset root")
+        print(f"{plot_session(results[0], args.plot)}: figure saved", file=sys.stderr)
+    return 0

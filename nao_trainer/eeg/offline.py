@@ -1,0 +1,456 @@
+"""Per-turn engagement of recorded sessions of the published layout (``nao-trainer engagement``).
+
+Two definitions:
+
+``compat="authors2018"``
+    Reproduces the authors' tables ``derived/index_1.csv`` and ``derived/normalized_1.csv`` (dataset
+    README): band lines of each turn's listening recording ``robot_N``; relative alpha, beta, theta
+    averaged over the 4 channels per 10 Hz sample; the lagged EWMA restarted per turn; per-sample
+    ``E = S_beta / (S_alpha + S_theta)``; ``engagement_index`` = the turn's mean E; ``engagement`` = the
+    turn's mean of E min-max scaled over all samples of the session.
+
+``compat=None`` (the project's definitions, ``docs/engagement.md``)
+    *bands source*: per 10 Hz sample, theta/alpha/beta averaged over the channels whose headband
+    contact ``h`` is good or ok (1 or 2), at least ``min_channels`` of them, ``E = beta / (alpha + theta)``,
+    the correct EWMA ``s_t = a s_(t-1) + (1-a) E_t`` restarted per turn over the usable samples.
+    *raw source* (recordings with only raw ``eeg`` lines, or ``source="raw"``): the online estimator
+    (:class:`nao_trainer.core.engagement.OnlineEngagement`) on the raw EEG at ``fs`` Hz, samples stamped
+    ``i / fs``. ``engagement_index`` = mean raw E of the usable samples/windows, ``engagement`` = mean of
+    their smoothed E normalised per participant (:class:`EngagementNormaliser`): baseline = the
+    ``intro`` recording (greeting and instructions) when present, then bounds widened turn by turn;
+    without ``intro`` the baseline is all listening-phase values of the session itself.
+    A turn below ``min_quality`` usable signal is empty, with the reason.
+
+A missing, malformed or truncated recording empties only its turn (the reason names file and line).
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..core import engagement as core
+from ..errors import DataError
+from ..published import Recording, find_sessions, read_recording, read_state_eeg, session_id
+
+COMPAT_MODES: tuple[str, ...] = ("authors2018",)
+SOURCES: tuple[str, ...] = ("bands", "raw")
+BAND_RATE_HZ = 10.0  # the Muse's band-power messages
+RAW_FS_HZ = 220.0  # raw EEG rate of the published recordings (dataset README)
+GOOD_CONTACT = (1.0, 2.0)  # h: 1 good, 2 ok, 4 bad
+
+
+@dataclass(frozen=True)
+class OfflineSettings:
+    """Knobs of the project's own offline definition (ignored by ``compat="authors2018"``)."""
+
+    a: float = 0.9  # EWMA factor per sample (10 Hz bands) or per window (raw, one every hop_s)
+    min_channels: int = 2  # channels with good contact (bands) or clean signal (raw) per sample/window
+    min_quality: float = 0.5  # fraction of usable samples/windows a turn needs
+    fs: float = RAW_FS_HZ  # raw EEG sampling rate
+    window_s: float = 2.0
+    hop_s: float = 0.25
+    thresholds: core.QualityThresholds = core.QualityThresholds()
+
+
+@dataclass(frozen=True)
+class TurnSeries:
+    """Per-sample (bands) or per-window (raw) values of one turn, for plots. ``t`` in s from its start."""
+
+    t: np.ndarray
+    index: np.ndarray  # raw E (NaN where unusable)
+    smoothed: np.ndarray
+    normalised: np.ndarray
+
+
+@dataclass(frozen=True)
+class TurnEngagement:
+    """One turn's listening-phase engagement; ``None`` values come with a ``reason``."""
+
+    turn: int
+    engagement_index: float | None
+    engagement: float | None
+    quality: float  # fraction of usable samples (bands) / clean windows (raw), 0..1
+    contact: float | None  # fraction of h samples with all 4 scalp channels good/ok
+    reason: str = ""
+
+    def as_dict(self) -> dict:
+        return {
+            "turn": self.turn,
+            "engagement_index": self.engagement_index,
+            "engagement": self.engagement,
+            "quality": self.quality,
+            "contact": self.contact,
+            "reason": self.reason,
+        }
+
+
+@dataclass
+class SessionEngagement:
+    """The per-turn engagement of one session, how it was computed, and the series behind it."""
+
+    session: str
+    path: Path
+    compat: str | None
+    source: str  # "bands" or "raw"
+    baseline: str  # what the normalisation was based on
+    turns: list[TurnEngagement]
+    series: dict[int, TurnSeries] = field(default_factory=dict, repr=False)
+
+    def as_dict(self) -> dict:
+        return {
+            "session": self.session,
+            "compat": self.compat,
+            "source": self.source,
+            "baseline": self.baseline,
+            "turns": [t.as_dict() for t in self.turns],
+        }
+
+
+# ----------------------------------------------------------------------------------------------
+# Locating a turn's recording
+# ----------------------------------------------------------------------------------------------
+
+
+def _band_file(session_dir: Path, name: str) -> Path | None:
+    """The band lines of recording ``name``: ``EEG/bands_<name>``, else the raw file ``<name>``."""
+    for p in (session_dir / "EEG" / f"bands_{name}", session_dir / name):
+        if p.is_file():
+            return p
+    return None
+
+
+def _choose_source(session_dir: Path, first_recording: str, requested: str | None) -> str:
+    if requested is not None:
+        if requested not in SOURCES:
+            raise DataError(f"source must be one of {', '.join(SOURCES)}, got {requested!r}")
+        return requested
+    if (session_dir / "EEG" / f"bands_{first_recording}").is_file():
+        return "bands"
+    raw = session_dir / first_recording
+    if raw.is_file():
+        try:
+            rec = read_recording(raw, prefixes=("a", "b", "t"))
+        except DataError:
+            return "bands"  # the turn will report the error itself
+        return "bands" if all(p in rec for p in ("a", "b", "t")) else "raw"
+    return "bands"
+
+
+# ----------------------------------------------------------------------------------------------
+# Band-line computations
+# ----------------------------------------------------------------------------------------------
+
+
+def _contact(rec: Recording) -> float | None:
+    h = rec.data.get("h")
+    if h is None or len(h) == 0:
+        return None
+    return float(np.isin(h, GOOD_CONTACT).all(axis=1).mean())
+
+
+def _authors_turn(rec: Recording) -> np.ndarray:
+    """Per-sample E of one turn as the authors computed it (lagged EWMA on channel-averaged bands)."""
+    bands = rec.bands(("a", "b", "t")).mean(axis=2)  # (n, 3): alpha, beta, theta averaged over channels
+    s = core.lagged_ewma_authors2018(bands, 0.9)
+    return core.engagement_index(s[:, 2], s[:, 0], s[:, 1])
+
+
+def _own_bands_turn(rec: Recording, settings: OfflineSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Per-sample raw and smoothed E from band lines, channels restricted to good contact."""
+    bands = rec.bands(("t", "a", "b"))  # (n, 3, 4)
+    n = bands.shape[0]
+    good = np.isfinite(bands).all(axis=1)
+    h = rec.data.get("h")
+    if h is not None and len(h):
+        m = min(n, len(h))
+        contact = np.zeros((n, bands.shape[2]), dtype=bool)
+        contact[:m] = np.isin(h[:m], GOOD_CONTACT)
+        good &= contact
+    k = good.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(good[:, None, :], bands, 0.0).sum(axis=2) / k[:, None]
+    e = core.engagement_index(mean[:, 0], mean[:, 1], mean[:, 2])
+    e[k < settings.min_channels] = np.nan
+    smoothed = np.full(n, np.nan)
+    ok = np.isfinite(e)
+    if ok.any():
+        smoothed[ok] = core.ewma(e[ok], settings.a)
+    return e, smoothed
+
+
+def _own_raw_recording(rec: Recording, settings: OfflineSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, str]:
+    """Windows of the online estimator over a raw recording: (t_end, raw E, smoothed E, quality, reason)."""
+    eeg = rec["eeg"]
+    est = core.OnlineEngagement(
+        settings.fs, eeg.shape[1], settings.window_s, settings.hop_s, settings.a,
+        settings.thresholds, min(settings.min_channels, eeg.shape[1]),
+    )
+    windows = est.push(eeg, np.arange(len(eeg)) / settings.fs)
+    if not windows:
+        return (np.empty(0),) * 3 + (0.0, f"recording shorter than one {settings.window_s:g} s window ({len(eeg)} samples)")  # type: ignore[return-value]
+    t = np.array([w.t_end for w in windows])
+    raw = np.array([np.nan if w.index_raw is None else w.index_raw for w in windows])
+    sm = np.array([np.nan if w.index_smoothed is None else w.index_smoothed for w in windows])
+    agg = core.aggregate_phase(windows, t[0] - settings.hop_s, t[-1], settings.hop_s, None, settings.min_quality)
+    return t, raw, sm, agg.quality, agg.reason
+
+
+# ----------------------------------------------------------------------------------------------
+# Sessions
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Turn:
+    turn: int
+    t: np.ndarray | None = None
+    raw: np.ndarray | None = None
+    smoothed: np.ndarray | None = None
+    quality: float = 0.0
+    contact: float | None = None
+    reason: str = ""
+
+
+def _mean(v: np.ndarray) -> float | None:
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if v.size else None
+
+
+def session_engagement(
+    session_dir: Path,
+    compat: str | None = None,
+    source: str | None = None,
+    settings: OfflineSettings = OfflineSettings(),
+) -> SessionEngagement:
+    """Per-turn listening-phase engagement of one session folder of the published layout.
+
+    ``compat``: None (the project's definitions) or ``"authors2018"`` (the published tables).
+    ``source``: ``"bands"`` (Muse band lines: ``EEG/bands_robot_N``, else the raw ``robot_N``), ``"raw"``
+    (band powers computed from raw ``eeg`` lines), or None to use band lines when the session has them.
+    Raises DataError when the session itself cannot be read (``state_EEG``); a bad recording only
+    empties its turn.
+    """
+    session_dir = Path(session_dir)
+    if compat is not None and compat not in COMPAT_MODES:
+        raise DataError(f"unknown compat mode {compat!r} (known: {', '.join(COMPAT_MODES)})")
+    states = read_state_eeg(session_dir / "state_EEG")
+    if not states:
+        raise DataError(f"{session_dir / 'state_EEG'}: no turns")
+    src = "bands" if compat else _choose_source(session_dir, states[0].robot_file, source)
+    if compat and source == "raw":
+        raise DataError("--compat authors2018 uses the Muse band lines; drop --source raw")
+    turns: list[_Turn] = []
+    for i, st in enumerate(states, 1):
+        tr = _Turn(i)
+        turns.append(tr)
+        path = _band_file(session_dir, st.robot_file) if src == "bands" else session_dir / st.robot_file
+        if path is None or not path.is_file():
+            tr.reason = f"{session_dir / st.robot_file}: recording not found"
+            continue
+        try:
+            prefixes = ("a", "b", "t", "h") if src == "bands" else ("eeg", "h")
+            rec = read_recording(path, prefixes=prefixes)
+            tr.contact = _contact(rec)
+            if src == "bands":
+                if not all(p in rec for p in ("a", "b", "t")):
+                    raise DataError(f"{path}: no band lines (a, b, t); use --source raw for raw EEG")
+                if compat:
+                    tr.raw = _authors_turn(rec)
+                    tr.smoothed = tr.raw
+                else:
+                    tr.raw, tr.smoothed = _own_bands_turn(rec, settings)
+                tr.t = np.arange(len(tr.raw)) / BAND_RATE_HZ
+                tr.quality = float(np.isfinite(tr.smoothed).mean()) if len(tr.raw) else 0.0
+                if not len(tr.raw):
+                    tr.reason = f"{path}: no band samples"
+                elif not compat and tr.quality < settings.min_quality:
+                    tr.reason = (
+                        f"only {tr.quality:.0%} of samples with >= {settings.min_channels} channels in good "
+                        f"contact (needs {settings.min_quality:.0%})"
+                    )
+            else:
+                if "eeg" not in rec:
+                    raise DataError(f"{path}: no raw 'eeg' lines; use --source bands")
+                tr.t, tr.raw, tr.smoothed, tr.quality, tr.reason = _own_raw_recording(rec, settings)
+        except DataError as exc:
+            tr.t = tr.raw = tr.smoothed = None
+            tr.quality = 0.0
+            tr.reason = str(exc)
+    if compat:
+        baseline, norm = _normalise_authors(turns)
+    else:
+        baseline, norm = _normalise_own(session_dir, turns, src, settings)
+    out: list[TurnEngagement] = []
+    series: dict[int, TurnSeries] = {}
+    for tr, nv in zip(turns, norm):
+        if tr.raw is None or tr.reason:
+            out.append(TurnEngagement(tr.turn, None, None, tr.quality, tr.contact, tr.reason or "no data"))
+            continue
+        ok = np.isfinite(tr.smoothed)
+        index = _mean(tr.smoothed if compat else tr.raw[ok])
+        eng = _mean(nv[ok]) if nv is not None else None
+        reason = "" if eng is not None else "no normalisation scale (too few usable values in the session)"
+        out.append(TurnEngagement(tr.turn, index, eng, tr.quality, tr.contact, reason))
+        series[tr.turn] = TurnSeries(tr.t, tr.raw, tr.smoothed, nv if nv is not None else np.full(len(tr.raw), np.nan))
+    return SessionEngagement(session_id(session_dir), session_dir, compat, src, baseline, out, series)
+
+
+def _normalise_authors(turns: list[_Turn]) -> tuple[str, list[np.ndarray | None]]:
+    """Min-max over all samples of the session's usable turns (the authors' normalized_1.csv)."""
+    values = [t.smoothed for t in turns if t.smoothed is not None and not t.reason]
+    if not values:
+        return "session min-max (authors2018)", [None] * len(turns)
+    allv = np.concatenate(values)
+    lo, hi = np.nanmin(allv), np.nanmax(allv)
+    out: list[np.ndarray | None] = []
+    for t in turns:
+        if t.smoothed is None or t.reason or not hi > lo:
+            out.append(None)
+        else:
+            out.append((t.smoothed - lo) / (hi - lo))
+    return "session min-max (authors2018)", out
+
+
+def _baseline_values(session_dir: Path, src: str, settings: OfflineSettings) -> np.ndarray | None:
+    intro = session_dir / "intro"
+    if not intro.is_file():
+        return None
+    if src == "bands":
+        rec = read_recording(intro, prefixes=("a", "b", "t", "h"))
+        if not all(p in rec for p in ("a", "b", "t")):
+            return None
+        return _own_bands_turn(rec, settings)[1]
+    rec = read_recording(intro, prefixes=("eeg", "h"))
+    if "eeg" not in rec:
+        return None
+    return _own_raw_recording(rec, settings)[2]
+
+
+def _normalise_own(
+    session_dir: Path, turns: list[_Turn], src: str, settings: OfflineSettings
+) -> tuple[str, list[np.ndarray | None]]:
+    """The project's rule: intro baseline plus running bounds, turn by turn; else the session itself."""
+    normaliser = core.EngagementNormaliser()
+    try:
+        base = _baseline_values(session_dir, src, settings)
+    except DataError as exc:
+        base, why = None, f" (intro unreadable: {exc})"
+    else:
+        why = ""
+    usable = [t for t in turns if t.smoothed is not None and not t.reason]
+    if base is not None and np.isfinite(base).sum() >= normaliser.min_values:
+        normaliser.fit_baseline(base)
+        label = "intro + running bounds"
+        out = [normaliser.extend(t.smoothed) if (t.smoothed is not None and not t.reason) else None for t in turns]
+        return label, out
+    normaliser.fit_baseline(np.concatenate([t.smoothed for t in usable]) if usable else [])
+    label = "session listening phases (no intro recording)" + why
+    return label, [normaliser.normalise(t.smoothed) if (t.smoothed is not None and not t.reason) else None for t in turns]
+
+
+def _one(args: tuple) -> SessionEngagement:
+    path, compat, source, settings = args
+    return session_engagement(path, compat, source, settings)
+
+
+def session_engagement_many(
+    root: Path,
+    compat: str | None = None,
+    source: str | None = None,
+    settings: OfflineSettings = OfflineSettings(),
+    workers: int = 2,
+    progress: Callable[[int, int, str], None] | None = None,
+) -> list[SessionEngagement]:
+    """:func:`session_engagement` for every session under ``root``, in natural order.
+
+    ``workers > 1`` spreads sessions over processes. ``progress(done, total, session_id)`` is called after
+    each session (the CLI prints it to stderr). A session that cannot be read raises DataError.
+    """
+    sessions = find_sessions(Path(root))
+    jobs = [(p, compat, source, settings) for p in sessions]
+    results: list[SessionEngagement] = []
+    if workers <= 1 or len(jobs) <= 1:
+        for k, job in enumerate(jobs, 1):
+            results.append(_one(job))
+            if progress:
+                progress(k, len(jobs), results[-1].session)
+        return results
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        for k, res in enumerate(pool.map(_one, jobs, chunksize=max(1, len(jobs) // (4 * workers))), 1):
+            results.append(res)
+            if progress:
+                progress(k, len(jobs), res.session)
+    return results
+
+
+# ----------------------------------------------------------------------------------------------
+# Output
+# ----------------------------------------------------------------------------------------------
+
+COLUMNS: tuple[str, ...] = ("turn", "engagement_index", "engagement", "quality", "contact", "reason")
+
+
+def _cell(v) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return "" if math.isnan(v) else repr(v)
+    text = str(v)
+    if any(c in text for c in ',"\n'):
+        text = '"' + text.replace('"', '""') + '"'
+    return text
+
+
+def to_csv(results: Sequence[SessionEngagement], with_session: bool | None = None) -> str:
+    """One line per turn; a leading ``session`` column when there are several sessions."""
+    with_session = len(results) > 1 if with_session is None else with_session
+    cols = (("session",) if with_session else ()) + COLUMNS
+    lines = [",".join(cols)]
+    for r in results:
+        for t in r.turns:
+            d = t.as_dict()
+            d["session"] = r.session
+            lines.append(",".join(_cell(d[c]) for c in cols))
+    return "\n".join(lines) + "\n"
+
+
+def to_json(results: Sequence[SessionEngagement]) -> str:
+    """The sessions as JSON (a single object for one session, a list otherwise); None -> null."""
+    data = [r.as_dict() for r in results]
+    return json.dumps(data[0] if len(data) == 1 else data, indent=2, allow_nan=False) + "\n"
+
+
+def plot_session(result: SessionEngagement, path: Path) -> Path:
+    """Save a figure: per-turn engagement (bars) and the per-sample series of every turn (line)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(10, 6), constrained_layout=True)
+    turns = [t.turn for t in result.turns]
+    eng = [np.nan if t.engagement is None else t.engagement for t in result.turns]
+    ax1.bar(turns, eng, color=["tab:blue" if np.isfinite(e) else "lightgrey" for e in eng])
+    for t in result.turns:
+        if t.engagement is None:
+            ax1.text(t.turn, 0.02, "x", ha="center", color="tab:red")
+    ax1.set(xlabel="turn", ylabel="engagement (normalised)", ylim=(0, 1),
+            title=f"{result.session}: listening-phase engagement ({result.compat or 'project definition'}, {result.source})")
+    offset = 0.0
+    for turn, s in sorted(result.series.items()):
+        if len(s.t):
+            ax2.plot(offset + s.t, s.normalised, lw=0.8, color="tab:blue")
+            ax2.axvline(offset, color="lightgrey", lw=0.5)
+            offset += float(s.t[-1]) + 1.0
+    ax2.set(xlabel="listening time, turns concatenated (s)", ylabel="normalised E", ylim=(-0.02, 1.02))
+    path = Path(path)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
