@@ -21,8 +21,11 @@ scikit-learn is imported inside the functions.
 """
 from __future__ import annotations
 
+import hashlib
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -216,6 +219,18 @@ class Turns:
     def level(self) -> np.ndarray:
         return mdp.LEVEL[self.state]
 
+    @classmethod
+    def from_columns(cls, cols: Any) -> "Turns":
+        """From a mapping of columns such as ``dataset.TurnTable`` (names as its CSV header)."""
+        return cls(
+            session=np.asarray(cols["session"], dtype=str),
+            state=np.asarray(cols["state"], dtype=int),
+            success=np.asarray(cols["success"], dtype=int).astype(bool),
+            engagement=np.asarray(cols["engagement"], dtype=float),
+            reaction_time=np.asarray(cols["reaction_time"], dtype=float),
+            completion_time=np.asarray(cols["completion_time"], dtype=float),
+        )
+
     def subset(self, mask: np.ndarray) -> "Turns":
         return Turns(*(getattr(self, f)[mask] for f in self.__dataclass_fields__))
 
@@ -401,3 +416,77 @@ def fit_dataset(turns: Turns, options: FitOptions | None = None, metadata: dict[
         say(f"cluster {cid}: {len(c.sessions)} sessions, RMSE performance {c.rmse_performance:.3f} "
             f"(CV {c.cv_rmse_performance:.3f}), engagement {c.rmse_engagement:.3f} (CV {c.cv_rmse_engagement:.3f})")
     return FitResult(um, clustering, clusters, options, metadata)
+
+
+# ------------------------------------------------------------------------------------------------
+# The whole `nao-trainer fit` pipeline (files in, artifacts and figures out)
+# ------------------------------------------------------------------------------------------------
+
+
+def user_cache_dir(root: Path, compat: str | None) -> Path:
+    """Default import cache of a dataset root: ``~/.cache/nao-trainer/import/<root hash>-<compat>``."""
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "nao-trainer" / "import"
+    digest = hashlib.sha256(str(Path(root).resolve()).encode()).hexdigest()[:16]
+    return base / f"{digest}-{compat or 'default'}"
+
+
+def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int = 3, seed: int = 0,
+                 figures: bool = True, cache: Path | str | None = "default",
+                 progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Import (or read a turn-table CSV), fit, write artifacts and figures; returns the JSON report.
+
+    ``cache``: a folder, ``"default"`` (:func:`user_cache_dir`) or None (no cache).
+    """
+    from . import artifacts, dataset
+
+    say = progress or (lambda _m: None)
+    source, out = Path(source), Path(out_dir)
+    skipped: list[str] = []
+    if source.is_file():
+        table = dataset.read_table(source)
+        say(f"{source}: {len(table)} turns from {len(table.sessions)} sessions")
+    else:
+        cache_dir = user_cache_dir(source, compat) if cache == "default" else cache
+        imported = dataset.import_dataset(source, compat=compat, cache_dir=cache_dir, progress=say)
+        for problem in imported.problems:
+            say(f"nao-trainer fit: {problem}")
+        skipped = [str(p) for p in imported.problems]
+        table = imported.table
+        say(f"imported {len(table)} turns from {len(table.sessions)} sessions ({imported.cached} from cache)")
+    turns = Turns.from_columns(table.columns)
+    info = {
+        "dataset_fingerprint": table.fingerprint(),
+        "dataset_fingerprint_of": "sha256 of the imported turn table's CSV text",
+        "compat": compat,
+        "k": k,
+        "seed": seed,
+        "feature_encoding": FEATURE_ENCODING,
+        "state_encoding": "index = (level-1)*27 + RF*9 + PR+4 (core.mdp)",
+        "mdp_definition": mdp.DEFINITION,
+        "cluster_ids": "1..K by increasing mean success rate P1..P4 (ties: mean engagement)",
+    }
+    options = FitOptions(k=k, seed=seed)
+    result = fit_dataset(turns, options, metadata={"compat": compat, "dataset_fingerprint": info["dataset_fingerprint"]},
+                         progress=say)
+    report = {
+        "sessions": len(result.user_models.sessions),
+        "turns": len(turns.state),
+        "skipped": skipped,
+        "k": result.clustering.k,
+        "inertia": round(result.clustering.inertia, 9),
+        **{key: info[key] for key in ("compat", "seed", "dataset_fingerprint")},
+        "clusters": [c.summary() for c in result.clusters],
+    }
+    options_dict = {f: getattr(options, f) for f in options.__dataclass_fields__}
+    artifacts.save_models(out, [c.simulator for c in result.clusters], report["clusters"],
+                          {**info, "options": options_dict, "sessions": report["sessions"], "turns": report["turns"],
+                           "skipped": skipped, "inertia": report["inertia"]})
+    say(f"wrote {out / artifacts.MANIFEST} and {len(result.clusters)} simulators")
+    if figures:
+        from .core.usermodel import mds_projection
+        from .plots.usermodels import plot_all
+
+        mds = mds_projection(result.user_models.features, seed=seed)
+        report["figures"] = [str(p) for p in plot_all(result, turns, mds, out)]
+        say(f"figures: {', '.join(report['figures'])}")
+    return report

@@ -1,7 +1,57 @@
-"""`nao-trainer fit` (placeholder until its issue lands)."""
+"""`nao-trainer fit SOURCE --out DIR`: user models, clusters and per-cluster simulators (+ figures)."""
 from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
 
 
 def register(sub) -> None:
-    p = sub.add_parser("fit" if "fit" != "import_data" else "import", help="(not yet available)")
-    p.set_defaults(func=lambda args: (_ for _ in ()).throw(SystemExit("not yet available")))
+    p = sub.add_parser(
+        "fit",
+        help="fit user models, clusters and per-cluster simulated users from data",
+        description="Import SOURCE (a dataset root, or a turn table CSV from `nao-trainer import`), compute the "
+        "user models [P1..P4, E1..E4], cluster them with K-means and fit one simulated user per cluster. "
+        "Writes DIR/manifest.json, DIR/cluster_<id>.json and the figures DIR/users.png, DIR/clusters.png.",
+    )
+    p.add_argument("source", metavar="SOURCE", type=Path, help="dataset root or turn-table CSV")
+    p.add_argument("--out", "-o", type=Path, required=True, metavar="DIR", help="folder for the models and figures")
+    p.add_argument("--compat", choices=["authors2018"], default=None,
+                   help="per-turn engagement as the authors computed it (reproduces the paper's user models)")
+    p.add_argument("--k", type=int, default=3, help="number of clusters (default 3)")
+    p.add_argument("--seed", type=int, default=0, help="seed of K-means, MDS and cross-validation folds")
+    p.add_argument("--json", action="store_true", help="print the cluster table as JSON on stdout")
+    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument("--cache", type=Path, default=None, metavar="DIR",
+                   help="import cache folder (default: ~/.cache/nao-trainer/import/...)")
+    p.add_argument("--no-cache", action="store_true", help="read every session again")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..errors import ConfigError
+    from ..fitting import fit_and_save
+
+    if args.k < 1:
+        raise ConfigError(f"--k must be a positive number of clusters, got {args.k}")
+    say = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
+    report = fit_and_save(args.source, args.out, compat=args.compat, k=args.k, seed=args.seed,
+                          figures=not args.no_figures, cache=None if args.no_cache else (args.cache or "default"),
+                          progress=say)
+    if args.json:
+        print(json.dumps(report, indent=1))
+    else:
+        print(format_table(report))
+    return 0
+
+
+def format_table(report: dict) -> str:
+    head = f"{'id':>2} {'size':>4}  {'P1..P4':<23}  {'E1..E4':<23}  {'RMSE perf':>9} {'(CV)':>6}  {'RMSE eng':>8} {'(CV)':>6}"
+    lines = [head]
+    for c in report["clusters"]:
+        p = " ".join(f"{v:.2f}" for v in c["p"])
+        e = " ".join(f"{v:.2f}" for v in c["e"])
+        lines.append(f"{c['id']:>2} {c['size']:>4}  {p:<23}  {e:<23}  {c['rmse_performance']:>9.3f} "
+                     f"{c['cv_rmse_performance']:>6.3f}  {c['rmse_engagement']:>8.3f} {c['cv_rmse_engagement']:>6.3f}")
+    return "\n".join(lines)

@@ -1,0 +1,382 @@
+"""Import sessions of the published layout into one tidy turn table (one row per turn).
+
+Reads every ``user_<id>/session_<k>/`` under a root with ``nao_trainer.published`` (logfile,
+state_EEG, recordings) and ``nao_trainer.eeg.offline.session_engagement`` (per-turn engagement),
+checks that logfile and state_EEG agree, and derives the MDP columns (state index, the action that
+produced the turn). A session that cannot be read is reported in one line and skipped; the others
+import.
+
+Columns (:data:`COLUMNS`): ``session turn state length level feedback previous_score action
+sequence response success score signed_score reaction_time completion_time engagement_index
+engagement eeg_quality contact eeg_note``. ``action`` is the core.mdp action that produced the turn (a
+level action from START on turn 1; RF1/RF2 when the turn followed robot feedback). ``score`` is
+equation (1) (+level / -1), ``signed_score`` the data's +level / -level. Engagement columns are NaN
+when the turn has no usable EEG and ``eeg_note`` says why; ``eeg_quality`` is the fraction of
+usable EEG samples of the turn and ``contact`` the fraction of the listening recording's ``h``
+samples with all four electrodes in good or ok contact.
+
+Cache: each session's rows are stored in ``<cache_dir>/<user>__<session>.json`` keyed by the
+importer version, the compatibility mode and the names, sizes and modification times of all the
+session's files; a re-import reads only the cache for unchanged sessions.
+"""
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import os
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import published
+from .core import mdp
+from .core.task import LENGTHS, level_of, score, signed_score
+from .errors import DataError
+
+IMPORTER_VERSION = 1
+COMPAT_MODES = (None, "authors2018")
+
+#: Column name -> kind (str, int, float). The CSV's header is exactly these names in this order.
+COLUMNS: dict[str, type] = {
+    "session": str,
+    "turn": int,
+    "state": int,
+    "length": int,
+    "level": int,
+    "feedback": int,
+    "previous_score": int,
+    "action": int,
+    "sequence": str,
+    "response": str,
+    "success": int,
+    "score": int,
+    "signed_score": int,
+    "reaction_time": float,
+    "completion_time": float,
+    "engagement_index": float,
+    "engagement": float,
+    "eeg_quality": float,
+    "contact": float,
+    "eeg_note": str,
+}
+
+
+@dataclass(frozen=True)
+class SessionProblem:
+    """A session that was not imported, with the one-line reason."""
+
+    session: str
+    reason: str
+
+    def __str__(self) -> str:
+        return f"{self.session}: skipped: {self.reason}"
+
+
+@dataclass
+class TurnTable:
+    """Column arrays of the tidy turn table (see :data:`COLUMNS`)."""
+
+    columns: dict[str, np.ndarray]
+
+    def __len__(self) -> int:
+        return len(self.columns["session"])
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.columns[name]
+
+    @property
+    def sessions(self) -> list[str]:
+        return list(dict.fromkeys(self.columns["session"].tolist()))
+
+    @classmethod
+    def from_rows(cls, rows: list[dict[str, Any]]) -> "TurnTable":
+        cols = {}
+        for name, kind in COLUMNS.items():
+            values = [r[name] for r in rows]
+            cols[name] = np.array(values, dtype=float if kind is float else (np.int64 if kind is int else str))
+            if kind is str and not values:
+                cols[name] = np.array([], dtype=str)
+        return cls(cols)
+
+    def to_csv(self) -> str:
+        """CSV text (floats as ``repr``, so reading back is exact; NaN as empty)."""
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(COLUMNS)
+        cols = [self.columns[n] for n in COLUMNS]
+        kinds = list(COLUMNS.values())
+        for i in range(len(self)):
+            w.writerow(["" if k is float and not np.isfinite(c[i]) else (repr(float(c[i])) if k is float else c[i])
+                        for c, k in zip(cols, kinds)])
+        return buf.getvalue()
+
+    def fingerprint(self) -> str:
+        """SHA-256 of the CSV text: identifies the data a model was fitted from."""
+        return hashlib.sha256(self.to_csv().encode()).hexdigest()
+
+
+def write_table(table: TurnTable, path: Path, provenance: dict[str, Any]) -> Path:
+    """Write the CSV and a JSON sidecar ``<path>.json`` with provenance; returns the CSV path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = table.to_csv()
+    for target, content in ((path, text), (path.with_name(path.name + ".json"),
+                                           json.dumps(provenance, indent=1) + "\n")):
+        tmp = target.with_name(f".{target.name}.tmp-{os.getpid()}")
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(content)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, target)
+    return path
+
+
+def read_table(path: Path) -> TurnTable:
+    """Read a turn table CSV written by :func:`write_table`; DataError naming file:line on problems."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise DataError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: cannot read ({exc})") from None
+    reader = csv.reader(io.StringIO(text))
+    header = next(reader, None)
+    if header != list(COLUMNS):
+        missing = [c for c in COLUMNS if c not in (header or [])]
+        raise DataError(f"{path}:1: not a nao-trainer turn table (missing columns: {', '.join(missing) or 'order differs'}); "
+                        f"create it with `nao-trainer import`")
+    rows = []
+    for lineno, rec in enumerate(reader, 2):
+        if len(rec) != len(COLUMNS):
+            raise DataError(f"{path}:{lineno}: expected {len(COLUMNS)} fields, got {len(rec)}")
+        row: dict[str, Any] = {}
+        for (name, kind), value in zip(COLUMNS.items(), rec):
+            try:
+                row[name] = (float(value) if value else float("nan")) if kind is float else kind(value)
+            except ValueError:
+                raise DataError(f"{path}:{lineno}: column {name!r} must be {kind.__name__}, got {value!r}") from None
+        rows.append(row)
+    table = TurnTable.from_rows(rows)
+    bad = ~np.isin(table["state"], np.arange(mdp.N_TURN_STATES))
+    if bad.any():
+        raise DataError(f"{path}:{int(np.flatnonzero(bad)[0]) + 2}: state must be in 0..107")
+    return table
+
+
+# ------------------------------------------------------------------------------------------------
+# One session
+# ------------------------------------------------------------------------------------------------
+
+
+def _letters(seq: tuple[str, ...]) -> str:
+    return "".join(s.upper() for s in seq)
+
+
+def produced_by(length: int, feedback: int, turn_index: int) -> int:
+    """The core.mdp action that led to a turn: RF1/RF2 after feedback, else the level action."""
+    if feedback == 1 and turn_index > 0:
+        return mdp.ENCOURAGE
+    if feedback == 2 and turn_index > 0:
+        return mdp.CHALLENGE
+    return level_of(length) - 1
+
+
+def _check_turns(sid: str, log: list[published.LogRow], states: list[published.StateRow]) -> None:
+    """Raise DataError when logfile and state_EEG disagree or turns are missing."""
+    if not log:
+        raise DataError("logfile has no turns")
+    numbers = [r.turn for r in log]
+    if numbers != list(range(1, len(log) + 1)):
+        gap = next(i + 1 for i, n in enumerate(numbers) if n != i + 1)
+        raise DataError(f"logfile turn numbers are not 1..{len(log)} (turn {gap} is {numbers[gap - 1]})")
+    if len(states) < len(log):
+        raise DataError(f"state_EEG has {len(states)} turns, fewer than the logfile's {len(log)}")
+    for i, (r, s) in enumerate(zip(log, states)):
+        where = f"turn {i + 1}"
+        if r.length not in LENGTHS:
+            raise DataError(f"logfile {where}: length must be one of {LENGTHS}, got {r.length}")
+        if r.success not in (1, -1):
+            raise DataError(f"logfile {where}: success must be 1 or -1, got {r.success}")
+        if (s.length, s.rf) != (r.length, r.rf):
+            raise DataError(f"{where}: state_EEG says length {s.length} rf {s.rf}, logfile {r.length} {r.rf}")
+        expected_prev = 0 if i == 0 else signed_score(level_of(log[i - 1].length), log[i - 1].success == 1)
+        if s.previous_score != expected_prev:
+            raise DataError(f"state_EEG {where}: previous_score {s.previous_score}, the logfile implies {expected_prev}")
+        if r.rf > 0 and i > 0 and r.length != log[i - 1].length:
+            raise DataError(f"{where}: feedback turn changes length ({log[i - 1].length} -> {r.length})")
+        mdp.encode(s.length, s.rf, s.previous_score)
+
+
+def _engagement(session_dir: Path, n: int, compat: str | None) -> list[tuple[float, float, float, float, str]]:
+    """Per turn: (engagement_index, engagement, quality, contact, note) from ``eeg.offline``."""
+    from .eeg.offline import session_engagement
+
+    nan = float("nan")
+    eng = session_engagement(session_dir, compat=compat)
+    out = []
+    for t in eng.turns[:n]:
+        out.append((
+            nan if t.engagement_index is None else float(t.engagement_index),
+            nan if t.engagement is None else float(t.engagement),
+            float(t.quality),
+            nan if t.contact is None else float(t.contact),
+            t.reason,
+        ))
+    out += [(nan, nan, 0.0, nan, "no EEG turn")] * (n - len(out))
+    return out
+
+
+def import_session(session_dir: Path, compat: str | None = None) -> list[dict[str, Any]]:
+    """The turn rows of one session; DataError (message without the session id) when unreadable."""
+    session_dir = Path(session_dir)
+    sid = published.session_id(session_dir)
+    log = published.read_logfile(session_dir / "logfile")
+    states = published.read_state_eeg(session_dir / "state_EEG")
+    _check_turns(sid, log, states)
+    states = states[: len(log)]
+    n = len(log)
+    eeg = _engagement(session_dir, n, compat)
+    rows = []
+    for i, (r, s) in enumerate(zip(log, states)):
+        index, normed, quality, contact, note = eeg[i]
+        lv = level_of(r.length)
+        ok = r.success == 1
+        rows.append({
+            "session": sid, "turn": r.turn, "state": mdp.encode(s.length, s.rf, s.previous_score),
+            "length": r.length, "level": lv, "feedback": r.rf, "previous_score": s.previous_score,
+            "action": produced_by(r.length, r.rf, i), "sequence": _letters(r.sequence),
+            "response": _letters(r.response), "success": int(ok), "score": score(lv, ok),
+            "signed_score": signed_score(lv, ok), "reaction_time": float(r.reaction_time),
+            "completion_time": float(r.completion_time), "engagement_index": index,
+            "engagement": normed, "eeg_quality": quality, "contact": contact, "eeg_note": note,
+        })
+    return rows
+
+
+# ------------------------------------------------------------------------------------------------
+# Cache and whole dataset
+# ------------------------------------------------------------------------------------------------
+
+
+def _session_key(session_dir: Path, compat: str | None) -> str:
+    h = hashlib.sha256(f"v{IMPORTER_VERSION}|{compat}".encode())
+    with os.scandir(session_dir) as it:
+        entries = sorted(it, key=lambda e: e.name)
+    for e in entries:
+        if e.is_dir():
+            with os.scandir(e.path) as sub:
+                for f in sorted(sub, key=lambda x: x.name):
+                    st = f.stat()
+                    h.update(f"{e.name}/{f.name}|{st.st_size}|{st.st_mtime_ns}\n".encode())
+        else:
+            st = e.stat()
+            h.update(f"{e.name}|{st.st_size}|{st.st_mtime_ns}\n".encode())
+    return h.hexdigest()
+
+
+def _cache_file(cache_dir: Path, sid: str) -> Path:
+    return cache_dir / (sid.replace("/", "__") + ".json")
+
+
+def _json_safe(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    return [{k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in r.items()} for r in rows]
+
+
+def _from_json(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    return [{k: (float("nan") if v is None else v) for k, v in r.items()} for r in rows]
+
+
+@dataclass
+class ImportResult:
+    table: TurnTable
+    problems: list[SessionProblem]
+    cached: int = 0
+    provenance: dict[str, Any] = field(default_factory=dict)
+
+
+def import_dataset(root: Path, compat: str | None = None, cache_dir: Path | None = None,
+                   progress: Callable[[str], None] | None = None) -> ImportResult:
+    """Import every session under ``root``; unreadable sessions become :class:`SessionProblem` lines.
+
+    Raises DataError when no session folder exists or none could be imported.
+    """
+    if compat not in COMPAT_MODES:
+        raise DataError(f"unknown compatibility mode {compat!r}: use one of {', '.join(str(c) for c in COMPAT_MODES[1:])}")
+    root = Path(root)
+    say = progress or (lambda _m: None)
+    sessions = published.find_sessions(root)
+    if cache_dir is not None:
+        Path(cache_dir).mkdir(parents=True, exist_ok=True)
+    rows: list[dict[str, Any]] = []
+    problems: list[SessionProblem] = []
+    cached = 0
+    for k, sdir in enumerate(sessions, 1):
+        sid = published.session_id(sdir)
+        key = _session_key(sdir, compat) if cache_dir is not None else ""
+        if cache_dir is not None:
+            hit = _read_cache(_cache_file(Path(cache_dir), sid), key)
+            if hit is not None:
+                rows.extend(hit)
+                cached += 1
+                continue
+        say(f"import {k}/{len(sessions)} {sid}")
+        try:
+            srows = import_session(sdir, compat)
+        except DataError as exc:
+            problems.append(SessionProblem(sid, str(exc)))
+            continue
+        except (OSError, ValueError, IndexError, KeyError) as exc:  # malformed data the readers did not name
+            problems.append(SessionProblem(sid, f"{type(exc).__name__}: {exc}"))
+            continue
+        rows.extend(srows)
+        if cache_dir is not None:
+            _write_cache(_cache_file(Path(cache_dir), sid), key, srows)
+    if not rows:
+        detail = f" ({problems[0]})" if problems else ""
+        raise DataError(f"{root}: none of {len(sessions)} sessions could be imported{detail}")
+    table = TurnTable.from_rows(rows)
+    provenance = {
+        "format": "nao-trainer/turn-table",
+        "importer_version": IMPORTER_VERSION,
+        "root": str(root.resolve()),
+        "compat": compat,
+        "sessions": len(table.sessions),
+        "turns": len(table),
+        "skipped": [str(p) for p in problems],
+        "fingerprint": table.fingerprint(),
+    }
+    return ImportResult(table, problems, cached, provenance)
+
+
+def _read_cache(path: Path, key: str) -> list[dict[str, Any]] | None:
+    try:
+        with open(path, encoding="utf-8") as fh:
+            data = json.load(fh)
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict) or data.get("key") != key or not isinstance(data.get("rows"), list):
+        return None
+    return _from_json(data["rows"])
+
+
+def _write_cache(path: Path, key: str, rows: list[dict[str, Any]]) -> None:
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            json.dump({"key": key, "rows": _json_safe(rows)}, fh)
+        os.replace(tmp, path)
+    except OSError as exc:  # a cache that cannot be written only costs time
+        print(f"nao-trainer: warning: cannot write import cache {path}: {exc.strerror}", file=sys.stderr)
+
+
+def default_cache_dir(out: Path) -> Path:
+    """The cache beside an output file: ``<out>.cache/``."""
+    out = Path(out)
+    return out.with_name(out.name + ".cache")
