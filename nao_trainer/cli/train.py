@@ -1,7 +1,82 @@
-"""`nao-trainer train` (placeholder until its issue lands)."""
+"""`nao-trainer train`: learn user-specific policies on the simulated users (paper Figures 7 and 8)."""
 from __future__ import annotations
+
+import json
+import shlex
+import sys
+from pathlib import Path
+
+from ..errors import ConfigError, DataError
 
 
 def register(sub) -> None:
-    p = sub.add_parser("train" if "train" != "import_data" else "import", help="(not yet available)")
-    p.set_defaults(func=lambda args: (_ for _ in ()).throw(SystemExit("not yet available")))
+    from ..core.qlearning import METHODS
+
+    p = sub.add_parser(
+        "train", help="train user-specific policies (Q-learning with engagement feedback) on simulated users",
+        description="Train one Q-learner per (user model, method, seed) and write learning curves, policies at "
+                    "S0, the policy files and a summary. See docs/policies.md.")
+    p.add_argument("--models", type=Path, default=None,
+                   help="folder of fitted user models (default: $NAO_TRAINER_MODELS or sim/models)")
+    p.add_argument("--methods", default=",".join(METHODS),
+                   help=f"comma-separated methods among {', '.join(METHODS)} (default: all)")
+    p.add_argument("--seeds", type=int, default=20, help="independent runs per (model, method) (default 20)")
+    p.add_argument("--episodes", type=int, default=10_000, help="episodes per run (default 10000)")
+    p.add_argument("--turns", type=int, default=25, help="turns per episode (default 25, as in the study)")
+    p.add_argument("--seed", type=int, default=0, help="base seed; same seed, same outputs (default 0)")
+    p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
+    p.add_argument("--out", type=Path, default=Path("trained_policies"),
+                   help="output folder (default ./trained_policies; the shipped ones are in sim/policies)")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from .. import artifacts
+    from ..core.qlearning import METHODS
+    from ..training import TrainingSpec, train_grid, write_outputs
+
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    bad = [m for m in methods if m not in METHODS]
+    if bad:
+        raise ConfigError(f"--methods: unknown method {bad[0]!r}; use a comma-separated list of {', '.join(METHODS)}")
+    try:
+        spec = TrainingSpec(methods=methods, seeds=args.seeds, episodes=args.episodes, turns=args.turns,
+                            seed=args.seed, workers=args.workers)
+    except ValueError as exc:
+        raise ConfigError(f"--{str(exc).split()[0]}: {exc}") from None
+    models_dir = Path(args.models) if args.models else artifacts.default_models_dir()
+    clusters = artifacts.available_models(models_dir)
+    if not clusters:
+        raise DataError(f"{models_dir / artifacts.MANIFEST}: lists no clusters; refit with `nao-trainer fit`")
+    simulators = [artifacts.load_simulator(c, models_dir) for c in clusters]
+    result = train_grid(simulators, clusters, spec, progress=True)
+    print(f"train: {result.turns / 1e6:.1f} M turns in {result.seconds:.1f} s "
+          f"({result.turns / max(result.seconds, 1e-9) / 1e6:.2f} M turns/s); writing {args.out}", file=sys.stderr)
+    command = "nao-trainer " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else "nao-trainer train"
+    try:
+        paths = write_outputs(result, args.out, str(models_dir), command, plots=not args.no_plots)
+    except OSError as exc:
+        raise DataError(f"{args.out}: cannot write outputs ({exc.strerror}); choose a writable --out") from None
+    if args.json:
+        print(json.dumps(result.summary_json()))
+    else:
+        print_table(result.results())
+        for key, path in paths.items():
+            print(f"  {key}: {path}")
+    return 0
+
+
+def print_table(rows: list[dict]) -> None:
+    """The results as an aligned text table (score and engagement over the final episodes)."""
+    def ci(v):
+        return "n/a" if v is None else f"[{v[0]:.2f}, {v[1]:.2f}]"
+
+    def ci3(v):
+        return "n/a" if v is None else f"[{v[0]:.3f}, {v[1]:.3f}]"
+
+    print(f"{'cluster':>7}  {'method':<11}  {'score':>7}  {'95% CI':>16}  {'engagement':>10}  {'95% CI':>16}")
+    for r in rows:
+        print(f"{r['cluster']:>7}  {r['method']:<11}  {r['score_mean']:7.2f}  {ci(r['score_ci']):>16}  "
+              f"{r['engagement_mean']:10.3f}  {ci3(r['engagement_ci']):>16}")

@@ -1,0 +1,419 @@
+"""Tabular Q-learning with engagement as feedback (paper section 5.2).
+
+Pure: no I/O, no global randomness. Two implementations of the *same* maths:
+
+* ``QLearner``: one agent, for live sessions (``act`` / ``update``);
+* ``BatchLearner``: many independent agents (cluster x method x seed) in lock-step over simulated
+  users, vectorised with numpy. Tests check that both produce identical actions and tables when fed
+  the same random numbers.
+
+Learning rule
+    ``Q(s, a) <- Q(s, a) + alpha * (r' + gamma * max_b Q(s', b) - Q(s, a))``; on the last turn of an
+    episode the bracket is ``r' - Q(s, a)`` (no bootstrap). ``r = SCORE[s', o']`` is the paper's
+    equation (1) for the turn played in ``s'`` (+level on success, -1 on failure).
+
+Engagement as feedback (``method``)
+    ``performance``  ``r' = r``; actions chosen on ``Q``.
+    ``shaping``      ``r' = r + beta1 * e`` (beta1 = 7.5); actions chosen on ``Q``.
+    ``qaug``         ``r' = r``; actions chosen on ``Q'(s, a) = Q(s, a) + beta2 * H(s, a)`` (beta2 = 0.8).
+
+    ``e`` in [0, 1] is the engagement of the turn played in ``s'``. ``H(s, a)`` is the engagement
+    model of the pair: the *incremental sample mean* of the engagement observed after taking ``a`` in
+    ``s``, ``H <- H + (e - H) / n(s, a)``, starting at ``h_prior`` (0 by default, so untried pairs
+    are not favoured). ``H`` and its counts are kept for every method (they cost nothing and let a
+    policy be inspected), but only ``qaug`` uses them. A turn without engagement (``e is None``,
+    live only) uses ``r' = r`` and leaves ``H`` unchanged.
+
+Exploration
+    Softmax (Boltzmann) over the allowed actions with a temperature that falls with the number of
+    times ``n`` the agent has acted in that state::
+
+        tau(n) = max(tau_min, tau0 / (1 + n / n_half))      P(a | s) ~ exp(V(s, a) / tau(n(s)))
+
+    With ``tau0 = 5`` the first choices are near-uniform: early action values differ by about
+    ``alpha * 4 = 0.3`` (the reward scale is -1..+4 per turn, more with shaping), ``exp(0.3 / 5) = 1.06``.
+    The temperature halves after ``n_half`` visits and floors at ``tau_min``, leaving a little
+    exploration forever (which also keeps the live policy probabilistic, like Figure 8). In
+    ``START`` only the level actions L1..L4 are allowed (``mdp.ACTION_MASK``).
+
+Sampling an action from a uniform ``u`` is inverse-CDF over the allowed actions in index order:
+the first action whose cumulative weight reaches ``u`` times the total.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from . import mdp
+
+METHODS: tuple[str, ...] = ("performance", "shaping", "qaug")
+METHOD_TEXT: dict[str, str] = {
+    "performance": "r' = r (task score, eq. 1)",
+    "shaping": "r' = r + beta1 * e (reward shaping)",
+    "qaug": "choose on Q + beta2 * H(s,a) (Q-augmentation)",
+}
+_N_LEVEL_ACTIONS = len(mdp.LEVEL_ACTIONS)
+
+
+def check_method(method: str) -> str:
+    """``method`` if it is one of ``METHODS``; ValueError naming the bad value otherwise."""
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    return method
+
+
+@dataclass(frozen=True)
+class QConfig:
+    """Hyper-parameters (paper defaults; the temperature schedule is this project's, see module doc)."""
+
+    alpha: float = 0.08
+    gamma: float = 0.95
+    tau0: float = 5.0
+    tau_min: float = 0.1
+    n_half: float = 20.0
+    beta1: float = 7.5
+    beta2: float = 0.8
+    h_prior: float = 0.0
+
+    def __post_init__(self) -> None:
+        checks = {
+            "alpha": 0 < self.alpha <= 1,
+            "gamma": 0 <= self.gamma <= 1,
+            "tau0": self.tau0 > 0,
+            "tau_min": 0 < self.tau_min <= self.tau0,
+            "n_half": self.n_half > 0,
+            "beta1": np.isfinite(self.beta1),
+            "beta2": np.isfinite(self.beta2),
+            "h_prior": 0 <= self.h_prior <= 1,
+        }
+        ranges = {"alpha": "(0, 1]", "gamma": "[0, 1]", "tau0": "> 0", "tau_min": "(0, tau0]",
+                  "n_half": "> 0", "beta1": "finite", "beta2": "finite", "h_prior": "[0, 1]"}
+        for name, ok in checks.items():
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or not ok:
+                raise ValueError(f"QConfig.{name} must be {ranges[name]}, got {value!r}")
+
+    def to_dict(self) -> dict[str, float]:
+        return {k: float(v) for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "QConfig":
+        unknown = set(data) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"unknown hyper-parameter(s): {', '.join(sorted(unknown))}")
+        return cls(**{k: float(v) for k, v in data.items()})
+
+    def shaping_weight(self, method: str) -> float:
+        """beta1 for ``shaping``, 0 otherwise (the reward weight of engagement)."""
+        return self.beta1 if check_method(method) == "shaping" else 0.0
+
+    def augment_weight(self, method: str) -> float:
+        """beta2 for ``qaug``, 0 otherwise (the action-value weight of H)."""
+        return self.beta2 if check_method(method) == "qaug" else 0.0
+
+
+def inverse_temperature(visits: "int | np.ndarray", config: QConfig) -> np.ndarray:
+    """``1 / tau(n)`` for visit counts ``n`` (vectorised; see the module doc for tau)."""
+    n = np.asarray(visits, dtype=np.float64)
+    if np.any(n < 0):
+        raise ValueError(f"visit counts must be >= 0, got {n.min()!r}")
+    tau = np.maximum(config.tau_min, config.tau0 / (1.0 + n / config.n_half))
+    return 1.0 / tau
+
+
+def temperature(visits: "int | np.ndarray", config: QConfig) -> np.ndarray:
+    """``tau(n) = max(tau_min, tau0 / (1 + n / n_half))``."""
+    return 1.0 / inverse_temperature(visits, config)
+
+
+def softmax_weights(values: np.ndarray, inv_tau: np.ndarray) -> np.ndarray:
+    """Unnormalised Boltzmann weights of the columns of ``values`` (k actions, n agents).
+
+    The column maximum is subtracted first so large values over small temperatures cannot overflow.
+    """
+    z = values - column_max(values)
+    z *= inv_tau
+    return np.exp(z, out=z)
+
+
+def choose_columns(values: np.ndarray, inv_tau: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Sample one action per column of ``values`` (k, n) by inverse CDF with uniforms ``u`` (n,).
+
+    This is the single kernel both learners use, so their choices agree bit for bit. Rows are
+    combined one by one: numpy's reductions along a short axis cost more than k ufunc calls, and
+    this loop runs 250,000 times per training run.
+    """
+    cum = softmax_weights(values, inv_tau)
+    prev = cum[0]
+    for j in range(1, len(cum)):
+        row = cum[j]
+        row += prev  # running sums in place: cum[j] = w[0] + ... + w[j]
+        prev = row
+    below = (cum[:-1] < u * prev).view(np.uint8)
+    chosen = below[0]
+    for j in range(1, len(below)):
+        chosen = chosen + below[j]
+    return chosen.astype(np.int64)
+
+
+def policy_probabilities(values: np.ndarray, mask: np.ndarray, inv_tau: float) -> np.ndarray:
+    """P(a | s) of a row of action values under ``mask`` (zeros where not allowed)."""
+    allowed = np.flatnonzero(mask)
+    w = softmax_weights(np.asarray(values, dtype=float)[allowed][:, None], np.array([inv_tau]))[:, 0]
+    probs = np.zeros(len(mask))
+    probs[allowed] = w / w.sum()
+    return probs
+
+
+def column_max(values: np.ndarray) -> np.ndarray:
+    """Maximum of each column of ``values`` (k, n), row by row (see ``softmax_weights``)."""
+    top = values[0]
+    for j in range(1, len(values)):
+        top = np.maximum(top, values[j])
+    return top
+
+
+# ----------------------------------------------------------------------------------------------
+# One agent
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class QLearner:
+    """One Q-learning agent over ``core.mdp`` (109 states x 6 actions).
+
+    ``q`` (109, 6) action values, ``h`` (109, 6) engagement model, ``h_counts`` (109, 6) engagement
+    observations per pair, ``visits`` (109,) times the agent acted (and learned) in each state.
+    ``act`` samples from the softmax at the state's current temperature; ``update`` applies one
+    transition. The maths is documented in the module docstring.
+    """
+
+    method: str = "performance"
+    config: QConfig = field(default_factory=QConfig)
+    q: np.ndarray | None = None
+    h: np.ndarray | None = None
+    h_counts: np.ndarray | None = None
+    visits: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        check_method(self.method)
+        shape = (mdp.N_STATES, mdp.N_ACTIONS)
+        self.q = _table(self.q, shape, 0.0, float, "q")
+        self.h = _table(self.h, shape, self.config.h_prior, float, "h")
+        self.h_counts = _table(self.h_counts, shape, 0, np.int64, "h_counts")
+        self.visits = _table(self.visits, (mdp.N_STATES,), 0, np.int64, "visits")
+        if np.any(self.h_counts < 0) or np.any(self.visits < 0):
+            raise ValueError("h_counts and visits must be >= 0")
+
+    def values(self, state: int) -> np.ndarray:
+        """The action values the agent chooses on: ``Q`` or, for ``qaug``, ``Q + beta2 * H``."""
+        if self.method == "qaug":
+            return self.q[state] + self.config.beta2 * self.h[state]
+        return self.q[state].copy()
+
+    def inverse_temperature(self, state: int) -> float:
+        return float(inverse_temperature(self.visits[state], self.config))
+
+    def probabilities(self, state: int) -> np.ndarray:
+        """The current policy P(a | state) (zero for actions not allowed)."""
+        _check_state(state)
+        return policy_probabilities(self.values(state), mdp.ACTION_MASK[state], self.inverse_temperature(state))
+
+    def choose(self, state: int, u: float) -> int:
+        """The action for uniform ``u`` in [0, 1) (inverse CDF over the allowed actions)."""
+        _check_state(state)
+        allowed = np.flatnonzero(mdp.ACTION_MASK[state])
+        column = self.values(state)[allowed][:, None]
+        k = choose_columns(column, np.array([self.inverse_temperature(state)]), np.array([u]))[0]
+        return int(allowed[k])
+
+    def act(self, state: int, rng: np.random.Generator) -> int:
+        """Sample an allowed action for ``state`` with one uniform from ``rng``."""
+        return self.choose(state, rng.random())
+
+    def update(self, state: int, action: int, score: float, engagement: float | None,
+               next_state: int, done: bool) -> float:
+        """Learn from one transition; returns the TD target used."""
+        _check_state(state)
+        if not mdp.ACTION_MASK[state, action]:
+            raise ValueError(f"action {mdp.ACTION_NAMES[action]} is not allowed in {mdp.state_label(state)}")
+        if not 0 <= next_state < mdp.N_TURN_STATES:
+            raise ValueError(f"next_state must be a turn state 0..107, got {next_state!r}")
+        reward = float(score)
+        if engagement is not None:
+            e = float(engagement)
+            if not np.isfinite(e):
+                raise ValueError(f"engagement must be finite, got {engagement!r}")
+            reward = reward + self.config.shaping_weight(self.method) * e
+        target = reward if done else reward + self.config.gamma * self.q[next_state].max()
+        q_sa = self.q[state, action]
+        self.q[state, action] = q_sa + self.config.alpha * (target - q_sa)
+        if engagement is not None:
+            n = self.h_counts[state, action] + 1
+            self.h_counts[state, action] = n
+            h_sa = self.h[state, action]
+            self.h[state, action] = h_sa + (e - h_sa) / n
+        self.visits[state] += 1
+        return target
+
+
+def _table(value, shape, fill, dtype, name) -> np.ndarray:
+    if value is None:
+        return np.full(shape, fill, dtype=dtype)
+    arr = np.array(value, dtype=dtype)
+    if arr.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+    if dtype is float and not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} has non-finite values")
+    return arr
+
+
+def _check_state(state: int) -> None:
+    if not 0 <= state < mdp.N_STATES:
+        raise ValueError(f"state must be in 0..{mdp.N_STATES - 1}, got {state!r}")
+
+
+# ----------------------------------------------------------------------------------------------
+# Many agents in lock-step
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class BatchResult:
+    """Final tables of every agent and its per-episode outcomes.
+
+    ``episode_score[i, k]``: total eq.-(1) score of agent i's episode k; ``episode_engagement[i, k]``:
+    that episode's mean per-turn engagement.
+    """
+
+    q: np.ndarray  # (n, 109, 6)
+    h: np.ndarray  # (n, 109, 6)
+    h_counts: np.ndarray  # (n, 109, 6)
+    visits: np.ndarray  # (n, 109)
+    episode_score: np.ndarray  # (n, episodes)
+    episode_engagement: np.ndarray  # (n, episodes)
+
+    def learner(self, i: int, method: str, config: QConfig) -> QLearner:
+        return QLearner(method, config, self.q[i].copy(), self.h[i].copy(), self.h_counts[i].copy(),
+                        self.visits[i].copy())
+
+
+class BatchLearner:
+    """``n`` independent Q-learners, each training on its own simulated user, stepped together.
+
+    Agent ``i`` uses ``p_success[i]`` (108,) and ``engagement[i]`` (108, 2) of its simulated user,
+    ``methods[i]`` and the shared ``config``. Each agent draws its random numbers from its own
+    generator in blocks of ``(episodes, turns, 2)`` uniforms (``[..., 0]`` chooses the action,
+    ``[..., 1]`` the outcome: success when ``u < p_success[s']``), so its result does not depend on
+    the other agents in the batch nor on the block size.
+
+    All agents start every episode in ``START`` at the same step, which makes the start-state mask
+    a column slice. Per-agent tables are stored flat with the agent's offset added to the state
+    index so every step is a handful of ``np.take`` calls over the agents.
+    """
+
+    def __init__(self, p_success: np.ndarray, engagement: np.ndarray, methods: Sequence[str],
+                 config: QConfig = QConfig()) -> None:
+        p = np.asarray(p_success, dtype=float)
+        e = np.asarray(engagement, dtype=float)
+        n = len(methods)
+        if p.shape != (n, mdp.N_TURN_STATES) or e.shape != (n, mdp.N_TURN_STATES, 2):
+            raise ValueError(f"need p_success ({n}, 108) and engagement ({n}, 108, 2), got {p.shape} and {e.shape}")
+        if not (np.all((p >= 0) & (p <= 1)) and np.all((e >= 0) & (e <= 1))):
+            raise ValueError("p_success and engagement must lie in [0, 1]")
+        self.methods = [check_method(m) for m in methods]
+        self.config = config
+        self.n = n
+        self._p = p
+        self._e = e
+
+    def run(self, episodes: int, turns: int, rngs: Sequence[np.random.Generator], block: int = 200,
+            progress: Callable[[int, int], None] | None = None) -> BatchResult:
+        """Train every agent for ``episodes`` episodes of ``turns`` turns; ``progress(done, total)``."""
+        if len(rngs) != self.n:
+            raise ValueError(f"need one generator per agent ({self.n}), got {len(rngs)}")
+        if episodes < 1 or turns < 1 or block < 1:
+            raise ValueError(f"episodes, turns and block must be >= 1, got {episodes}, {turns}, {block}")
+        cfg, n = self.config, self.n
+        S, A = mdp.N_STATES, mdp.N_ACTIONS
+        NS = n * S
+        agents = np.arange(n)
+        gbase = agents * S  # global state gs = agent * 109 + state
+        # Per-agent tables indexed by global state (START rows are never read for p / e).
+        p_g = np.zeros((n, S))
+        p_g[:, : mdp.N_TURN_STATES] = self._p
+        p_g = p_g.ravel()
+        e_g = np.zeros((n, S, 2))
+        e_g[:, : mdp.N_TURN_STATES] = self._e
+        e_g = e_g.ravel()  # indexed by the global state-outcome code gso = gs * 2 + o
+        score = np.zeros((S, 2))
+        score[: mdp.N_TURN_STATES] = mdp.SCORE
+        score_g = np.tile(score.ravel(), n)
+        beta1 = np.array([cfg.shaping_weight(m) for m in self.methods])
+        beta2 = np.array([cfg.augment_weight(m) for m in self.methods])
+        reward_g = score_g + np.repeat(beta1, S * 2) * e_g  # r' = r + beta1 * e, same float ops as QLearner
+        # NEXT_STATE per agent as global states, indexed by gso * 6 + a.
+        nxt = np.where(mdp.NEXT_STATE < 0, 0, mdp.NEXT_STATE).transpose(0, 2, 1)  # (S, 2, A)
+        next_g = (nxt[None] + gbase[:, None, None, None]).ravel()
+        p_next = p_g[next_g]  # P(success) of the next turn, same index
+        inv_tau = inverse_temperature(np.arange(episodes * turns + 1), cfg)
+
+        # Action-major tables (A, n * S): a column per global state makes max/softmax over actions
+        # a few cheap ufunc calls on (n,) rows; flat index of (a, gs) is a * NS + gs.
+        q = np.zeros((A, NS))
+        h = np.full((A, NS), cfg.h_prior)
+        qv = q + np.repeat(beta2, S)[None, :] * h  # values chosen on: Q or Q + beta2 * H
+        counts = np.zeros((A, NS))  # float: (e - h) / n then matches QLearner's int count exactly
+        visits = np.zeros(NS, dtype=np.int64)
+        q_flat, h_flat, qv_flat, c_flat = q.ravel(), h.ravel(), qv.ravel(), counts.ravel()
+        beta2_s = beta2
+        ep_score = np.zeros((n, episodes))
+        ep_eng = np.zeros((n, episodes))
+        start_gso = (gbase + mdp.START) * 2
+        start_gs = gbase + mdp.START
+        qv_start = qv[:_N_LEVEL_ACTIONS]
+        alpha, gamma = cfg.alpha, cfg.gamma
+        last = turns - 1
+
+        for b0 in range(0, episodes, block):
+            nb = min(block, episodes - b0)
+            u = np.empty((nb, turns, 2, n))
+            for i, rng in enumerate(rngs):
+                u[..., i] = rng.random((nb, turns, 2))
+            codes = np.empty((nb, turns, n), dtype=np.int64)
+            for k in range(nb):
+                gso, gs = start_gso, start_gs
+                for t in range(turns):
+                    vis = visits[gs]
+                    vals = (qv_start if t == 0 else qv).take(gs, axis=1)
+                    a = choose_columns(vals, inv_tau[vis], u[k, t, 0])
+                    idx = gso * A + a
+                    gs2 = next_g[idx]
+                    gso2 = gs2 * 2 + (u[k, t, 1] < p_next[idx])
+                    codes[k, t] = gso2
+                    target = reward_g[gso2]
+                    if t != last:
+                        target = target + gamma * column_max(q.take(gs2, axis=1))
+                    qi = a * NS + gs
+                    q_sa = q_flat[qi]
+                    q_new = q_sa + alpha * (target - q_sa)
+                    q_flat[qi] = q_new
+                    cnt = c_flat[qi] + 1
+                    c_flat[qi] = cnt
+                    h_sa = h_flat[qi]
+                    h_new = h_sa + (e_g[gso2] - h_sa) / cnt
+                    h_flat[qi] = h_new
+                    qv_flat[qi] = q_new + beta2_s * h_new
+                    visits[gs] = vis + 1
+                    gso, gs = gso2, gs2
+            ep_score[:, b0 : b0 + nb] = score_g[codes].sum(axis=1).T
+            ep_eng[:, b0 : b0 + nb] = e_g[codes].mean(axis=1).T
+            if progress is not None:
+                progress(b0 + nb, episodes)
+        as_agents = lambda x: np.ascontiguousarray(x.reshape(A, n, S).transpose(1, 2, 0))  # noqa: E731
+        return BatchResult(
+            q=as_agents(q), h=as_agents(h), h_counts=as_agents(counts).astype(np.int64),
+            visits=visits.reshape(n, S), episode_score=ep_score, episode_engagement=ep_eng,
+        )

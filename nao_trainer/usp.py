@@ -1,0 +1,338 @@
+"""User-specific policies (USP): the policy file format and the live learning policy.
+
+A policy file is JSON::
+
+    {"format": "nao-trainer/user-specific-policy", "format_version": 1,
+     "sha256": "<hex digest of the canonical payload>",
+     "payload": {
+        "cluster": "2", "method": "shaping", "method_text": "...",
+        "hyperparameters": {"alpha": 0.08, "gamma": 0.95, "tau0": ..., ...},
+        "mdp_definition": core.mdp.DEFINITION,
+        "states": ["(3, 0, -4)", ..., "START"], "actions": ["L1", ..., "RF2"],
+        "q": [[...6...] x 109], "h": [...], "h_counts": [...], "visits": [...109...],
+        "simulator": {"name": "cluster-2", "fingerprint": "<UserSimulator.fingerprint()>"},
+        "training": {provenance: seeds, episodes, turns, models, command, ...},
+        "live": {"turns_learned": 0, "turns_without_engagement": 0, "updated": null}}}
+
+The canonical payload is ``json.dumps(payload, sort_keys=True, separators=(",", ":"))``; its
+SHA-256 detects a torn or edited file. A file whose ``mdp_definition``, states or actions differ
+from this build, or whose simulator fingerprint differs from the user model it claims to be
+trained on, is refused: it would choose actions for states that mean something else.
+
+``load_policy("usp:CLUSTER[:METHOD]", learning, state_path, rng)`` returns a ``LivePolicy``
+(``ports.Policy``) that keeps learning from the session's real outcomes and engagement with the
+method it was trained with, and writes its whole state atomically to ``state_path`` after every
+turn. If ``state_path`` already holds the state of the same policy (a previous or interrupted
+session of this participant), learning resumes from it.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import __version__
+from .core import mdp
+from .core.qlearning import METHOD_TEXT, METHODS, QConfig, QLearner
+from .core.simulation import UserSimulator
+from .errors import ConfigError, DataError
+from .ports import Transition
+
+FORMAT = "nao-trainer/user-specific-policy"
+FORMAT_VERSION = 1
+MANIFEST = "manifest.json"
+MANIFEST_FORMAT = "nao-trainer/user-specific-policies"
+#: Where the policies trained on the default user models ship.
+DEFAULT_POLICIES_DIR = Path(__file__).resolve().parents[1] / "sim" / "policies"
+POLICIES_ENV = "NAO_TRAINER_POLICIES"
+RETRAIN = "retrain with `nao-trainer train --out DIR` (or restore the file)"
+
+
+def default_policies_dir() -> Path:
+    """``$NAO_TRAINER_POLICIES`` when set, else ``<repo>/sim/policies``."""
+    env = os.environ.get(POLICIES_ENV)
+    return Path(env) if env else DEFAULT_POLICIES_DIR
+
+
+def policy_filename(cluster: str, method: str) -> str:
+    return f"usp_{cluster}_{method}.json"
+
+
+# ----------------------------------------------------------------------------------------------
+# Files
+# ----------------------------------------------------------------------------------------------
+
+
+def canonical_digest(payload: dict[str, Any]) -> str:
+    text = json.dumps(payload, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    """Write JSON to a temporary file, fsync it, rename it over ``path`` and fsync the folder.
+
+    A reader (or a crash) sees the old file or the new one, never half of one.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            json.dump(data, fh, indent=1, allow_nan=False)
+            fh.write("\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    try:
+        fd = os.open(path.parent, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def make_payload(learner: QLearner, cluster: str, simulator: UserSimulator,
+                 training: dict[str, Any]) -> dict[str, Any]:
+    """The payload of a policy file for ``learner`` trained on ``simulator`` (cluster id ``cluster``)."""
+    return {
+        "cluster": str(cluster),
+        "method": learner.method,
+        "method_text": METHOD_TEXT[learner.method],
+        "hyperparameters": learner.config.to_dict(),
+        "mdp_definition": mdp.DEFINITION,
+        "states": [mdp.state_label(s) for s in range(mdp.N_STATES)],
+        "actions": list(mdp.ACTION_NAMES),
+        "q": learner.q.tolist(),
+        "h": learner.h.tolist(),
+        "h_counts": learner.h_counts.tolist(),
+        "visits": learner.visits.tolist(),
+        "simulator": {"name": simulator.name, "fingerprint": simulator.fingerprint()},
+        "training": {**training, "nao_trainer_version": __version__,
+                     "created": datetime.now(timezone.utc).isoformat(timespec="seconds")},
+        "live": {"turns_learned": 0, "turns_without_engagement": 0, "updated": None},
+    }
+
+
+def save_policy_file(path: Path, payload: dict[str, Any]) -> None:
+    """Write a policy file (payload + checksum) atomically."""
+    write_json_atomic(path, {"format": FORMAT, "format_version": FORMAT_VERSION,
+                             "sha256": canonical_digest(payload), "payload": payload})
+
+
+def read_policy_file(path: Path) -> dict[str, Any]:
+    """The verified payload of a policy file; DataError naming the file and the fix otherwise.
+
+    Checks, in order: readable JSON, format and version, checksum, state/action definition.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise DataError(f"{path}: no such policy file; {RETRAIN}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: cannot read policy file ({exc})") from None
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise DataError(f"{path}:{exc.lineno}: policy file is not valid JSON ({exc.msg}): torn or corrupt; "
+                        f"{RETRAIN}") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        found = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
+        raise DataError(f"{path}: not a nao-trainer user-specific policy (format={found!r})")
+    if doc.get("format_version") != FORMAT_VERSION:
+        raise DataError(f"{path}: policy format version {doc.get('format_version')!r}, this nao-trainer reads "
+                        f"{FORMAT_VERSION}; {RETRAIN}")
+    payload = doc.get("payload")
+    if not isinstance(payload, dict) or not isinstance(doc.get("sha256"), str):
+        raise DataError(f"{path}: policy file lacks its payload or checksum: torn or corrupt; {RETRAIN}")
+    try:
+        digest = canonical_digest(payload)
+    except ValueError as exc:
+        raise DataError(f"{path}: policy payload holds invalid numbers ({exc}); {RETRAIN}") from None
+    if digest != doc["sha256"]:
+        raise DataError(f"{path}: checksum mismatch (file altered, torn or corrupt); {RETRAIN}")
+    check_definition(payload, path)
+    return payload
+
+
+def check_definition(payload: dict[str, Any], path: Path) -> None:
+    """Refuse a policy made for another state/action definition, naming what differs."""
+    if payload.get("mdp_definition") != mdp.DEFINITION:
+        raise DataError(f"{path}: policy was trained for another state/action definition "
+                        f"({payload.get('mdp_definition')!r}, this build: {mdp.DEFINITION!r}); {RETRAIN}")
+    states = [mdp.state_label(s) for s in range(mdp.N_STATES)]
+    if payload.get("states") != states:
+        raise DataError(f"{path}: policy's state list differs from this build's {len(states)} states; {RETRAIN}")
+    if payload.get("actions") != list(mdp.ACTION_NAMES):
+        raise DataError(f"{path}: policy's actions {payload.get('actions')} differ from "
+                        f"{list(mdp.ACTION_NAMES)}; {RETRAIN}")
+
+
+def learner_from_payload(payload: dict[str, Any], path: Path) -> QLearner:
+    """Rebuild the Q-learner of a verified payload; DataError naming the bad field."""
+    try:
+        config = QConfig.from_dict(payload["hyperparameters"])
+        return QLearner(payload["method"], config, np.array(payload["q"], dtype=float),
+                        np.array(payload["h"], dtype=float), np.array(payload["h_counts"], dtype=np.int64),
+                        np.array(payload["visits"], dtype=np.int64))
+    except KeyError as exc:
+        raise DataError(f"{path}: policy file lacks field {exc.args[0]!r}; {RETRAIN}") from None
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"{path}: invalid policy tables ({exc}); {RETRAIN}") from None
+
+
+def check_simulator(payload: dict[str, Any], simulator: UserSimulator, path: Path) -> None:
+    """Refuse a policy trained on another version of its user model."""
+    stored = (payload.get("simulator") or {}).get("fingerprint")
+    if stored != simulator.fingerprint():
+        raise DataError(f"{path}: trained on user model {payload.get('simulator', {}).get('name')!r} with "
+                        f"fingerprint {str(stored)[:12]}..., but the current model {simulator.name!r} has "
+                        f"{simulator.fingerprint()[:12]}... (refitted since?); {RETRAIN}")
+
+
+def write_manifest(folder: Path, methods: dict[str, Any], default_method: dict[str, str],
+                   files: dict[str, str]) -> Path:
+    """The index of a policy folder: which files exist and the default method per cluster."""
+    path = Path(folder) / MANIFEST
+    write_json_atomic(path, {"format": MANIFEST_FORMAT, "format_version": 1,
+                             "clusters": {c: list(m) for c, m in methods.items()},
+                             "default_method": default_method, "files": files})
+    return path
+
+
+def read_manifest(folder: Path) -> dict[str, Any]:
+    path = Path(folder) / MANIFEST
+    if not path.exists():
+        raise DataError(f"{path}: no trained policies here; create them with `nao-trainer train --out {folder}`")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise DataError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg}); {RETRAIN}") from None
+    if not isinstance(data, dict) or data.get("format") != MANIFEST_FORMAT:
+        raise DataError(f"{path}: not a nao-trainer policy manifest")
+    return data
+
+
+# ----------------------------------------------------------------------------------------------
+# Live use
+# ----------------------------------------------------------------------------------------------
+
+
+class LivePolicy:
+    """A trained user-specific policy driving a real session (``ports.Policy``).
+
+    ``act`` samples from the softmax over the method's action values (``Q``, or ``Q + beta2 * H``
+    for qaug) at the state's current temperature, like during training. With ``learning`` the
+    policy applies the training update to every real transition (engagement ``None`` means plain
+    reward and no ``H`` update) and saves its state atomically to ``state_path`` after each one;
+    without it, nothing changes and nothing is written.
+    """
+
+    def __init__(self, learner: QLearner, payload: dict[str, Any], learning: bool, state_path: Path | None) -> None:
+        if learning and state_path is None:
+            raise ConfigError("policy.state_path: a learning policy needs a file to save its state to")
+        self.learner = learner
+        self.payload = payload
+        self.learning = learning
+        self.state_path = Path(state_path) if state_path is not None else None
+        self.name = f"usp:{payload['cluster']}:{learner.method}" + ("" if learning else " (frozen)")
+        self._closed = False
+
+    def act(self, state: int, rng: np.random.Generator) -> int:
+        return self.learner.act(state, rng)
+
+    def probabilities(self, state: int) -> np.ndarray:
+        return self.learner.probabilities(state)
+
+    def observe(self, transition: Transition) -> None:
+        if not self.learning:
+            return
+        if self._closed:
+            raise RuntimeError("policy is closed")
+        t = transition
+        self.learner.update(t.state, t.action, t.score, t.engagement, t.next_state, t.done)
+        live = self.payload["live"]
+        live["turns_learned"] += 1
+        live["turns_without_engagement"] += int(t.engagement is None)
+        live["updated"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        self.save()
+
+    def save(self) -> None:
+        """Write the learner's whole state (a valid policy file) atomically to ``state_path``."""
+        payload = self.payload
+        for key in ("q", "h", "h_counts", "visits"):
+            payload[key] = getattr(self.learner, key).tolist()
+        try:
+            save_policy_file(self.state_path, payload)
+        except OSError as exc:
+            raise DataError(f"{self.state_path}: cannot save the policy's state ({exc.strerror}); "
+                            "choose a writable policy.state_path") from None
+
+    def close(self) -> None:
+        if self.learning and not self._closed:
+            self.save()
+        self._closed = True
+
+
+def parse_spec(spec: str) -> tuple[str, str | None]:
+    """``usp:CLUSTER[:METHOD]`` -> (cluster, method or None)."""
+    parts = str(spec).split(":")
+    if parts[0] != "usp" or len(parts) not in (2, 3) or not parts[1]:
+        raise ConfigError(f"policy {spec!r}: use usp:CLUSTER or usp:CLUSTER:METHOD (METHOD one of "
+                          f"{', '.join(METHODS)})")
+    method = parts[2] if len(parts) == 3 else None
+    if method is not None and method not in METHODS:
+        raise ConfigError(f"policy {spec!r}: unknown method {method!r}; use one of {', '.join(METHODS)}")
+    return parts[1], method
+
+
+def load_policy(spec: str, learning: bool, state_path: Path | None, rng: np.random.Generator | None = None,
+                policies_dir: Path | None = None, models_dir: Path | None = None) -> LivePolicy:
+    """The trained policy ``usp:CLUSTER[:METHOD]`` for a live session (see the module docstring).
+
+    METHOD defaults to the folder manifest's ``default_method`` for the cluster (the method whose
+    policies scored best in training). The policy's simulator fingerprint must match the current
+    user model of that cluster (``nao_trainer.artifacts.load_simulator``). ``rng`` is unused: the
+    session passes its generator to ``act``.
+    """
+    from .artifacts import load_simulator
+
+    cluster, method = parse_spec(spec)
+    folder = Path(policies_dir) if policies_dir else default_policies_dir()
+    if method is None:
+        manifest = read_manifest(folder)
+        method = manifest.get("default_method", {}).get(cluster)
+        if method not in METHODS:
+            known = ", ".join(sorted(manifest.get("default_method", {}))) or "none"
+            raise ConfigError(f"policy {spec!r}: no policy for cluster {cluster!r} in {folder} (clusters: {known})")
+    path = folder / policy_filename(cluster, method)
+    payload = read_policy_file(path)
+    if payload.get("cluster") != cluster or payload.get("method") != method:
+        raise DataError(f"{path}: holds cluster {payload.get('cluster')!r} method {payload.get('method')!r}, "
+                        f"not {cluster!r} {method!r}; {RETRAIN}")
+    check_simulator(payload, load_simulator(cluster, models_dir), path)
+    source = path
+    if state_path is not None and Path(state_path).exists():
+        saved = read_policy_file(Path(state_path))
+        for key in ("cluster", "method", "simulator", "hyperparameters"):
+            if saved.get(key) != payload.get(key):
+                raise DataError(f"{state_path}: holds the learning state of another policy ({key} differs from "
+                                f"{path.name}); choose another policy.state_path or delete the file to start "
+                                "from the trained policy")
+        payload, source = saved, Path(state_path)
+    learner = learner_from_payload(payload, source)
+    policy = LivePolicy(learner, payload, learning, state_path)
+    if source != path:
+        print(f"policy {policy.name}: resuming from {source} ({payload['live']['turns_learned']} live turns learned)",
+              file=sys.stderr)
+    return policy
