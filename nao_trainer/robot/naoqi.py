@@ -8,11 +8,13 @@ so a silent robot cannot freeze a session; a dropped link surfaces as
 """
 from __future__ import annotations
 
+import atexit
 import logging
 import os
 import re
 import threading
 import time
+import weakref
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -205,6 +207,7 @@ class NaoqiRobot:
         self._subscriptions: list[tuple[str, Any, Any]] = []  # (key, subscriber proxy, link id)
         self._last_press: dict[str, float] = {}
         self._closed = False
+        _LIVE.add(self)
 
     # -- connection ------------------------------------------------------------------------------
 
@@ -282,6 +285,7 @@ class NaoqiRobot:
             self.unsubscribe_buttons()
         finally:
             self._closed = True
+            _LIVE.discard(self)
             with self._lock:
                 self._services.clear()
             try:
@@ -489,6 +493,20 @@ class NaoqiRobot:
     def _check_open(self) -> None:
         if self._closed:
             raise RuntimeError(f"the connection to the robot at {self.url} is closed")
+
+
+#: Robots not yet closed; closed at interpreter exit as a safety net (live signal subscriptions
+#: at exit abort the process now and then, see docs/robot.md).
+_LIVE: "weakref.WeakSet[NaoqiRobot]" = weakref.WeakSet()
+
+
+@atexit.register
+def _close_live_robots() -> None:
+    for robot in list(_LIVE):
+        try:
+            robot.close()
+        except Exception as exc:  # noqa: BLE001 - exiting anyway; say why, then go on
+            log.debug("closing %r at exit: %s", robot, exc)
 
 
 class _ButtonHandler:

@@ -1,0 +1,175 @@
+"""Connection robustness over real qi on 127.0.0.1: unreachable, silent, lost and returning robots."""
+from __future__ import annotations
+
+import signal
+import socket
+import threading
+import time
+
+import pytest
+
+from nao_trainer.errors import RobotUnavailable
+from nao_trainer.ports import RobotConnectionLost
+from nao_trainer.robot.naoqi import NaoqiRobot
+from nao_trainer.robot.standin import StandInClient, spawn_standin
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _stop(proc) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=10)
+        except Exception:
+            proc.kill()
+            proc.wait()
+
+
+class Presses:
+    def __init__(self):
+        self.letters: list[str] = []
+        self._cond = threading.Condition()
+
+    def __call__(self, letter, t):
+        with self._cond:
+            self.letters.append(letter)
+            self._cond.notify_all()
+
+    def wait_for(self, n, timeout=3.0):
+        with self._cond:
+            self._cond.wait_for(lambda: len(self.letters) >= n, timeout)
+            return list(self.letters)
+
+
+def test_closed_port_is_unavailable_at_once():
+    url = f"tcp://127.0.0.1:{_free_port()}"
+    t0 = time.monotonic()
+    with pytest.raises(RobotUnavailable) as info:
+        NaoqiRobot.connect(url, deadline_s=5.0)
+    assert time.monotonic() - t0 < 1.0
+    text = str(info.value)
+    assert url in text and "connection refused" in text and "nao-trainer mock-robot" in text
+    assert "\n" not in text
+
+
+def test_silent_server_is_unavailable_within_the_deadline():
+    """A port that accepts TCP but never speaks qi would hang `Session.connect` forever."""
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen(4)
+        url = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+        t0 = time.monotonic()
+        with pytest.raises(RobotUnavailable, match="within 1.5 s .*does not speak NAOqi"):
+            NaoqiRobot.connect(url, deadline_s=1.5)
+        elapsed = time.monotonic() - t0
+    assert 1.4 <= elapsed < 2.5
+
+
+def test_lost_robot_raises_connection_lost_and_reconnects_when_back():
+    proc, url = spawn_standin(speed=50)
+    port = int(url.rsplit(":", 1)[1])
+    robot = NaoqiRobot.connect(url, 3.0)
+    try:
+        presses = Presses()
+        robot.subscribe_buttons(presses)
+        with StandInClient.connect(url) as remote:
+            remote.press("A")
+        assert presses.wait_for(1) == ["A"]
+
+        proc.kill()  # the robot dies without saying goodbye
+        proc.wait()
+        with pytest.raises(RobotConnectionLost, match="lost the robot at"):
+            robot.say("are you there?")
+        with pytest.raises(RobotConnectionLost):
+            robot.beep(440, 0.1)
+        assert not robot.is_connected()
+
+        t0 = time.monotonic()
+        with pytest.raises(RobotUnavailable, match="connection refused"):
+            robot.reconnect(1.0)  # still down
+        assert time.monotonic() - t0 < 1.5
+
+        proc, url2 = spawn_standin(port=port, speed=50)  # back on the same port
+        assert url2 == url
+        robot.reconnect(3.0)
+        assert robot.is_connected()
+        robot.say("welcome back")
+        with StandInClient.connect(url) as remote:
+            remote.press("C")
+            assert ("ALTextToSpeech", "say", ["welcome back"]) in [
+                (e["service"], e["method"], e["args"]) for e in remote.transcript()
+            ]
+        assert presses.wait_for(2) == ["A", "C"]  # the same callback, re-subscribed
+    finally:
+        robot.close()
+        _stop(proc)
+
+
+def test_robot_dying_during_a_call_interrupts_that_call():
+    proc, url = spawn_standin(speed=1.0)
+    robot = NaoqiRobot.connect(url, 3.0)
+    try:
+        outcome: list[BaseException] = []
+
+        def speak():
+            try:
+                robot.say("x" * 100)  # six seconds of speech
+            except BaseException as exc:  # noqa: BLE001 - handed to the test thread
+                outcome.append(exc)
+
+        worker = threading.Thread(target=speak)
+        worker.start()
+        time.sleep(0.5)
+        t0 = time.monotonic()
+        proc.kill()
+        proc.wait()
+        worker.join(5.0)
+        assert not worker.is_alive()
+        assert time.monotonic() - t0 < 3.0
+        assert len(outcome) == 1 and isinstance(outcome[0], RobotConnectionLost)
+    finally:
+        robot.close()
+        _stop(proc)
+
+
+def test_reconnect_after_close_is_refused():
+    proc, url = spawn_standin(speed=50)
+    try:
+        robot = NaoqiRobot.connect(url, 3.0)
+        robot.close()
+        with pytest.raises(RobotUnavailable, match="was closed"):
+            robot.reconnect(1.0)
+    finally:
+        _stop(proc)
+
+
+def test_reconnect_to_a_silent_port_ends_within_its_deadline_and_a_later_try_works():
+    proc, url = spawn_standin(speed=50)
+    port = int(url.rsplit(":", 1)[1])
+    robot = NaoqiRobot.connect(url, 3.0)
+    try:
+        presses = Presses()
+        robot.subscribe_buttons(presses)
+        proc.kill()
+        proc.wait()
+        with socket.socket() as squatter:  # something else took the port and says nothing
+            squatter.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            squatter.bind(("127.0.0.1", port))
+            squatter.listen(4)
+            t0 = time.monotonic()
+            with pytest.raises(RobotUnavailable, match="does not speak NAOqi"):
+                robot.reconnect(1.0)
+            assert time.monotonic() - t0 < 2.0
+        proc, _ = spawn_standin(port=port, speed=50)
+        robot.reconnect(3.0)
+        with StandInClient.connect(url) as remote:
+            remote.press("B")
+        assert presses.wait_for(1) == ["B"]
+    finally:
+        robot.close()
+        _stop(proc)
