@@ -253,10 +253,22 @@ def _bad_line(path: Path, lines: list[str], prefix: str, width: int | None) -> D
     return DataError(f"{path}: '{prefix}' lines have inconsistent value counts")
 
 
+def _check_last_line(path: Path, text: str) -> None:
+    """A truncated file ends inside a line: check the last line even when its prefix is not parsed."""
+    lines = text.rstrip("\n").split("\n")
+    f = lines[-1].split()
+    if not f:
+        return
+    width = PREFIX_WIDTHS.get(f[0])
+    if width is not None and len(f) - 1 != width and not (f[0] == "c" and len(f) > 1):
+        raise _bad_line(path, lines, f[0], width)
+
+
 def read_recording(path: Path, prefixes: "tuple[str, ...] | None" = None) -> Recording:
     """Read a Muse recording (raw ``robot_N``/``user_N``/``intro`` or ``EEG/bands_*``).
 
-    ``prefixes`` restricts parsing to those message types (faster when only bands are needed).
+    ``prefixes`` restricts parsing to those message types (faster when only bands are needed); lines
+    of other prefixes are then not validated, except the last line (a truncated file still fails).
     Known prefixes must have their documented number of values (:data:`PREFIX_WIDTHS`); other prefixes
     are kept when every line has the same count. A malformed or truncated line raises DataError naming
     the file and line, e.g. ``robot_7 line 212: expected 4 values after 'b', got 3``.
@@ -270,6 +282,8 @@ def read_recording(path: Path, prefixes: "tuple[str, ...] | None" = None) -> Rec
         if not head or (wanted is not None and head not in wanted):
             continue
         groups.setdefault(head, []).append(rest)
+    if wanted is not None:
+        _check_last_line(path, text)
     rec = Recording(path)
     for prefix, rests in groups.items():
         width = PREFIX_WIDTHS.get(prefix)
