@@ -56,11 +56,10 @@ class Field:
 def _robot_url(value: str) -> str | None:
     if value == "mock":
         return None
-    m = re.fullmatch(r"(tcps?)://([^/:@]+@)?([^/:@]+)(:\d+)?", value)
-    if not m:
-        return "must be 'mock' or tcp://HOST:9559 (NAOqi <= 2.8) or tcps://HOST:9503 (NAOqi 2.9)"
-    if m.group(2):
+    if "@" in value:
         return "must not contain credentials; set NAO_USER and NAO_PASSWORD in the environment instead"
+    if not re.fullmatch(r"tcps?://[^/:@\s]+(:\d{1,5})?", value):
+        return "must be 'mock' or tcp://HOST:9559 (NAOqi <= 2.8) or tcps://HOST:9503 (NAOqi 2.9)"
     return None
 
 

@@ -91,7 +91,11 @@ def diagram_markdown() -> str:
     model = _Model()
     GraphMachine(model=model, states=STATES, transitions=TRANSITIONS, initial="greet", auto_transitions=False,
                  graph_engine="mermaid", title="nao-trainer session")
-    source = model.get_graph().source.strip()
+    # Keep the plain diagram: drop transitions' title front matter and colour classes (the
+    # "active state" colouring means nothing in a document).
+    lines = model.get_graph().source.strip().splitlines()
+    body = lines[lines.index("stateDiagram-v2"):]
+    source = "\n".join(ln for ln in body if ln.strip() and not ln.strip().startswith(("classDef", "Class ")))
     return (
         "# Session states\n\n"
         "Generated from `nao_trainer.session.STATES` / `TRANSITIONS` by `nao_trainer.session.export_diagram()`;\n"
@@ -773,7 +777,7 @@ def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, sim
         return SimulatedParticipant(simulator, rng, speed, monitor), None
     inner = TactileAnswers(robot, debounce, grace)
     return SimulatedParticipant(simulator, rng, speed, monitor, press=press, inner=inner,
-                                min_gap_s=max(0.2, 3 * config.get("answers.debounce_s"))), buttons
+                                min_gap_s=max(0.3, 4 * config.get("answers.debounce_s"))), buttons
 
 
 def _safe_without_session(robot: Robot, behaviors: Behaviors, config: StudyConfig) -> None:

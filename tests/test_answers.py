@@ -1,0 +1,168 @@
+"""Answer inputs: press windows, the keyboard (through a real pipe), the head buttons of the
+stand-in over real qi, and the simulated participant."""
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from nao_trainer.answers import KeyboardAnswers, PressWindow, TactileAnswers
+from nao_trainer.core import mdp, task
+from nao_trainer.core.simulation import UserSimulator
+from nao_trainer.participant import SimulatedParticipant, make_mistake
+from nao_trainer.ports import TurnContext
+
+
+def test_window_discards_early_presses_debounces_and_sees_extras():
+    w = PressWindow(debounce_s=0.05, grace_s=0.15)
+    assert not w.add("A", "A")  # before the window: discarded
+    w.open()
+    w.add("A", "A")
+    w.add("A", "A")  # a bounce
+    time.sleep(0.06)
+    w.add("A", "A")
+    w.add("B", "B")
+    threading.Timer(0.05, lambda: w.add("C", "C")).start()  # extra press inside the grace period
+    ans = w.collect(3, timeout_s=2.0)
+    assert ans.response == ("A", "A", "B", "C") and not ans.timed_out
+    assert w.discarded == 1
+    assert 0 <= ans.reaction_time < ans.completion_time < 0.5
+
+
+def test_window_times_out_with_partial_answer():
+    w = PressWindow(grace_s=0.0)
+    w.open()
+    w.add("A", "A")
+    t0 = time.monotonic()
+    ans = w.collect(3, timeout_s=0.2)
+    assert ans.timed_out and ans.response == ("A",)
+    assert 0.15 < time.monotonic() - t0 < 1.0
+
+
+def test_keyboard_discards_keys_before_the_beep_and_records_invalid_ones():
+    r, wfd = os.pipe()
+    kb = KeyboardAnswers(fd=r, grace_s=0.1)
+    try:
+        os.write(wfd, b"ccc")  # typed while the robot spoke
+        kb.open_window()
+        os.write(wfd, b"a\nB x")
+        ans = kb.collect(3, timeout_s=2.0)
+        assert [p.key for p in ans.presses] == ["a", "B", "x"]
+        assert ans.response == ("A", "B", "?") and [p.letter for p in ans.presses][2] is None
+        kb.open_window()
+        os.write(wfd, b"ab")
+        ans = kb.collect(3, timeout_s=0.3)
+        assert ans.timed_out and ans.response == ("A", "B")
+    finally:
+        kb.close()
+        os.close(r)
+        os.close(wfd)
+
+
+def test_keyboard_survives_end_of_input():
+    r, wfd = os.pipe()
+    kb = KeyboardAnswers(fd=r, grace_s=0.0)
+    os.close(wfd)
+    kb.open_window()
+    ans = kb.collect(2, timeout_s=0.2)
+    kb.close()
+    os.close(r)
+    assert ans.timed_out and ans.presses == ()
+
+
+@pytest.fixture()
+def standin_robot():
+    from nao_trainer.robot.naoqi import NaoqiRobot
+    from nao_trainer.robot.standin import StandIn
+
+    standin = StandIn.start(speed=50)
+    robot = NaoqiRobot.connect(standin.url, 5.0, debounce_s=0.01)
+    yield standin, robot
+    robot.close()
+    standin.stop()
+
+
+def test_head_buttons_over_qi(standin_robot):
+    standin, robot = standin_robot
+    tactile = TactileAnswers(robot, debounce_s=0.01, grace_s=0.1)
+    try:
+        standin.press("C")  # before the beep: must not count
+        time.sleep(0.1)
+        tactile.open_window()
+        for letter in "ABA":
+            standin.press(letter)
+            time.sleep(0.03)  # a person's presses are tens of ms apart; closer ones are bounces
+        ans = tactile.collect(3, timeout_s=3.0)
+        assert ans.response == ("A", "B", "A") and not ans.timed_out
+        assert tactile.window.discarded >= 1
+        tactile.resubscribe()  # replaces the subscription: one press still counts once
+        tactile.open_window()
+        standin.press("B")
+        ans = tactile.collect(1, timeout_s=3.0)
+        assert ans.response == ("B",)
+    finally:
+        tactile.close()
+
+
+class TargetLog:
+    """Records what the participant asks a simulated Muse to show (the EEG port's set_target)."""
+
+    def __init__(self):
+        self.targets = []
+
+    def set_target(self, e):
+        self.targets.append(e)
+
+
+def sim(p=(1.0, 1.0, 0.0, 0.0)):
+    return UserSimulator.from_level_rates("t", p, (0.2, 0.4, 0.6, 0.8), reaction_s=(0.5, 0.6), seconds_per_letter=(0.3, 0.3))
+
+
+def test_mistakes_always_differ_from_the_sequence():
+    rng = np.random.default_rng(3)
+    kinds = set()
+    for _ in range(300):
+        seq = task.generate_sequence(rng, int(rng.choice(task.LENGTHS)))
+        resp, kind = make_mistake(seq, rng)
+        kinds.add(kind)
+        assert not task.is_correct(seq, resp)
+        assert len(resp) in (len(seq), len(seq) - 1)
+    assert kinds == {"substitute", "swap", "omit"}
+
+
+def test_simulated_participant_direct_answers_follow_the_model():
+    log = TargetLog()
+    p = SimulatedParticipant(sim(), np.random.default_rng(1), speed=20, monitor=log)
+    results = []
+    for length in (3, 7):
+        state = mdp.encode(length, 0, 0)
+        seq = task.generate_sequence(np.random.default_rng(length), length)
+        p.prepare(TurnContext(1, state, length, seq))
+        p.open_window()
+        ans = p.collect(length, timeout_s=5.0)
+        results.append(task.is_correct(seq, ans.response) and not ans.timed_out)
+        times = [x.t for x in ans.presses]
+        assert times == sorted(times) and 0.5 / 20 <= times[0] <= 0.6 / 20
+    assert results == [True, False]  # level 1 always succeeds, level 3 never
+    assert log.targets == [pytest.approx(0.2), pytest.approx(0.6)]
+
+
+def test_simulated_participant_presses_the_stand_in_buttons(standin_robot):
+    standin, robot = standin_robot
+    tactile = TactileAnswers(robot, debounce_s=0.01, grace_s=0.05)
+    p = SimulatedParticipant(sim(), np.random.default_rng(2), speed=50, press=standin.press, inner=tactile,
+                             min_gap_s=1.5)  # 30 ms apart at speed 50, well above the 10 ms debounce
+    try:
+        seq = ("A", "A", "C", "B", "A")
+        p.prepare(TurnContext(1, mdp.encode(5, 0, 0), 5, seq))
+        p.open_window()
+        ans = p.collect(5, timeout_s=2.0)
+        assert ans.response == seq and not ans.timed_out
+        pressed = [e["args"][0] for e in standin.transcript() if e["method"] == "press"]
+        assert pressed == ["FrontTactilTouched", "FrontTactilTouched", "RearTactilTouched", "MiddleTactilTouched",
+                           "FrontTactilTouched"]
+    finally:
+        p.close()
