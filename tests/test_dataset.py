@@ -1,0 +1,156 @@
+"""The importer: published sessions -> one tidy turn table; bad sessions reported, never a traceback."""
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from _usermodels_data import import_published
+from nao_trainer.cli import main
+from nao_trainer.core import mdp
+from nao_trainer.dataset import COLUMNS, import_dataset, read_table, write_table
+from nao_trainer.errors import DataError
+from nao_trainer.published import read_turn_table
+
+
+@pytest.fixture(scope="module")
+def imported(dataset_root, tmp_path_factory):
+    return import_published(dataset_root, tmp_path_factory)
+
+
+def test_all_published_sessions_import(imported, dataset_root):
+    t = imported.table
+    assert imported.problems == []
+    assert len(t.sessions) == 50 and len(t) == 50 * 25
+    assert list(t.columns) == list(COLUMNS)
+    assert set(t.sessions) == {f"{p.parent.name}/{p.name}" for p in dataset_root.glob("user_*/session_*")}
+
+
+def test_mdp_columns_are_consistent(imported):
+    t = imported.table
+    for i in range(len(t)):
+        st = mdp.decode(int(t["state"][i]))
+        assert (st.length, st.feedback, st.previous) == (t["length"][i], t["feedback"][i], t["previous_score"][i])
+    assert np.array_equal(t["level"], mdp.LEVEL[t["state"]])
+    ok = t["success"].astype(bool)
+    assert np.array_equal(t["score"], np.where(ok, t["level"], -1))  # equation (1)
+    assert np.array_equal(t["signed_score"], np.where(ok, t["level"], -t["level"]))
+    assert all(len(s) == n for s, n in zip(t["sequence"], t["length"]))
+    assert np.array_equal(ok, t["sequence"] == t["response"])
+
+
+def test_engagement_and_actions_match_the_authors_tables(imported, derived_dir):
+    t = imported.table
+    norm = read_turn_table(derived_dir / "normalized_1.csv")
+    index = read_turn_table(derived_dir / "index_1.csv")
+    for sid in t.sessions:
+        m = t["session"] == sid
+        n, ix = norm.session(sid), index.session(sid)
+        np.testing.assert_allclose(t["engagement"][m], n["engagement"], atol=1e-9)
+        np.testing.assert_allclose(t["engagement_index"][m], ix["engagement"], atol=1e-9)
+        assert np.array_equal(t["length"][m], n["length"])
+        # the authors' `action` produced the *next* turn; ours is the action that produced this turn
+        assert np.array_equal(t["action"][m][1:], n["action"][:-1])
+        assert t["action"][m][0] == t["level"][m][0] - 1
+    assert np.all((t["contact"] >= 0) & (t["contact"] <= 1))
+
+
+def test_csv_round_trip_is_exact(imported, tmp_path):
+    path = write_table(imported.table, tmp_path / "turns.csv", imported.provenance)
+    back = read_table(path)
+    for name, kind in COLUMNS.items():
+        if kind is float:
+            np.testing.assert_array_equal(back[name], imported.table[name])
+        else:
+            assert back[name].tolist() == imported.table[name].tolist(), name
+    assert back.fingerprint() == imported.table.fingerprint() == imported.provenance["fingerprint"]
+    assert (tmp_path / "turns.csv.json").exists()
+
+
+def test_read_table_names_the_bad_line(tmp_path, imported):
+    path = write_table(imported.table, tmp_path / "turns.csv", {})
+    lines = path.read_text().splitlines()
+    lines[3] = lines[3].replace(",", ",x", 1)
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataError, match=r"turns\.csv:4: column 'turn'"):
+        read_table(path)
+
+
+# -- bad data ------------------------------------------------------------------------------------
+
+
+def _copy(dataset_root: Path, dest: Path, sessions: list[str]) -> Path:
+    for sid in sessions:
+        shutil.copytree(dataset_root / sid, dest / sid)
+    return dest
+
+
+SAMPLE = ["user_1/session_4", "user_2/session_2", "user_6/session_1", "user_7/session_1", "user_8/session_1"]
+
+
+@pytest.fixture
+def corrupted(dataset_root, tmp_path):
+    root = _copy(dataset_root, tmp_path / "data", SAMPLE)
+    log = root / SAMPLE[0] / "logfile"  # truncated mid-line
+    text = log.read_text()
+    log.write_text(text[: len(text) - 40])
+    (root / SAMPLE[1] / "state_EEG").unlink()  # missing file
+    log = root / SAMPLE[2] / "logfile"  # garbage line
+    lines = log.read_text().splitlines()
+    lines[6] = "7 5 0 garbage here"
+    log.write_text("\n".join(lines) + "\n")
+    st = root / SAMPLE[3] / "state_EEG"  # fewer turns than the logfile promises
+    st.write_text("\n".join(st.read_text().splitlines()[:20]) + "\n")
+    return root
+
+
+def test_bad_sessions_are_reported_and_the_rest_import(corrupted):
+    result = import_dataset(corrupted)
+    assert result.table.sessions == [SAMPLE[4]]
+    reasons = {p.session: p.reason for p in result.problems}
+    assert set(reasons) == set(SAMPLE[:4])
+    assert "logfile line 25" in reasons[SAMPLE[0]]
+    assert "state_EEG" in reasons[SAMPLE[1]] and "not found" in reasons[SAMPLE[1]]
+    assert "logfile line 7" in reasons[SAMPLE[2]]
+    assert "20 turns, fewer than the logfile's 25" in reasons[SAMPLE[3]]
+    assert all("\n" not in r for r in reasons.values())
+
+
+def test_cli_import_exit_codes_and_one_line_messages(corrupted, tmp_path, capsys):
+    out = tmp_path / "out" / "turns.csv"
+    assert main(["import", str(corrupted), "--out", str(out), "-q"]) == 0
+    err = capsys.readouterr().err
+    skipped = [ln for ln in err.splitlines() if "skipped" in ln and "user_" in ln and ":" in ln]
+    assert len([ln for ln in skipped if ln.startswith("nao-trainer import: user_")]) == 4
+    assert "Traceback" not in err
+    assert len(read_table(out)) == 25
+    shutil.rmtree(corrupted / SAMPLE[4])
+    assert main(["import", str(corrupted), "--out", str(tmp_path / "none.csv"), "-q", "--no-cache"]) == 2
+    err = capsys.readouterr().err
+    assert "none of 4 sessions could be imported" in err and "Traceback" not in err
+    assert main(["import", str(tmp_path / "nowhere"), "--out", str(tmp_path / "x.csv")]) == 2
+    assert "no such folder" in capsys.readouterr().err
+
+
+def test_cache_reuses_unchanged_sessions_only(dataset_root, tmp_path):
+    root = _copy(dataset_root, tmp_path / "data", SAMPLE[:3])
+    cache = tmp_path / "cache"
+    first = import_dataset(root, compat="authors2018", cache_dir=cache)
+    again = import_dataset(root, compat="authors2018", cache_dir=cache)
+    assert (first.cached, again.cached) == (0, 3)
+    assert again.table.fingerprint() == first.table.fingerprint()
+    os.utime(root / SAMPLE[1] / "logfile", ns=(1, 1))  # touched: that session is read again
+    third = import_dataset(root, compat="authors2018", cache_dir=cache)
+    assert third.cached == 2
+    other = import_dataset(root, compat=None, cache_dir=cache)  # another mode never reads the cache
+    assert other.cached == 0
+
+
+def test_raw_layout_imports(raw_root):
+    result = import_dataset(raw_root)
+    assert result.problems == [] and len(result.table.sessions) == 4 and len(result.table) == 100
+    eng = result.table["engagement"]
+    assert np.isfinite(eng).mean() > 0.9 and np.nanmin(eng) >= 0 and np.nanmax(eng) <= 1
