@@ -61,7 +61,7 @@ def user_models(
         raise ValueError("session, level, success and engagement must have the same length")
     bad = ~np.isin(level, LEVELS)
     if bad.any():
-        raise ValueError(f"level must be in 1..4, got {level[bad][0]!r}")
+        raise ValueError(f"level must be in 1..4, got {int(level[bad][0])}")
     names, idx = np.unique(session, return_inverse=True)
     m = len(names)
     # Vectorised group sums over (session, level) cells.
