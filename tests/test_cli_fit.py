@@ -1,0 +1,87 @@
+"""`nao-trainer fit`: JSON report, artifacts and figures from the published data; clear errors."""
+from __future__ import annotations
+
+import io
+import json
+import shutil
+import sys
+
+import pytest
+
+from _usermodels_data import shared_cache
+from nao_trainer import artifacts
+from nao_trainer.cli import main
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def fitted(dataset_root, tmp_path_factory):
+    out = tmp_path_factory.mktemp("fit-out")
+    cache = shared_cache(tmp_path_factory, "authors2018")
+    capture = pytest.MonkeyPatch()
+    stdout, stderr = io.StringIO(), io.StringIO()
+    capture.setattr(sys, "stdout", stdout)
+    capture.setattr(sys, "stderr", stderr)
+    try:
+        rc = main(["fit", str(dataset_root), "--out", str(out), "--compat", "authors2018", "--json",
+                   "--cache", str(cache)])
+    finally:
+        capture.undo()
+    return rc, out, stdout.getvalue(), stderr.getvalue()
+
+
+def test_fit_json_has_the_issue_structure(fitted):
+    rc, _, stdout, _ = fitted
+    assert rc == 0
+    report = json.loads(stdout)
+    assert report["k"] == 3 and report["sessions"] == 50 and report["compat"] == "authors2018"
+    assert [c["id"] for c in report["clusters"]] == [1, 2, 3]
+    assert sorted(c["size"] for c in report["clusters"]) == [13, 16, 21]
+    for c in report["clusters"]:
+        for key in ("rmse_performance", "rmse_engagement", "cv_rmse_performance", "cv_rmse_engagement"):
+            assert isinstance(c[key], float) and 0 <= c[key] < 0.5, key
+        assert len(c["p"]) == len(c["e"]) == 4 and all(0 <= v <= 1 for v in c["p"] + c["e"])
+    means = [sum(c["p"]) / 4 for c in report["clusters"]]
+    assert means == sorted(means)  # the documented id rule
+
+
+def test_fit_writes_loadable_artifacts_and_figures(fitted):
+    rc, out, stdout, stderr = fitted
+    manifest = artifacts.load_manifest(out)
+    assert manifest["k"] == 3 and manifest["library_versions"]["numpy"]
+    assert len(manifest["dataset_fingerprint"]) == 64
+    for cid in ("1", "2", "3"):
+        sim = artifacts.load_simulator(cid, out)
+        assert sim.metadata["dataset_fingerprint"] == manifest["dataset_fingerprint"]
+    for name in ("users.png", "clusters.png"):
+        assert (out / name).read_bytes()[:8] == PNG
+    assert "K-means K=3" in stderr  # progress goes to stderr, JSON alone to stdout
+
+
+def test_fit_from_an_imported_table_gives_the_same_models(fitted, dataset_root, tmp_path_factory, tmp_path, capsys):
+    _, out, _, _ = fitted
+    table = tmp_path / "turns.csv"
+    cache = shared_cache(tmp_path_factory, "authors2018")
+    assert main(["import", str(dataset_root), "--out", str(table), "--compat", "authors2018", "--cache", str(cache),
+                 "-q"]) == 0
+    assert main(["fit", str(table), "--out", str(tmp_path / "m"), "--no-figures"]) == 0
+    assert not (tmp_path / "m" / "users.png").exists()
+    for cid in ("1", "2", "3"):
+        assert artifacts.load_simulator(cid, tmp_path / "m").fingerprint() == artifacts.load_simulator(cid, out).fingerprint()
+    assert main(["import", str(out), "--out", str(tmp_path / "x.csv"), "-q"]) == 2  # not a dataset: one line
+    assert "no sessions found" in capsys.readouterr().err
+
+
+def test_fit_on_too_few_sessions_says_so(dataset_root, tmp_path, capsys):
+    for sid in ("user_1/session_4", "user_2/session_2", "user_6/session_1", "user_7/session_1"):
+        shutil.copytree(dataset_root / sid, tmp_path / "data" / sid)
+    rc = main(["fit", str(tmp_path / "data"), "--out", str(tmp_path / "out"), "--no-figures", "--no-cache"])
+    err = capsys.readouterr().err
+    assert rc == 2
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("nao-trainer fit: error: 4 sessions") and "too few for K=3" in last
+    assert "Traceback" not in err
+    assert main(["fit", str(tmp_path / "data"), "--out", str(tmp_path / "out"), "--no-figures", "--no-cache",
+                 "--k", "1"]) == 0
+    assert artifacts.available_models(tmp_path / "out") == ["1"]
