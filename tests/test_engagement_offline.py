@@ -190,3 +190,24 @@ def test_cli_many_sessions_adds_session_column(dataset_root, tmp_path, capsys):
     lines = out.read_text().splitlines()
     assert lines[0].startswith("session,turn,") and len(lines) == 51
     assert lines[1].startswith("user_2/session_2,1,") and lines[26].startswith("user_10/session_1,1,")
+
+
+def test_answer_phase_and_skipped_sessions(dataset_root, tmp_path, capsys):
+    root = tmp_path / "data"
+    for sid in ("user_2/session_2", "user_10/session_1"):
+        shutil.copytree(dataset_root / sid, root / sid)
+    (root / "user_2" / "session_2" / "EEG" / "bands_user_3").unlink()
+    r = offline.session_engagement(root / "user_2" / "session_2", answer=True)
+    assert r.answer and np.isfinite(_values(r, "answer_index")[[0, 1, 3]]).all()
+    assert r.turns[2].answer_index is None and "user_3: recording not found" in r.turns[2].answer_reason
+    assert r.turns[2].engagement is not None  # the listening phase of that turn is intact
+    # a session whose state_EEG is broken is skipped with a one-line message; the other is printed
+    (root / "user_10" / "session_1" / "state_EEG").write_text("7 0 0 robot_1\n")
+    assert main(["engagement", str(root), "--answer", "--workers", "1"]) == 0
+    cap = capsys.readouterr()
+    assert "skipped user_10/session_1: " in cap.err and "state_EEG line 1: expected 5 fields" in cap.err
+    lines = cap.out.splitlines()
+    assert lines[0].startswith("session,turn,") and len(lines) == 26
+    assert lines[0].endswith("answer_index,answer_engagement,answer_quality,answer_reason")
+    assert main(["engagement", str(root / "user_2" / "session_2"), "--answer", "--compat", "authors2018"]) == 2
+    assert "authors' tables have no answer phase" in capsys.readouterr().err

@@ -27,12 +27,15 @@ def register(sub) -> None:
     p.add_argument("--out", "-o", type=Path, default=None, metavar="FILE", help="write to FILE instead of stdout")
     p.add_argument("--plot", type=Path, default=None, metavar="PNG",
                    help="also save a figure of the per-turn engagement (one session only)")
+    p.add_argument("--answer", action="store_true",
+                   help="add the answer phase (user_N recordings): answer_index, answer_engagement, ...")
     p.add_argument("--workers", type=int, default=2, help="processes for a dataset root (default 2)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..errors import ConfigError
+    from ..errors import ConfigError, DataError
+    from ..published import is_session_dir
     from ..eeg.offline import OfflineSettings, plot_session, session_engagement_many, to_csv, to_json
 
     if args.fs is not None and not args.fs > 0:
@@ -51,8 +54,19 @@ def run(args: argparse.Namespace) -> int:
         elif done % 10 == 0 or done == total:
             print(f"[{done}/{total}] sessions", file=sys.stderr, flush=True)
 
-    results = session_engagement_many(args.session, args.compat, args.source, settings, args.workers, progress)
-    text = to_json(results) if args.format == "json" else to_csv(results)
+    if args.compat and args.answer:
+        raise ConfigError("--answer uses the project's definitions; the authors' tables have no answer phase")
+    if args.compat and args.source == "raw":
+        raise ConfigError("--compat authors2018 uses the Muse band lines; drop --source raw")
+    problems: list = []
+    results = session_engagement_many(args.session, args.compat, args.source, settings, args.workers, progress,
+                                      answer=args.answer, problems=problems)
+    for prob in problems:
+        print(f"nao-trainer engagement: skipped {prob.session}: {prob.message}", file=sys.stderr)
+    if not results:
+        raise DataError(f"{args.session}: no session could be read ({len(problems)} skipped)")
+    many = not is_session_dir(args.session)  # a dataset root: always a session column / a JSON list
+    text = to_json(results, many) if args.format == "json" else to_csv(results, many)
     if args.out:
         args.out.write_text(text)
         print(f"{args.out}: {sum(len(r.turns) for r in results)} turns of {len(results)} session(s)", file=sys.stderr)

@@ -35,13 +35,15 @@ import numpy as np
 
 from ..core import engagement as core
 from ..errors import DataError
-from ..published import Recording, find_sessions, read_recording, read_state_eeg, session_id
+from ..published import CHANNELS, Recording, find_sessions, read_recording, read_state_eeg, session_id
 
 COMPAT_MODES: tuple[str, ...] = ("authors2018",)
 SOURCES: tuple[str, ...] = ("bands", "raw")
 BAND_RATE_HZ = 10.0  # the Muse's band-power messages
 RAW_FS_HZ = 220.0  # raw EEG rate of the published recordings (dataset README)
 GOOD_CONTACT = (1.0, 2.0)  # h: 1 good, 2 ok, 4 bad
+COLUMNS: tuple[str, ...] = ("turn", "engagement_index", "engagement", "quality", "contact", "reason")
+ANSWER_COLUMNS: tuple[str, ...] = ("answer_index", "answer_engagement", "answer_quality", "answer_reason")
 
 
 @dataclass(frozen=True)
@@ -77,16 +79,16 @@ class TurnEngagement:
     quality: float  # fraction of usable samples (bands) / clean windows (raw), 0..1
     contact: float | None  # fraction of h samples with all 4 scalp channels good/ok
     reason: str = ""
+    # the answer phase (user_N), only when asked for (``answer=True``)
+    answer_index: float | None = None
+    answer_engagement: float | None = None
+    answer_quality: float | None = None
+    answer_reason: str = ""
 
-    def as_dict(self) -> dict:
-        return {
-            "turn": self.turn,
-            "engagement_index": self.engagement_index,
-            "engagement": self.engagement,
-            "quality": self.quality,
-            "contact": self.contact,
-            "reason": self.reason,
-        }
+    def as_dict(self, answer: bool = False) -> dict:
+        cols = COLUMNS + (ANSWER_COLUMNS if answer else ())
+        out = {c: getattr(self, c) for c in cols}
+        return {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in out.items()}
 
 
 @dataclass
@@ -100,6 +102,7 @@ class SessionEngagement:
     baseline: str  # what the normalisation was based on
     turns: list[TurnEngagement]
     series: dict[int, TurnSeries] = field(default_factory=dict, repr=False)
+    answer: bool = False  # whether the answer-phase columns were computed
 
     def as_dict(self) -> dict:
         return {
@@ -107,7 +110,7 @@ class SessionEngagement:
             "compat": self.compat,
             "source": self.source,
             "baseline": self.baseline,
-            "turns": [t.as_dict() for t in self.turns],
+            "turns": [t.as_dict(self.answer) for t in self.turns],
         }
 
 
@@ -142,8 +145,24 @@ def _choose_source(session_dir: Path, first_recording: str, requested: str | Non
 
 
 # ----------------------------------------------------------------------------------------------
-# Band-line computations
+# One recording -> per-sample (bands) or per-window (raw) values
 # ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Phase:
+    """The values of one recording (a turn's listening or answer phase), or why there are none."""
+
+    t: np.ndarray | None = None
+    raw: np.ndarray | None = None  # E per sample/window, NaN where unusable
+    smoothed: np.ndarray | None = None
+    quality: float = 0.0
+    contact: float | None = None
+    reason: str = ""
+
+    @property
+    def usable(self) -> bool:
+        return self.smoothed is not None and not self.reason
 
 
 def _contact(rec: Recording) -> float | None:
@@ -183,37 +202,65 @@ def _own_bands_turn(rec: Recording, settings: OfflineSettings) -> tuple[np.ndarr
     return e, smoothed
 
 
-def _own_raw_recording(rec: Recording, settings: OfflineSettings) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, str]:
-    """Windows of the online estimator over a raw recording: (t_end, raw E, smoothed E, quality, reason)."""
+def _from_bands(rec: Recording, compat: str | None, settings: OfflineSettings) -> _Phase:
+    if not all(p in rec for p in ("a", "b", "t")):
+        raise DataError(f"{rec.path}: no band lines (a, b, t); use --source raw for raw EEG")
+    if compat:
+        raw = smoothed = _authors_turn(rec)
+    else:
+        raw, smoothed = _own_bands_turn(rec, settings)
+    ph = _Phase(np.arange(len(raw)) / BAND_RATE_HZ, raw, smoothed, contact=_contact(rec))
+    ph.quality = float(np.isfinite(smoothed).mean()) if len(raw) else 0.0
+    if not len(raw):
+        ph.reason = f"{rec.path}: no band samples"
+    elif not compat and ph.quality < settings.min_quality:
+        ph.reason = (
+            f"only {ph.quality:.0%} of samples with >= {settings.min_channels} channels in good "
+            f"contact (needs {settings.min_quality:.0%})"
+        )
+    return ph
+
+
+def _from_raw(rec: Recording, settings: OfflineSettings) -> _Phase:
+    """The online estimator over a recording's raw EEG, samples stamped ``i / fs``."""
+    if "eeg" not in rec:
+        raise DataError(f"{rec.path}: no raw 'eeg' lines; use --source bands")
     eeg = rec["eeg"]
+    n_ch = eeg.shape[1]
+    names = CHANNELS[:n_ch] if n_ch <= len(CHANNELS) else None
     est = core.OnlineEngagement(
-        settings.fs, eeg.shape[1], settings.window_s, settings.hop_s, settings.a,
-        settings.thresholds, min(settings.min_channels, eeg.shape[1]),
+        settings.fs, n_ch, settings.window_s, settings.hop_s, settings.a,
+        settings.thresholds, min(settings.min_channels, n_ch), channel_names=names,
     )
     windows = est.push(eeg, np.arange(len(eeg)) / settings.fs)
+    ph = _Phase(contact=_contact(rec))
     if not windows:
-        return (np.empty(0),) * 3 + (0.0, f"recording shorter than one {settings.window_s:g} s window ({len(eeg)} samples)")  # type: ignore[return-value]
-    t = np.array([w.t_end for w in windows])
-    raw = np.array([np.nan if w.index_raw is None else w.index_raw for w in windows])
-    sm = np.array([np.nan if w.index_smoothed is None else w.index_smoothed for w in windows])
-    agg = core.aggregate_phase(windows, t[0] - settings.hop_s, t[-1], settings.hop_s, None, settings.min_quality)
-    return t, raw, sm, agg.quality, agg.reason
+        ph.reason = f"{rec.path}: shorter than one {settings.window_s:g} s analysis window ({len(eeg)} samples)"
+        return ph
+    ph.t = np.array([w.t_end for w in windows])
+    ph.raw = np.array([np.nan if w.index_raw is None else w.index_raw for w in windows])
+    ph.smoothed = np.array([np.nan if w.index_smoothed is None else w.index_smoothed for w in windows])
+    agg = core.aggregate_phase(windows, ph.t[0] - settings.hop_s, ph.t[-1], settings.hop_s, None, settings.min_quality)
+    ph.quality, ph.reason = agg.quality, agg.reason
+    return ph
+
+
+def _phase(session_dir: Path, name: str, src: str, compat: str | None, settings: OfflineSettings) -> _Phase:
+    """Read and compute one recording; any DataError becomes the phase's reason."""
+    path = _band_file(session_dir, name) if src == "bands" else session_dir / name
+    if path is None or not path.is_file():
+        return _Phase(reason=f"{session_dir / name}: recording not found")
+    try:
+        if src == "bands":
+            return _from_bands(read_recording(path, prefixes=("a", "b", "t", "h")), compat, settings)
+        return _from_raw(read_recording(path, prefixes=("eeg", "h")), settings)
+    except DataError as exc:
+        return _Phase(reason=str(exc))
 
 
 # ----------------------------------------------------------------------------------------------
 # Sessions
 # ----------------------------------------------------------------------------------------------
-
-
-@dataclass
-class _Turn:
-    turn: int
-    t: np.ndarray | None = None
-    raw: np.ndarray | None = None
-    smoothed: np.ndarray | None = None
-    quality: float = 0.0
-    contact: float | None = None
-    reason: str = ""
 
 
 def _mean(v: np.ndarray) -> float | None:
@@ -226,136 +273,137 @@ def session_engagement(
     compat: str | None = None,
     source: str | None = None,
     settings: OfflineSettings = OfflineSettings(),
+    answer: bool = False,
 ) -> SessionEngagement:
     """Per-turn listening-phase engagement of one session folder of the published layout.
 
     ``compat``: None (the project's definitions) or ``"authors2018"`` (the published tables).
     ``source``: ``"bands"`` (Muse band lines: ``EEG/bands_robot_N``, else the raw ``robot_N``), ``"raw"``
     (band powers computed from raw ``eeg`` lines), or None to use band lines when the session has them.
+    ``answer``: also compute the answer phase (``user_N``) with the project's definitions.
     Raises DataError when the session itself cannot be read (``state_EEG``); a bad recording only
     empties its turn.
     """
     session_dir = Path(session_dir)
     if compat is not None and compat not in COMPAT_MODES:
         raise DataError(f"unknown compat mode {compat!r} (known: {', '.join(COMPAT_MODES)})")
+    if compat and source == "raw":
+        raise DataError("--compat authors2018 uses the Muse band lines; drop --source raw")
+    if compat and answer:
+        raise DataError("the authors' tables have no answer-phase values; drop --answer or --compat")
+    if not (session_dir / "state_EEG").is_file():
+        raise DataError(f"{session_dir}: no state_EEG file (not a session of the published layout?)")
     states = read_state_eeg(session_dir / "state_EEG")
     if not states:
         raise DataError(f"{session_dir / 'state_EEG'}: no turns")
     src = "bands" if compat else _choose_source(session_dir, states[0].robot_file, source)
-    if compat and source == "raw":
-        raise DataError("--compat authors2018 uses the Muse band lines; drop --source raw")
-    turns: list[_Turn] = []
-    for i, st in enumerate(states, 1):
-        tr = _Turn(i)
-        turns.append(tr)
-        path = _band_file(session_dir, st.robot_file) if src == "bands" else session_dir / st.robot_file
-        if path is None or not path.is_file():
-            tr.reason = f"{session_dir / st.robot_file}: recording not found"
-            continue
-        try:
-            prefixes = ("a", "b", "t", "h") if src == "bands" else ("eeg", "h")
-            rec = read_recording(path, prefixes=prefixes)
-            tr.contact = _contact(rec)
-            if src == "bands":
-                if not all(p in rec for p in ("a", "b", "t")):
-                    raise DataError(f"{path}: no band lines (a, b, t); use --source raw for raw EEG")
-                if compat:
-                    tr.raw = _authors_turn(rec)
-                    tr.smoothed = tr.raw
-                else:
-                    tr.raw, tr.smoothed = _own_bands_turn(rec, settings)
-                tr.t = np.arange(len(tr.raw)) / BAND_RATE_HZ
-                tr.quality = float(np.isfinite(tr.smoothed).mean()) if len(tr.raw) else 0.0
-                if not len(tr.raw):
-                    tr.reason = f"{path}: no band samples"
-                elif not compat and tr.quality < settings.min_quality:
-                    tr.reason = (
-                        f"only {tr.quality:.0%} of samples with >= {settings.min_channels} channels in good "
-                        f"contact (needs {settings.min_quality:.0%})"
-                    )
-            else:
-                if "eeg" not in rec:
-                    raise DataError(f"{path}: no raw 'eeg' lines; use --source bands")
-                tr.t, tr.raw, tr.smoothed, tr.quality, tr.reason = _own_raw_recording(rec, settings)
-        except DataError as exc:
-            tr.t = tr.raw = tr.smoothed = None
-            tr.quality = 0.0
-            tr.reason = str(exc)
+    listening = [_phase(session_dir, st.robot_file, src, compat, settings) for st in states]
+    answers = [_phase(session_dir, st.user_file, src, None, settings) for st in states] if answer else None
     if compat:
-        baseline, norm = _normalise_authors(turns)
+        baseline, norm = _normalise_authors(listening)
+        norm_answer = None
     else:
-        baseline, norm = _normalise_own(session_dir, turns, src, settings)
+        baseline, norm, norm_answer = _normalise_own(session_dir, listening, answers, src, settings)
     out: list[TurnEngagement] = []
     series: dict[int, TurnSeries] = {}
-    for tr, nv in zip(turns, norm):
-        if tr.raw is None or tr.reason:
-            out.append(TurnEngagement(tr.turn, None, None, tr.quality, tr.contact, tr.reason or "no data"))
+    for i, (ph, nv) in enumerate(zip(listening, norm)):
+        turn = i + 1
+        extra: dict = {}
+        if answers is not None:
+            a, an = answers[i], norm_answer[i]
+            ok = a.usable and an is not None
+            extra = dict(
+                answer_index=_mean(a.raw[np.isfinite(a.smoothed)]) if a.usable else None,
+                answer_engagement=_mean(an[np.isfinite(a.smoothed)]) if ok else None,
+                answer_quality=a.quality,
+                answer_reason=a.reason if not a.usable else ("" if ok else "no normalisation scale"),
+            )
+        if not ph.usable:
+            out.append(TurnEngagement(turn, None, None, ph.quality, ph.contact, ph.reason or "no data", **extra))
             continue
-        ok = np.isfinite(tr.smoothed)
-        index = _mean(tr.smoothed if compat else tr.raw[ok])
+        ok = np.isfinite(ph.smoothed)
+        index = _mean(ph.smoothed if compat else ph.raw[ok])
         eng = _mean(nv[ok]) if nv is not None else None
         reason = "" if eng is not None else "no normalisation scale (too few usable values in the session)"
-        out.append(TurnEngagement(tr.turn, index, eng, tr.quality, tr.contact, reason))
-        series[tr.turn] = TurnSeries(tr.t, tr.raw, tr.smoothed, nv if nv is not None else np.full(len(tr.raw), np.nan))
-    return SessionEngagement(session_id(session_dir), session_dir, compat, src, baseline, out, series)
+        out.append(TurnEngagement(turn, index, eng, ph.quality, ph.contact, reason, **extra))
+        series[turn] = TurnSeries(ph.t, ph.raw, ph.smoothed, nv if nv is not None else np.full(len(ph.raw), np.nan))
+    return SessionEngagement(session_id(session_dir), session_dir, compat, src, baseline, out, series, answer)
 
 
-def _normalise_authors(turns: list[_Turn]) -> tuple[str, list[np.ndarray | None]]:
+def _normalise_authors(phases: list[_Phase]) -> tuple[str, list[np.ndarray | None]]:
     """Min-max over all samples of the session's usable turns (the authors' normalized_1.csv)."""
-    values = [t.smoothed for t in turns if t.smoothed is not None and not t.reason]
+    label = "session min-max (authors2018)"
+    values = [p.smoothed for p in phases if p.usable]
     if not values:
-        return "session min-max (authors2018)", [None] * len(turns)
+        return label, [None] * len(phases)
     allv = np.concatenate(values)
     lo, hi = np.nanmin(allv), np.nanmax(allv)
-    out: list[np.ndarray | None] = []
-    for t in turns:
-        if t.smoothed is None or t.reason or not hi > lo:
-            out.append(None)
-        else:
-            out.append((t.smoothed - lo) / (hi - lo))
-    return "session min-max (authors2018)", out
+    if not hi > lo:
+        return label, [None] * len(phases)
+    return label, [(p.smoothed - lo) / (hi - lo) if p.usable else None for p in phases]
 
 
 def _baseline_values(session_dir: Path, src: str, settings: OfflineSettings) -> np.ndarray | None:
-    intro = session_dir / "intro"
-    if not intro.is_file():
+    """Smoothed E of the ``intro`` recording (greeting and instructions), None when there is none."""
+    if not (session_dir / "intro").is_file():
         return None
-    if src == "bands":
-        rec = read_recording(intro, prefixes=("a", "b", "t", "h"))
-        if not all(p in rec for p in ("a", "b", "t")):
-            return None
-        return _own_bands_turn(rec, settings)[1]
-    rec = read_recording(intro, prefixes=("eeg", "h"))
-    if "eeg" not in rec:
+    ph = _phase(session_dir, "intro", src if src == "raw" else "bands", None, settings)
+    if ph.smoothed is None:
+        if ph.reason and "recording not found" not in ph.reason:
+            raise DataError(ph.reason)
         return None
-    return _own_raw_recording(rec, settings)[2]
+    return ph.smoothed
 
 
 def _normalise_own(
-    session_dir: Path, turns: list[_Turn], src: str, settings: OfflineSettings
-) -> tuple[str, list[np.ndarray | None]]:
-    """The project's rule: intro baseline plus running bounds, turn by turn; else the session itself."""
+    session_dir: Path,
+    listening: list[_Phase],
+    answers: list[_Phase] | None,
+    src: str,
+    settings: OfflineSettings,
+) -> tuple[str, list[np.ndarray | None], list[np.ndarray | None] | None]:
+    """The project's rule: intro baseline plus running bounds in recording order; else the session itself."""
     normaliser = core.EngagementNormaliser()
+    why = ""
     try:
         base = _baseline_values(session_dir, src, settings)
     except DataError as exc:
-        base, why = None, f" (intro unreadable: {exc})"
-    else:
-        why = ""
-    usable = [t for t in turns if t.smoothed is not None and not t.reason]
+        base, why = None, f" (intro unusable: {exc})"
+    n = len(listening)
+    norm: list[np.ndarray | None] = [None] * n
+    norm_answer: list[np.ndarray | None] | None = None if answers is None else [None] * n
     if base is not None and np.isfinite(base).sum() >= normaliser.min_values:
         normaliser.fit_baseline(base)
-        label = "intro + running bounds"
-        out = [normaliser.extend(t.smoothed) if (t.smoothed is not None and not t.reason) else None for t in turns]
-        return label, out
-    normaliser.fit_baseline(np.concatenate([t.smoothed for t in usable]) if usable else [])
-    label = "session listening phases (no intro recording)" + why
-    return label, [normaliser.normalise(t.smoothed) if (t.smoothed is not None and not t.reason) else None for t in turns]
+        for i in range(n):  # listening then answer, turn by turn: what a live session would compute
+            if listening[i].usable:
+                norm[i] = normaliser.extend(listening[i].smoothed)
+            if answers is not None and answers[i].usable:
+                norm_answer[i] = normaliser.extend(answers[i].smoothed)  # type: ignore[index]
+        return "intro + running bounds", norm, norm_answer
+    usable = [p.smoothed for p in listening if p.usable]
+    normaliser.fit_baseline(np.concatenate(usable) if usable else [])
+    norm = [normaliser.normalise(p.smoothed) if p.usable else None for p in listening]
+    if answers is not None:
+        norm_answer = [normaliser.normalise(p.smoothed) if p.usable else None for p in answers]
+    return "session listening phases (no intro recording)" + why, norm, norm_answer
 
 
-def _one(args: tuple) -> SessionEngagement:
-    path, compat, source, settings = args
-    return session_engagement(path, compat, source, settings)
+@dataclass(frozen=True)
+class SessionProblem:
+    """A session that could not be computed at all (its ``state_EEG`` is missing or malformed)."""
+
+    session: str
+    message: str
+
+
+def _one(args: tuple) -> "SessionEngagement | SessionProblem":
+    path, compat, source, settings, answer, skip = args
+    try:
+        return session_engagement(path, compat, source, settings, answer)
+    except DataError as exc:
+        if not skip:
+            raise
+        return SessionProblem(session_id(path), str(exc))
 
 
 def session_engagement_many(
@@ -365,36 +413,41 @@ def session_engagement_many(
     settings: OfflineSettings = OfflineSettings(),
     workers: int = 2,
     progress: Callable[[int, int, str], None] | None = None,
+    answer: bool = False,
+    problems: list[SessionProblem] | None = None,
 ) -> list[SessionEngagement]:
     """:func:`session_engagement` for every session under ``root``, in natural order.
 
     ``workers > 1`` spreads sessions over processes. ``progress(done, total, session_id)`` is called after
-    each session (the CLI prints it to stderr). A session that cannot be read raises DataError.
+    each session (the CLI prints it to stderr). A session that cannot be read raises DataError, unless
+    a ``problems`` list is given: it is then appended there and skipped.
     """
     sessions = find_sessions(Path(root))
-    jobs = [(p, compat, source, settings) for p in sessions]
-    results: list[SessionEngagement] = []
+    skip = problems is not None
+    jobs = [(p, compat, source, settings, answer, skip) for p in sessions]
+    done: list[SessionEngagement | SessionProblem] = []
     if workers <= 1 or len(jobs) <= 1:
         for k, job in enumerate(jobs, 1):
-            results.append(_one(job))
+            done.append(_one(job))
             if progress:
-                progress(k, len(jobs), results[-1].session)
-        return results
-    from concurrent.futures import ProcessPoolExecutor
+                progress(k, len(jobs), done[-1].session)
+    else:
+        from concurrent.futures import ProcessPoolExecutor
 
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        for k, res in enumerate(pool.map(_one, jobs, chunksize=max(1, len(jobs) // (4 * workers))), 1):
-            results.append(res)
-            if progress:
-                progress(k, len(jobs), res.session)
-    return results
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            for k, res in enumerate(pool.map(_one, jobs, chunksize=max(1, len(jobs) // (4 * workers))), 1):
+                done.append(res)
+                if progress:
+                    progress(k, len(jobs), res.session)
+    if problems is not None:
+        problems.extend(r for r in done if isinstance(r, SessionProblem))
+    return [r for r in done if isinstance(r, SessionEngagement)]
 
 
 # ----------------------------------------------------------------------------------------------
 # Output
 # ----------------------------------------------------------------------------------------------
 
-COLUMNS: tuple[str, ...] = ("turn", "engagement_index", "engagement", "quality", "contact", "reason")
 
 
 def _cell(v) -> str:
@@ -411,20 +464,22 @@ def _cell(v) -> str:
 def to_csv(results: Sequence[SessionEngagement], with_session: bool | None = None) -> str:
     """One line per turn; a leading ``session`` column when there are several sessions."""
     with_session = len(results) > 1 if with_session is None else with_session
-    cols = (("session",) if with_session else ()) + COLUMNS
+    answer = any(r.answer for r in results)
+    cols = (("session",) if with_session else ()) + COLUMNS + (ANSWER_COLUMNS if answer else ())
     lines = [",".join(cols)]
     for r in results:
         for t in r.turns:
-            d = t.as_dict()
+            d = t.as_dict(answer)
             d["session"] = r.session
             lines.append(",".join(_cell(d[c]) for c in cols))
     return "\n".join(lines) + "\n"
 
 
-def to_json(results: Sequence[SessionEngagement]) -> str:
-    """The sessions as JSON (a single object for one session, a list otherwise); None -> null."""
+def to_json(results: Sequence[SessionEngagement], as_list: bool | None = None) -> str:
+    """The sessions as JSON (one object for a single session, else a list); None -> null."""
     data = [r.as_dict() for r in results]
-    return json.dumps(data[0] if len(data) == 1 else data, indent=2, allow_nan=False) + "\n"
+    as_list = len(data) != 1 if as_list is None else as_list
+    return json.dumps(data if as_list else data[0], indent=2, allow_nan=False) + "\n"
 
 
 def plot_session(result: SessionEngagement, path: Path) -> Path:
