@@ -1,0 +1,54 @@
+"""Benchmark: import + fit of the published sessions (target <= 20 s) and a cached re-import (<= 2 s).
+
+Usage: python benchmarks/bench_fit.py [DATASET_ROOT]
+Without an argument the published bands archive (../shared/data/sequence-learning) is extracted to a
+temporary folder first (not timed). Prints one line per figure; exit 1 if a target is missed.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("QI_LOG_LEVEL", "silent")
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("NAO_TRAINER_SHARED", ROOT.parent / "shared"))
+ARCHIVE = SHARED / "data" / "sequence-learning" / "clean_data_bands.tar.xz"
+TARGET_FIT_S, TARGET_CACHED_S = 20.0, 2.0
+
+
+def main(argv: list[str]) -> int:
+    from nao_trainer.dataset import import_dataset
+    from nao_trainer.fitting import FitOptions, Turns, fit_dataset
+
+    with tempfile.TemporaryDirectory() as tmp:
+        if argv:
+            root = Path(argv[0])
+        else:
+            subprocess.run(["tar", "-xJf", str(ARCHIVE), "-C", tmp], check=True)
+            root = Path(tmp) / "clean_data"
+        cache = Path(tmp) / "cache"
+        t0 = time.perf_counter()
+        imported = import_dataset(root, compat="authors2018", cache_dir=cache)
+        t1 = time.perf_counter()
+        result = fit_dataset(Turns.from_columns(imported.table.columns), FitOptions())
+        t2 = time.perf_counter()
+        again = import_dataset(root, compat="authors2018", cache_dir=cache)
+        t3 = time.perf_counter()
+    n = len(imported.table.sessions)
+    assert again.cached == n and again.table.fingerprint() == imported.table.fingerprint()
+    fit_s, cached_s = t2 - t0, t3 - t2
+    print(f"sessions: {n}, turns: {len(imported.table)}, clusters: {result.clustering.sizes.tolist()}")
+    print(f"import (fresh): {t1 - t0:.2f} s")
+    print(f"fit (user models, K-means x{result.options.n_init}, {result.clustering.k} simulators + CV): {t2 - t1:.2f} s")
+    print(f"import + fit: {fit_s:.2f} s (target <= {TARGET_FIT_S:.0f} s) {'OK' if fit_s <= TARGET_FIT_S else 'MISSED'}")
+    print(f"cached re-import: {cached_s:.2f} s (target <= {TARGET_CACHED_S:.0f} s) "
+          f"{'OK' if cached_s <= TARGET_CACHED_S else 'MISSED'}")
+    return 0 if fit_s <= TARGET_FIT_S and cached_s <= TARGET_CACHED_S else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
