@@ -67,7 +67,7 @@ def test_silent_server_is_unavailable_within_the_deadline():
         with pytest.raises(RobotUnavailable, match="within 1.5 s .*does not speak NAOqi"):
             NaoqiRobot.connect(url, deadline_s=1.5)
         elapsed = time.monotonic() - t0
-    assert 1.4 <= elapsed < 2.5
+    assert 1.4 <= elapsed < 3.0
 
 
 def test_lost_robot_raises_connection_lost_and_reconnects_when_back():
