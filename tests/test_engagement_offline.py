@@ -32,7 +32,9 @@ def test_authors2018_reproduces_published_tables_for_all_sessions(dataset_root, 
         ref_n = norm_tab.session(r.session)["engagement"]
         assert len(r.turns) == len(ref_i) == 25
         assert [t.turn for t in r.turns] == list(range(1, 26))
-        worst = max(worst, np.abs(_values(r, "engagement_index") - ref_i).max(), np.abs(_values(r, "engagement") - ref_n).max())
+        err_i = np.abs(_values(r, "engagement_index") - ref_i).max()
+        err_n = np.abs(_values(r, "engagement") - ref_n).max()
+        worst = max(worst, err_i, err_n)
     assert worst <= 1e-6  # the README says ~1e-11
 
 
@@ -41,8 +43,8 @@ def test_authors2018_from_raw_files_only(raw_root, derived):
     sdir = raw_root / "user_30" / "session_1"
     assert not (sdir / "EEG").exists()  # the raw layout: band lines come from robot_N
     r = offline.session_engagement(sdir, compat="authors2018")
-    np.testing.assert_allclose(_values(r, "engagement_index"), index_tab.session(r.session)["engagement"], atol=1e-9, rtol=0)
-    np.testing.assert_allclose(_values(r, "engagement"), norm_tab.session(r.session)["engagement"], atol=1e-9, rtol=0)
+    for attr, tab in (("engagement_index", index_tab), ("engagement", norm_tab)):
+        np.testing.assert_allclose(_values(r, attr), tab.session(r.session)["engagement"], atol=1e-9, rtol=0)
 
 
 def test_own_definition_from_bands(dataset_root, raw_root):
@@ -129,7 +131,7 @@ def _synthetic_session(root: Path, good_contact: bool) -> Path:
         for _ in range(50):
             b = beta + rng.normal(0, 0.01, 4)
             b[0] = 0.95  # TP9: nonsense while its contact is bad
-            lines += [f"a {' '.join(['0.3'] * 4)}", f"b {' '.join(f'{v:.4f}' for v in b)}", f"t {' '.join(['0.2'] * 4)}"]
+            lines += ["a 0.3 0.3 0.3 0.3", "b " + " ".join(f"{v:.4f}" for v in b), "t 0.2 0.2 0.2 0.2"]
             lines.append("h " + ("1 1 1 1" if good_contact else "4 1 2 1"))
         (sdir / "EEG" / f"bands_robot_{turn}").write_text("\n".join(lines) + "\n")
     return sdir
@@ -166,7 +168,8 @@ def test_cli_csv_json_and_errors(dataset_root, derived, capsys, tmp_path):
     assert out[0] == "turn,engagement_index,engagement,quality,contact,reason"
     rows = [ln.split(",") for ln in out[1:]]
     assert [int(r[0]) for r in rows] == list(range(1, 26))
-    np.testing.assert_allclose([float(r[1]) for r in rows], index_tab.session("user_10/session_1")["engagement"], atol=1e-12)
+    ref = index_tab.session("user_10/session_1")["engagement"]
+    np.testing.assert_allclose([float(r[1]) for r in rows], ref, atol=1e-12)
     assert main(["engagement", str(sdir), "--format", "json", "--plot", str(tmp_path / "e.png")]) == 0
     cap = capsys.readouterr()
     data = json.loads(cap.out)

@@ -402,10 +402,10 @@ class EngagementNormaliser:
     hi_q: float = 95.0
     min_values: int = 5
     min_span: float = 1e-9
-    history: list[float] = field(default_factory=list, repr=False)
-    baseline_n_: int = 0
-    lo_: float = float("nan")
-    hi_: float = float("nan")
+    history: list[float] = field(default_factory=list, repr=False, init=False)
+    baseline_n_: int = field(default=0, init=False)
+    lo_: float = field(default=float("nan"), init=False)
+    hi_: float = field(default=float("nan"), init=False)
 
     def __post_init__(self) -> None:
         if not 0 <= self.lo_q < self.hi_q <= 100:

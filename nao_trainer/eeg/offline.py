@@ -497,7 +497,8 @@ def plot_session(result: SessionEngagement, path: Path) -> Path:
         if t.engagement is None:
             ax1.text(t.turn, 0.02, "x", ha="center", color="tab:red")
     ax1.set(xlabel="turn", ylabel="engagement (normalised)", ylim=(0, 1),
-            title=f"{result.session}: listening-phase engagement ({result.compat or 'project definition'}, {result.source})")
+            title=f"{result.session}: listening-phase engagement "
+            f"({result.compat or 'project definition'}, {result.source})")
     offset = 0.0
     for turn, s in sorted(result.series.items()):
         if len(s.t):
