@@ -441,6 +441,11 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
 
     say = progress or (lambda _m: None)
     source, out = Path(source), Path(out_dir)
+    if figures:
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            raise DataError("figures need matplotlib: pip install 'nao-trainer[plots]', or add --no-figures") from None
     skipped: list[str] = []
     if source.is_file():
         table = dataset.read_table(source)
