@@ -180,6 +180,9 @@ def test_cli_csv_json_and_errors(dataset_root, derived, capsys, tmp_path):
     assert main(["engagement", str(tmp_path / "nope")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no such folder" in err and "Traceback" not in err
+    assert main(["engagement", str(sdir), "--source", "raw"]) == 2
+    err = capsys.readouterr().err
+    assert "no raw recordings (robot_N) for --source raw; this session has only EEG/bands_* files" in err
     assert main(["engagement", str(sdir), "--fs", "0"]) == 2
     assert "--fs must be > 0" in capsys.readouterr().err
 

@@ -297,6 +297,9 @@ def session_engagement(
     if not states:
         raise DataError(f"{session_dir / 'state_EEG'}: no turns")
     src = "bands" if compat else _choose_source(session_dir, states[0].robot_file, source)
+    if src == "raw" and not any((session_dir / st.robot_file).is_file() for st in states):
+        hint = "; this session has only EEG/bands_* files: use --source bands" if (session_dir / "EEG").is_dir() else ""
+        raise DataError(f"{session_dir}: no raw recordings (robot_N) for --source raw{hint}")
     listening = [_phase(session_dir, st.robot_file, src, compat, settings) for st in states]
     answers = [_phase(session_dir, st.user_file, src, None, settings) for st in states] if answer else None
     if compat:
