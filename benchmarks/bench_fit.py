@@ -43,7 +43,8 @@ def main(argv: list[str]) -> int:
     fit_s, cached_s = t2 - t0, t3 - t2
     print(f"sessions: {n}, turns: {len(imported.table)}, clusters: {result.clustering.sizes.tolist()}")
     print(f"import (fresh): {t1 - t0:.2f} s")
-    print(f"fit (user models, K-means x{result.options.n_init}, {result.clustering.k} simulators + CV): {t2 - t1:.2f} s")
+    what = f"user models, K-means x{result.options.n_init}, {result.clustering.k} simulators + CV"
+    print(f"fit ({what}): {t2 - t1:.2f} s")
     print(f"import + fit: {fit_s:.2f} s (target <= {TARGET_FIT_S:.0f} s) {'OK' if fit_s <= TARGET_FIT_S else 'MISSED'}")
     print(f"cached re-import: {cached_s:.2f} s (target <= {TARGET_CACHED_S:.0f} s) "
           f"{'OK' if cached_s <= TARGET_CACHED_S else 'MISSED'}")

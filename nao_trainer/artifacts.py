@@ -153,7 +153,8 @@ def load_simulator(spec: str, models_dir: Path | None = None) -> UserSimulator:
         if str(row.get("id")) == cid:
             sim = load_simulator_file(folder / row.get("file", cluster_file(int(row["id"]))))
             if row.get("fingerprint") and row["fingerprint"] != sim.fingerprint():
-                raise DataError(f"{folder / row['file']}: does not match the manifest's fingerprint; refit with `nao-trainer fit`")
+                raise DataError(f"{folder / row['file']}: does not match the manifest's fingerprint; "
+                                "refit with `nao-trainer fit`")
             return sim
     ids = ", ".join(str(r.get("id")) for r in manifest.get("clusters", [])) or "none"
     raise DataError(f"unknown user model {spec!r}: {folder} has clusters {ids} (or give a path to a simulator .json)")

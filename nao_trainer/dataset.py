@@ -150,8 +150,8 @@ def read_table(path: Path) -> TurnTable:
     header = next(reader, None)
     if header != list(COLUMNS):
         missing = [c for c in COLUMNS if c not in (header or [])]
-        raise DataError(f"{path}:1: not a nao-trainer turn table (missing columns: {', '.join(missing) or 'order differs'}); "
-                        f"create it with `nao-trainer import`")
+        what = f"missing columns: {', '.join(missing)}" if missing else "columns in another order"
+        raise DataError(f"{path}:1: not a nao-trainer turn table ({what}); create it with `nao-trainer import`")
     rows = []
     for lineno, rec in enumerate(reader, 2):
         if len(rec) != len(COLUMNS):
@@ -208,7 +208,9 @@ def _check_turns(sid: str, log: list[published.LogRow], states: list[published.S
             raise DataError(f"{where}: state_EEG says length {s.length} rf {s.rf}, logfile {r.length} {r.rf}")
         expected_prev = 0 if i == 0 else signed_score(level_of(log[i - 1].length), log[i - 1].success == 1)
         if s.previous_score != expected_prev:
-            raise DataError(f"state_EEG {where}: previous_score {s.previous_score}, the logfile implies {expected_prev}")
+            raise DataError(
+                f"state_EEG {where}: previous_score {s.previous_score}, the logfile implies {expected_prev}"
+            )
         if r.rf > 0 and i > 0 and r.length != log[i - 1].length:
             raise DataError(f"{where}: feedback turn changes length ({log[i - 1].length} -> {r.length})")
         mdp.encode(s.length, s.rf, s.previous_score)
@@ -308,7 +310,8 @@ def import_dataset(root: Path, compat: str | None = None, cache_dir: Path | None
     Raises DataError when no session folder exists or none could be imported.
     """
     if compat not in COMPAT_MODES:
-        raise DataError(f"unknown compatibility mode {compat!r}: use one of {', '.join(str(c) for c in COMPAT_MODES[1:])}")
+        known = ", ".join(str(c) for c in COMPAT_MODES[1:])
+        raise DataError(f"unknown compatibility mode {compat!r}: use one of {known} (or none)")
     root = Path(root)
     say = progress or (lambda _m: None)
     sessions = published.find_sessions(root)

@@ -14,8 +14,9 @@ For each cluster of sessions this builds a :class:`~nao_trainer.core.simulation.
 * **times**: the cluster's per-level empirical quantiles of reaction and completion time.
 
 Reported per cluster: training RMSE (the simulator's P table vs the per-state MLE, also the
-regression alone vs the MLE; the SVR vs the per-(state, outcome) means; unweighted over states) and a cross-validated RMSE (the same quantities with models fitted
-on the other session folds, errors weighted by the held-out turn counts).
+regression alone vs the MLE; the SVR vs the per-(state, outcome) means; unweighted over states)
+and a cross-validated RMSE (the same quantities with models fitted on the other session folds,
+errors weighted by the held-out turn counts).
 
 scikit-learn is imported inside the functions.
 """
@@ -33,7 +34,7 @@ import numpy as np
 from .core import mdp
 from .core.simulation import TIME_QUANTILES, UserSimulator
 from .core.usermodel import Clustering, UserModels, cluster_users, user_models
-from .errors import DataError
+from .errors import DataError, UserError
 
 #: How states are turned into regression inputs (stored in the artifacts' metadata).
 FEATURE_ENCODING = (
@@ -411,7 +412,8 @@ def fit_dataset(turns: Turns, options: FitOptions | None = None, metadata: dict[
         if metadata.get("compat") == "authors2018" and clustering.k == 3:
             meta["paper_cluster"] = PAPER_CLUSTERS[cid]
         center = clustering.centers[cid - 1]
-        clusters.append(fit_cluster(turns.subset(session_label == cid), cid, options, rng, center[:4], center[4:], meta))
+        members = turns.subset(session_label == cid)
+        clusters.append(fit_cluster(members, cid, options, rng, center[:4], center[4:], meta))
         c = clusters[-1]
         say(f"cluster {cid}: {len(c.sessions)} sessions, RMSE performance {c.rmse_performance:.3f} "
             f"(CV {c.cv_rmse_performance:.3f}), engagement {c.rmse_engagement:.3f} (CV {c.cv_rmse_engagement:.3f})")
@@ -442,10 +444,10 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
     say = progress or (lambda _m: None)
     source, out = Path(source), Path(out_dir)
     if figures:
-        try:
-            import matplotlib  # noqa: F401
-        except ImportError:
-            raise DataError("figures need matplotlib: pip install 'nao-trainer[plots]', or add --no-figures") from None
+        import importlib.util
+
+        if importlib.util.find_spec("matplotlib") is None:
+            raise UserError("figures need matplotlib: pip install 'nao-trainer[plots]', or add --no-figures") from None
     skipped: list[str] = []
     if source.is_file():
         table = dataset.read_table(source)
@@ -471,8 +473,8 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
         "cluster_ids": "1..K by increasing mean success rate P1..P4 (ties: mean engagement)",
     }
     options = FitOptions(k=k, seed=seed)
-    result = fit_dataset(turns, options, metadata={"compat": compat, "dataset_fingerprint": info["dataset_fingerprint"]},
-                         progress=say)
+    meta = {"compat": compat, "dataset_fingerprint": info["dataset_fingerprint"]}
+    result = fit_dataset(turns, options, metadata=meta, progress=say)
     report = {
         "sessions": len(result.user_models.sessions),
         "turns": len(turns.state),

@@ -68,7 +68,8 @@ def test_fit_from_an_imported_table_gives_the_same_models(fitted, dataset_root, 
     assert main(["fit", str(table), "--out", str(tmp_path / "m"), "--no-figures"]) == 0
     assert not (tmp_path / "m" / "users.png").exists()
     for cid in ("1", "2", "3"):
-        assert artifacts.load_simulator(cid, tmp_path / "m").fingerprint() == artifacts.load_simulator(cid, out).fingerprint()
+        again = artifacts.load_simulator(cid, tmp_path / "m")
+        assert again.fingerprint() == artifacts.load_simulator(cid, out).fingerprint()
     assert main(["import", str(out), "--out", str(tmp_path / "x.csv"), "-q"]) == 2  # not a dataset: one line
     assert "no sessions found" in capsys.readouterr().err
 

@@ -47,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def format_table(report: dict) -> str:
-    head = f"{'id':>2} {'size':>4}  {'P1..P4':<23}  {'E1..E4':<23}  {'RMSE perf':>9} {'(CV)':>6}  {'RMSE eng':>8} {'(CV)':>6}"
+    head = (f"{'id':>2} {'size':>4}  {'P1..P4':<23}  {'E1..E4':<23}  "
+            f"{'RMSE perf':>9} {'(CV)':>6}  {'RMSE eng':>8} {'(CV)':>6}")
     lines = [head]
     for c in report["clusters"]:
         p = " ".join(f"{v:.2f}" for v in c["p"])
