@@ -9,7 +9,9 @@ Reproducibility: agent (cluster, method, seed index) draws from
 ``cluster_key`` is derived from the cluster id's text, so an agent's run is the same whatever
 else is trained with it, in whichever process.
 
-Summary statistics (``results``): for each agent, its mean per-episode score (sum of eq. (1) over
+Summary statistics (``results``): ``optimal_score`` / ``random_score`` are the expected episode
+scores of the best and of uniform random play on the cluster's simulator (dynamic programming,
+``core.qlearning.expected_scores``), for scale. For each agent, its mean per-episode score (sum of eq. (1) over
 the episode's turns) and mean per-episode engagement (mean over the turns) over the *last 10 %*
 of episodes (``tail``); ``score_mean`` is the mean of that over seeds and ``score_ci`` the 95 %
 t-interval of the mean over seeds (``None`` with one seed). Learning curves are the per-episode
@@ -28,7 +30,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .core import mdp
-from .core.qlearning import METHODS, BatchLearner, QConfig, QLearner, check_method
+from .core.qlearning import METHODS, BatchLearner, QConfig, QLearner, check_method, expected_scores
 from .core.simulation import UserSimulator
 
 S0_INDEX = mdp.encode(*mdp.S0)
@@ -126,8 +128,10 @@ class GridResult:
     def results(self) -> list[dict[str, Any]]:
         """One row per (cluster, method); see the module docstring for the definitions."""
         score, eng = self.tail_means()
+        probs = self.s0_probabilities()
         rows = []
         for c, cluster in enumerate(self.clusters):
+            best, uniform = expected_scores(self.simulators[c].p_success, self.spec.turns)
             for m, method in enumerate(self.spec.methods):
                 s_mean, s_ci = mean_ci(score[c, m])
                 e_mean, e_ci = mean_ci(eng[c, m])
@@ -142,7 +146,9 @@ class GridResult:
                     "tail_episodes": self.spec.tail_episodes,
                     "first_score_mean": float(self.episode_score[c, m, :, : self.spec.tail_episodes].mean()),
                     "first_engagement_mean": float(self.episode_engagement[c, m, :, : self.spec.tail_episodes].mean()),
-                    "s0_probabilities": dict(zip(mdp.ACTION_NAMES, self.s0_probabilities()[c, m].round(6).tolist())),
+                    "optimal_score": round(best, 4),
+                    "random_score": round(uniform, 4),
+                    "s0_probabilities": dict(zip(mdp.ACTION_NAMES, probs[c, m].round(6).tolist())),
                     "policy_seed": self.representative_seed(c, m),
                 })
         return rows
@@ -242,8 +248,9 @@ def train_grid(simulators: Sequence[UserSimulator], clusters: Sequence[str], spe
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
 
-        # spawn: a clean interpreter per worker (no inherited threads or qi state).
-        with ProcessPoolExecutor(n_workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        # fork (Linux, the only platform qi supports): starts fast and works from scripts without an
+        # ``if __name__ == "__main__"`` guard; training code runs no threads that fork could break.
+        with ProcessPoolExecutor(n_workers, mp_context=multiprocessing.get_context("fork")) as pool:
             outputs = list(pool.map(_run_chunk, *zip(*chunks)))
     seconds = time.perf_counter() - t0
     parts = [o[0] for o in outputs]

@@ -32,9 +32,12 @@ Exploration
 
     With ``tau0 = 5`` the first choices are near-uniform: early action values differ by about
     ``alpha * 4 = 0.3`` (the reward scale is -1..+4 per turn, more with shaping), ``exp(0.3 / 5) = 1.06``.
-    The temperature halves after ``n_half`` visits and floors at ``tau_min``, leaving a little
-    exploration forever (which also keeps the live policy probabilistic, like Figure 8). In
-    ``START`` only the level actions L1..L4 are allowed (``mdp.ACTION_MASK``).
+    The temperature halves after ``n_half = 200`` visits and floors at ``tau_min = 0.1`` (reached
+    after ~10,000 visits), leaving a little exploration forever (which also keeps the live policy
+    probabilistic, like Figure 8). ``n_half`` was chosen by comparing 20, 200 and 1000 on the
+    shipped user models (5 seeds x 10,000 episodes): 20 cools too fast and locks some seeds into
+    poor policies, 1000 is still exploring at the end. In ``START`` only the level actions L1..L4
+    are allowed (``mdp.ACTION_MASK``).
 
 Sampling an action from a uniform ``u`` is inverse-CDF over the allowed actions in index order:
 the first action whose cumulative weight reaches ``u`` times the total.
@@ -72,7 +75,7 @@ class QConfig:
     gamma: float = 0.95
     tau0: float = 5.0
     tau_min: float = 0.1
-    n_half: float = 20.0
+    n_half: float = 200.0
     beta1: float = 7.5
     beta2: float = 0.8
     h_prior: float = 0.0
@@ -128,34 +131,48 @@ def temperature(visits: "int | np.ndarray", config: QConfig) -> np.ndarray:
     return 1.0 / inverse_temperature(visits, config)
 
 
-def softmax_weights(values: np.ndarray, inv_tau: np.ndarray) -> np.ndarray:
+#: Exponents below this are clamped: exp() underflows to 0 there anyway, and numpy's exp is
+#: several times slower on underflowing inputs. The change in probabilities is < 1e-300.
+MIN_EXPONENT = -700.0
+
+
+def softmax_weights(values: np.ndarray, inv_tau: np.ndarray, top: np.ndarray | None = None) -> np.ndarray:
     """Unnormalised Boltzmann weights of the columns of ``values`` (k actions, n agents).
 
-    The column maximum is subtracted first so large values over small temperatures cannot overflow.
+    ``top`` (n,) is subtracted from every column before scaling so that large values at small
+    temperatures cannot overflow; by default the column maximum. Any ``top`` within a few units
+    of the maximum gives the same distribution (the learners pass the max of Q that the previous
+    update already computed, which saves recomputing it).
     """
-    z = values - column_max(values)
+    z = values - (column_max(values) if top is None else top)
     z *= inv_tau
+    np.maximum(z, MIN_EXPONENT, out=z)
     return np.exp(z, out=z)
 
 
-def choose_columns(values: np.ndarray, inv_tau: np.ndarray, u: np.ndarray) -> np.ndarray:
+def choose_columns(values: np.ndarray, inv_tau: np.ndarray, u: np.ndarray,
+                   top: np.ndarray | None = None) -> np.ndarray:
     """Sample one action per column of ``values`` (k, n) by inverse CDF with uniforms ``u`` (n,).
 
     This is the single kernel both learners use, so their choices agree bit for bit. Rows are
     combined one by one: numpy's reductions along a short axis cost more than k ufunc calls, and
-    this loop runs 250,000 times per training run.
+    this runs 250,000 times per training run. ``top``: see ``softmax_weights``.
     """
-    cum = softmax_weights(values, inv_tau)
+    if len(values) == 1:
+        return np.zeros(values.shape[1], dtype=np.int64)
+    cum = softmax_weights(values, inv_tau, top)
     prev = cum[0]
     for j in range(1, len(cum)):
         row = cum[j]
         row += prev  # running sums in place: cum[j] = w[0] + ... + w[j]
         prev = row
-    below = (cum[:-1] < u * prev).view(np.uint8)
-    chosen = below[0]
-    for j in range(1, len(below)):
-        chosen = chosen + below[j]
-    return chosen.astype(np.int64)
+    # The chosen index is the number of partial sums below the threshold: pack each column's
+    # (at most 8) comparisons into a byte and count its bits with a table.
+    packed = np.packbits(cum[:-1] < u * prev, axis=0)[0]
+    return _POPCOUNT.take(packed)
+
+
+_POPCOUNT = np.array([bin(v).count("1") for v in range(256)], dtype=np.int64)
 
 
 def policy_probabilities(values: np.ndarray, mask: np.ndarray, inv_tau: float) -> np.ndarray:
@@ -173,6 +190,31 @@ def column_max(values: np.ndarray) -> np.ndarray:
     for j in range(1, len(values)):
         top = np.maximum(top, values[j])
     return top
+
+
+def expected_scores(p_success: np.ndarray, turns: int) -> tuple[float, float]:
+    """Expected episode score of the best policy and of the uniform random policy, by dynamic programming.
+
+    The best policy may depend on the turn number (finite horizon, no discount), so it bounds what
+    any stationary learner over these states can reach; uniform random play is the floor. Both
+    follow the episode model of ``core.mdp`` exactly (the outcome of the turn in ``s`` is unknown
+    when choosing in ``s``).
+    """
+    p = np.asarray(p_success, dtype=float)
+    if p.shape != (mdp.N_TURN_STATES,):
+        raise ValueError(f"p_success must have shape (108,), got {p.shape}")
+    p_turn = np.append(p, 0.0)  # START: its "outcome" does not matter (NEXT_STATE equal for both)
+    immediate = p * mdp.SCORE[:, 1] + (1 - p) * mdp.SCORE[:, 0]  # expected eq.-(1) score of a turn in s'
+    nxt = np.where(mdp.NEXT_STATE < 0, 0, mdp.NEXT_STATE)
+    weights = np.stack([1 - p_turn, p_turn], axis=-1)[:, None, :]  # (109, 1, 2)
+    best = np.zeros(mdp.N_STATES)
+    rand = np.zeros(mdp.N_STATES)
+    for _ in range(turns):
+        q_best = (weights * (immediate[nxt] + best[nxt])).sum(axis=-1)
+        q_rand = (weights * (immediate[nxt] + rand[nxt])).sum(axis=-1)
+        best = np.where(mdp.ACTION_MASK, q_best, -np.inf).max(axis=1)
+        rand = np.where(mdp.ACTION_MASK, q_rand, 0.0).sum(axis=1) / mdp.ACTION_MASK.sum(axis=1)
+    return float(best[mdp.START]), float(rand[mdp.START])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -206,6 +248,9 @@ class QLearner:
         self.visits = _table(self.visits, (mdp.N_STATES,), 0, np.int64, "visits")
         if np.any(self.h_counts < 0) or np.any(self.visits < 0):
             raise ValueError("h_counts and visits must be >= 0")
+        # (next_state, max Q(next_state)) from the last update: the softmax shift of the next choice,
+        # exactly as BatchLearner reuses it. Transient (not saved): any shift near the max is valid.
+        self._shift: tuple[int, float] | None = None
 
     def values(self, state: int) -> np.ndarray:
         """The action values the agent chooses on: ``Q`` or, for ``qaug``, ``Q + beta2 * H``."""
@@ -226,7 +271,8 @@ class QLearner:
         _check_state(state)
         allowed = np.flatnonzero(mdp.ACTION_MASK[state])
         column = self.values(state)[allowed][:, None]
-        k = choose_columns(column, np.array([self.inverse_temperature(state)]), np.array([u]))[0]
+        top = np.array([self._shift[1]]) if self._shift is not None and self._shift[0] == state else None
+        k = choose_columns(column, np.array([self.inverse_temperature(state)]), np.array([u]), top)[0]
         return int(allowed[k])
 
     def act(self, state: int, rng: np.random.Generator) -> int:
@@ -247,7 +293,11 @@ class QLearner:
             if not np.isfinite(e):
                 raise ValueError(f"engagement must be finite, got {engagement!r}")
             reward = reward + self.config.shaping_weight(self.method) * e
-        target = reward if done else reward + self.config.gamma * self.q[next_state].max()
+        if done:
+            target, self._shift = reward, None
+        else:
+            best_next = self.q[next_state].max()
+            target, self._shift = reward + self.config.gamma * best_next, (next_state, best_next)
         q_sa = self.q[state, action]
         self.q[state, action] = q_sa + self.config.alpha * (target - q_sa)
         if engagement is not None:
@@ -385,17 +435,21 @@ class BatchLearner:
             codes = np.empty((nb, turns, n), dtype=np.int64)
             for k in range(nb):
                 gso, gs = start_gso, start_gs
+                uk = u[k]
+                top = None  # START: shift by the column max; later: max Q(s') of the last update
                 for t in range(turns):
                     vis = visits[gs]
                     vals = (qv_start if t == 0 else qv).take(gs, axis=1)
-                    a = choose_columns(vals, inv_tau[vis], u[k, t, 0])
+                    ut = uk[t]
+                    a = choose_columns(vals, inv_tau[vis], ut[0], top)
                     idx = gso * A + a
                     gs2 = next_g[idx]
-                    gso2 = gs2 * 2 + (u[k, t, 1] < p_next[idx])
+                    gso2 = gs2 * 2 + (ut[1] < p_next[idx])
                     codes[k, t] = gso2
                     target = reward_g[gso2]
                     if t != last:
-                        target = target + gamma * column_max(q.take(gs2, axis=1))
+                        top = column_max(q.take(gs2, axis=1))
+                        target = target + gamma * top
                     qi = a * NS + gs
                     q_sa = q_flat[qi]
                     q_new = q_sa + alpha * (target - q_sa)
@@ -408,8 +462,11 @@ class BatchLearner:
                     qv_flat[qi] = q_new + beta2_s * h_new
                     visits[gs] = vis + 1
                     gso, gs = gso2, gs2
-            ep_score[:, b0 : b0 + nb] = score_g[codes].sum(axis=1).T
-            ep_eng[:, b0 : b0 + nb] = e_g[codes].mean(axis=1).T
+            # Per agent over its own contiguous (episode, turn) block, so the float sums do not
+            # depend on how many agents share the batch.
+            per_agent = np.ascontiguousarray(codes.transpose(2, 0, 1))
+            ep_score[:, b0 : b0 + nb] = score_g[per_agent].sum(axis=2)
+            ep_eng[:, b0 : b0 + nb] = e_g[per_agent].mean(axis=2)
             if progress is not None:
                 progress(b0 + nb, episodes)
         as_agents = lambda x: np.ascontiguousarray(x.reshape(A, n, S).transpose(1, 2, 0))  # noqa: E731

@@ -1,0 +1,58 @@
+"""Benchmark: the full policy-training grid (issue 5's speed target).
+
+3 user models x 3 methods x 20 seeds x 10,000 episodes x 25 turns = 45 M simulated turns,
+target <= 20 s on a 2-core machine. Prints the wall time of the training itself (worker start-up
+included, output writing excluded) and simulated turns per second. Uses the shipped user models
+(sim/models) when present, otherwise three per-level-rate simulators.
+
+    python benchmarks/bench_training.py [--episodes N] [--seeds N] [--workers N] [--repeat N]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from nao_trainer.core.simulation import UserSimulator
+from nao_trainer.training import TrainingSpec, train_grid
+
+
+def simulators() -> tuple[list[UserSimulator], list[str], str]:
+    try:
+        from nao_trainer import artifacts
+
+        ids = artifacts.available_models()
+        return [artifacts.load_simulator(i) for i in ids], ids, "sim/models"
+    except Exception as exc:  # noqa: BLE001 - any problem: fall back to synthetic users
+        print(f"(shipped models unavailable: {exc}; using synthetic users)", file=sys.stderr)
+        rates = ([0.95, 0.8, 0.35, 0.06], [0.98, 0.95, 0.65, 0.16], [0.99, 0.94, 0.58, 0.55])
+        sims = [UserSimulator.from_level_rates(f"synthetic-{i + 1}", r, [0.25, 0.26, 0.28, 0.28]) for i, r in enumerate(rates)]
+        return sims, ["1", "2", "3"], "synthetic"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--episodes", type=int, default=10_000)
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--repeat", type=int, default=2, help="measure this many times (the machine may be shared)")
+    args = ap.parse_args()
+    sims, ids, source = simulators()
+    spec = TrainingSpec(seeds=args.seeds, episodes=args.episodes, workers=args.workers)
+    n_turns = len(ids) * len(spec.methods) * spec.seeds * spec.episodes * spec.turns
+    print(f"policy training grid: {len(ids)} models ({source}) x {len(spec.methods)} methods x {spec.seeds} seeds x "
+          f"{spec.episodes} episodes x {spec.turns} turns = {n_turns / 1e6:.1f} M turns, {spec.workers} workers")
+    times = []
+    for i in range(args.repeat):
+        t0 = time.perf_counter()
+        result = train_grid(sims, ids, spec, progress=False)
+        wall = time.perf_counter() - t0
+        times.append(wall)
+        assert result.turns == n_turns
+        print(f"  run {i + 1}: {wall:6.2f} s  {n_turns / wall / 1e6:5.2f} M turns/s")
+    best = min(times)
+    print(f"best: {best:.2f} s, {n_turns / best / 1e6:.2f} M simulated turns/s (target: 45 M turns in <= 20 s)")
+
+
+if __name__ == "__main__":
+    main()
