@@ -278,10 +278,10 @@ def read_recording(path: Path, prefixes: "tuple[str, ...] | None" = None) -> Rec
     wanted = None if prefixes is None else set(prefixes)
     groups: dict[str, list[str]] = {}
     for line in text.splitlines():
-        head, _, rest = line.strip().partition(" ")
-        if not head or (wanted is not None and head not in wanted):
+        parts = line.split(None, 1)  # any whitespace, CRLF included
+        if not parts or (wanted is not None and parts[0] not in wanted):
             continue
-        groups.setdefault(head, []).append(rest)
+        groups.setdefault(parts[0], []).append(parts[1] if len(parts) > 1 else "")
     if wanted is not None:
         _check_last_line(path, text)
     rec = Recording(path)

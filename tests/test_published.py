@@ -129,3 +129,10 @@ def test_turn_table(derived_dir, tmp_path):
     (tmp_path / "x.csv").write_text("ID a b\nu/s 1 2\nu/s 3\n")
     with pytest.raises(DataError, match="x.csv line 3: expected 3 columns, got 2"):
         pub.read_turn_table(tmp_path / "x.csv")
+
+
+def test_recording_tolerates_tabs_and_crlf(tmp_path):
+    f = tmp_path / "robot_1"
+    f.write_bytes(b"a\t1 2 3 4\r\nb 1  2 3 4\r\nc 0.5\r\n\r\n")
+    rec = pub.read_recording(f)
+    assert rec["a"].tolist() == [[1, 2, 3, 4]] and rec["b"].shape == (1, 4) and rec["c"].tolist() == [0.5]
