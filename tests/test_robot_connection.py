@@ -10,7 +10,7 @@ import pytest
 
 from nao_trainer.errors import RobotUnavailable
 from nao_trainer.ports import RobotConnectionLost
-from nao_trainer.robot.naoqi import NaoqiRobot
+from nao_trainer.robot.naoqi import CallTimeouts, NaoqiRobot
 from nao_trainer.robot.standin import StandInClient, spawn_standin
 
 
@@ -172,4 +172,33 @@ def test_reconnect_to_a_silent_port_ends_within_its_deadline_and_a_later_try_wor
         assert presses.wait_for(1) == ["B"]
     finally:
         robot.close()
+        _stop(proc)
+
+
+def test_frozen_robot_cannot_freeze_calls_reconnect_or_close():
+    """SIGSTOP the stand-in: the link stays up but nothing answers (a hung NAOqi)."""
+    proc, url = spawn_standin(speed=50)
+    timeouts = CallTimeouts(say_base_s=0.5, say_per_char_s=0.0, subscribe_s=1.0)
+    robot = NaoqiRobot.connect(url, 3.0, timeouts=timeouts)
+    try:
+        robot.subscribe_buttons(Presses())
+        proc.send_signal(signal.SIGSTOP)
+        t0 = time.monotonic()
+        with pytest.raises(RobotConnectionLost, match="did not answer within 0.5 s"):
+            robot.say("hello?")
+        assert time.monotonic() - t0 < 1.5
+        t0 = time.monotonic()
+        with pytest.raises(RobotConnectionLost, match="did not answer within 1 s"):
+            robot.subscribe_buttons(Presses())  # 1 s to drop the old signals, 1 s budget for the new ones
+        assert time.monotonic() - t0 < 3.0
+        t0 = time.monotonic()
+        with pytest.raises(RobotUnavailable):
+            robot.reconnect(1.0)
+        assert time.monotonic() - t0 < 3.0
+        t0 = time.monotonic()
+        robot.close()
+        assert time.monotonic() - t0 < 3.0
+    finally:
+        robot.close()
+        proc.send_signal(signal.SIGCONT)
         _stop(proc)

@@ -285,17 +285,35 @@ def test_authenticator_sends_user_and_token():
     assert auth.initialAuthData() == {"user": "nao", "token": "pw"}
 
 
-def test_credentials_from_env_are_used_and_not_shown(standin, monkeypatch):
-    """A robot that does not ask for authentication (NAOqi <= 2.8, the stand-in) accepts the client anyway."""
+def test_credentials_from_env_go_into_the_qi_handshake_and_are_not_shown(standin, monkeypatch):
+    """libqi asks the authenticator during the handshake even when the server (here the stand-in) does not check."""
+    import nao_trainer.robot.naoqi as naoqi_module
+
+    sent = []
+    original = naoqi_module._Authenticator.initialAuthData
+    monkeypatch.setattr(naoqi_module._Authenticator, "initialAuthData", lambda self: sent.append(1) or original(self))
     monkeypatch.setenv("NAO_USER", "nao")
     monkeypatch.setenv("NAO_PASSWORD", "pw-123")
     robot = NaoqiRobot.connect(standin.url, 3.0)
     try:
+        assert sent == [1]
         assert robot._credentials == Credentials("nao", "pw-123")
         assert "pw-123" not in repr(robot)
         robot.say("ok")
     finally:
         robot.close()
+
+
+def test_no_credentials_means_no_authenticator(standin, monkeypatch):
+    import nao_trainer.robot.naoqi as naoqi_module
+
+    monkeypatch.delenv("NAO_USER", raising=False)
+    monkeypatch.delenv("NAO_PASSWORD", raising=False)
+    sent = []
+    monkeypatch.setattr(naoqi_module._Authenticator, "initialAuthData", lambda self: sent.append(1) or {})
+    robot = NaoqiRobot.connect(standin.url, 3.0)
+    robot.close()
+    assert sent == []
 
 
 def test_connection_lost_messages():

@@ -367,14 +367,20 @@ class NaoqiRobot:
         Replaces an earlier subscription. The callback runs on a qi thread.
         """
         self.unsubscribe_buttons()
-        memory = self._service("ALMemory")
+        budget = self.timeouts.subscribe_s  # for the whole subscription, not per call
+        deadline = time.monotonic() + budget
+
+        def left() -> float:
+            return max(0.001, deadline - time.monotonic())
+
+        memory = self._service("ALMemory", budget)
         subscriptions: list[tuple[str, Any, Any]] = []
         try:
             for key in BUTTON_LETTERS:
-                sub = self._remote(memory, "subscriber", key, timeout_s=self.timeouts.subscribe_s, what=f"ALMemory.subscriber({key})")
+                sub = self._remote(memory, "subscriber", key, timeout_s=left(), what=f"ALMemory.subscriber({key})", budget_s=budget)
                 link = self._remote(
                     sub.signal, "connect", _ButtonHandler(self, key),
-                    timeout_s=self.timeouts.subscribe_s, what=f"{key} signal connect",
+                    timeout_s=left(), what=f"{key} signal connect", budget_s=budget,
                 )
                 subscriptions.append((key, sub, link))  # keep the proxy: dropping it silences the signal
         except BaseException:
@@ -397,13 +403,17 @@ class NaoqiRobot:
         self._disconnect_all(subscriptions)
 
     def _disconnect_all(self, subscriptions: list[tuple[str, Any, Any]]) -> None:
+        """Disconnect all signals at once with one shared budget, so a frozen robot delays close by 2 s at most."""
+        pending = []
         for key, sub, link in subscriptions:
             try:
-                fut = sub.signal.disconnect(link, _async=True)
-                if not _wait(fut, min(2.0, self.timeouts.subscribe_s)):
-                    log.debug("disconnecting %s timed out", key)
+                pending.append((key, sub.signal.disconnect(link, _async=True)))
             except RuntimeError as exc:  # the robot is gone: nothing to disconnect from
                 log.debug("disconnecting %s: %s", key, exc)
+        deadline = time.monotonic() + min(2.0, self.timeouts.subscribe_s)
+        for key, fut in pending:
+            if not _wait(fut, max(0.001, deadline - time.monotonic())):
+                log.debug("disconnecting %s timed out", key)
 
     def _on_button(self, key: str, value: Any) -> None:
         """A value arrived on a button key (qi thread): forward presses, drop releases and bounces."""
@@ -429,14 +439,15 @@ class NaoqiRobot:
 
     # -- calls ---------------------------------------------------------------------------------
 
-    def _service(self, name: str) -> Any:
+    def _service(self, name: str, timeout_s: float | None = None) -> Any:
         with self._lock:
             proxy = self._services.get(name)
         if proxy is not None:
             return proxy
         self._check_open()
+        timeout_s = self.timeouts.default_s if timeout_s is None else timeout_s
         try:
-            proxy = self._remote(self._session, "service", name, timeout_s=self.timeouts.default_s, what=f"service {name}")
+            proxy = self._remote(self._session, "service", name, timeout_s=timeout_s, what=f"service {name}")
         except RuntimeError as exc:
             if "cannot find service" in str(exc).lower():
                 raise MissingService(
@@ -453,7 +464,7 @@ class NaoqiRobot:
         deadline = time.monotonic() + timeout_s
         while True:
             try:
-                self._service(name)
+                self._service(name, max(0.1, deadline - time.monotonic()))
                 return
             except (RobotConnectionLost, MissingService):
                 if time.monotonic() >= deadline or not self._session.isConnected():
@@ -464,11 +475,19 @@ class NaoqiRobot:
                 time.sleep(0.1)
 
     def _call(self, service: str, method: str, *args: Any, timeout_s: float) -> Any:
-        proxy = self._service(service)
-        return self._remote(proxy, method, *args, timeout_s=timeout_s, what=f"{service}.{method}")
+        """Call ``service.method(*args)``; ``timeout_s`` bounds the whole call, service lookup included."""
+        deadline = time.monotonic() + timeout_s
+        proxy = self._service(service, min(timeout_s, self.timeouts.default_s))
+        remaining = max(0.001, deadline - time.monotonic())
+        return self._remote(proxy, method, *args, timeout_s=remaining, what=f"{service}.{method}", budget_s=timeout_s)
 
-    def _remote(self, target: Any, method: str, *args: Any, timeout_s: float, what: str) -> Any:
-        """Run a qi call as a future with a deadline; map a lost link to RobotConnectionLost."""
+    def _remote(
+        self, target: Any, method: str, *args: Any, timeout_s: float, what: str, budget_s: float | None = None
+    ) -> Any:
+        """Run a qi call as a future with a deadline; map a lost link to RobotConnectionLost.
+
+        ``budget_s`` is the caller's whole deadline when part of it was spent already (for the message).
+        """
         self._check_open()
         try:
             future = getattr(target, method)(*args, _async=True)
@@ -476,7 +495,8 @@ class NaoqiRobot:
             raise self._translate(exc, what) from None
         if not _wait(future, timeout_s):
             raise RobotConnectionLost(
-                f"{what} on the robot at {self.url} did not answer within {timeout_s:g} s; the robot may be frozen or unreachable"
+                f"{what} on the robot at {self.url} did not answer within {budget_s or timeout_s:g} s; "
+                "the robot may be frozen or unreachable"
             )
         if future.hasError():
             raise self._translate(RuntimeError(future.error()), what) from None
