@@ -137,6 +137,7 @@ SCHEMA: dict[str, Any] = {
         "required": Field(bool),
         "stream_type": Field(str),
         "stream_name": Field(str, nullable=True),
+        "source_id": Field(str, nullable=True),
         "lsl_scope": Field(str, choices=LSL_SCOPES),
         "processing": Field(dict, free=True),
     },
@@ -302,6 +303,22 @@ def _check(value: Any, spec: Field) -> str | None:
     return None
 
 
+def _validate_eeg_processing(processing: dict, locs: dict[str, _Loc]) -> None:
+    """``eeg.processing`` keys belong to the EEG monitor: let it judge them now, not mid-session."""
+    if not processing:
+        return
+    try:
+        from .eeg.monitor import Processing
+    except ImportError:  # EEG support not installed: the session refuses eeg modes other than off
+        return
+    try:
+        Processing.from_mapping(processing)
+    except ConfigError as exc:
+        key = str(exc).split(":", 1)[0]
+        where = locs.get(key, locs.get("@eeg.processing", _Loc("configuration", None)))
+        raise ConfigError(f"{where}: {exc}") from None
+
+
 def _set_dotted(values: dict, dotted: str, value: Any) -> None:
     *parents, last = dotted.split(".")
     node = values
@@ -339,6 +356,7 @@ def load_config(study: str | Path | None = None, overrides: Mapping[str, Any] | 
         locs[f"@{dotted}"] = flag_loc
         digest.update(f"{dotted}={value!r}".encode())
     _validate(values, SCHEMA, "", locs)
+    _validate_eeg_processing(values["eeg"]["processing"], locs)
     t = values["robot"]
     if t["backoff_max_s"] < t["backoff_initial_s"]:
         raise ConfigError(f"{locs.get('@robot.backoff_max_s')}: key 'robot.backoff_max_s' must be >= robot.backoff_initial_s")

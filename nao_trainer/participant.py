@@ -150,48 +150,35 @@ class SimulatedParticipant:
 class StandInButtons:
     """Presses the NAO stand-in's head buttons through its control service, over its own qi session.
 
-    A separate client, like a finger: it connects lazily, and after a failure (the stand-in was
-    restarted) it reconnects on the next press.
+    A separate client, like a finger (``robot.standin.StandInClient``): after a failure (the
+    stand-in was restarted) it reconnects on the next press.
     """
-
-    SERVICE = "NaoTrainerStandIn"
 
     def __init__(self, url: str, deadline_s: float = 5.0) -> None:
         self.url = url
         self.deadline_s = deadline_s
-        self._session = None
-        self._control = None
+        self._client = None
         self._lock = threading.Lock()
 
-    def _connect(self) -> None:
-        import qi
-
-        session = qi.Session()
-        future = session.connect(self.url, _async=True)
-        future.wait(int(self.deadline_s * 1000))
-        if not future.isFinished() or future.hasError():
-            session.close()
-            raise ConnectionError(f"stand-in at {self.url} not reachable")
-        self._session = session
-        self._control = session.service(self.SERVICE)
-
     def __call__(self, letter: str) -> None:
+        from .robot.standin import StandInClient
+
         with self._lock:
             try:
-                if self._control is None:
-                    self._connect()
-                self._control.press(letter)
-            except RuntimeError:
+                if self._client is None:
+                    self._client = StandInClient.connect(self.url, self.deadline_s)
+                self._client.press(letter)
+            except (RuntimeError, ConnectionError):
                 self._drop()
                 raise
 
     def _drop(self) -> None:
-        if self._session is not None:
+        if self._client is not None:
             try:
-                self._session.close()
+                self._client.close()
             except RuntimeError:
                 pass
-        self._session = self._control = None
+        self._client = None
 
     def close(self) -> None:
         with self._lock:
@@ -200,10 +187,12 @@ class StandInButtons:
     @classmethod
     def probe(cls, url: str, deadline_s: float = 3.0) -> "StandInButtons | None":
         """A presser when ``url`` serves the stand-in's control service, else None (a real NAO)."""
+        from .errors import RobotUnavailable
+        from .robot.standin import StandInClient
+
         buttons = cls(url, deadline_s)
         try:
-            buttons._connect()
-        except (ConnectionError, RuntimeError):
-            buttons.close()
+            buttons._client = StandInClient.connect(url, deadline_s)
+        except RobotUnavailable:
             return None
         return buttons

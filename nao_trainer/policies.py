@@ -73,7 +73,7 @@ class UniformRandom:
         pass
 
 
-def make_policy(spec: str, schedule: Sequence[str], learning: bool, state_path: Path,
+def make_policy(spec: str, schedule: Sequence[str], learning: bool, state_path: Path | None,
                 rng: np.random.Generator) -> Policy:
     """The policy named by ``spec``: "schedule", "random" or "usp:CLUSTER[:METHOD]"."""
     if spec == "schedule":

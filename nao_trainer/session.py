@@ -396,6 +396,10 @@ class Session:
         turn.start_time = now_iso()
         self.turn = turn
         self.answers.prepare(TurnContext(turn.number, turn.state, st.length, turn.sequence))
+        plan = getattr(self.answers, "plan", None)  # a simulated participant says what it intends
+        if plan is not None:
+            self.rec.event("simulated_plan", turn=turn.number, success=plan.success,
+                           response="".join(plan.response), mistake=plan.mistake)
         self.rec.event("turn_start", turn=turn.number, state=turn.state, label=mdp.state_label(turn.state),
                        action=mdp.ACTION_NAMES[turn.action], sequence="".join(turn.sequence))
         self.monitor.mark("turn_start", turn.number)
@@ -618,11 +622,14 @@ def _signals_as_interrupt() -> Iterator[None]:
     def handler(signum: int, frame: Any) -> None:
         raise Interrupted(f"signal {signum}")
 
-    previous = signal.signal(signal.SIGTERM, handler)
+    previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, handler),
+                # Ctrl-C must stop a session even when started from a shell that ignores SIGINT (`&`).
+                signal.SIGINT: signal.signal(signal.SIGINT, signal.default_int_handler)}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for signum, h in previous.items():
+            signal.signal(signum, h)
 
 
 @contextmanager
@@ -664,7 +671,7 @@ def open_engagement_monitor(config: StudyConfig, session_dir: Path, rng: np.rand
     from .eeg.lsl_scope import configure_lsl
 
     configure_lsl(eeg["lsl_scope"])
-    return open_monitor(eeg["mode"], eeg, session_dir, rng)
+    return open_monitor(eeg["mode"], eeg, session_dir, rng, config.get("participant.pseudonym"))
 
 
 def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progress: TextIO | None = None) -> SessionResult:
@@ -685,7 +692,12 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
     speed = float(config.get("timing.speed"))
     url = config.get("robot.url")
 
+    from .policies import make_policy
     from .robot.naoqi import NaoqiRobot, redact_url
+
+    if str(config.get("policy.kind")).startswith("usp:"):  # find a missing/stale policy before the robot moves
+        _close_quietly(make_policy(config.get("policy.kind"), config.get("policy.schedule"), False, None,
+                                   np.random.default_rng(0)), None)
 
     standin = robot = recorder = monitor = answers = policy = buttons = None
     session: Session | None = None
@@ -719,10 +731,9 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
                                          np.random.default_rng(participant_ss), options)
         policy_rng = np.random.default_rng(policy_ss)
         state_path = config.get("policy.state_path")
-        from .policies import make_policy
-
         policy = make_policy(config.get("policy.kind"), config.get("policy.schedule"), bool(config.get("policy.learning")),
-                             Path(state_path) if state_path else path / "policy-state", policy_rng)
+                             Path(state_path).expanduser().resolve() if state_path else path / "policy_state.json",
+                             policy_rng)
         session = Session(config, robot, answers, policy, recorder, dialogue, behaviors, np.random.default_rng(session_ss),
                           policy_rng, monitor, progress)
         with _signals_as_interrupt():
@@ -765,8 +776,8 @@ def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, sim
     kind = config.get("answers.input")
     if kind == "tactile":
         return TactileAnswers(robot, debounce, grace), None
-    if kind == "keyboard":
-        return KeyboardAnswers(options.keyboard_fd, debounce, grace), None
+    if kind == "keyboard":  # key events do not bounce (the keyboard's firmware debounces)
+        return KeyboardAnswers(options.keyboard_fd, 0.0, grace), None
     assert simulator is not None
     buttons = None
     press = standin.press if standin is not None else None

@@ -48,6 +48,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, object]:
         "participant.pseudonym": args.pseudonym,
         "eeg.mode": args.eeg,
         "policy.kind": args.policy,
+        "participant_model.user_model": args.user_model,
         "policy.learning": False if args.no_learning else None,
         "session.practice": False if args.no_practice else None,
     }
@@ -58,6 +59,6 @@ def run(args: argparse.Namespace) -> int:
     from ..session import RunOptions, run_session
 
     config = load_config(args.config, overrides_from_args(args))
-    result = run_session(config, RunOptions(user_model=args.user_model, quiet=args.quiet))
+    result = run_session(config, RunOptions(quiet=args.quiet))
     print(result.summary(), file=sys.stderr if args.quiet else sys.stdout)
     return result.exit_code

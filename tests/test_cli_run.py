@@ -1,0 +1,130 @@
+"""`nao-trainer run` end to end, as users start it (a subprocess), against the stand-in over qi."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+from nao_trainer.record import read_events, read_turns
+
+
+def cli(*args: str, stdin=None, timeout: float = 120) -> subprocess.CompletedProcess:
+    env = dict(os.environ, QI_LOG_LEVEL="silent")
+    return subprocess.run([sys.executable, "-m", "nao_trainer", "run", *args], capture_output=True, text=True,
+                          env=env, timeout=timeout, stdin=stdin)
+
+
+def only_folder(out: Path) -> Path:
+    folders = list(out.iterdir())
+    assert len(folders) == 1, folders
+    return folders[0]
+
+
+def test_no_flags_plays_the_25_turn_demo(tmp_path):
+    out = tmp_path / "sessions"
+    t0 = time.monotonic()
+    res = cli("--out", str(out), "--speed", "50")
+    elapsed = time.monotonic() - t0
+    assert res.returncode == 0, res.stderr
+    folder = only_folder(out)
+    assert folder.name.startswith("demo_")
+    rows = read_turns(folder)
+    assert len(rows) == 25 and all(r["success"] in ("True", "False") for r in rows)
+    progress = [ln for ln in res.stderr.splitlines() if ln.startswith("turn ")]
+    assert len(progress) == 25 and " vs " in progress[0] and "total" in progress[0]
+    assert "level  played  success rate" in res.stdout and f"session folder: {folder}" in res.stdout
+    assert f"total score: {sum(int(r['score']) for r in rows)}" in res.stdout
+    info = json.loads((folder / "session.json").read_text())
+    assert info["status"] == "completed" and info["robot"] == "stand-in (in-process)"
+    assert elapsed < 60
+
+
+def test_default_output_is_sessions_in_the_current_folder(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "nao_trainer", "run", "--turns", "2", "--speed", "50", "--quiet"],
+                         capture_output=True, text=True, cwd=tmp_path, env=dict(os.environ, QI_LOG_LEVEL="silent"),
+                         timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert len(read_turns(only_folder(tmp_path / "sessions"))) == 2
+    assert "turn " not in res.stderr.replace("turns completed", "")  # --quiet: no progress lines
+
+
+def test_invalid_config_starts_nothing(tmp_path):
+    study = tmp_path / "bad.yaml"
+    study.write_text("session:\n  turns: 25\ntiming:\n  sped: 3\n")
+    res = cli("--config", str(study), "--out", str(tmp_path / "out"))
+    assert res.returncode == 2
+    assert res.stderr.strip() == (f"nao-trainer run: error: {study}:4: unknown key 'timing.sped'; "
+                                  "did you mean 'timing.speed'?")
+    assert not (tmp_path / "out").exists()
+    res = cli("--turns", "0", "--out", str(tmp_path / "out"))
+    assert res.returncode == 2 and "'session.turns' must be >= 1" in res.stderr and not (tmp_path / "out").exists()
+
+
+def test_user_model_drives_the_simulated_participant(tmp_path):
+    res = cli("--user-model", "1", "--turns", "3", "--speed", "50", "--out", str(tmp_path), "--quiet")
+    assert res.returncode == 0, res.stderr
+    info = json.loads((only_folder(tmp_path) / "session.json").read_text())
+    assert info["user_model"] == "cluster-1" and info["config"]["values"]["participant_model"]["user_model"] == "1"
+    res = cli("--user-model", "9", "--out", str(tmp_path / "x"))
+    assert res.returncode != 0 and "unknown user model '9'" in res.stderr and not (tmp_path / "x").exists()
+
+
+def test_simulated_eeg_fills_the_engagement_columns(tmp_path):
+    res = cli("--eeg", "simulated", "--turns", "2", "--speed", "6", "--no-practice", "--out", str(tmp_path), "--quiet",
+              timeout=180)
+    assert res.returncode == 0, res.stderr
+    folder = only_folder(tmp_path)
+    rows = read_turns(folder)
+    assert len(rows) == 2
+    for r in rows:
+        assert r["engagement"] != "" or r["engagement_note"] != ""  # a value, or the reason there is none
+    assert any(r["engagement_index"] != "" for r in rows)
+    assert (folder / "eeg").is_dir()
+
+
+def test_keyboard_answers_end_to_end(tmp_path):
+    """A person typing: the right answer, a wrong one with an invalid key, and keys typed too early."""
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", "--input", "keyboard", "--turns", "3",
+                             "--speed", "20", "--no-practice", "--out", str(out), "--seed", "4"],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, QI_LOG_LEVEL="silent"))
+
+    def typist():
+        answered, early = set(), set()
+        deadline = time.monotonic() + 90
+        while proc.poll() is None and time.monotonic() < deadline:
+            folders = list(out.glob("*")) if out.exists() else []
+            if folders and (folders[0] / "events.jsonl").exists():
+                events = read_events(folders[0])
+                seqs = {e["turn"]: e["sequence"] for e in events if e["event"] == "turn_start"}
+                beeps = {e["turn"] for e in events if e["event"] == "beep"}
+                for turn, seq in seqs.items():
+                    if turn == 1 and turn not in early:
+                        proc.stdin.write("cc")  # while the robot speaks: must be discarded
+                        proc.stdin.flush()
+                        early.add(turn)
+                    if turn in beeps and turn not in answered:
+                        text = seq.lower() if turn != 2 else "x" + seq[1:].lower()
+                        proc.stdin.write(text + "\n")
+                        proc.stdin.flush()
+                        answered.add(turn)
+            time.sleep(0.02)
+
+    t = threading.Thread(target=typist, daemon=True)
+    t.start()
+    proc.wait(timeout=120)
+    t.join(5)
+    err = proc.stderr.read()
+    for f in (proc.stdin, proc.stdout, proc.stderr):
+        f.close()
+    assert proc.returncode == 0, err
+    rows = read_turns(only_folder(out))
+    assert [r["success"] for r in rows] == ["True", "False", "True"], [(r["sequence"], r["response"], r["notes"], r["completion_time"]) for r in rows]
+    assert rows[0]["response"] == rows[0]["sequence"]
+    assert rows[1]["response"].startswith("?") and "invalid key 'x'" in rows[1]["notes"]
+    assert float(rows[0]["reaction_time"]) > 0

@@ -1,0 +1,185 @@
+"""Robustness of `nao-trainer run`, each case against the stand-in over real qi in a subprocess:
+an unreachable robot, a robot lost and back mid-session, a robot lost for good, and Ctrl-C."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from nao_trainer.record import read_events, read_turns
+from nao_trainer.robot.standin import spawn_standin
+
+
+def run_cli(*args: str) -> subprocess.Popen:
+    env = dict(os.environ, QI_LOG_LEVEL="silent", PYTHONUNBUFFERED="1")
+    return subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env)
+
+
+def study(tmp_path: Path, text: str) -> str:
+    path = tmp_path / "study.yaml"
+    path.write_text(text)
+    return str(path)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_rows(out: Path, n: int, proc: subprocess.Popen, timeout_s: float = 60) -> Path:
+    """The session folder once its turns.csv holds ``n`` rows."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()
+        folders = list(out.glob("*_*"))
+        if folders and (folders[0] / "turns.csv").exists() and len(read_turns(folders[0])) >= n:
+            return folders[0]
+        time.sleep(0.05)
+    raise AssertionError(f"no {n} turns within {timeout_s} s")
+
+
+def wait_port_free(port: int, timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) != 0:
+                return
+        time.sleep(0.05)
+    raise AssertionError(f"port {port} still in use")
+
+
+def stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def test_unreachable_robot_fails_fast_and_writes_nothing(tmp_path):
+    out = tmp_path / "out"
+    t0 = time.monotonic()
+    proc = run_cli("--robot", f"tcp://127.0.0.1:{free_port()}", "--out", str(out))
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 3
+    assert time.monotonic() - t0 < 15
+    lines = [ln for ln in err.splitlines() if "error" in ln]
+    assert len(lines) == 1 and "cannot reach the robot" in lines[0] and "Traceback" not in err
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_silent_endpoint_times_out_within_the_configured_deadline(tmp_path):
+    out = tmp_path / "out"
+    with socket.socket() as server:  # accepts TCP but never speaks qi
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        port = server.getsockname()[1]
+        cfg = study(tmp_path, "robot:\n  connect_deadline_s: 1.5\n")
+        t0 = time.monotonic()
+        proc = run_cli("--config", cfg, "--robot", f"tcp://127.0.0.1:{port}", "--out", str(out))
+        _, err = proc.communicate(timeout=60)
+        elapsed = time.monotonic() - t0
+    assert proc.returncode == 3 and "within 1.5 s" in err
+    assert elapsed < 10  # 1.5 s deadline + interpreter start-up
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_robot_lost_and_back_pauses_replays_and_completes(tmp_path):
+    out = tmp_path / "out"
+    standin, url = spawn_standin(speed=20)
+    port = int(url.rsplit(":", 1)[1])
+    cfg = study(tmp_path, "robot:\n  max_reconnect_s: 30\n  backoff_initial_s: 0.2\n  backoff_max_s: 1\n"
+                          "session:\n  practice: false\n")
+    proc = run_cli("--config", cfg, "--robot", url, "--input", "simulated", "--turns", "6", "--speed", "20",
+                   "--out", str(out), "--seed", "3")
+    restarted = None
+    try:
+        folder = wait_rows(out, 2, proc)
+        standin.kill()
+        standin.wait()
+        wait_port_free(port)
+        time.sleep(2.0)  # the robot is away for a while
+        restarted, _ = spawn_standin(port=port, speed=20)
+        _, err = proc.communicate(timeout=90)
+    finally:
+        stop(proc)
+        for p in (standin, restarted):
+            if p is not None and p.poll() is None:
+                p.send_signal(signal.SIGINT)
+                p.wait(10)
+    assert proc.returncode == 0, err
+    rows = read_turns(folder)
+    completed = [r for r in rows if r["success"] in ("True", "False")]
+    interrupted = [r for r in rows if r["notes"].startswith("interrupted: robot lost")]
+    assert [int(r["turn"]) for r in completed] == [1, 2, 3, 4, 5, 6]
+    assert len(interrupted) >= 1
+    replay = next(r for r in completed if r["turn"] == interrupted[0]["turn"])
+    assert replay["action"] == interrupted[0]["action"] and replay["state"] == interrupted[0]["state"]
+    assert "replay of interrupted turn" in replay["notes"]
+    events = read_events(folder)
+    names = [e["event"] for e in events]
+    assert "robot_lost" in names and "reconnected" in names and "turn_interrupted" in names
+    assert any(e["event"] == "transition" and e["dest"] == "paused" for e in events)
+    assert any(e["event"] == "transition" and e["trigger"] == "resume_turn" for e in events)
+    assert "reconnecting" in err and json.loads((folder / "session.json").read_text())["status"] == "completed"
+
+
+def test_robot_lost_for_good_ends_cleanly_with_every_completed_turn(tmp_path):
+    out = tmp_path / "out"
+    standin, url = spawn_standin(speed=20)
+    cfg = study(tmp_path, "robot:\n  max_reconnect_s: 2\n  backoff_initial_s: 0.2\n  backoff_max_s: 0.5\n"
+                          "session:\n  practice: false\n")
+    proc = run_cli("--config", cfg, "--robot", url, "--turns", "20", "--speed", "20", "--out", str(out))
+    try:
+        folder = wait_rows(out, 2, proc)
+        standin.kill()
+        standin.wait()
+        t0 = time.monotonic()
+        _, err = proc.communicate(timeout=60)
+    finally:
+        stop(proc)
+    assert proc.returncode == 3, err
+    assert time.monotonic() - t0 < 20
+    rows = read_turns(folder)
+    done = [r for r in rows if r["success"] in ("True", "False")]
+    assert len(done) >= 2 and [int(r["turn"]) for r in done] == list(range(1, len(done) + 1))
+    info = json.loads((folder / "session.json").read_text())
+    assert info["status"] == "robot lost" and info["exit_code"] == 3
+    names = [e["event"] for e in read_events(folder)]
+    assert "give_up" in names and names.count("reconnect_failed") >= 2
+    assert "Traceback" not in err
+
+
+def test_ctrl_c_leaves_the_robot_safe_and_exits_130(tmp_path):
+    out = tmp_path / "out"
+    proc = run_cli("--turns", "25", "--speed", "10", "--out", str(out))
+    try:
+        folder = wait_rows(out, 1, proc)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    info = json.loads((folder / "session.json").read_text())
+    assert info["status"] == "interrupted" and info["exit_code"] == 130 and "ended" in info
+    rows = read_turns(folder)
+    assert 1 <= len(rows) < 25
+    transcript = [json.loads(ln) for ln in (folder / "robot_transcript.jsonl").read_text().splitlines()]
+    last_posture = [e["args"][0] for e in transcript if e["method"] == "goToPosture"][-1]
+    last_leds = [e["args"] for e in transcript if e["method"] == "fadeRGB"][-1]
+    assert last_posture in ("Crouch", "Sit") and last_leds[1] == 0xFFFFFF
+    names = [e["event"] for e in read_events(folder)]
+    assert "interrupted" in names and "safe_state" in names
