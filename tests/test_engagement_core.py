@@ -184,3 +184,23 @@ def test_aggregate_phase_quality_and_reason():
     assert agg.index is None and agg.quality == 0.5 and "50% clean" in agg.reason
     empty = eng.aggregate_phase([], 0.0, 2.0, 0.25)
     assert empty.index is None and empty.quality == 0.0 and "no EEG windows" in empty.reason
+
+
+def test_input_validation_names_the_bad_value():
+    with pytest.raises(ValueError, match=r"x must be \(n_samples, n_channels\), got shape \(2, 3, 4\)"):
+        eng.relative_band_powers(np.zeros((2, 3, 4)), FS)
+    with pytest.raises(ValueError, match="fs must be > 0, got 0"):
+        eng.relative_band_powers(np.zeros((64, 2)), 0)
+    with pytest.raises(ValueError, match="at least 8 samples, got 5"):
+        eng.relative_band_powers(np.zeros((5, 2)), FS)
+    const = eng.relative_band_powers(np.full((256, 2), 850.0), FS)
+    assert np.isnan(const).all()  # no power at all: no relative power, not zero
+    oe = eng.OnlineEngagement(FS, 4)
+    with pytest.raises(ValueError, match=r"samples must be \(n, 4\), got shape \(12, 5\)"):
+        oe.push(np.zeros((12, 5)), np.arange(12) / FS)
+    with pytest.raises(ValueError, match="11 timestamps for 12 samples"):
+        oe.push(np.zeros((12, 4)), np.arange(11) / FS)
+    with pytest.raises(ValueError, match="hop_s <= window_s"):
+        eng.OnlineEngagement(FS, 4, window_s=1.0, hop_s=2.0)
+    with pytest.raises(ValueError, match="min_clean_channels must be in 1..4, got 5"):
+        eng.OnlineEngagement(FS, 4, min_clean_channels=5)

@@ -55,7 +55,7 @@ def relative_band_powers(x: np.ndarray, fs: float) -> np.ndarray:
     around 800-900 uV). Welch's method: segments of 1 s (1 Hz resolution; the whole window when it is
     shorter), 50 % overlap, each segment linearly detrended and Hann-tapered; the periodogram bins
     of each band are summed and divided by the 1-40 Hz sum. Returns ``(n_channels, 3)`` (theta,
-    alpha, beta); each row sums to <= 1. A channel without any 1-40 Hz power gives NaN.
+    alpha, beta); each row sums to <= 1. A channel without 1-40 Hz power (above rounding noise) gives NaN.
     """
     x = np.asarray(x, dtype=float)
     if x.ndim == 1:
@@ -78,7 +78,9 @@ def relative_band_powers(x: np.ndarray, fs: float) -> np.ndarray:
     sums = psd @ member  # (ch, 4): theta, alpha, beta, total
     with np.errstate(invalid="ignore", divide="ignore"):
         rel = sums[:, :3] / sums[:, 3:4]
-    rel[~(sums[:, 3] > 0)] = np.nan
+    # rounding noise of the detrend (a constant or a pure ramp) is not a spectrum: no relative power
+    floor = 1e-12 * nperseg * (1.0 + np.max(np.abs(x), axis=0) ** 2)
+    rel[~(sums[:, 3] > floor)] = np.nan
     return rel
 
 
