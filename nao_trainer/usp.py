@@ -273,9 +273,10 @@ class LivePolicy:
         for key in ("q", "h", "h_counts", "visits"):
             payload[key] = getattr(self.learner, key).tolist()
         try:
+            self.state_path.parent.mkdir(parents=True, exist_ok=True)
             save_policy_file(self.state_path, payload)
         except OSError as exc:
-            raise DataError(f"{self.state_path}: cannot save the policy's state ({exc.strerror}); "
+            raise DataError(f"{self.state_path}: cannot save the policy's state ({exc.strerror or exc}); "
                             "choose a writable policy.state_path") from None
 
     def close(self) -> None:
