@@ -217,3 +217,14 @@ def test_answer_phase_and_skipped_sessions(dataset_root, tmp_path, capsys):
     assert lines[0].endswith("answer_index,answer_engagement,answer_quality,answer_reason")
     assert main(["engagement", str(root / "user_2" / "session_2"), "--answer", "--compat", "authors2018"]) == 2
     assert "authors' tables have no answer phase" in capsys.readouterr().err
+
+
+def test_truncated_intro_falls_back_to_the_session_baseline(raw_root, tmp_path):
+    sdir = tmp_path / "user_30" / "session_1"
+    shutil.copytree(raw_root / "user_30" / "session_1", sdir)
+    text = (sdir / "intro").read_text()
+    (sdir / "intro").write_text(text[: text.index("\nb ", 5000) + 8])
+    r = offline.session_engagement(sdir)
+    assert r.baseline.startswith("session listening phases (intro unusable: ")
+    assert "intro line" in r.baseline and "(the file looks truncated)" in r.baseline
+    assert all(t.engagement is not None for t in r.turns)

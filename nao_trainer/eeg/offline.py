@@ -388,7 +388,7 @@ def _normalise_own(
     norm = [normaliser.normalise(p.smoothed) if p.usable else None for p in listening]
     if answers is not None:
         norm_answer = [normaliser.normalise(p.smoothed) if p.usable else None for p in answers]
-    return "session listening phases (no intro recording)" + why, norm, norm_answer
+    return "session listening phases" + (why or " (no intro recording)"), norm, norm_answer
 
 
 @dataclass(frozen=True)
