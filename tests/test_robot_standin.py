@@ -103,6 +103,17 @@ def test_speech_sound_leds_posture_with_naoqi_signatures(standin, client):
     ]
 
 
+def test_speech_overloads_and_bad_configurations(standin, client):
+    client.service("ALTextToSpeech").say("Bonjour", "French")
+    assert _calls(standin)[-1] == ("ALTextToSpeech", "say", ["Bonjour", "French"])
+    with pytest.raises(RuntimeError, match="bodyLanguageMode must be one of"):
+        client.service("ALAnimatedSpeech").say("hi", {"bodyLanguageMode": "wild"})
+    with pytest.raises(RuntimeError, match="configuration must be a map"):
+        client.service("ALAnimatedSpeech").say("hi", "contextual")
+    with pytest.raises(RuntimeError, match=r"expects \(text\)"):
+        client.service("ALTextToSpeech").say()
+
+
 def test_text_to_speech_settings_round_trip(client):
     tts = client.service("ALTextToSpeech")
     tts.setLanguage("Greek")
@@ -332,3 +343,9 @@ def test_spawn_standin_returns_process_and_url():
     finally:
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=10) == 0
+
+
+def test_spawn_standin_on_a_busy_port_reports_why(standin):
+    port = int(standin.url.rsplit(":", 1)[1])
+    with pytest.raises(RobotUnavailable, match=f"did not start: .*cannot listen on tcp://127.0.0.1:{port}: the port is already in use"):
+        spawn_standin(port=port)

@@ -29,6 +29,7 @@ import selectors
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -47,6 +48,8 @@ SECONDS_PER_CHARACTER = 0.06
 POSTURE_SECONDS = 1.5
 #: Postures ALRobotPosture knows on a NAO.
 POSTURES = ("Stand", "StandInit", "StandZero", "Crouch", "Sit", "SitRelax", "LyingBelly", "LyingBack")
+#: ALAnimatedSpeech body language modes.
+BODY_LANGUAGE_MODES = ("disabled", "random", "contextual")
 #: How long a simulated finger stays on a head button (seconds, at speed 1.0).
 PRESS_HOLD_S = 0.05
 #: The first line ``nao-trainer mock-robot`` prints once it serves.
@@ -155,10 +158,13 @@ class _TextToSpeech:
         self._params: dict[str, float] = {"speed": 100.0, "pitchShift": 1.0, "volume": 1.0}
         self._volume = 1.0
 
-    @qi.bind(qi.Void, [qi.String])
-    def say(self, text: str) -> None:
-        self._rec.record("ALTextToSpeech", "say", [text])
-        self._rec.wait(SECONDS_PER_CHARACTER * len(text))
+    @qi.bind(qi.Void, qi.AnyArguments)
+    def say(self, *args: Any) -> None:
+        """``say(text)`` or ``say(text, language)`` (both NAOqi overloads)."""
+        if len(args) not in (1, 2) or not all(isinstance(a, str) for a in args):
+            raise RuntimeError("ALTextToSpeech::say expects (text) or (text, language)")
+        self._rec.record("ALTextToSpeech", "say", list(args))
+        self._rec.wait(SECONDS_PER_CHARACTER * len(args[0]))
 
     @qi.bind(qi.Void, [qi.String])
     def setLanguage(self, language: str) -> None:
@@ -215,8 +221,15 @@ class _AnimatedSpeech:
     def say(self, *args: Any) -> None:
         if len(args) not in (1, 2) or not isinstance(args[0], str):
             raise RuntimeError("ALAnimatedSpeech::say expects (text) or (text, configuration)")
-        if len(args) == 2 and not isinstance(args[1], dict):
-            raise RuntimeError("ALAnimatedSpeech::say: configuration must be a map, e.g. {'bodyLanguageMode': 'contextual'}")
+        if len(args) == 2:
+            config = args[1]
+            if not isinstance(config, dict):
+                raise RuntimeError("ALAnimatedSpeech::say: configuration must be a map, e.g. {'bodyLanguageMode': 'contextual'}")
+            mode = config.get("bodyLanguageMode", "contextual")
+            if mode not in BODY_LANGUAGE_MODES:
+                raise RuntimeError(
+                    f"ALAnimatedSpeech::say: bodyLanguageMode must be one of {', '.join(BODY_LANGUAGE_MODES)}, got {mode!r}"
+                )
         self._rec.record("ALAnimatedSpeech", "say", list(args))
         self._rec.wait(SECONDS_PER_CHARACTER * len(_strip_annotations(args[0])))
 
@@ -714,19 +727,22 @@ def spawn_standin(
     if transcript_path is not None:
         cmd += ["--transcript", os.fspath(transcript_path)]
     env = dict(os.environ, QI_LOG_LEVEL="silent", PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True)
-    try:
-        line = _read_line(proc, timeout_s)
-    except BaseException:
-        proc.kill()
-        proc.wait()
-        raise
-    if not line.startswith(READY_PREFIX):
-        proc.kill()
-        _, err = proc.communicate()
-        raise RobotUnavailable(
-            f"the stand-in on {listen} did not start: {(err or line).strip().splitlines()[-1:] or ['no output']}"
-        )
+    # stderr goes to an unnamed temporary file, not a pipe: nobody reads it while the child runs,
+    # and a full pipe would block the stand-in.
+    with tempfile.TemporaryFile("w+") as errors:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=errors, env=env, text=True)
+        try:
+            line = _read_line(proc, timeout_s)
+        except BaseException:
+            proc.kill()
+            proc.wait()
+            raise
+        if not line.startswith(READY_PREFIX):
+            proc.kill()
+            proc.wait()
+            errors.seek(0)
+            last = (errors.read().strip().splitlines() or [line.strip() or "no output"])[-1]
+            raise RobotUnavailable(f"the stand-in on {listen} did not start: {last}")
     return proc, line[len(READY_PREFIX):].strip()
 
 
