@@ -194,7 +194,7 @@ def test_frozen_robot_cannot_freeze_calls_reconnect_or_close():
         t0 = time.monotonic()
         with pytest.raises(RobotUnavailable):
             robot.reconnect(1.0)
-        assert time.monotonic() - t0 < 3.0
+        assert time.monotonic() - t0 < 1.5  # the deadline covers dropping the old signals too
         t0 = time.monotonic()
         robot.close()
         assert time.monotonic() - t0 < 3.0

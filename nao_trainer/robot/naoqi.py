@@ -258,22 +258,24 @@ class NaoqiRobot:
         """
         if self._closed:
             raise RobotUnavailable(f"the connection to the robot at {self.url} was closed; create a new one")
+        if deadline_s <= 0:
+            raise ValueError(f"reconnect deadline must be > 0 seconds, got {deadline_s!r}")
+        deadline = time.monotonic() + deadline_s
         callback = self._button_callback
-        self._drop_subscriptions()
+        # Old signals: instant on a dead link, bounded on a frozen one (a quarter of the budget).
+        self._drop_subscriptions(budget_s=min(2.0, deadline_s / 4))
         with self._lock:
             self._services.clear()
-        start = time.monotonic()
         if self._session.isConnected():
             self._session.close()
         try:
-            _connect_session(self._session, self.url, deadline_s)
+            _connect_session(self._session, self.url, max(0.05, deadline - time.monotonic()))
         except RobotUnavailable:
             # A timed-out connect leaves the session closed mid-handshake; start the next try afresh.
             self._session = _new_session(self._credentials)
             raise
         if callback is not None:
-            remaining = max(0.5, deadline_s - (time.monotonic() - start))
-            self._wait_for_service("ALMemory", remaining)
+            self._wait_for_service("ALMemory", max(0.5, deadline - time.monotonic()))
             self.subscribe_buttons(callback)
         log.info("reconnected to the robot at %s", self.url)
 
@@ -397,12 +399,12 @@ class NaoqiRobot:
             self._button_callback = None
         self._drop_subscriptions()
 
-    def _drop_subscriptions(self) -> None:
+    def _drop_subscriptions(self, budget_s: float | None = None) -> None:
         with self._lock:
             subscriptions, self._subscriptions = self._subscriptions, []
-        self._disconnect_all(subscriptions)
+        self._disconnect_all(subscriptions, budget_s)
 
-    def _disconnect_all(self, subscriptions: list[tuple[str, Any, Any]]) -> None:
+    def _disconnect_all(self, subscriptions: list[tuple[str, Any, Any]], budget_s: float | None = None) -> None:
         """Disconnect all signals at once with one shared budget, so a frozen robot delays close by 2 s at most."""
         pending = []
         for key, sub, link in subscriptions:
@@ -410,7 +412,7 @@ class NaoqiRobot:
                 pending.append((key, sub.signal.disconnect(link, _async=True)))
             except RuntimeError as exc:  # the robot is gone: nothing to disconnect from
                 log.debug("disconnecting %s: %s", key, exc)
-        deadline = time.monotonic() + min(2.0, self.timeouts.subscribe_s)
+        deadline = time.monotonic() + (min(2.0, self.timeouts.subscribe_s) if budget_s is None else budget_s)
         for key, fut in pending:
             if not _wait(fut, max(0.001, deadline - time.monotonic())):
                 log.debug("disconnecting %s timed out", key)
