@@ -262,7 +262,8 @@ class Session:
         self.rec.event("interrupted", state=self.state, by="operator (Ctrl-C)")
         if self.turn is not None and not self.turn.recorded:
             self._abandon_turn("interrupted: operator (Ctrl-C)")
-        self.trigger("abort")
+        if self.state not in FINAL_STATES:
+            self.trigger("abort")
 
     def _log_transition(self, event: Any) -> None:
         self.rec.event("transition", trigger=event.event.name, source=event.transition.source,
@@ -329,8 +330,8 @@ class Session:
             assert self.turn is not None
             self.turn.listening = self._end_phase()
             self._begin_phase("answer", turn)
-        timeout = self.cfg.response_timeout_s(length) / self.speed
-        answer = self.answers.collect(length, timeout - (time.monotonic() - onset))
+        # The window opened at the beep; the timeout counts from there (sources measure from open_window).
+        answer = self.answers.collect(length, self.cfg.response_timeout_s(length) / self.speed)
         self._check_robot()
         return answer
 
@@ -572,7 +573,7 @@ class Session:
                 self.rec.event("reconnected", attempt=attempt)
                 if self.progress is not None:
                     print(f"robot back after {attempt} attempt(s): resuming", file=self.progress, flush=True)
-                self._say("resumed", behavior="paused")
+                self._say("resumed", behavior="greeting")
                 return True
             except (RobotUnavailable, RobotConnectionLost, RuntimeError) as exc:
                 self.rec.event("reconnect_failed", attempt=attempt, error=str(exc), next_wait_s=min(backoff * 2, r["backoff_max_s"]))
@@ -583,6 +584,10 @@ class Session:
 
     def leave_safe(self) -> None:
         """Safe posture and LEDs reset, whatever happened; failures are logged, never raised."""
+        alive = getattr(self.robot, "is_connected", None)
+        if alive is not None and not alive():
+            self.rec.event("safe_state_skipped", why="robot not connected")
+            return
         for what, call in (
             ("posture", lambda: self.robot.go_to_posture(self.behaviors.safe_posture, self.cfg.get("robot.posture_speed"))),
             ("leds", lambda: self.robot.set_eye_leds(self.behaviors.leds_reset, 0.0)),
@@ -701,7 +706,7 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
 
     standin = robot = recorder = monitor = answers = policy = buttons = None
     session: Session | None = None
-    status, code = "error", 1
+    status, code, error = "error", 1, ""
     try:
         if url == "mock":
             from .robot.standin import StandIn
@@ -747,6 +752,12 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
             code = EXIT_ROBOT_LOST
     except (KeyboardInterrupt, Interrupted):
         status, code = "interrupted", EXIT_INTERRUPTED
+    except UserError as exc:  # e.g. a required EEG stream missing: recorded, then reported by the CLI
+        status, code, error = "error", exc.exit_code, str(exc)
+        raise
+    except Exception as exc:
+        error = f"{type(exc).__name__}: {exc}"
+        raise
     finally:
         with _no_interrupts():
             if session is not None and status != "completed":
@@ -760,7 +771,7 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
             if recorder is not None and recorder.is_open:
                 if standin is not None:
                     _write_transcript(recorder.path, standin.transcript())
-                recorder.close(status, code, total_score=session.total if session else 0)
+                recorder.close(status, code, total_score=session.total if session else 0, error=error)
             if standin is not None:
                 standin.stop()
     return SessionResult(recorder.path if recorder else None, status, code, session.rows if session else [], seed)

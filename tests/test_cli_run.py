@@ -128,3 +128,27 @@ def test_keyboard_answers_end_to_end(tmp_path):
     assert rows[0]["response"] == rows[0]["sequence"]
     assert rows[1]["response"].startswith("?") and "invalid key 'x'" in rows[1]["notes"]
     assert float(rows[0]["reaction_time"]) > 0
+
+
+def test_naoqi_29_credentials_come_from_the_environment_and_stay_out_of_files(tmp_path):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = {k: v for k, v in os.environ.items() if k not in ("NAO_USER", "NAO_PASSWORD")}
+    env["QI_LOG_LEVEL"] = "silent"
+    base = [sys.executable, "-m", "nao_trainer", "run", "--robot", f"tcps://127.0.0.1:{port}", "--out", str(tmp_path / "a")]
+    res = subprocess.run(base, capture_output=True, text=True, env=env, timeout=60)
+    assert res.returncode == 2 and "NAO_USER" in res.stderr and "NAO_PASSWORD" in res.stderr
+    secret = "pw-0f9e8d7c"
+    res = subprocess.run(base, capture_output=True, text=True, env=dict(env, NAO_USER="nao", NAO_PASSWORD=secret), timeout=60)
+    assert res.returncode == 3 and secret not in res.stderr + res.stdout
+    # a whole session with the variables set: the secret is in no file
+    res = subprocess.run([sys.executable, "-m", "nao_trainer", "run", "--turns", "2", "--speed", "50", "--out",
+                          str(tmp_path / "b"), "--quiet"], capture_output=True, text=True,
+                         env=dict(env, NAO_USER="nao", NAO_PASSWORD=secret), timeout=60)
+    assert res.returncode == 0, res.stderr
+    for f in only_folder(tmp_path / "b").rglob("*"):
+        if f.is_file():
+            assert secret not in f.read_text(errors="replace"), f

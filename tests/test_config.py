@@ -79,9 +79,12 @@ def test_bad_values_name_file_line_key(tmp_path, text, line, key, words):
     assert f"'{key}'" in msg and words in msg
 
 
-def test_eeg_processing_is_a_free_mapping(tmp_path):
-    cfg = load_config(study(tmp_path, "eeg:\n  processing:\n    ewma: 0.1\n    window_s: 1.0\n"))
-    assert cfg.get("eeg.processing") == {"ewma": 0.1, "window_s": 1.0}
+def test_eeg_processing_is_checked_by_the_monitor_at_load(tmp_path):
+    cfg = load_config(study(tmp_path, "eeg:\n  processing:\n    ewma_a: 0.9\n    window_s: 1.0\n"))
+    assert cfg.get("eeg.processing") == {"ewma_a": 0.9, "window_s": 1.0}
+    path = study(tmp_path, "eeg:\n  mode: simulated\n  processing:\n    window_s: 1.0\n    ewma: 0.1\n")
+    with pytest.raises(ConfigError, match=rf"{path}:5: eeg.processing.ewma: unknown key"):
+        load_config(path)
 
 
 def test_yaml_syntax_error_has_a_line(tmp_path):
