@@ -335,8 +335,8 @@ def import_dataset(root: Path, compat: str | None = None, cache_dir: Path | None
         except DataError as exc:
             problems.append(SessionProblem(sid, str(exc)))
             continue
-        except (OSError, ValueError, IndexError, KeyError) as exc:  # malformed data the readers did not name
-            problems.append(SessionProblem(sid, f"{type(exc).__name__}: {exc}"))
+        except Exception as exc:  # noqa: BLE001 - one odd session must not stop the import
+            problems.append(SessionProblem(sid, f"unexpected {type(exc).__name__}: {exc}".replace("\n", " ")))
             continue
         rows.extend(srows)
         if cache_dir is not None:

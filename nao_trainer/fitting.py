@@ -494,6 +494,26 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
         from .plots.usermodels import plot_all
 
         mds = mds_projection(result.user_models.features, seed=seed)
-        report["figures"] = [str(p) for p in plot_all(result, turns, mds, out)]
+        signal_of = None if source.is_file() else _engagement_signals(source, compat)
+        report["figures"] = [str(p) for p in plot_all(result, turns, mds, out, signal_of)]
         say(f"figures: {', '.join(report['figures'])}")
     return report
+
+
+def _engagement_signals(root: Path, compat: str | None) -> Callable[[str], dict[int, np.ndarray] | None]:
+    """Per-sample normalised engagement of a session of ``root`` (for Figure 4), None if unreadable."""
+    from . import published
+    from .eeg.offline import session_engagement
+
+    dirs = {published.session_id(d): d for d in published.find_sessions(root)}
+
+    def signal_of(session: str) -> dict[int, np.ndarray] | None:
+        if session not in dirs:
+            return None
+        try:
+            eng = session_engagement(dirs[session], compat=compat)
+        except DataError:
+            return None
+        return {turn: np.asarray(s.normalised, dtype=float) for turn, s in eng.series.items()}
+
+    return signal_of

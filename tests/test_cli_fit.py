@@ -86,3 +86,13 @@ def test_fit_on_too_few_sessions_says_so(dataset_root, tmp_path, capsys):
     assert main(["fit", str(tmp_path / "data"), "--out", str(tmp_path / "out"), "--no-figures", "--no-cache",
                  "--k", "1"]) == 0
     assert artifacts.available_models(tmp_path / "out") == ["1"]
+
+
+def test_figure_4_gets_the_per_sample_engagement_signal(dataset_root):
+    from nao_trainer.fitting import _engagement_signals
+
+    signal_of = _engagement_signals(dataset_root, "authors2018")
+    series = signal_of("user_1/session_4")
+    assert sorted(series) == list(range(1, 26))
+    assert all(len(v) > 10 and 0 <= v.min() and v.max() <= 1 for v in series.values())
+    assert signal_of("user_999/session_1") is None

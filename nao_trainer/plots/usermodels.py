@@ -7,6 +7,7 @@
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -36,8 +37,13 @@ def example_sessions(result: FitResult, count: int = 2) -> list[str]:
     return picks
 
 
-def plot_users(result: FitResult, turns: Turns, path: Path, sessions: list[str] | None = None) -> Path:
-    """Figure 4: engagement over the session and per-level success/engagement of example users."""
+def plot_users(result: FitResult, turns: Turns, path: Path, sessions: list[str] | None = None,
+               signals: dict[str, dict[int, np.ndarray]] | None = None) -> Path:
+    """Figure 4: engagement over the session and per-level success/engagement of example users.
+
+    ``signals[session][turn]`` (optional) is the turn's per-sample normalised engagement; it is
+    drawn as a continuous line behind the per-turn means (turn k spans k-0.5..k+0.5 on the x axis).
+    """
     plt = _pyplot()
     from matplotlib.lines import Line2D
 
@@ -50,7 +56,14 @@ def plot_users(result: FitResult, turns: Turns, path: Path, sessions: list[str] 
         e, ok, lv = turns.engagement[sel], turns.success[sel], turns.level[sel]
         x = np.arange(1, sel.sum() + 1)
         ax = axes[row, 0]
-        ax.plot(x, e, color="0.5", lw=1)
+        series = (signals or {}).get(name)
+        if series:  # rows are turns 1..n in order (the importer checks the logfile's numbering)
+            for k in x:
+                y = series.get(int(k))
+                if y is not None and len(y):
+                    ax.plot(k - 0.5 + (np.arange(len(y)) + 0.5) / len(y), y, color="0.6", lw=0.7)
+        else:
+            ax.plot(x, e, color="0.5", lw=1)
         ax.scatter(x[ok], e[ok], c=[COLORS[l - 1] for l in lv[ok]], marker="o", zorder=3)
         ax.scatter(x[~ok], e[~ok], facecolors="none", edgecolors=[COLORS[l - 1] for l in lv[~ok]], marker="o", zorder=3)
         ax.set(xlabel="turn", ylabel="engagement (normalised)", ylim=(-0.02, 1.02),
@@ -93,7 +106,12 @@ def plot_clusters(result: FitResult, mds: np.ndarray, path: Path) -> Path:
     return Path(path)
 
 
-def plot_all(result: FitResult, turns: Turns, mds: np.ndarray, out_dir: Path) -> list[Path]:
+def plot_all(result: FitResult, turns: Turns, mds: np.ndarray, out_dir: Path,
+             signal_of: "Callable[[str], dict[int, np.ndarray] | None] | None" = None) -> list[Path]:
+    """Both figures into ``out_dir``; ``signal_of(session)`` may supply per-sample engagement."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    return [plot_users(result, turns, out / "users.png"), plot_clusters(result, mds, out / "clusters.png")]
+    examples = example_sessions(result)
+    signals = {s: sig for s in examples if signal_of and (sig := signal_of(s))}
+    return [plot_users(result, turns, out / "users.png", examples, signals),
+            plot_clusters(result, mds, out / "clusters.png")]
