@@ -20,6 +20,7 @@ means over seeds with the same per-episode 95 % t-interval.
 from __future__ import annotations
 
 import hashlib
+import io
 import math
 import sys
 import time
@@ -271,7 +272,7 @@ def train_grid(simulators: Sequence[UserSimulator], clusters: Sequence[str], spe
 # Outputs
 # ----------------------------------------------------------------------------------------------
 
-CURVES_CSV = "learning_curves.csv"
+CURVES_CSV = "learning_curves.csv.gz"  # gzip: 90,000 rows for the full grid
 S0_CSV = "s0_action_probabilities.csv"
 RESULTS_JSON = "results.json"
 FIGURE7 = "figure7_learning_curves.png"
@@ -283,7 +284,10 @@ def write_curves_csv(result: GridResult, path: Path) -> None:
     curves = result.curves()
     cols = ["score_mean", "score_lo", "score_hi", "engagement_mean", "engagement_lo", "engagement_hi"]
     episodes = np.arange(1, result.spec.episodes + 1)
-    with open(path, "w", encoding="utf-8") as fh:
+    import gzip
+
+    # mtime=0: the same run gives the same bytes.
+    with gzip.GzipFile(path, "wb", mtime=0) as raw, io.TextIOWrapper(raw, encoding="utf-8") as fh:
         fh.write("cluster,method,episode," + ",".join(cols) + "\n")
         for c, cluster in enumerate(result.clusters):
             for m, method in enumerate(result.spec.methods):
@@ -294,12 +298,18 @@ def write_curves_csv(result: GridResult, path: Path) -> None:
 
 
 def write_s0_csv(result: GridResult, path: Path) -> None:
+    """P(a | S0) per cluster and method (mean over seeds) and how often S0 was visited.
+
+    A policy at a rarely visited state stays close to uniform: ``s0_visits_mean`` tells which.
+    """
     probs = result.s0_probabilities()
+    visits = result.visits[..., S0_INDEX].mean(axis=2)
     with open(path, "w", encoding="utf-8") as fh:
-        fh.write("cluster,method," + ",".join(mdp.ACTION_NAMES) + "\n")
+        fh.write("cluster,method," + ",".join(mdp.ACTION_NAMES) + ",s0_visits_mean\n")
         for c, cluster in enumerate(result.clusters):
             for m, method in enumerate(result.spec.methods):
-                fh.write(f"{cluster},{method}," + ",".join(f"{v:.6f}" for v in probs[c, m]) + "\n")
+                fh.write(f"{cluster},{method}," + ",".join(f"{v:.6f}" for v in probs[c, m])
+                         + f",{visits[c, m]:.1f}\n")
 
 
 def default_methods(result: GridResult) -> dict[str, str]:

@@ -117,8 +117,7 @@ def make_payload(learner: QLearner, cluster: str, simulator: UserSimulator,
         "h_counts": learner.h_counts.tolist(),
         "visits": learner.visits.tolist(),
         "simulator": {"name": simulator.name, "fingerprint": simulator.fingerprint()},
-        "training": {**training, "nao_trainer_version": __version__,
-                     "created": datetime.now(timezone.utc).isoformat(timespec="seconds")},
+        "training": {**training, "nao_trainer_version": __version__},  # no timestamp: reruns are bit-identical
         "live": {"turns_learned": 0, "turns_without_engagement": 0, "updated": None},
     }
 

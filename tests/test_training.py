@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import csv
+import gzip
 import json
 
 import numpy as np
@@ -58,9 +59,16 @@ def test_mean_ci_is_a_t_interval():
     assert mean_ci(np.array([5.0])) == (5.0, None)
 
 
-def test_same_seed_identical_other_seed_different(small_run):
+def test_same_seed_identical_other_seed_different(small_run, tmp_path):
     again = train_grid(simulators(), ["1", "2"], TrainingSpec(**SMALL), progress=False)
     assert np.array_equal(small_run.q, again.q) and np.array_equal(small_run.episode_score, again.episode_score)
+    write_outputs(small_run, tmp_path / "a", "m", "c", plots=False)
+    write_outputs(again, tmp_path / "b", "m", "c", plots=False)
+    files = sorted(p.name for p in (tmp_path / "a").iterdir())
+    assert len(files) == 2 * 3 + 4
+    for name in files:
+        if name != "results.json":  # holds the run time
+            assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
     other = train_grid(simulators(), ["1", "2"], TrainingSpec(**{**SMALL, "seed": 1}), progress=False)
     assert not np.array_equal(small_run.episode_score, other.episode_score)
 
@@ -85,13 +93,16 @@ def test_write_outputs(small_run, tmp_path):
     for key in ("curves", "s0", "results", "figure7", "figure8"):
         assert paths[key].exists() and paths[key].stat().st_size > 0
     assert paths["figure7"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    with open(paths["curves"]) as fh:
+    with gzip.open(paths["curves"], "rt") as fh:
         rows = list(csv.DictReader(fh))
     assert len(rows) == 2 * 3 * 40
     first = rows[0]
     scores = small_run.episode_score[0, 0, :, 0]
     assert float(first["score_mean"]) == pytest.approx(scores.mean(), rel=1e-4)
     assert float(first["score_lo"]) <= float(first["score_mean"]) <= float(first["score_hi"])
+    with open(paths["s0"]) as fh:
+        s0 = list(csv.DictReader(fh))
+    assert float(s0[0]["s0_visits_mean"]) == pytest.approx(small_run.visits[0, 0, :, mdp.encode(*mdp.S0)].mean(), abs=0.05)
     summary = json.loads(paths["results"].read_text())
     assert set(summary["default_method"]) == {"1", "2"}
     manifest = usp.read_manifest(tmp_path)
