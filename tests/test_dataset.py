@@ -154,3 +154,25 @@ def test_raw_layout_imports(raw_root):
     assert result.problems == [] and len(result.table.sessions) == 4 and len(result.table) == 100
     eng = result.table["engagement"]
     assert np.isfinite(eng).mean() > 0.9 and np.nanmin(eng) >= 0 and np.nanmax(eng) <= 1
+
+
+def test_damaged_files_never_end_in_a_traceback(dataset_root, tmp_path):
+    root = _copy(dataset_root, tmp_path / "data", SAMPLE)
+    s = [root / sid for sid in SAMPLE]
+    (s[0] / "logfile").write_bytes(bytes(range(256)) * 3)  # binary junk
+    (s[1] / "state_EEG").write_text("")  # empty
+    shutil.rmtree(s[2] / "EEG")  # no recordings at all: imports, without engagement
+    (s[3] / "logfile").unlink()
+    (s[3] / "logfile").mkdir()  # a folder where a file should be
+    bands = s[4] / "EEG" / "bands_robot_3"
+    bands.write_text("a 0.1 0.2\nb x y z w\n" + "\0" * 50)  # garbage band lines: that turn has no engagement
+    result = import_dataset(root, compat="authors2018")
+    reasons = {p.session: p.reason for p in result.problems}
+    assert set(reasons) == {SAMPLE[0], SAMPLE[1], SAMPLE[3]}
+    assert "not a text file" in reasons[SAMPLE[0]] or "line 1" in reasons[SAMPLE[0]]
+    t = result.table
+    assert set(t.sessions) == {SAMPLE[2], SAMPLE[4]}
+    assert np.isnan(t["engagement"][t["session"] == SAMPLE[2]]).all()
+    row = (t["session"] == SAMPLE[4]) & (t["turn"] == 3)
+    assert np.isnan(t["engagement"][row]).all() and "bands_robot_3" in t["eeg_note"][row][0]
+    assert np.isfinite(t["engagement"][(t["session"] == SAMPLE[4]) & (t["turn"] != 3)]).all()
