@@ -13,6 +13,7 @@ Parsing goes through ``str.split`` and one numpy conversion per prefix, so a who
 from __future__ import annotations
 
 import ast
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -72,7 +73,7 @@ def find_sessions(root: Path) -> list[Path]:
 
 def session_id(session_dir: Path) -> str:
     """The dataset's session id ``user_<id>/session_<k>`` (the ``ID`` column of the derived tables)."""
-    p = Path(session_dir)
+    p = Path(os.path.abspath(session_dir))  # "." works too; symlinks keep their names
     return f"{p.parent.name}/{p.name}"
 
 

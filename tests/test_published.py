@@ -20,6 +20,11 @@ def test_find_sessions_natural_order(dataset_root):
     assert len(pub.find_sessions(dataset_root.parent)) == 50
 
 
+def test_session_id_of_a_relative_path(dataset_root, monkeypatch):
+    monkeypatch.chdir(dataset_root / "user_10" / "session_1")
+    assert pub.session_id(pub.find_sessions(pub.Path("."))[0]) == "user_10/session_1"
+
+
 def test_find_sessions_errors(tmp_path):
     with pytest.raises(DataError, match="no such folder"):
         pub.find_sessions(tmp_path / "missing")
