@@ -152,6 +152,9 @@ def test_a_frozen_call_hits_its_deadline(standin):
 def test_presses_via_control_service_arrive_as_letters(standin, robot):
     presses = Presses()
     robot.subscribe_buttons(presses)
+    assert sorted(args[0] for service, method, args in _calls(standin, "ALMemory") if method == "subscriber") == [
+        "FrontTactilTouched", "MiddleTactilTouched", "RearTactilTouched",
+    ]
     before = time.monotonic()
     for button in ("A", "B", "C"):
         standin.press(button)

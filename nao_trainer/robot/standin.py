@@ -383,6 +383,7 @@ class _Memory:
 
     @qi.bind(qi.Object, [qi.String])
     def subscriber(self, key: str) -> _MemorySubscriber:
+        self._rec.record("ALMemory", "subscriber", [key])
         sub = _MemorySubscriber()
         with self._lock:
             self._subscribers.setdefault(key, []).append(sub)
