@@ -316,7 +316,12 @@ def import_dataset(root: Path, compat: str | None = None, cache_dir: Path | None
     say = progress or (lambda _m: None)
     sessions = published.find_sessions(root)
     if cache_dir is not None:
-        Path(cache_dir).mkdir(parents=True, exist_ok=True)
+        try:
+            Path(cache_dir).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:  # a cache that cannot be made only costs time
+            print(f"nao-trainer: warning: import cache {cache_dir} unusable ({exc.strerror}); reading without it",
+                  file=sys.stderr)
+            cache_dir = None
     rows: list[dict[str, Any]] = []
     problems: list[SessionProblem] = []
     cached = 0

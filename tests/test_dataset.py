@@ -176,3 +176,12 @@ def test_damaged_files_never_end_in_a_traceback(dataset_root, tmp_path):
     row = (t["session"] == SAMPLE[4]) & (t["turn"] == 3)
     assert np.isnan(t["engagement"][row]).all() and "bands_robot_3" in t["eeg_note"][row][0]
     assert np.isfinite(t["engagement"][(t["session"] == SAMPLE[4]) & (t["turn"] != 3)]).all()
+
+
+def test_unusable_cache_folder_only_warns(dataset_root, tmp_path, capsys):
+    root = _copy(dataset_root, tmp_path / "data", SAMPLE[:1])
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    result = import_dataset(root, cache_dir=blocker / "cache")
+    assert len(result.table.sessions) == 1 and result.cached == 0
+    assert "import cache" in capsys.readouterr().err
