@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from ..config import EEG_MODES, INPUTS
@@ -60,5 +59,5 @@ def run(args: argparse.Namespace) -> int:
 
     config = load_config(args.config, overrides_from_args(args))
     result = run_session(config, RunOptions(quiet=args.quiet))
-    print(result.summary(), file=sys.stderr if args.quiet else sys.stdout)
+    print(result.summary())
     return result.exit_code
