@@ -26,7 +26,8 @@ def simulators() -> tuple[list[UserSimulator], list[str], str]:
     except Exception as exc:  # noqa: BLE001 - any problem: fall back to synthetic users
         print(f"(shipped models unavailable: {exc}; using synthetic users)", file=sys.stderr)
         rates = ([0.95, 0.8, 0.35, 0.06], [0.98, 0.95, 0.65, 0.16], [0.99, 0.94, 0.58, 0.55])
-        sims = [UserSimulator.from_level_rates(f"synthetic-{i + 1}", r, [0.25, 0.26, 0.28, 0.28]) for i, r in enumerate(rates)]
+        engagement = [0.25, 0.26, 0.28, 0.28]
+        sims = [UserSimulator.from_level_rates(f"synthetic-{i + 1}", r, engagement) for i, r in enumerate(rates)]
         return sims, ["1", "2", "3"], "synthetic"
 
 

@@ -42,7 +42,8 @@ def test_grid_shapes_and_summary(small_run):
     assert r.episode_score.shape == (2, 3, 3, 40) and r.q.shape == (2, 3, 3, mdp.N_STATES, mdp.N_ACTIONS)
     assert r.turns == 2 * 3 * 3 * 40 * 25
     rows = r.results()
-    assert [(x["cluster"], x["method"]) for x in rows] == [(c, m) for c in "12" for m in ("performance", "shaping", "qaug")]
+    methods = ("performance", "shaping", "qaug")
+    assert [(x["cluster"], x["method"]) for x in rows] == [(c, m) for c in "12" for m in methods]
     tail = r.episode_score[0, 1, :, -4:].mean(axis=1)  # last 10 % of 40 episodes
     assert rows[1]["score_mean"] == pytest.approx(tail.mean())
     lo, hi = rows[1]["score_ci"]
@@ -102,7 +103,8 @@ def test_write_outputs(small_run, tmp_path):
     assert float(first["score_lo"]) <= float(first["score_mean"]) <= float(first["score_hi"])
     with open(paths["s0"]) as fh:
         s0 = list(csv.DictReader(fh))
-    assert float(s0[0]["s0_visits_mean"]) == pytest.approx(small_run.visits[0, 0, :, mdp.encode(*mdp.S0)].mean(), abs=0.05)
+    s0_visits = small_run.visits[0, 0, :, mdp.encode(*mdp.S0)].mean()
+    assert float(s0[0]["s0_visits_mean"]) == pytest.approx(s0_visits, abs=0.05)
     summary = json.loads(paths["results"].read_text())
     assert set(summary["default_method"]) == {"1", "2"}
     manifest = usp.read_manifest(tmp_path)

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-import os
 
 import numpy as np
 import pytest
@@ -207,3 +206,30 @@ def test_shipped_policies_match_the_shipped_user_models():
         policy = usp.load_policy(f"usp:{cluster}", False, None, None, policies_dir=usp.DEFAULT_POLICIES_DIR,
                                  models_dir=artifacts.DEFAULT_MODELS_DIR)
         assert abs(policy.probabilities(S0).sum() - 1) < 1e-9
+
+
+def _run_session(tmp_path, *extra):
+    import subprocess
+    import sys
+
+    out = tmp_path / "sessions"
+    cmd = [sys.executable, "-m", "nao_trainer", "run", "--user-model", "1", "--turns", "3", "--speed", "50",
+           "--out", str(out), "--quiet", "--no-practice", "--seed", "5", *extra]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    (folder,) = out.iterdir()
+    return folder
+
+
+def test_session_with_a_shipped_policy_keeps_learning(tmp_path):
+    """`nao-trainer run --policy usp:1:performance` plays a real (stand-in) session and learns from it."""
+    if not (usp.DEFAULT_POLICIES_DIR / usp.MANIFEST).exists():
+        pytest.skip("no shipped policies")
+    folder = _run_session(tmp_path, "--policy", "usp:1:performance")
+    state = usp.read_policy_file(folder / "policy_state.json")
+    shipped = usp.read_policy_file(usp.DEFAULT_POLICIES_DIR / usp.policy_filename("1", "performance"))
+    assert state["live"]["turns_learned"] == 3
+    assert np.array(state["visits"]).sum() == np.array(shipped["visits"]).sum() + 3
+    assert not np.array_equal(np.array(state["q"]), np.array(shipped["q"]))
+    frozen = _run_session(tmp_path / "frozen", "--policy", "usp:1:performance", "--no-learning")
+    assert not (frozen / "policy_state.json").exists()
