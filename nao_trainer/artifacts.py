@@ -21,7 +21,7 @@ from typing import Any
 
 from .core.simulation import FORMAT_VERSION as SIMULATOR_FORMAT_VERSION
 from .core.simulation import UserSimulator
-from .errors import DataError
+from .errors import DataError, UserError
 
 MANIFEST = "manifest.json"
 MANIFEST_FORMAT = "nao-trainer/user-models"
@@ -73,12 +73,16 @@ def save_models(out_dir: Path, simulators: list[UserSimulator], clusters: list[d
     top-level manifest fields (dataset fingerprint, compat, k, options, ...).
     """
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    rows = []
-    for sim, row in zip(simulators, clusters, strict=True):
-        name = cluster_file(int(row["id"]))
-        write_json(out / name, sim.to_dict())
-        rows.append({**row, "file": name, "fingerprint": sim.fingerprint()})
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        rows = []
+        for sim, row in zip(simulators, clusters, strict=True):
+            name = cluster_file(int(row["id"]))
+            write_json(out / name, sim.to_dict())
+            rows.append({**row, "file": name, "fingerprint": sim.fingerprint()})
+    except OSError as exc:
+        where = exc.filename or out
+        raise UserError(f"{where}: cannot write the user models ({exc.strerror}); choose another --out") from None
     manifest = {
         "format": MANIFEST_FORMAT,
         "format_version": MANIFEST_VERSION,
@@ -88,7 +92,10 @@ def save_models(out_dir: Path, simulators: list[UserSimulator], clusters: list[d
         "clusters": rows,
     }
     path = out / MANIFEST
-    write_json(path, manifest)
+    try:
+        write_json(path, manifest)
+    except OSError as exc:
+        raise UserError(f"{path}: cannot write ({exc.strerror}); choose another --out") from None
     return path
 
 

@@ -37,7 +37,7 @@ import numpy as np
 from . import published
 from .core import mdp
 from .core.task import LENGTHS, level_of, score, signed_score
-from .errors import DataError
+from .errors import DataError, UserError
 
 IMPORTER_VERSION = 1
 COMPAT_MODES = (None, "authors2018")
@@ -124,16 +124,20 @@ class TurnTable:
 def write_table(table: TurnTable, path: Path, provenance: dict[str, Any]) -> Path:
     """Write the CSV and a JSON sidecar ``<path>.json`` with provenance; returns the CSV path."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     text = table.to_csv()
-    for target, content in ((path, text), (path.with_name(path.name + ".json"),
-                                           json.dumps(provenance, indent=1) + "\n")):
-        tmp = target.with_name(f".{target.name}.tmp-{os.getpid()}")
-        with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(content)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        for target, content in ((path, text), (path.with_name(path.name + ".json"),
+                                               json.dumps(provenance, indent=1) + "\n")):
+            tmp = target.with_name(f".{target.name}.tmp-{os.getpid()}")
+            with open(tmp, "w", encoding="utf-8") as fh:
+                fh.write(content)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, target)
+    except OSError as exc:
+        where = exc.filename or path
+        raise UserError(f"{where}: cannot write the turn table ({exc.strerror}); choose another --out") from None
     return path
 
 

@@ -138,3 +138,12 @@ def test_shipped_models_load_and_match_a_fresh_fit(fit, data):
         assert isinstance(shipped, UserSimulator)
         np.testing.assert_allclose(shipped.p_success, c.simulator.p_success, atol=1e-6)
         np.testing.assert_allclose(shipped.engagement, c.simulator.engagement, atol=1e-6)
+
+
+def test_unwritable_output_is_a_one_line_user_error(fit, tmp_path):
+    from nao_trainer.errors import UserError
+
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(UserError, match="cannot write the user models .*choose another --out"):
+        artifacts.save_models(blocker / "models", [fit.clusters[0].simulator], [fit.clusters[0].summary()], {})
