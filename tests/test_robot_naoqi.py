@@ -146,6 +146,17 @@ def test_a_frozen_call_hits_its_deadline(standin):
         robot.close()
 
 
+def test_stop_all_from_another_thread_ends_a_say_early(standin, robot):
+    standin.set_speed(1.0)
+    timer = threading.Timer(0.3, robot.stop_all)
+    timer.start()
+    t0 = time.monotonic()
+    robot.say("x" * 100)  # six seconds unless stopped
+    timer.join()
+    assert 0.3 <= time.monotonic() - t0 < 2.0
+    assert [m for _, m, _ in _calls(standin)] == ["say", "stopAll", "stopAll"]
+
+
 # --- head buttons ---------------------------------------------------------------------------
 
 

@@ -182,6 +182,31 @@ def test_long_speech_does_not_block_memory(standin, client):
     fut.wait()
 
 
+def test_stop_all_interrupts_speech_and_sound_in_progress(standin, client):
+    standin.set_speed(1.0)
+    tts, anim, audio = (client.service(n) for n in ("ALTextToSpeech", "ALAnimatedSpeech", "ALAudioPlayer"))
+    speaking = anim.say("x" * 100, _async=True)  # six seconds
+    beeping = audio.playSine(440, 50, 0, 6.0, _async=True)
+    time.sleep(0.1)
+    t0 = time.monotonic()
+    tts.stopAll()
+    assert speaking.wait(2000) != qi.FutureState.Running
+    assert beeping.isRunning()  # speech only
+    audio.stopAll()
+    assert beeping.wait(2000) != qi.FutureState.Running
+    assert time.monotonic() - t0 < 1.5
+    assert _timed(tts.say, "x" * 5) >= 5 * SECONDS_PER_CHARACTER  # later speech runs in full
+
+
+def test_echo_prints_one_line_per_call():
+    import io
+
+    echo = io.StringIO()
+    with StandIn.start(speed=FAST, echo=echo) as s:
+        s.press("A")
+    assert echo.getvalue().split()[1:] == ['NaoTrainerStandIn.press("FrontTactilTouched")']
+
+
 def test_memory_raise_event_reaches_subscribers_of_that_key_only(client, button_signal):
     memory, got = button_signal
     memory.raiseEvent("MiddleTactilTouched", 1.0)
@@ -307,7 +332,7 @@ def _cli(*args):
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_cli_prints_ready_line_serves_and_exits_cleanly(tmp_path, sig):
     transcript = tmp_path / "t.jsonl"
-    proc = _cli("--listen", "tcp://127.0.0.1:0", "--speed", "40", "--transcript", str(transcript))
+    proc = _cli("--listen", "tcp://127.0.0.1:0", "--speed", "40", "--transcript", str(transcript), "--echo")
     try:
         line = proc.stdout.readline()
         assert line.startswith(READY_PREFIX)
@@ -324,6 +349,7 @@ def test_cli_prints_ready_line_serves_and_exits_cleanly(tmp_path, sig):
             proc.wait()
     assert proc.returncode == 0, err
     assert json.loads(transcript.read_text().splitlines()[0])["args"] == ["RearTactilTouched"]
+    assert 'NaoTrainerStandIn.press("RearTactilTouched")' in err and out == ""
 
 
 def test_cli_refuses_a_remote_address_in_one_line():

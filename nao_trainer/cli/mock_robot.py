@@ -22,6 +22,7 @@ def register(sub) -> None:
     )
     p.add_argument("--speed", type=float, default=1.0, help="time factor: 10 speaks ten times faster (default 1)")
     p.add_argument("--transcript", metavar="FILE", help="append every call as a JSON line to FILE")
+    p.add_argument("--echo", action="store_true", help="print each call the robot receives on stderr")
     p.add_argument(
         "--allow-remote",
         action="store_true",
@@ -31,6 +32,9 @@ def register(sub) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    import sys
+
     from ..robot.standin import serve  # imports qi: keep `nao-trainer --help` fast
 
-    return serve(args.listen, speed=args.speed, transcript_path=args.transcript, allow_remote=args.allow_remote)
+    return serve(args.listen, speed=args.speed, transcript_path=args.transcript, allow_remote=args.allow_remote,
+                 echo=sys.stderr if args.echo else None)

@@ -361,6 +361,14 @@ class NaoqiRobot:
         """The safe end state: crouch and release the joints' stiffness (ALMotion.rest)."""
         self._call("ALMotion", "rest", timeout_s=self.timeouts.posture_s)
 
+    def stop_all(self) -> None:
+        """Cut speech and sounds short (ALTextToSpeech.stopAll, ALAudioPlayer.stopAll).
+
+        Safe to call from another thread while ``say`` blocks: that ``say`` then returns early.
+        """
+        self._call("ALTextToSpeech", "stopAll", timeout_s=self.timeouts.default_s)
+        self._call("ALAudioPlayer", "stopAll", timeout_s=self.timeouts.default_s)
+
     # -- head buttons ------------------------------------------------------------------------------
 
     def subscribe_buttons(self, callback: Callable[[str, float], None]) -> None:

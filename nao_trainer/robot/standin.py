@@ -70,10 +70,12 @@ class _Recorder:
 
     speed: float = 1.0
     path: Path | None = None
+    echo: TextIO | None = None  # a human-readable line per call (``mock-robot --echo``: stderr)
     entries: list[dict[str, Any]] = field(default_factory=list)
     _t0: float = field(default_factory=time.monotonic)
     _lock: threading.Lock = field(default_factory=threading.Lock)
     _stopping: threading.Event = field(default_factory=threading.Event)
+    _channels: list["_Channel"] = field(default_factory=list)
     _file: TextIO | None = None
 
     def __post_init__(self) -> None:
@@ -99,6 +101,9 @@ class _Recorder:
             if self._file is not None:
                 self._file.write(json.dumps(entry) + "\n")
                 self._file.flush()
+            if self.echo is not None:
+                args_text = ", ".join(json.dumps(a) for a in entry["args"])
+                print(f"{entry['t']:9.3f}  {service}.{method}({args_text})", file=self.echo, flush=True)
 
     def wait(self, seconds: float) -> None:
         """Sleep ``seconds`` of robot time (scaled by the speed factor); cut short when the stand-in stops."""
@@ -115,11 +120,43 @@ class _Recorder:
 
     def close(self) -> None:
         self._stopping.set()
+        for channel in self._channels:
+            channel.shut()
         with self._lock:
             if self._file is not None:
                 self._file.flush()
                 self._file.close()
                 self._file = None
+
+
+class _Channel:
+    """Something the robot does over time (speech, sound) that ``stopAll`` or shutdown cuts short."""
+
+    def __init__(self, rec: _Recorder) -> None:
+        self._rec = rec
+        self._lock = threading.Lock()
+        self._event = threading.Event()
+        self._shut = False
+        rec._channels.append(self)
+
+    def run(self, seconds: float) -> bool:
+        """Take ``seconds`` of robot time; False when interrupted."""
+        with self._lock:
+            if self._shut:
+                return False
+            event = self._event
+        return seconds <= 0 or not event.wait(seconds / self._rec.speed)
+
+    def interrupt(self) -> None:
+        """End what runs now; later calls run normally."""
+        with self._lock:
+            self._event.set()
+            self._event = threading.Event()
+
+    def shut(self) -> None:
+        with self._lock:
+            self._shut = True
+            self._event.set()
 
 
 def _check_speed(speed: float) -> float:
@@ -151,8 +188,9 @@ def _jsonable(value: Any) -> Any:
 class _TextToSpeech:
     """ALTextToSpeech: ``say`` blocks for a time proportional to the text."""
 
-    def __init__(self, rec: _Recorder) -> None:
+    def __init__(self, rec: _Recorder, speech: _Channel) -> None:
         self._rec = rec
+        self._speech = speech
         self._lock = threading.Lock()
         self._language = "English"
         self._params: dict[str, float] = {"speed": 100.0, "pitchShift": 1.0, "volume": 1.0}
@@ -164,7 +202,7 @@ class _TextToSpeech:
         if len(args) not in (1, 2) or not all(isinstance(a, str) for a in args):
             raise RuntimeError("ALTextToSpeech::say expects (text) or (text, language)")
         self._rec.record("ALTextToSpeech", "say", list(args))
-        self._rec.wait(SECONDS_PER_CHARACTER * len(args[0]))
+        self._speech.run(SECONDS_PER_CHARACTER * len(args[0]))
 
     @qi.bind(qi.Void, [qi.String])
     def setLanguage(self, language: str) -> None:
@@ -207,15 +245,18 @@ class _TextToSpeech:
 
     @qi.bind(qi.Void, [])
     def stopAll(self) -> None:
+        """Interrupt the speech in progress (animated speech too, as on a NAO)."""
         self._rec.record("ALTextToSpeech", "stopAll", [])
+        self._speech.interrupt()
 
 
 @qi.multiThreaded()
 class _AnimatedSpeech:
     """ALAnimatedSpeech: ``say(text)`` and ``say(text, configuration)`` (a NAOqi overload)."""
 
-    def __init__(self, rec: _Recorder) -> None:
+    def __init__(self, rec: _Recorder, speech: _Channel) -> None:
         self._rec = rec
+        self._speech = speech
 
     @qi.bind(qi.Void, qi.AnyArguments)
     def say(self, *args: Any) -> None:
@@ -231,7 +272,7 @@ class _AnimatedSpeech:
                     f"ALAnimatedSpeech::say: bodyLanguageMode must be one of {', '.join(BODY_LANGUAGE_MODES)}, got {mode!r}"
                 )
         self._rec.record("ALAnimatedSpeech", "say", list(args))
-        self._rec.wait(SECONDS_PER_CHARACTER * len(_strip_annotations(args[0])))
+        self._speech.run(SECONDS_PER_CHARACTER * len(_strip_annotations(args[0])))
 
 
 def _strip_annotations(text: str) -> str:
@@ -245,6 +286,7 @@ class _AudioPlayer:
 
     def __init__(self, rec: _Recorder) -> None:
         self._rec = rec
+        self._sound = _Channel(rec)
 
     @qi.bind(qi.Void, [qi.Int32, qi.Int32, qi.Int32, qi.Float])
     def playSine(self, frequency: int, gain: int, pan: int, duration: float) -> None:
@@ -253,11 +295,12 @@ class _AudioPlayer:
         if not -1 <= pan <= 1:
             raise RuntimeError(f"ALAudioPlayer::playSine: pan must be -1, 0 or 1, got {pan}")
         self._rec.record("ALAudioPlayer", "playSine", [frequency, gain, pan, duration])
-        self._rec.wait(duration)
+        self._sound.run(duration)
 
     @qi.bind(qi.Void, [])
     def stopAll(self) -> None:
         self._rec.record("ALAudioPlayer", "stopAll", [])
+        self._sound.interrupt()
 
 
 @qi.multiThreaded()
@@ -536,10 +579,14 @@ class StandIn:
         speed: float = 1.0,
         transcript_path: str | os.PathLike | None = None,
         allow_remote: bool = False,
+        echo: TextIO | None = None,
     ) -> "StandIn":
-        """Serve the stand-in on ``url`` (port 0 picks a free port; ``.url`` tells which)."""
+        """Serve the stand-in on ``url`` (port 0 picks a free port; ``.url`` tells which).
+
+        ``echo``: a stream that gets one readable line per call (the robot's actions, live).
+        """
         url = check_listen_url(url, allow_remote)
-        rec = _Recorder(speed=speed, path=Path(transcript_path) if transcript_path else None)
+        rec = _Recorder(speed=speed, path=Path(transcript_path) if transcript_path else None, echo=echo)
         session = qi.Session()
         try:
             session.listenStandalone(url)
@@ -556,9 +603,10 @@ class StandIn:
         memory = _Memory(rec)
         posture = _RobotPosture(rec)
         control = _Control(rec, memory)
+        speech = _Channel(rec)
         services = {
-            "ALTextToSpeech": _TextToSpeech(rec),
-            "ALAnimatedSpeech": _AnimatedSpeech(rec),
+            "ALTextToSpeech": _TextToSpeech(rec, speech),
+            "ALAnimatedSpeech": _AnimatedSpeech(rec, speech),
             "ALAudioPlayer": _AudioPlayer(rec),
             "ALLeds": _Leds(rec),
             "ALRobotPosture": posture,
@@ -597,6 +645,8 @@ class StandIn:
             return
         self._stopped = True
         self._rec._stopping.set()  # pending say/playSine/... return at once
+        for channel in self._rec._channels:
+            channel.shut()
         self._memory._forget_subscribers()
         try:
             # Unregister before closing: a server session closed with its services registered
@@ -693,13 +743,14 @@ def serve(
     transcript_path: str | os.PathLike | None = None,
     allow_remote: bool = False,
     out: TextIO | None = None,
+    echo: TextIO | None = None,
 ) -> int:
     """Run the stand-in until SIGINT/SIGTERM (``nao-trainer mock-robot``); prints the ready line."""
     out = out or sys.stdout
     stop = threading.Event()
     handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        standin = StandIn.start(url, speed=speed, transcript_path=transcript_path, allow_remote=allow_remote)
+        standin = StandIn.start(url, speed=speed, transcript_path=transcript_path, allow_remote=allow_remote, echo=echo)
         try:
             print(f"{READY_PREFIX}{standin.url}", file=out, flush=True)
             while not stop.wait(0.2):
