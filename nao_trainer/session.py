@@ -146,6 +146,7 @@ class SessionResult:
     exit_code: int
     rows: list[dict[str, Any]]
     seed: int
+    error: str = ""
 
     @property
     def completed_rows(self) -> list[dict[str, Any]]:
@@ -178,7 +179,7 @@ class SessionResult:
         lines += [
             f"turns completed: {len(self.completed_rows)}   total score: {self.total_score}   "
             f"mean engagement: {'n/a (EEG off)' if eng is None else f'{eng:.2f}'}",
-            f"status: {self.status} (exit {self.exit_code})",
+            f"status: {self.status} (exit {self.exit_code})" + (f": {self.error}" if self.error else ""),
             f"session folder: {self.path if self.path else '(none written)'}",
         ]
         return "\n".join(lines)
@@ -225,6 +226,7 @@ class Session:
         self.completed = 0
         self.lost_in: str | None = None
         self.status = "running"
+        self.error = ""
         self._phase: str | None = None
         self._beep_onset = 0.0
         self.machine = Machine(model=self, states=STATES, transitions=TRANSITIONS, initial="greet",
@@ -248,6 +250,9 @@ class Session:
             except (KeyboardInterrupt, Interrupted):
                 self._interrupted_by_operator()
                 break
+            except RuntimeError as exc:  # the robot refused a call the task needs (speech, beep)
+                self._robot_failed(exc)
+                break
             self.trigger(trigger)
         return self._exit_code()
 
@@ -265,6 +270,15 @@ class Session:
         if self.state not in FINAL_STATES:
             self.trigger("abort")
 
+    def _robot_failed(self, exc: RuntimeError) -> None:
+        self.status = "robot error"
+        self.error = str(exc)
+        self.rec.event("robot_call_failed", state=self.state, error=str(exc), fatal=True)
+        if self.turn is not None and not self.turn.recorded:
+            self._abandon_turn(f"interrupted: robot error ({exc})")
+        if self.state not in FINAL_STATES:
+            self.trigger("abort")
+
     def _log_transition(self, event: Any) -> None:
         self.rec.event("transition", trigger=event.event.name, source=event.transition.source,
                        dest=event.transition.dest, turn=self.turn.number if self.turn else None)
@@ -275,15 +289,31 @@ class Session:
         if session_seconds > 0:
             self._sleep(session_seconds / self.speed)
 
+    def _optional(self, what: str, call: Callable[[], Any]) -> None:
+        """Eye colours and postures dress the session up: a robot that refuses one is logged, not fatal.
+
+        A lost connection still propagates (``RobotConnectionLost`` is no ``RuntimeError``).
+        """
+        try:
+            call()
+        except RuntimeError as exc:
+            self.rec.event("robot_call_failed", what=what, error=str(exc))
+
+    def _leds(self, rgb: int) -> None:
+        self._optional("leds", lambda: self.robot.set_eye_leds(rgb, self.behaviors.led_fade_s / self.speed))
+
+    def _posture(self, name: str) -> None:
+        self._optional(f"posture {name}", lambda: self.robot.go_to_posture(name, self.cfg.get("robot.posture_speed")))
+
     def _look(self, event: str) -> bool:
         """Set the eye colour of ``event``; returns whether speech should be animated."""
         b = self.behaviors[event]
-        self.robot.set_eye_leds(b.leds, self.behaviors.led_fade_s / self.speed)
+        self._leds(b.leds)
         return b.animated
 
     def _say(self, event: str, behavior: str | None = None, **fields: Any) -> str:
         b = self.behaviors[behavior or event]
-        self.robot.set_eye_leds(b.leds, self.behaviors.led_fade_s / self.speed)
+        self._leds(b.leds)
         text = self.dialogue.say(event, self.rng, **fields)
         self.robot.say(text, b.animated, b.mode)
         self.rec.event("say", what=event, text=text)
@@ -350,7 +380,7 @@ class Session:
 
     def _do_greet(self) -> str:
         self._begin_phase("baseline", None)
-        self.robot.go_to_posture(self.behaviors.start_posture, self.cfg.get("robot.posture_speed"))
+        self._posture(self.behaviors.start_posture)
         self._say("greeting", pseudonym=self.cfg.get("participant.pseudonym"))
         return "explain"
 
@@ -412,7 +442,7 @@ class Session:
         kind = self.turn.turn_state.feedback
         style = "encouraging" if kind == 1 else "challenging"
         b = self.behaviors[style]
-        self.robot.set_eye_leds(b.leds, self.behaviors.led_fade_s / self.speed)
+        self._leds(b.leds)
         text = self.dialogue.feedback(kind, bool(self.last_success), self.rng, level=self.turn.turn_state.level)
         self.robot.say(text, b.animated, b.mode)
         self.rec.event("say", what=f"{style}_{'success' if self.last_success else 'failure'}", text=text,
@@ -530,8 +560,8 @@ class Session:
 
     def _do_goodbye(self) -> str:
         self._say("goodbye", total=self.total, turns=self.completed)
-        self.robot.go_to_posture(self.behaviors.end_posture, self.cfg.get("robot.posture_speed"))
-        self.robot.set_eye_leds(self.behaviors.leds_reset, self.behaviors.led_fade_s / self.speed)
+        self._posture(self.behaviors.end_posture)
+        self._leds(self.behaviors.leds_reset)
         self.monitor.mark("session_end")
         return "end"
 
@@ -688,6 +718,9 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
     """
     progress = None if options.quiet else (progress or sys.stderr)
     dialogue = load_dialogue(config.path("session.dialogue"))
+    if dialogue.language != config.get("session.language"):
+        raise ConfigError(f"{dialogue.source}: dialogue language {dialogue.language!r} differs from session.language "
+                          f"{config.get('session.language')!r}; point session.dialogue at a {config.get('session.language')} file")
     behaviors = load_behaviors(config.path("session.behaviors"))
     seed = config.get("session.seed")
     seed = int(seed) if seed is not None else secrets.randbelow(2**31)
@@ -747,9 +780,7 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
             except (KeyboardInterrupt, Interrupted):
                 session._interrupted_by_operator()
                 code = EXIT_INTERRUPTED
-        status = session.status
-        if status == "robot lost":
-            code = EXIT_ROBOT_LOST
+        status, error = session.status, session.error
     except (KeyboardInterrupt, Interrupted):
         status, code = "interrupted", EXIT_INTERRUPTED
     except UserError as exc:  # e.g. a required EEG stream missing: recorded, then reported by the CLI
@@ -774,7 +805,7 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
                 recorder.close(status, code, total_score=session.total if session else 0, error=error)
             if standin is not None:
                 standin.stop()
-    return SessionResult(recorder.path if recorder else None, status, code, session.rows if session else [], seed)
+    return SessionResult(recorder.path if recorder else None, status, code, session.rows if session else [], seed, error)
 
 
 def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, simulator: UserSimulator | None,
