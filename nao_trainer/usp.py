@@ -30,6 +30,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import sys
 from datetime import datetime, timezone
 from pathlib import Path
@@ -74,6 +75,14 @@ def canonical_digest(payload: dict[str, Any]) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
+#: A JSON list holding only numbers (one table row): written on one line so a file stays readable.
+_NUMBER_LIST = re.compile(r"\[\s*(-?[0-9][-+0-9.eE]*(?:,\s*-?[0-9][-+0-9.eE]*)*)\s*\]")
+
+
+def _one_line(match: "re.Match[str]") -> str:
+    return "[" + ", ".join(v.strip() for v in match.group(1).split(",")) + "]"
+
+
 def write_json_atomic(path: Path, data: Any) -> None:
     """Write JSON to a temporary file, fsync it, rename it over ``path`` and fsync the folder.
 
@@ -83,8 +92,7 @@ def write_json_atomic(path: Path, data: Any) -> None:
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
         with open(tmp, "w", encoding="utf-8") as fh:
-            json.dump(data, fh, indent=1, allow_nan=False)
-            fh.write("\n")
+            fh.write(_NUMBER_LIST.sub(_one_line, json.dumps(data, indent=1, allow_nan=False)) + "\n")
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
