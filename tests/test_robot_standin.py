@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -248,6 +249,21 @@ def test_standin_client_controls_a_standin(standin, button_signal):
         with pytest.raises(ConfigError, match="positive"):
             remote.set_speed(0)
     assert got.wait_for(2) == [1.0, 0.0]
+
+
+def test_standin_client_says_what_is_wrong():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        free = s.getsockname()[1]
+    with pytest.raises(RobotUnavailable, match="cannot reach the stand-in .*Connection refused"):
+        StandInClient.connect(f"tcp://127.0.0.1:{free}", 2.0)
+    plain = qi.Session()  # a qi server without the control service, like a real NAO
+    plain.listenStandalone("tcp://127.0.0.1:0")
+    try:
+        with pytest.raises(RobotUnavailable, match="offers no NaoTrainerStandIn control service"):
+            StandInClient.connect(plain.endpoints()[0], 2.0)
+    finally:
+        plain.close()
 
 
 def test_button_names():

@@ -3,8 +3,8 @@
 The stand-in offers the NAOqi services the project uses, under NAOqi's names and signatures, so
 the client (``nao_trainer.robot.naoqi.NaoqiRobot``) talks to it exactly as it talks to a NAO:
 
-* ``ALTextToSpeech``  say, setLanguage, getLanguage, setParameter, getParameter, setVolume,
-  getVolume, stopAll
+* ``ALTextToSpeech``  say(text) / say(text, language), setLanguage, getLanguage, setParameter,
+  getParameter, setVolume, getVolume, stopAll (cuts the speech in progress short)
 * ``ALAnimatedSpeech`` say(text) / say(text, configuration)
 * ``ALAudioPlayer``   playSine(frequency, gain, pan, duration), stopAll
 * ``ALLeds``          fadeRGB(name, rgb, secs) / fadeRGB(name, r, g, b, secs), reset, on, off
@@ -674,25 +674,37 @@ class StandInClient:
     ``set_speed(x)``; ``close()`` when done.
     """
 
-    def __init__(self, session: Any, url: str) -> None:
+    def __init__(self, session: Any, url: str, control: Any) -> None:
         self._session = session
         self.url = url
-        self._control = session.service("NaoTrainerStandIn")
+        self._control = control
 
     @classmethod
     def connect(cls, url: str, deadline_s: float = 5.0) -> "StandInClient":
+        """Connect within ``deadline_s`` (lookup of the control service included) or raise RobotUnavailable."""
+        deadline = time.monotonic() + deadline_s
         session = qi.Session()
-        future = session.connect(url, _async=True)
-        if future.wait(int(deadline_s * 1000)) == qi.FutureState.Running or future.hasError():
+
+        def wait(future: Any) -> bool:
+            left_ms = max(1, int((deadline - time.monotonic()) * 1000))
+            return future.wait(left_ms) != qi.FutureState.Running
+
+        connecting = session.connect(url, _async=True)
+        if not wait(connecting):
+            session.close()
+            raise RobotUnavailable(f"no answer from the stand-in at {url} within {deadline_s:g} s: is it a `nao-trainer mock-robot`?")
+        if connecting.hasError():
+            error = " ".join(connecting.error().split())
+            session.close()
+            raise RobotUnavailable(f"cannot reach the stand-in at {url} ({error}): is `nao-trainer mock-robot` running there?")
+        lookup = session.service("NaoTrainerStandIn", _async=True)
+        if not wait(lookup) or lookup.hasError():
+            reason = "no answer" if lookup.isRunning() else " ".join(lookup.error().split())
             session.close()
             raise RobotUnavailable(
-                f"cannot reach the stand-in at {url} within {deadline_s:g} s: is `nao-trainer mock-robot` running there?"
+                f"{url} offers no NaoTrainerStandIn control service ({reason}): it is not a `nao-trainer mock-robot`"
             )
-        try:
-            return cls(session, url)
-        except RuntimeError as exc:
-            session.close()
-            raise RobotUnavailable(f"{url} is not a nao-trainer stand-in ({exc}); connect to a `nao-trainer mock-robot`") from None
+        return cls(session, url, lookup.value())
 
     def press(self, button: str) -> str:
         """Touch and release a head button (letter A/B/C or ALMemory key); returns the key."""
