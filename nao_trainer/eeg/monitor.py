@@ -280,6 +280,7 @@ class LslMonitor:
         self.samples_received = 0
         self.thread_cpu_s = 0.0  # CPU time of the reader thread (benchmarks)
         self._phase: _Phase | None = None
+        self._resolver = None  # a pylsl.ContinuousResolver while waiting for a stream
         self._cond = threading.Condition()
         self._stop = threading.Event()
         self._last_arrival = self._clock()
@@ -355,11 +356,18 @@ class LslMonitor:
             self.thread_cpu_s = _time.thread_time() - cpu0
 
     def _try_resolve(self) -> None:
-        info = resolve_eeg(self.query, 0.5, self.settings.lsl_scope)
-        if info is not None and not self._stop.is_set():
-            self._attach(EEGInlet.open(info, self.settings.lsl_scope))
+        """No stream yet: watch for one in the background (a continuous resolver) and attach to it."""
+        if self._resolver is None:
+            import pylsl
+
+            self._resolver = pylsl.ContinuousResolver(pred=self.query.predicate(), forget_after=5.0)
+        infos = self._resolver.results()
+        if infos and not self._stop.is_set():
+            preferred = [i for i in infos if i.name() == self.query.prefer_name]
+            self._attach(EEGInlet.open((preferred or infos)[0], self.settings.lsl_scope))
+            self._resolver = None
         else:
-            self._stop.wait(1.5)
+            self._stop.wait(0.5)
 
     def _pull_once(self) -> None:
         x, ts = self.inlet.pull(0.05)
@@ -514,6 +522,7 @@ class LslMonitor:
             g = self.gaps[-1]
             self.files.write("gaps.csv", GAPS_HEADER, [[f"{g.start:.6f}", "", "", f"{g.kind} (until the end)"]])
         self._event("eeg_monitor_closed", f"{self.samples_received} samples, {len(self.gaps)} gaps")
+        self._resolver = None
         if self.inlet is not None:
             self.inlet.close()
         if self.markers is not None:
