@@ -10,6 +10,8 @@ included, output writing excluded) and simulated turns per second. Uses the ship
 from __future__ import annotations
 
 import argparse
+import os
+import resource
 import sys
 import time
 
@@ -45,12 +47,16 @@ def main() -> None:
           f"{spec.episodes} episodes x {spec.turns} turns = {n_turns / 1e6:.1f} M turns, {spec.workers} workers")
     times = []
     for i in range(args.repeat):
+        load = os.getloadavg()[0]
+        cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN).ru_utime + resource.getrusage(resource.RUSAGE_SELF).ru_utime
         t0 = time.perf_counter()
         result = train_grid(sims, ids, spec, progress=False)
         wall = time.perf_counter() - t0
+        cpu = resource.getrusage(resource.RUSAGE_CHILDREN).ru_utime + resource.getrusage(resource.RUSAGE_SELF).ru_utime - cpu0
         times.append(wall)
         assert result.turns == n_turns
-        print(f"  run {i + 1}: {wall:6.2f} s  {n_turns / wall / 1e6:5.2f} M turns/s")
+        print(f"  run {i + 1}: {wall:6.2f} s  {n_turns / wall / 1e6:5.2f} M turns/s  "
+              f"(CPU {cpu:.1f} s over all processes; load average before: {load:.2f})")
     best = min(times)
     print(f"best: {best:.2f} s, {n_turns / best / 1e6:.2f} M simulated turns/s (target: 45 M turns in <= 20 s)")
 
