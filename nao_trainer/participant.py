@@ -164,13 +164,16 @@ class StandInButtons:
         from .robot.standin import StandInClient
 
         with self._lock:
-            try:
-                if self._client is None:
-                    self._client = StandInClient.connect(self.url, self.deadline_s)
-                self._client.press(letter)
-            except (RuntimeError, ConnectionError):
-                self._drop()
-                raise
+            for attempt in (1, 2):  # a stale connection (the stand-in restarted) gets one fresh try
+                try:
+                    if self._client is None:
+                        self._client = StandInClient.connect(self.url, self.deadline_s)
+                    self._client.press(letter)
+                    return
+                except (RuntimeError, ConnectionError):
+                    self._drop()
+                    if attempt == 2:
+                        raise
 
     def _drop(self) -> None:
         if self._client is not None:

@@ -525,7 +525,8 @@ class Session:
             "engagement_index": _round(lis.index if lis else None),
             "eeg_quality": None if isinstance(self.monitor, NullMonitor) else _round(lis.quality if lis else None),
             "answer_engagement": _round(ans.engagement if ans else None),
-            "engagement_note": (lis.reason if lis and lis.engagement is None else "") if lis else "no listening phase",
+            "engagement_note": (lis.reason if lis.engagement is None else "") if lis
+            else ("" if turn.success is None else "no listening phase"),
             "notes": "; ".join(turn.notes),
         }
 
