@@ -202,3 +202,31 @@ def test_batch_rejects_bad_inputs():
         BatchLearner(p, e[:1], ["performance", "qaug"])
     with pytest.raises(ValueError, match="one generator per agent"):
         BatchLearner(p, e, ["performance", "qaug"]).run(1, 25, [np.random.default_rng(0)])
+
+
+def test_extreme_hyper_parameters_never_give_invalid_actions():
+    # Huge shaping weight, full learning rate, near-greedy temperature: the reused softmax shift can
+    # be far from the maximum, yet no NaN/inf may appear and both learners still agree.
+    p, e = _users()
+    cfg = QConfig(alpha=1.0, beta1=1e4, beta2=50.0, tau0=0.1, tau_min=0.01)
+    with np.errstate(over="raise", invalid="raise"):
+        _extreme_run(p, e, cfg)
+
+
+def _extreme_run(p, e, cfg):
+    res = BatchLearner(p, e, ["shaping", "qaug"], cfg).run(30, 25, [np.random.default_rng(1), np.random.default_rng(2)])
+    assert np.isfinite(res.q).all() and np.isfinite(res.episode_score).all()
+    for i, method in enumerate(["shaping", "qaug"]):
+        ql = QLearner(method, cfg)
+        u = np.random.default_rng(i + 1).random((30, 25, 2))
+        for k in range(30):
+            s, o = mdp.START, 0
+            for t in range(25):
+                a = ql.choose(s, u[k, t, 0])
+                assert mdp.ACTION_MASK[s, a]
+                s2 = int(mdp.NEXT_STATE[s, a, o])
+                o2 = int(u[k, t, 1] < p[i, s2])
+                ql.update(s, a, int(mdp.SCORE[s2, o2]), e[i, s2, o2], s2, t == 24)
+                s, o = s2, o2
+        assert np.array_equal(ql.q, res.q[i])
+        assert np.isfinite(ql.probabilities(S0)).all()

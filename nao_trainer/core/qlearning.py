@@ -131,22 +131,28 @@ def temperature(visits: "int | np.ndarray", config: QConfig) -> np.ndarray:
     return 1.0 / inverse_temperature(visits, config)
 
 
-#: Exponents below this are clamped: exp() underflows to 0 there anyway, and numpy's exp is
-#: several times slower on underflowing inputs. The change in probabilities is < 1e-300.
-MIN_EXPONENT = -700.0
+#: Exponents are clamped to this range. Below it exp() underflows to 0 anyway (and numpy's exp is
+#: several times slower on underflowing inputs); above it exp() would overflow. With the exact
+#: column maximum as the shift no exponent exceeds 0; with the reused shift (see ``softmax_weights``)
+#: the default hyper-parameters keep exponents far inside the range, and no setting can produce inf
+#: or NaN probabilities.
+MIN_EXPONENT, MAX_EXPONENT = -700.0, 700.0
 
 
 def softmax_weights(values: np.ndarray, inv_tau: np.ndarray, top: np.ndarray | None = None) -> np.ndarray:
     """Unnormalised Boltzmann weights of the columns of ``values`` (k actions, n agents).
 
     ``top`` (n,) is subtracted from every column before scaling so that large values at small
-    temperatures cannot overflow; by default the column maximum. Any ``top`` within a few units
-    of the maximum gives the same distribution (the learners pass the max of Q that the previous
-    update already computed, which saves recomputing it).
+    temperatures cannot overflow; by default the exact column maximum. The learners pass instead
+    ``max_b Q(s', b)``, which their previous update computed anyway: it differs from the maximum of
+    the values chosen on by at most ``beta2`` (qaug's ``beta2 * H`` with H in [0, 1]) plus one
+    update step when ``s' == s``. Any shift gives the same distribution up to rounding as long as
+    the exponents stay inside ``[MIN_EXPONENT, MAX_EXPONENT]``.
     """
     z = values - (column_max(values) if top is None else top)
     z *= inv_tau
     np.maximum(z, MIN_EXPONENT, out=z)
+    np.minimum(z, MAX_EXPONENT, out=z)
     return np.exp(z, out=z)
 
 
