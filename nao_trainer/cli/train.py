@@ -1,6 +1,7 @@
 """`nao-trainer train`: learn user-specific policies on the simulated users (paper Figures 7 and 8)."""
 from __future__ import annotations
 
+import importlib.util
 import json
 import shlex
 import sys
@@ -46,6 +47,8 @@ def run(args) -> int:
                             seed=args.seed, workers=args.workers)
     except ValueError as exc:
         raise ConfigError(f"--{str(exc).split()[0]}: {exc}") from None
+    if not args.no_plots and importlib.util.find_spec("matplotlib") is None:  # fail before a long run
+        raise ConfigError("figures need matplotlib: pip install 'nao-trainer[plots]', or add --no-plots")
     models_dir = Path(args.models) if args.models else artifacts.default_models_dir()
     clusters = artifacts.available_models(models_dir)
     if not clusters:
