@@ -510,7 +510,12 @@ class NaoqiRobot:
             )
         if future.hasError():
             raise self._translate(RuntimeError(future.error()), what) from None
-        return future.value()
+        if future.isCanceled():  # qi cancels pending calls when the link goes down
+            raise RobotConnectionLost(f"{what}: the call was cancelled; lost the robot at {self.url}?")
+        try:
+            return future.value()
+        except RuntimeError as exc:
+            raise self._translate(exc, what) from None
 
     def _translate(self, exc: RuntimeError, what: str) -> Exception:
         # Remote Python errors arrive with a traceback ("At: ..."): keep the first line.
