@@ -144,3 +144,7 @@ def test_cli_train_errors_are_one_line(models_dir, tmp_path, capsys):
     assert "no user models here" in err and "nao-trainer fit" in err
     assert main(["train", "--models", str(models_dir), "--episodes", "0", "--out", str(tmp_path)]) == 2
     assert "episodes must be an integer >= 1" in capsys.readouterr().err
+    (tmp_path / "a_file").write_text("")
+    assert main(["train", "--models", str(models_dir), "--out", str(tmp_path / "a_file")]) == 2
+    captured = capsys.readouterr()
+    assert "a_file: cannot create the output folder" in captured.err and "train:" not in captured.err  # nothing ran

@@ -49,6 +49,10 @@ def run(args) -> int:
         raise ConfigError(f"--{str(exc).split()[0]}: {exc}") from None
     if not args.no_plots and importlib.util.find_spec("matplotlib") is None:  # fail before a long run
         raise ConfigError("figures need matplotlib: pip install 'nao-trainer[plots]', or add --no-plots")
+    try:  # before a long run: the output folder must be usable
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DataError(f"{args.out}: cannot create the output folder ({exc.strerror}); choose another --out") from None
     models_dir = Path(args.models) if args.models else artifacts.default_models_dir()
     clusters = artifacts.available_models(models_dir)
     if not clusters:
