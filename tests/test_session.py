@@ -100,9 +100,10 @@ def test_feedback_actions_say_feedback_on_the_last_outcome_then_same_length(tmp_
 
 
 def test_same_seed_same_session(tmp_path):
-    a = sess.run_session(config(tmp_path / "a", session__turns=5), progress=None)
-    b = sess.run_session(config(tmp_path / "b", session__turns=5), progress=None)
-    c = sess.run_session(config(tmp_path / "c", session__turns=5, session__seed=12), progress=None)
+    quick = {"session__turns": 4, "session__practice": False}
+    a = sess.run_session(config(tmp_path / "a", **quick), progress=None)
+    b = sess.run_session(config(tmp_path / "b", **quick), progress=None)
+    c = sess.run_session(config(tmp_path / "c", session__seed=12, **quick), progress=None)
     key = lambda res: [(r["action"], r["sequence"], r["response"]) for r in read_turns(res.path)]
     assert key(a) == key(b)
     assert key(a) != key(c)
