@@ -147,4 +147,4 @@ def test_cli_train_errors_are_one_line(models_dir, tmp_path, capsys):
     (tmp_path / "a_file").write_text("")
     assert main(["train", "--models", str(models_dir), "--out", str(tmp_path / "a_file")]) == 2
     captured = capsys.readouterr()
-    assert "a_file: cannot create the output folder" in captured.err and "train:" not in captured.err  # nothing ran
+    assert "a_file: cannot create the output folder" in captured.err and "agents" not in captured.err  # nothing ran
