@@ -173,3 +173,30 @@ def test_state_diagram_in_docs_is_up_to_date():
     for state in sess.STATES:
         assert f'state "{state}"' in text
     assert "paused --> select_action: resume_turn" in text
+
+
+def test_a_refused_posture_is_logged_and_the_session_goes_on(tmp_path):
+    import dataclasses
+
+    from nao_trainer.robot.naoqi import NaoqiRobot
+    from nao_trainer.robot.standin import StandIn
+
+    cfg = config(tmp_path, session__turns=2, session__practice=False)
+    behaviors = dataclasses.replace(load_behaviors(cfg.path("session.behaviors")), start_posture="Kneel")
+    standin = StandIn.start(speed=50)
+    robot = NaoqiRobot.connect(standin.url, 5.0)
+    rec = SessionRecorder(tmp_path, "R")
+    path = rec.open({})
+    try:
+        s = sess.Session(cfg, robot, SimulatedParticipant(UserSimulator.from_level_rates("x", [1, 1, 1, 1]),
+                                                          np.random.default_rng(0), 50),
+                         UniformRandom(), rec, load_dialogue(cfg.path("session.dialogue")), behaviors,
+                         np.random.default_rng(1), np.random.default_rng(2), progress=None)
+        assert s.run() == 0
+    finally:
+        rec.close("completed", 0)
+        robot.close()
+        standin.stop()
+    failed = [e for e in read_events(path) if e["event"] == "robot_call_failed"]
+    assert len(failed) == 1 and failed[0]["what"] == "posture Kneel" and "unknown posture" in failed[0]["error"]
+    assert len(read_turns(path)) == 2
