@@ -233,3 +233,20 @@ def test_session_with_a_shipped_policy_keeps_learning(tmp_path):
     assert not np.array_equal(np.array(state["q"]), np.array(shipped["q"]))
     frozen = _run_session(tmp_path / "frozen", "--policy", "usp:1:performance", "--no-learning")
     assert not (frozen / "policy_state.json").exists()
+
+
+def test_a_crash_while_saving_leaves_the_previous_state_intact(trained, tmp_path, monkeypatch):
+    state = tmp_path / "learner.json"
+    policy = load(trained, "usp:1:shaping", state_path=state)
+    policy.observe(Transition(mdp.START, 1, 2, 0.5, mdp.encode(5, 0, 0), False))
+    before = state.read_bytes()
+
+    def crash(src, dst):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(usp.os, "replace", crash)
+    with pytest.raises(DataError, match="cannot save the policy's state"):
+        policy.observe(Transition(mdp.encode(5, 0, 0), 2, -1, 0.4, mdp.encode(7, 0, 2), False))
+    assert state.read_bytes() == before  # the last complete state, still valid
+    assert usp.read_policy_file(state)["live"]["turns_learned"] == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["learner.json"]
