@@ -95,6 +95,15 @@ def test_say_beep_leds_posture_reach_the_robot_with_naoqi_signatures(standin, ro
     ]
 
 
+def test_non_ascii_speech_arrives_intact(tmp_path):
+    path = tmp_path / "t.jsonl"
+    with StandIn.start(speed=100.0, transcript_path=path) as s:
+        with NaoqiRobot.connect(s.url, 3.0) as robot:
+            robot.say("Γεια σου! Très bien.", animated=True)
+    assert "Γεια σου! Très bien." in path.read_text(encoding="utf-8")  # readable, not \u-escaped
+    assert s.transcript()[0]["args"][0] == "Γεια σου! Très bien."
+
+
 def test_say_returns_when_speech_is_done(standin, robot):
     standin.set_speed(10.0)
     t0 = time.monotonic()

@@ -99,10 +99,10 @@ class _Recorder:
         with self._lock:
             self.entries.append(entry)
             if self._file is not None:
-                self._file.write(json.dumps(entry) + "\n")
+                self._file.write(json.dumps(entry, ensure_ascii=False) + "\n")
                 self._file.flush()
             if self.echo is not None:
-                args_text = ", ".join(json.dumps(a) for a in entry["args"])
+                args_text = ", ".join(json.dumps(a, ensure_ascii=False) for a in entry["args"])
                 print(f"{entry['t']:9.3f}  {service}.{method}({args_text})", file=self.echo, flush=True)
 
     def wait(self, seconds: float) -> None:
