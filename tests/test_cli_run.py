@@ -87,9 +87,10 @@ def test_simulated_eeg_fills_the_engagement_columns(tmp_path):
 
 
 def test_keyboard_answers_end_to_end(tmp_path):
-    """A person typing: the right answer, a wrong one with an invalid key, and keys typed too early."""
+    """A person typing: the right answer (after keys typed too early), a wrong one with an invalid key,
+    one key too many, and no answer at all."""
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", "--input", "keyboard", "--turns", "3",
+    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", "--input", "keyboard", "--turns", "4",
                              "--speed", "20", "--no-practice", "--out", str(out), "--seed", "4"],
                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=dict(os.environ, QI_LOG_LEVEL="silent"))
@@ -109,7 +110,7 @@ def test_keyboard_answers_end_to_end(tmp_path):
                         proc.stdin.flush()
                         early.add(turn)
                     if turn in beeps and turn not in answered:
-                        text = seq.lower() if turn != 2 else "x" + seq[1:].lower()
+                        text = {1: seq.lower(), 2: "x" + seq[1:].lower(), 3: seq.lower() + "a", 4: ""}[turn]
                         proc.stdin.write(text + "\n")
                         proc.stdin.flush()
                         answered.add(turn)
@@ -124,10 +125,12 @@ def test_keyboard_answers_end_to_end(tmp_path):
         f.close()
     assert proc.returncode == 0, err
     rows = read_turns(only_folder(out))
-    assert [r["success"] for r in rows] == ["True", "False", "True"], [(r["sequence"], r["response"], r["notes"], r["completion_time"]) for r in rows]
+    assert [r["success"] for r in rows] == ["True", "False", "False", "False"], [(r["sequence"], r["response"], r["notes"], r["completion_time"]) for r in rows]
     assert rows[0]["response"] == rows[0]["sequence"]
     assert rows[1]["response"].startswith("?") and "invalid key 'x'" in rows[1]["notes"]
     assert float(rows[0]["reaction_time"]) > 0
+    assert rows[2]["response"] == rows[2]["sequence"] + "A" and "too many presses" in rows[2]["notes"]
+    assert rows[3]["response"] == "" and rows[3]["notes"] == "timeout: no answer" and rows[3]["reaction_time"] == ""
 
 
 def test_naoqi_29_credentials_come_from_the_environment_and_stay_out_of_files(tmp_path):
@@ -152,3 +155,44 @@ def test_naoqi_29_credentials_come_from_the_environment_and_stay_out_of_files(tm
     for f in only_folder(tmp_path / "b").rglob("*"):
         if f.is_file():
             assert secret not in f.read_text(errors="replace"), f
+
+
+def test_tactile_answers_from_any_naoqi_endpoint(tmp_path):
+    """`--robot tcp://HOST:PORT --input tactile`: a person pressing the head buttons of a separate robot process."""
+    import signal
+
+    from nao_trainer.robot.standin import StandInClient, spawn_standin
+
+    robot, url = spawn_standin(speed=20)
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", "--robot", url, "--input", "tactile",
+                             "--turns", "2", "--speed", "20", "--no-practice", "--out", str(out), "--seed", "8"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, QI_LOG_LEVEL="silent"))
+    hand = StandInClient.connect(url)
+    try:
+        answered: set[int] = set()
+        deadline = time.monotonic() + 60
+        while proc.poll() is None and time.monotonic() < deadline and len(answered) < 2:
+            folders = list(out.glob("*")) if out.exists() else []
+            if folders and (folders[0] / "events.jsonl").exists():
+                events = read_events(folders[0])
+                seqs = {e["turn"]: e["sequence"] for e in events if e["event"] == "turn_start"}
+                for turn in {e["turn"] for e in events if e["event"] == "beep"} - answered:
+                    wrong = {"A": "B", "B": "C", "C": "A"}[seqs[turn][0]] + seqs[turn][1:]  # first letter wrong
+                    for letter in seqs[turn] if turn == 1 else wrong:
+                        hand.press(letter)
+                        time.sleep(0.03)
+                    answered.add(turn)
+            time.sleep(0.02)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        hand.close()
+        if proc.poll() is None:
+            proc.kill()
+        robot.send_signal(signal.SIGINT)
+        robot.wait(10)
+    assert proc.returncode == 0, err
+    rows = read_turns(only_folder(out))
+    assert rows[0]["success"] == "True" and rows[0]["response"] == rows[0]["sequence"]
+    assert rows[1]["success"] == "False" and len(rows[1]["response"]) == len(rows[1]["sequence"])
