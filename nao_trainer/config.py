@@ -80,10 +80,6 @@ def _schedule(value: list) -> str | None:
     return None
 
 
-def _color(value: Any) -> str | None:
-    return None if isinstance(value, str) and re.fullmatch(r"#?[0-9A-Fa-f]{6}", value) else "must be a colour '#RRGGBB'"
-
-
 SCHEMA: dict[str, Any] = {
     "study": {"name": Field(str), "description": Field(str, nullable=True)},
     "participant": {"pseudonym": Field(str, check=lambda v: None if re.fullmatch(r"[A-Za-z0-9_-]{1,40}", v)

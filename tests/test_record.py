@@ -8,7 +8,6 @@ import signal
 import subprocess
 import sys
 import textwrap
-import time
 
 from nao_trainer.record import TURN_COLUMNS, SessionRecorder, create_session_dir, read_events, read_turns
 

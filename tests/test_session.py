@@ -6,7 +6,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from nao_trainer import session as sess
 from nao_trainer.behaviors import load_behaviors

@@ -11,7 +11,6 @@ import sys
 import time
 from pathlib import Path
 
-import pytest
 
 from nao_trainer.record import read_events, read_turns
 from nao_trainer.robot.standin import spawn_standin
