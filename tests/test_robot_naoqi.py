@@ -233,6 +233,22 @@ def test_unsubscribe_stops_callbacks(standin, robot, memory):
     assert [letter for letter, _ in presses.items] == ["A"]
 
 
+def test_unsubscribe_waits_for_a_callback_in_progress(standin, robot):
+    started, log = threading.Event(), []
+
+    def slow_callback(letter, t):
+        started.set()
+        time.sleep(0.3)
+        log.append("callback done")
+
+    robot.subscribe_buttons(slow_callback)
+    standin.press("A")
+    assert started.wait(3.0)
+    robot.unsubscribe_buttons()
+    log.append("unsubscribed")
+    assert log == ["callback done", "unsubscribed"]
+
+
 def test_subscribing_again_replaces_the_callback(standin, robot):
     first, second = Presses(), Presses()
     robot.subscribe_buttons(first)

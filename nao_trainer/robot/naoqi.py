@@ -202,6 +202,8 @@ class NaoqiRobot:
         self.timeouts = timeouts
         self.debounce_s = float(debounce_s)
         self._lock = threading.RLock()
+        # Held while a button callback runs, so unsubscribe_buttons() returns only after it ends.
+        self._dispatch = threading.RLock()
         self._services: dict[str, Any] = {}
         self._button_callback: Callable[[str, float], None] | None = None
         self._subscriptions: list[tuple[str, Any, Any]] = []  # (key, subscriber proxy, link id)
@@ -402,8 +404,12 @@ class NaoqiRobot:
             self._last_press.clear()
 
     def unsubscribe_buttons(self) -> None:
-        """Disconnect the head-button signals; no more callbacks after this returns."""
-        with self._lock:
+        """Disconnect the head-button signals; no callback runs any more once this returns.
+
+        Waits for a callback in progress to finish (do not call it while holding a lock the
+        callback needs).
+        """
+        with self._dispatch, self._lock:
             self._button_callback = None
         self._drop_subscriptions()
 
@@ -434,18 +440,19 @@ class NaoqiRobot:
         if not pressed:
             return
         now = time.monotonic()
-        with self._lock:
-            callback = self._button_callback
-            if callback is None:
-                return
-            last = self._last_press.get(key)
-            if last is not None and now - last < self.debounce_s:
-                return
-            self._last_press[key] = now
-        try:
-            callback(BUTTON_LETTERS[key], now)
-        except Exception:  # an exception here would vanish inside qi: log it loudly instead
-            log.exception("head-button callback failed for %s", key)
+        with self._dispatch:
+            with self._lock:
+                callback = self._button_callback
+                if callback is None:
+                    return
+                last = self._last_press.get(key)
+                if last is not None and now - last < self.debounce_s:
+                    return
+                self._last_press[key] = now
+            try:
+                callback(BUTTON_LETTERS[key], now)
+            except Exception:  # an exception here would vanish inside qi: log it loudly instead
+                log.exception("head-button callback failed for %s", key)
 
     # -- calls ---------------------------------------------------------------------------------
 
