@@ -28,8 +28,10 @@ def _uid(prefix: str) -> str:
 def _phase(monitor, phase: str, turn, seconds: float, target: float | None = None):
     if target is not None:
         monitor.set_target(target)
-    monitor.begin_phase(phase, turn)
+    monitor.begin_phase(phase, turn)  # as the session does: the phase, then its marker
+    monitor.mark(f"{phase}_start", turn)
     time.sleep(seconds)
+    monitor.mark(f"{phase}_end", turn)
     return monitor.end_phase()
 
 

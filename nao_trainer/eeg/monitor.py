@@ -428,6 +428,17 @@ class LslMonitor:
         log.warning("EEG stream %r is back after %.1f s", self.inlet.name, gap.end - gap.start)
         self._event("eeg_stream_restored", f"gap {gap.end - gap.start:.3f} s")
 
+    def wait_for_windows(self, n: int, timeout_s: float) -> bool:
+        """Block until ``n`` analysis windows exist (e.g. before a baseline); False on timeout."""
+        deadline = self._clock() + timeout_s
+        with self._cond:
+            while len(self.windows) < n:
+                remaining = deadline - self._clock()
+                if remaining <= 0 or self.inlet is None:
+                    return False
+                self._cond.wait(remaining)
+            return True
+
     # -- EngagementMonitor ----------------------------------------------------------------------
 
     def mark(self, event: str, turn: int | None = None) -> None:
@@ -440,13 +451,16 @@ class LslMonitor:
             self.simulator.set_target(float(np.clip(engagement, 0.0, 1.0)))
 
     def begin_phase(self, phase: str, turn: int | None) -> None:
-        """Open a phase ("baseline", "listening" or "answer") now, on the LSL clock."""
+        """Open a phase ("baseline", "listening" or "answer") now, on the LSL clock.
+
+        Phase markers are not published here: the session calls ``mark("<phase>_start", turn)``.
+        """
         if phase not in PHASES:
             raise ValueError(f"phase must be one of {', '.join(PHASES)}, got {phase!r}")
         if self._phase is not None:
             log.warning("EEG phase %s of turn %s was not ended; discarding it", self._phase.name, self._phase.turn)
-        t0 = self._event(f"{phase}_start", "", turn)
-        self._phase = _Phase(phase, turn, t0)
+        # The session publishes the phase markers itself (mark("listening_start", turn)), right after.
+        self._phase = _Phase(phase, turn, self._clock())
 
     def end_phase(self) -> PhaseEngagement:
         """Close the open phase and return its engagement (or why there is none)."""
@@ -454,7 +468,7 @@ class LslMonitor:
         if ph is None:
             return PhaseEngagement(None, None, 0.0, "no EEG phase was open")
         self._phase = None
-        t1 = self._event(f"{ph.name}_end", "", ph.turn)
+        t1 = self._clock()
         windows = self._windows_until(ph.t0, t1)
         result, rows = self._summarise(ph, t1, windows)
         self.phases.append((ph, t1, result))
@@ -586,7 +600,10 @@ def open_monitor(mode: str, eeg_cfg: Mapping[str, Any] | None, session_dir: Path
         if inlet is None:
             log.warning("EEG unavailable: %s", reason)
         markers = MarkerOutlet(marker_source_id(pseudonym), scope=settings.lsl_scope)
-        return LslMonitor(settings, query, session_dir, inlet, markers, reason, simulator)
+        monitor = LslMonitor(settings, query, session_dir, inlet, markers, reason, simulator)
+        if simulator is not None:  # a simulated headband is "put on" before the greeting: fill one window
+            monitor.wait_for_windows(1, settings.processing.window_s + 2.0)
+        return monitor
     except BaseException:
         if simulator is not None:
             simulator.stop()
