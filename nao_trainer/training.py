@@ -14,7 +14,9 @@ scores of the best and of uniform random play on the cluster's simulator (dynami
 ``core.qlearning.expected_scores``), for scale. For each agent, its mean per-episode score (sum of eq. (1) over
 the episode's turns) and mean per-episode engagement (mean over the turns) over the *last 10 %*
 of episodes (``tail``); ``score_mean`` is the mean of that over seeds and ``score_ci`` the 95 %
-t-interval of the mean over seeds (``None`` with one seed). Learning curves are the per-episode
+t-interval of the mean over seeds (``None`` with one seed). Rows of other methods add
+``vs_performance``: their difference to the performance-only learner in final score and
+engagement with a 95 % Welch interval and whether it excludes 0. Learning curves are the per-episode
 means over seeds with the same per-episode 95 % t-interval.
 """
 from __future__ import annotations
@@ -152,6 +154,12 @@ class GridResult:
                     "s0_probabilities": dict(zip(mdp.ACTION_NAMES, probs[c, m].round(6).tolist())),
                     "policy_seed": self.representative_seed(c, m),
                 })
+                if method != "performance" and "performance" in self.spec.methods:
+                    base = self.spec.methods.index("performance")
+                    rows[-1]["vs_performance"] = {
+                        "score_diff": diff_ci(score[c, m], score[c, base]),
+                        "engagement_diff": diff_ci(eng[c, m], eng[c, base]),
+                    }
         return rows
 
     def s0_probabilities(self, state: int = S0_INDEX) -> np.ndarray:
@@ -184,6 +192,23 @@ def mean_ci(values: np.ndarray) -> tuple[float, list[float] | None]:
         return mean, None
     half = float(_t_half_width(values[None, :], axis=1)[0])
     return mean, [mean - half, mean + half]
+
+
+def diff_ci(a: np.ndarray, b: np.ndarray) -> dict[str, Any]:
+    """Difference of means ``a - b`` over seeds with its 95 % Welch interval (None below 2 seeds each)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    diff = float(a.mean() - b.mean())
+    if a.size < 2 or b.size < 2:
+        return {"diff": diff, "ci": None, "significant": None}
+    va, vb = a.var(ddof=1) / a.size, b.var(ddof=1) / b.size
+    se = math.sqrt(va + vb)
+    if se == 0:
+        return {"diff": diff, "ci": [diff, diff], "significant": diff != 0}
+    dof = (va + vb) ** 2 / (va**2 / (a.size - 1) + vb**2 / (b.size - 1))
+    from scipy.stats import t as student_t
+
+    half = float(student_t.ppf(0.975, dof) * se)
+    return {"diff": diff, "ci": [diff - half, diff + half], "significant": bool(abs(diff) > half)}
 
 
 def _t_half_width(data: np.ndarray, axis: int) -> np.ndarray:

@@ -54,6 +54,20 @@ def test_grid_shapes_and_summary(small_run):
     assert (r.visits[:, :, :, mdp.START] == 40).all()
 
 
+def test_diff_ci_is_a_welch_interval(small_run):
+    from nao_trainer.training import diff_ci
+
+    out = diff_ci(np.array([1.0, 2.0, 3.0]), np.array([0.0, 0.0, 3.0]))
+    # se^2 = 1/3 + 3/3; Welch dof = (4/3)^2 / ((1/3)^2/2 + 1/2) = 3.2
+    half = 3.072829 * np.sqrt(4 / 3)  # t_0.975 at 3.2 degrees of freedom
+    assert out["diff"] == 1.0 and out["ci"] == pytest.approx([1 - half, 1 + half], rel=1e-4)
+    assert out["significant"] is False
+    assert diff_ci(np.array([5.0, 5.1, 4.9]), np.array([1.0, 1.1, 0.9]))["significant"] is True
+    rows = small_run.results()
+    assert "vs_performance" not in rows[0] and rows[1]["vs_performance"]["score_diff"]["diff"] == pytest.approx(
+        rows[1]["score_mean"] - rows[0]["score_mean"])
+
+
 def test_mean_ci_is_a_t_interval():
     mean, (lo, hi) = mean_ci(np.array([1.0, 2.0, 3.0]))
     assert mean == 2.0 and hi - mean == pytest.approx(4.302653 * 1.0 / np.sqrt(3), rel=1e-5)

@@ -76,14 +76,24 @@ def run(args) -> int:
 
 
 def print_table(rows: list[dict]) -> None:
-    """The results as an aligned text table (score and engagement over the final episodes)."""
-    def ci(v):
-        return "n/a" if v is None else f"[{v[0]:.2f}, {v[1]:.2f}]"
+    """The results as an aligned text table (score and engagement over the final episodes).
 
-    def ci3(v):
-        return "n/a" if v is None else f"[{v[0]:.3f}, {v[1]:.3f}]"
+    The last columns give the difference to the performance-only learner; ``*`` marks a 95 %
+    Welch interval that excludes 0.
+    """
+    def ci(v, digits):
+        return "n/a" if v is None else f"[{v[0]:.{digits}f}, {v[1]:.{digits}f}]"
 
-    print(f"{'cluster':>7}  {'method':<11}  {'score':>7}  {'95% CI':>16}  {'engagement':>10}  {'95% CI':>16}")
+    def diff(row, key, digits):
+        d = row.get("vs_performance", {}).get(key)
+        if d is None:
+            return ""
+        return f"{d['diff']:+.{digits}f}{'*' if d['significant'] else ' '}"
+
+    print(f"{'cluster':>7}  {'method':<11}  {'score':>7}  {'95% CI':>16}  {'engagement':>10}  {'95% CI':>16}"
+          f"  {'d score':>8}  {'d eng.':>8}")
     for r in rows:
-        print(f"{r['cluster']:>7}  {r['method']:<11}  {r['score_mean']:7.2f}  {ci(r['score_ci']):>16}  "
-              f"{r['engagement_mean']:10.3f}  {ci3(r['engagement_ci']):>16}")
+        print(f"{r['cluster']:>7}  {r['method']:<11}  {r['score_mean']:7.2f}  {ci(r['score_ci'], 2):>16}  "
+              f"{r['engagement_mean']:10.3f}  {ci(r['engagement_ci'], 3):>16}  {diff(r, 'score_diff', 2):>8}  "
+              f"{diff(r, 'engagement_diff', 3):>8}")
+    print("d score / d eng.: difference to the performance-only learner (* = 95 % Welch interval excludes 0)")
