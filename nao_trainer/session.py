@@ -725,19 +725,27 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
     behaviors = load_behaviors(config.path("session.behaviors"))
     seed = config.get("session.seed")
     seed = int(seed) if seed is not None else secrets.randbelow(2**31)
-    session_ss, policy_ss, participant_ss, eeg_ss = np.random.SeedSequence(seed).spawn(4)
-    input_kind = config.get("answers.input")
-    simulator = build_simulator(config, options.user_model) if input_kind == "simulated" else None
-    speed = float(config.get("timing.speed"))
-    url = config.get("robot.url")
-
+    simulator = build_simulator(config, options.user_model) if config.get("answers.input") == "simulated" else None
     from .policies import make_policy
-    from .robot.naoqi import NaoqiRobot, redact_url
 
     if str(config.get("policy.kind")).startswith("usp:"):  # find a missing/stale policy before the robot moves
         _close_quietly(make_policy(config.get("policy.kind"), config.get("policy.schedule"), False, None,
                                    np.random.default_rng(0)), None)
 
+    with _signals_as_interrupt():
+        return _run_wired(config, options, progress, dialogue, behaviors, seed, simulator)
+
+
+def _run_wired(config: StudyConfig, options: RunOptions, progress: TextIO | None, dialogue: Dialogue,
+               behaviors: Behaviors, seed: int, simulator: UserSimulator | None) -> SessionResult:
+    """``run_session`` once the files are loaded: connect, wire the ports, play, clean up."""
+    from .policies import make_policy
+    from .robot.naoqi import NaoqiRobot, redact_url
+
+    session_ss, policy_ss, participant_ss, eeg_ss = np.random.SeedSequence(seed).spawn(4)
+    input_kind = config.get("answers.input")
+    speed = float(config.get("timing.speed"))
+    url = config.get("robot.url")
     standin = robot = recorder = monitor = answers = policy = buttons = None
     session: Session | None = None
     status, code, error = "error", 1, ""
@@ -775,15 +783,17 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
                              policy_rng)
         session = Session(config, robot, answers, policy, recorder, dialogue, behaviors, np.random.default_rng(session_ss),
                           policy_rng, monitor, progress)
-        with _signals_as_interrupt():
-            try:
-                code = session.run()
-            except (KeyboardInterrupt, Interrupted):
-                session._interrupted_by_operator()
-                code = EXIT_INTERRUPTED
+        try:
+            code = session.run()
+        except (KeyboardInterrupt, Interrupted):
+            session._interrupted_by_operator()
+            code = EXIT_INTERRUPTED
         status, error = session.status, session.error
     except (KeyboardInterrupt, Interrupted):
         status, code = "interrupted", EXIT_INTERRUPTED
+    except RobotConnectionLost as exc:  # dropped while setting up (buttons): nothing was played yet
+        status, code, error = "robot lost", EXIT_ROBOT_LOST, str(exc)
+        raise RobotUnavailable(f"lost the robot while starting the session: {exc}") from None
     except UserError as exc:  # e.g. a required EEG stream missing: recorded, then reported by the CLI
         status, code, error = "error", exc.exit_code, str(exc)
         raise
