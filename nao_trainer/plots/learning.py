@@ -73,9 +73,16 @@ def plot_learning_curves(result: "GridResult", path: Path, n_bins: int = 100) ->
 
 
 def plot_s0_policies(result: "GridResult", path: Path) -> Path:
-    """P(action | S0) per cluster (rows) and method (columns), averaged over seeds."""
+    """P(action | S0) per cluster (rows) and method (columns), averaged over seeds.
+
+    Each panel notes how often the agents visited S0 on average: a rarely visited state keeps a
+    near-uniform policy, which is not the same as indifference.
+    """
     plt = _pyplot()
     probs = result.s0_probabilities()
+    from ..training import S0_INDEX
+
+    visits = result.visits[..., S0_INDEX].mean(axis=2)  # few visits -> still near-uniform
     n_rows, n_cols = len(result.clusters), len(result.spec.methods)
     fig, axes = plt.subplots(n_rows, n_cols, figsize=(3.2 * n_cols, 2.4 * n_rows), squeeze=False,
                              sharey=True)
@@ -86,6 +93,8 @@ def plot_s0_policies(result: "GridResult", path: Path) -> Path:
             ax.bar(x, probs[c, m], color=METHOD_COLORS.get(method, "grey"))
             ax.set_xticks(x, mdp.ACTION_NAMES, fontsize=8)
             ax.set_ylim(0, 1)
+            ax.text(0.97, 0.93, f"visits {visits[c, m]:.0f}", transform=ax.transAxes, ha="right", va="top",
+                    fontsize=7, color="0.35")
             if c == 0:
                 ax.set_title(method, fontsize=10)
             if m == 0:
