@@ -247,8 +247,8 @@ class Session:
                                turn=self.turn.number if self.turn else None)
                 self.trigger("robot_lost")
                 continue
-            except (KeyboardInterrupt, Interrupted):
-                self._interrupted_by_operator()
+            except (KeyboardInterrupt, Interrupted) as exc:
+                self._interrupted_by_operator(_who(exc))
                 break
             except RuntimeError as exc:  # the robot refused a call the task needs (speech, beep)
                 self._robot_failed(exc)
@@ -262,11 +262,11 @@ class Session:
             return EXIT_OK
         return EXIT_INTERRUPTED if self.status == "interrupted" else EXIT_ROBOT_LOST
 
-    def _interrupted_by_operator(self) -> None:
+    def _interrupted_by_operator(self, by: str = "operator (Ctrl-C)") -> None:
         self.status = "interrupted"
-        self.rec.event("interrupted", state=self.state, by="operator (Ctrl-C)")
+        self.rec.event("interrupted", state=self.state, by=by)
         if self.turn is not None and not self.turn.recorded:
-            self._abandon_turn("interrupted: operator (Ctrl-C)")
+            self._abandon_turn(f"interrupted: {by}")
         if self.state not in FINAL_STATES:
             self.trigger("abort")
 
@@ -630,6 +630,11 @@ class Session:
                 self.rec.event("safe_state_failed", what=what, error=str(exc))
 
 
+def _who(exc: BaseException) -> str:
+    """Who stopped the session, for the record."""
+    return f"{exc} received" if isinstance(exc, Interrupted) and str(exc) else "operator (Ctrl-C)"
+
+
 def _round(x: float | None, nd: int = 4) -> float | None:
     return None if x is None else round(float(x), nd)
 
@@ -656,7 +661,7 @@ def _signals_as_interrupt() -> Iterator[None]:
         return
 
     def handler(signum: int, frame: Any) -> None:
-        raise Interrupted(f"signal {signum}")
+        raise Interrupted(signal.Signals(signum).name)
 
     previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, handler),
                 # Ctrl-C must stop a session even when started from a shell that ignores SIGINT (`&`).
@@ -785,8 +790,8 @@ def _run_wired(config: StudyConfig, options: RunOptions, progress: TextIO | None
                           policy_rng, monitor, progress)
         try:
             code = session.run()
-        except (KeyboardInterrupt, Interrupted):
-            session._interrupted_by_operator()
+        except (KeyboardInterrupt, Interrupted) as exc:
+            session._interrupted_by_operator(_who(exc))
             code = EXIT_INTERRUPTED
         status, error = session.status, session.error
     except (KeyboardInterrupt, Interrupted):

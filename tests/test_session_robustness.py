@@ -11,6 +11,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 
 from nao_trainer.record import read_events, read_turns
 from nao_trainer.robot.standin import spawn_standin
@@ -160,12 +162,13 @@ def test_robot_lost_for_good_ends_cleanly_with_every_completed_turn(tmp_path):
     assert "Traceback" not in err
 
 
-def test_ctrl_c_leaves_the_robot_safe_and_exits_130(tmp_path):
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_ctrl_c_leaves_the_robot_safe_and_exits_130(tmp_path, signum):
     out = tmp_path / "out"
-    proc = run_cli("--turns", "25", "--speed", "10", "--out", str(out))
+    proc = run_cli("--turns", "25", "--speed", "10", "--out", str(out), "--no-practice")
     try:
         folder = wait_rows(out, 1, proc)
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signum)
         _, err = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:
@@ -180,5 +183,8 @@ def test_ctrl_c_leaves_the_robot_safe_and_exits_130(tmp_path):
     last_posture = [e["args"][0] for e in transcript if e["method"] == "goToPosture"][-1]
     last_leds = [e["args"] for e in transcript if e["method"] == "fadeRGB"][-1]
     assert last_posture in ("Crouch", "Sit") and last_leds[1] == 0xFFFFFF
-    names = [e["event"] for e in read_events(folder)]
+    events = read_events(folder)
+    names = [e["event"] for e in events]
     assert "interrupted" in names and "safe_state" in names
+    by = next(e["by"] for e in events if e["event"] == "interrupted")
+    assert by == ("operator (Ctrl-C)" if signum == signal.SIGINT else "SIGTERM received")
