@@ -424,7 +424,6 @@ class BatchLearner:
         counts = np.zeros((A, NS))  # float: (e - h) / n then matches QLearner's int count exactly
         visits = np.zeros(NS, dtype=np.int64)
         q_flat, h_flat, qv_flat, c_flat = q.ravel(), h.ravel(), qv.ravel(), counts.ravel()
-        beta2_s = beta2
         ep_score = np.zeros((n, episodes))
         ep_eng = np.zeros((n, episodes))
         start_gso = (gbase + mdp.START) * 2
@@ -465,7 +464,7 @@ class BatchLearner:
                     h_sa = h_flat[qi]
                     h_new = h_sa + (e_g[gso2] - h_sa) / cnt
                     h_flat[qi] = h_new
-                    qv_flat[qi] = q_new + beta2_s * h_new
+                    qv_flat[qi] = q_new + beta2 * h_new
                     visits[gs] = vis + 1
                     gso, gs = gso2, gs2
             # Per agent over its own contiguous (episode, turn) block, so the float sums do not
