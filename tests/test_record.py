@@ -54,3 +54,16 @@ def test_a_killed_writer_leaves_every_completed_turn(tmp_path):
     rows = read_turns(path)
     assert [r["turn"] for r in rows] == ["1", "2", "3"]
     assert json.loads(open(os.path.join(path, "session.json")).read())["status"] == "running"
+
+
+def test_session_plot(tmp_path):
+    from nao_trainer.record import plot_session
+
+    rec = SessionRecorder(tmp_path, "PL")
+    path = rec.open({})
+    for i, (level, ok, fb, eng) in enumerate([(1, True, 0, 0.4), (2, False, 0, ""), (2, True, 1, 0.7)], start=1):
+        rec.turn({"turn": i, "level": level, "success": ok, "feedback": fb, "score": level if ok else -1, "engagement": eng})
+    rec.turn({"turn": 4, "level": 3, "success": None, "notes": "interrupted: robot lost during beep"})
+    rec.close("robot lost", 3)
+    out = plot_session(path)
+    assert out == path / "session.png" and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 10_000

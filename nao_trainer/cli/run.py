@@ -32,6 +32,7 @@ def register(sub) -> None:
     p.add_argument("--no-learning", action="store_true", help="a learning policy does not update during the session")
     p.add_argument("--no-practice", action="store_true", help="skip the practice round")
     p.add_argument("--quiet", action="store_true", help="no per-turn progress lines")
+    p.add_argument("--plot", action="store_true", help="also draw session.png (levels, score, engagement) in the session folder")
     p.set_defaults(func=run)
 
 
@@ -60,4 +61,8 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(args.config, overrides_from_args(args))
     result = run_session(config, RunOptions(quiet=args.quiet))
     print(result.summary())
+    if args.plot and result.path is not None and result.completed_rows:
+        from ..record import plot_session
+
+        print(f"plot: {plot_session(result.path)}")
     return result.exit_code
