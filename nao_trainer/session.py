@@ -863,6 +863,7 @@ def _close_quietly(obj: Any, recorder: SessionRecorder | None) -> None:
     try:
         obj.close()
     except Exception as exc:  # noqa: BLE001 - one failing close must not skip the others
+        print(f"nao-trainer: warning: closing {type(obj).__name__} failed: {exc}", file=sys.stderr)
         if recorder is not None and recorder.is_open:
             recorder.event("close_failed", what=type(obj).__name__, error=str(exc))
 
