@@ -516,9 +516,8 @@ class LslMonitor:
         finite = smooth[np.isfinite(smooth)]
         if ph.name == "baseline":
             self.normaliser.fit_baseline(finite)
-        else:
-            for v in finite:  # running bounds: every phase value widens the scale
-                self.normaliser.update(float(v))
+        else:  # running bounds: every phase's windows join the scale's history
+            self.normaliser.extend(finite)
         agg = aggregate_phase(windows, ph.t0, t1, self.proc.hop_s, self.normaliser, self.proc.min_quality)
         reason = agg.reason
         if self.inlet is None:
