@@ -191,6 +191,7 @@ def test_markers_reach_an_lsl_inlet(tmp_path):
         outlet.close()
     assert outlet.push("late") == 0.0  # closed: nothing published, no error
     assert event_name("listening_end", 7) == "turn_7_listening_end"
+    assert event_name("turn_start", 7) == "turn_7_start" and event_name("session_end") == "session_end"
     assert sid == f"nao-trainer-markers-{pseudonym}"
 
 

@@ -60,8 +60,8 @@ def test_session_with_simulated_muse_records_engagement_per_turn(tmp_path):
         assert float(r["engagement_index"]) == pytest.approx(float(listening[int(r["turn"])]["engagement_index"]),
                                                              rel=1e-3)
     events = [e["event"] for e in _rows(eeg / "events.csv")]
-    for name in ("session_start", "baseline_start", "turn_1_listening_start", "turn_1_listening_end",
-                 "turn_1_answer_start", "turn_5_answer_end", "session_end", "eeg_monitor_closed"):
+    for name in ("session_start", "baseline_start", "turn_1_start", "turn_1_listening_start", "turn_1_listening_end",
+                 "turn_1_answer_start", "turn_5_answer_end", "turn_5_end", "session_end", "eeg_monitor_closed"):
         assert name in events, name
     assert (eeg / "windows.csv").stat().st_size > 0 and (eeg / "raw.csv").stat().st_size > 0
 

@@ -23,9 +23,17 @@ def marker_source_id(pseudonym: str | None = None) -> str:
 
 
 def event_name(event: str, turn: int | None = None) -> str:
-    """``event`` prefixed with ``turn_<n>_`` when a turn is given: ``event_name("listening_start", 3)``."""
+    """``event`` prefixed with ``turn_<n>_`` when a turn is given.
+
+    ``event_name("listening_start", 3)`` is ``turn_3_listening_start``; ``event_name("turn_start", 3)``
+    is ``turn_3_start``.
+    """
     event = _SAFE.sub("_", event.strip()) or "event"
-    return event if turn is None else f"turn_{int(turn)}_{event}"
+    if turn is None:
+        return event
+    if event.startswith("turn_"):  # mark("turn_start", 3) -> "turn_3_start", not "turn_3_turn_start"
+        event = event[len("turn_"):]
+    return f"turn_{int(turn)}_{event}"
 
 
 class MarkerOutlet:
