@@ -232,3 +232,25 @@ def test_off_mode_is_the_null_monitor(tmp_path):
     assert isinstance(monitor, NullMonitor)
     assert monitor.end_phase().reason == "EEG off"
     assert not (tmp_path / "eeg").exists()
+
+
+def test_unusable_stream_is_reported_not_raised(tmp_path):
+    """An EEG-typed stream without a sampling rate: refused when required, 'unavailable' otherwise."""
+    import pylsl
+
+    name = _uid("irregular")
+    outlet = pylsl.StreamOutlet(pylsl.StreamInfo(name, "EEG", 4, pylsl.IRREGULAR_RATE, pylsl.cf_float32, _uid("irr")))
+    try:
+        cfg = {"mode": "lsl", "stream_name": name, "processing": {"resolve_timeout_s": 3.0}}
+        with pytest.raises(EEGUnavailable, match="irregular rate"):
+            open_monitor("lsl", {**cfg, "required": True}, tmp_path, np.random.default_rng(0))
+        monitor = open_monitor("lsl", cfg, tmp_path, np.random.default_rng(0), pseudonym=_uid("P"))
+        try:
+            result = _phase(monitor, "listening", 1, 0.1)
+            assert result.engagement is None and "irregular rate" in result.reason
+        finally:
+            monitor.close()
+        monitor.mark("after_close")  # closed: ignored, no error
+        assert monitor.end_phase().reason == "no EEG phase was open"
+    finally:
+        del outlet

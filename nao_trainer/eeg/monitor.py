@@ -196,12 +196,13 @@ class _SessionFiles:
     def __init__(self, session_dir: Path | None) -> None:
         self.dir = None if session_dir is None else Path(session_dir) / "eeg"
         self._logs: dict[str, _CsvLog] = {}
+        self.closed = False
         self.lock = threading.Lock()  # the reader thread and the session both write
         if self.dir is not None:
             self.dir.mkdir(parents=True, exist_ok=True)
 
     def log(self, name: str, header: list[str]) -> _CsvLog | None:
-        if self.dir is None:
+        if self.dir is None or self.closed:  # after close(): nothing more is written
             return None
         with self.lock:
             if name not in self._logs:
@@ -212,7 +213,8 @@ class _SessionFiles:
         log_ = self.log(name, header)
         if log_ is not None:
             with self.lock:
-                log_.write(rows, flush)
+                if not self.closed:
+                    log_.write(rows, flush)
 
     def write_json(self, name: str, data: dict) -> None:
         if self.dir is not None:
@@ -220,6 +222,7 @@ class _SessionFiles:
 
     def close(self) -> None:
         with self.lock:
+            self.closed = True
             for log_ in self._logs.values():
                 log_.close()
 
@@ -283,6 +286,7 @@ class LslMonitor:
         self.thread_cpu_s = 0.0  # CPU time of the reader thread (benchmarks)
         self._phase: _Phase | None = None
         self._resolver = None  # a pylsl.ContinuousResolver while waiting for a stream
+        self._rejected: set[str] = set()  # source_ids found but unusable
         self._cond = threading.Condition()
         self._stop = threading.Event()
         self._urgent = threading.Event()  # set while end_phase waits for samples in flight
@@ -365,10 +369,17 @@ class LslMonitor:
             import pylsl
 
             self._resolver = pylsl.ContinuousResolver(pred=self.query.predicate(), forget_after=5.0)
-        infos = self._resolver.results()
+        infos = [i for i in self._resolver.results() if i.source_id() not in self._rejected]
         if infos and not self._stop.is_set():
             preferred = [i for i in infos if i.name() == self.query.prefer_name]
-            self._attach(EEGInlet.open((preferred or infos)[0], self.settings.lsl_scope))
+            info = (preferred or infos)[0]
+            try:
+                inlet = EEGInlet.open(info, self.settings.lsl_scope)
+            except Exception as exc:  # not usable (e.g. irregular rate): say so once, keep looking
+                self._rejected.add(info.source_id())
+                self._event("eeg_stream_rejected", f"{info.name()} {info.source_id()}: {exc}", publish=False)
+                return
+            self._attach(inlet)
             self._resolver = None
         else:
             self._stop.wait(0.5)
@@ -616,8 +627,16 @@ def open_monitor(mode: str, eeg_cfg: Mapping[str, Any] | None, session_dir: Path
         info = resolve_eeg(query, timeout, settings.lsl_scope)
         if info is None and (settings.required or simulator is not None):
             raise EEGUnavailable(_no_stream_message(query, settings))
-        inlet = EEGInlet.open(info, settings.lsl_scope) if info is not None else None
-        reason = "" if inlet is not None else _no_stream_message(query, settings)
+        inlet, reason = None, _no_stream_message(query, settings)
+        if info is not None:
+            try:
+                inlet, reason = EEGInlet.open(info, settings.lsl_scope), ""
+            except Exception as exc:  # irregular rate, vanished between resolve and open, ...
+                reason = str(exc) if isinstance(exc, EEGUnavailable) else (
+                    f"EEG stream {info.name()!r} (source_id {info.source_id()!r}) was found but could not be "
+                    f"opened ({type(exc).__name__}: {exc}); check the headband bridge and try again")
+                if settings.required or simulator is not None:
+                    raise EEGUnavailable(reason) from None
         if inlet is None:
             log.warning("EEG unavailable: %s", reason)
         markers = MarkerOutlet(marker_source_id(pseudonym), scope=settings.lsl_scope)
