@@ -254,3 +254,15 @@ def test_unusable_stream_is_reported_not_raised(tmp_path):
         assert monitor.end_phase().reason == "no EEG phase was open"
     finally:
         del outlet
+
+
+def test_missing_lsl_config_file_is_refused(monkeypatch, tmp_path):
+    """A mistyped LSLAPICFG would silently widen discovery beyond the machine: refuse it."""
+    from nao_trainer.eeg import lsl_scope
+
+    monkeypatch.setattr(lsl_scope, "_configured", None)
+    monkeypatch.setenv("LSLAPICFG", str(tmp_path / "missing.cfg"))
+    with pytest.raises(ConfigError, match="LSLAPICFG=.*missing.cfg: no such file"):
+        lsl_scope.configure_lsl("machine")
+    with pytest.raises(ValueError, match="LSL scope must be one of"):
+        lsl_scope.configure_lsl("planet")

@@ -129,7 +129,7 @@ def test_replay_publishes_raw_samples_in_order(raw_root):
     data, boundaries = load_raw_session(session)
     assert boundaries[0] == ("intro", 0) and boundaries[1][0] == "robot_1" and boundaries[2][0] == "user_1"
     sid = _uid("Replay")
-    with ReplayMuse.start(session, source_id=sid) as rep:
+    with ReplayMuse.start(session, source_id=sid):
         inlet = EEGInlet.open(resolve_eeg(StreamQuery("EEG", source_id=sid), 5.0))
         try:
             assert inlet.fs == 220.0 and inlet.scalp_labels == ("TP9", "AF7", "AF8", "TP10")

@@ -6,7 +6,12 @@ before its first stream object: the Muse bridge (muselsl) runs on the same lapto
 """
 from __future__ import annotations
 
+import logging
 import os
+
+from ..errors import ConfigError
+
+log = logging.getLogger(__name__)
 
 MACHINE_SCOPE_CONFIG = """\
 [multicast]
@@ -33,9 +38,18 @@ def configure_lsl(scope: str = "machine") -> str:
     if scope not in SCOPES:
         raise ValueError(f"LSL scope must be one of {', '.join(SCOPES)}, got {scope!r}")
     if _configured is not None:
+        if _configured not in (scope, "file:" + os.environ.get("LSLAPICFG", "")):
+            log.warning("LSL scope %r requested, but %r already applies for this process", scope, _configured)
         return _configured
-    if os.environ.get("LSLAPICFG"):
-        _configured = f"file:{os.environ['LSLAPICFG']}"
+    cfg = os.environ.get("LSLAPICFG")
+    if cfg:
+        if not os.path.isfile(cfg):
+            # liblsl would silently fall back to its default scope, which reaches beyond this machine
+            raise ConfigError(f"LSLAPICFG={cfg}: no such file; liblsl would then discover streams beyond this "
+                              "machine. Fix the path or unset LSLAPICFG (the project then uses machine scope)")
+        if scope != "machine":
+            log.warning("LSL scope %r requested, but the LSLAPICFG file %s decides the scope", scope, cfg)
+        _configured = f"file:{cfg}"
         return _configured
     import pylsl
 

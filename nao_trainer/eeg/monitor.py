@@ -436,7 +436,7 @@ class LslMonitor:
 
     def _mark_lost(self, why: str) -> None:
         with self._cond:
-            if self._lost:
+            if self._lost or self.inlet is None:  # nothing attached: already "unavailable"
                 return
             self._lost = True
             start = self._last_stamp if np.isfinite(self._last_stamp) else self._clock()
