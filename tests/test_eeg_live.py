@@ -266,3 +266,26 @@ def test_missing_lsl_config_file_is_refused(monkeypatch, tmp_path):
         lsl_scope.configure_lsl("machine")
     with pytest.raises(ValueError, match="LSL scope must be one of"):
         lsl_scope.configure_lsl("planet")
+
+
+def test_reader_errors_are_logged_not_raised(tmp_path):
+    monitor = _simulated(tmp_path, seed=6)
+    try:
+        real_push, calls = monitor.engine.push, {"n": 0}
+
+        def failing_push(x, ts):
+            calls["n"] += 1
+            if calls["n"] <= 3:
+                raise RuntimeError("injected failure")
+            return real_push(x, ts)
+
+        monitor.engine.push = failing_push
+        time.sleep(1.0)
+        assert calls["n"] > 3 and monitor.errors == 3 and monitor._thread.is_alive()
+        time.sleep(1.0)
+        result = _phase(monitor, "listening", 1, 1.0)
+        assert result.index is not None
+    finally:
+        monitor.close()
+    errors = [r for r in _rows(tmp_path / "eeg" / "events.csv") if r["event"] == "eeg_error"]
+    assert len(errors) == 3 and "injected failure" in errors[0]["detail"]
