@@ -590,10 +590,13 @@ class LslMonitor:
 
 
 def _no_stream_message(query: StreamQuery, settings: EEGSettings) -> str:
-    return (f"no EEG stream ({query.describe()}) found by LSL in scope {settings.lsl_scope!r} within "
-            f"{settings.processing.resolve_timeout_s:g} s (eeg.stream_type / eeg.stream_name in the study config); "
-            "start the headband bridge (`muselsl stream --lsltime`) or `nao-trainer simulate-muse`, "
-            "or run with --eeg off / eeg.required: false")
+    what = (f"no EEG stream ({query.describe()}) found by LSL in scope {settings.lsl_scope!r} within "
+            f"{settings.processing.resolve_timeout_s:g} s (eeg.stream_type / eeg.stream_name in the study config)")
+    if settings.required:
+        return (f"{what}; start the headband bridge (`muselsl stream --lsltime`) or `nao-trainer simulate-muse` "
+                "and try again, or run with --eeg off")
+    return (f"{what}; continuing without EEG - start the headband bridge (`muselsl stream --lsltime`) or "
+            "`nao-trainer simulate-muse` and the session uses it from then on")
 
 
 def open_monitor(mode: str, eeg_cfg: Mapping[str, Any] | None, session_dir: Path | None,
