@@ -190,3 +190,20 @@ def test_cli_simulate_muse_rejects_bad_engagement():
     from nao_trainer.cli import main
 
     assert main(["simulate-muse", "--engagement", "1.5"]) == 2
+
+
+def test_resolve_prefers_muse_and_honours_its_timeout():
+    import pylsl
+
+    kind = _uid("EEGtype")
+    other = pylsl.StreamOutlet(pylsl.StreamInfo("Other", kind, 4, 256, pylsl.cf_float32, _uid("o")))
+    muse = pylsl.StreamOutlet(pylsl.StreamInfo("Muse", kind, 4, 256, pylsl.cf_float32, _uid("m")))
+    try:
+        info = resolve_eeg(StreamQuery(kind), 5.0)
+        assert info is not None and info.name() == "Muse"
+        assert resolve_eeg(StreamQuery(kind, name="Other"), 5.0).name() == "Other"
+        t0 = time.monotonic()
+        assert resolve_eeg(StreamQuery(kind, name="Absent"), 0.5) is None
+        assert time.monotonic() - t0 < 2.5  # liblsl's one-shot resolve may overrun to ~5.5 s
+    finally:
+        del other, muse

@@ -66,12 +66,22 @@ def resolve_eeg(query: StreamQuery, timeout_s: float, scope: str = "machine"):
     configure_lsl(scope)
     import pylsl
 
-    found = pylsl.resolve_bypred(query.predicate(), 1, float(timeout_s))
-    if not found:
+    # A continuous resolver, polled: liblsl's one-shot resolve can overrun a short timeout by ~5 s
+    # when nothing matches (seen with pylsl 1.18.6), which would stall a session start.
+    resolver = pylsl.ContinuousResolver(pred=query.predicate(), forget_after=5.0)
+    deadline = time.monotonic() + float(timeout_s)
+    infos = resolver.results()
+    while not infos and time.monotonic() < deadline:
+        time.sleep(0.02)
+        infos = resolver.results()
+    if not infos:
         return None
-    more = pylsl.resolve_bypred(query.predicate(), 2, 0.2)  # any others announced by now
-    candidates = {(i.source_id(), i.name(), i.hostname()): i for i in [*found, *more]}
-    infos = list(candidates.values())
+    # Let other matching streams answer too (up to 0.5 s more), so the preferred name can win.
+    settle = time.monotonic() + 0.5
+    while not any(i.name() == query.prefer_name for i in infos) and time.monotonic() < settle:
+        time.sleep(0.05)
+        infos = resolver.results() or infos
+    del resolver
     preferred = [i for i in infos if i.name() == query.prefer_name]
     chosen = (preferred or infos)[0]
     if len(infos) > 1:
