@@ -20,6 +20,7 @@ setup(
         "qi==3.1.5",
         "numpy>=1.24",
         "scikit-learn>=1.5",
+        "scipy>=1.10",
         "pyyaml>=6",
         "pylsl>=1.16",
         "transitions>=0.9",

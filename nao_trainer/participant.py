@@ -161,6 +161,7 @@ class StandInButtons:
         self._lock = threading.Lock()
 
     def __call__(self, letter: str) -> None:
+        from .errors import RobotUnavailable
         from .robot.standin import StandInClient
 
         with self._lock:
@@ -170,7 +171,7 @@ class StandInButtons:
                         self._client = StandInClient.connect(self.url, self.deadline_s)
                     self._client.press(letter)
                     return
-                except (RuntimeError, ConnectionError):
+                except (RuntimeError, ConnectionError, RobotUnavailable):
                     self._drop()
                     if attempt == 2:
                         raise

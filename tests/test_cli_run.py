@@ -27,7 +27,7 @@ def only_folder(out: Path) -> Path:
 def test_no_flags_plays_the_25_turn_demo(tmp_path):
     out = tmp_path / "sessions"
     t0 = time.monotonic()
-    res = cli("--out", str(out), "--speed", "50")
+    res = cli("--out", str(out))  # exactly as `make demo` runs it
     elapsed = time.monotonic() - t0
     assert res.returncode == 0, res.stderr
     folder = only_folder(out)
@@ -41,6 +41,13 @@ def test_no_flags_plays_the_25_turn_demo(tmp_path):
     info = json.loads((folder / "session.json").read_text())
     assert info["status"] == "completed" and info["robot"] == "stand-in (in-process)"
     assert elapsed < 60
+    # the demo shows the whole system: simulated Muse -> engagement per turn, a trained policy
+    with_engagement = [r for r in rows if r["engagement"] not in ("", None)]
+    assert len(with_engagement) >= 20, [r["notes"] for r in rows]
+    assert all(0.0 <= float(r["engagement"]) <= 1.0 for r in with_engagement)
+    assert " E 0." in res.stderr or " E 1." in res.stderr
+    assert info["policy"] == "usp:2" and info["user_model"] and (folder / "policy_state.json").exists()
+    assert (folder / "eeg" / "windows.csv").exists()
 
 
 def test_default_output_is_sessions_in_the_current_folder(tmp_path):
