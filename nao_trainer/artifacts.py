@@ -22,6 +22,7 @@ from typing import Any
 from .core.simulation import FORMAT_VERSION as SIMULATOR_FORMAT_VERSION
 from .core.simulation import UserSimulator
 from .errors import DataError, UserError
+from .files import write_text_atomic
 
 MANIFEST = "manifest.json"
 MANIFEST_FORMAT = "nao-trainer/user-models"
@@ -51,14 +52,7 @@ def library_versions() -> dict[str, str]:
 
 def write_json(path: Path, data: Any) -> None:
     """Write JSON atomically (temporary file, fsync, rename)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        json.dump(data, fh, indent=1, sort_keys=False)
-        fh.write("\n")
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    write_text_atomic(path, json.dumps(data, indent=1) + "\n")
 
 
 def cluster_file(cluster_id: int) -> str:

@@ -38,6 +38,7 @@ from . import published
 from .core import mdp
 from .core.task import LENGTHS, level_of, score, signed_score
 from .errors import DataError, UserError
+from .files import write_text_atomic
 
 IMPORTER_VERSION = 1
 COMPAT_MODES = (None, "authors2018")
@@ -129,12 +130,7 @@ def write_table(table: TurnTable, path: Path, provenance: dict[str, Any]) -> Pat
         path.parent.mkdir(parents=True, exist_ok=True)
         for target, content in ((path, text), (path.with_name(path.name + ".json"),
                                                json.dumps(provenance, indent=1) + "\n")):
-            tmp = target.with_name(f".{target.name}.tmp-{os.getpid()}")
-            with open(tmp, "w", encoding="utf-8") as fh:
-                fh.write(content)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, target)
+            write_text_atomic(target, content)
     except OSError as exc:
         where = exc.filename or path
         raise UserError(f"{where}: cannot write the turn table ({exc.strerror}); choose another --out") from None
@@ -379,11 +375,8 @@ def _read_cache(path: Path, key: str) -> list[dict[str, Any]] | None:
 
 
 def _write_cache(path: Path, key: str, rows: list[dict[str, Any]]) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            json.dump({"key": key, "rows": _json_safe(rows)}, fh)
-        os.replace(tmp, path)
+        write_text_atomic(path, json.dumps({"key": key, "rows": _json_safe(rows)}))
     except OSError as exc:  # a cache that cannot be written only costs time
         print(f"nao-trainer: warning: cannot write import cache {path}: {exc.strerror}", file=sys.stderr)
 

@@ -24,6 +24,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from .files import write_text_atomic
+
 TURN_COLUMNS: tuple[str, ...] = (
     "turn", "start_time", "state", "length", "level", "feedback", "previous_score", "action",
     "sequence", "response", "success", "score", "signed_score", "reaction_time", "completion_time",
@@ -125,12 +127,7 @@ class SessionRecorder:
         self._info.update(info)
 
     def _write_json(self) -> None:
-        tmp = self.path / ".session.json.tmp"
-        with open(tmp, "w", encoding="utf-8") as f:
-            json.dump(self._info, f, indent=2, default=str)
-            f.write("\n")
-            _fsync(f)
-        os.replace(tmp, self.path / "session.json")
+        write_text_atomic(self.path / "session.json", json.dumps(self._info, indent=2, default=str) + "\n")
 
     def close(self, status: str, exit_code: int, **info: Any) -> None:
         """Final session.json (atomic rewrite) and close every file. Safe to call twice."""

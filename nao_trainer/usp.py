@@ -43,6 +43,7 @@ from .core import mdp
 from .core.qlearning import METHOD_TEXT, METHODS, QConfig, QLearner
 from .core.simulation import UserSimulator
 from .errors import ConfigError, DataError
+from .files import write_text_atomic
 from .ports import Transition
 
 FORMAT = "nao-trainer/user-specific-policy"
@@ -88,25 +89,7 @@ def write_json_atomic(path: Path, data: Any) -> None:
 
     A reader (or a crash) sees the old file or the new one, never half of one.
     """
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(_NUMBER_LIST.sub(_one_line, json.dumps(data, indent=1, allow_nan=False)) + "\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    try:
-        fd = os.open(path.parent, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+    write_text_atomic(path, _NUMBER_LIST.sub(_one_line, json.dumps(data, indent=1, allow_nan=False)) + "\n")
 
 
 def make_payload(learner: QLearner, cluster: str, simulator: UserSimulator,
