@@ -715,6 +715,12 @@ def open_engagement_monitor(config: StudyConfig, session_dir: Path, rng: np.rand
     return open_monitor(eeg["mode"], eeg, session_dir, rng, config.get("participant.pseudonym"))
 
 
+def _configured_state_path(config: StudyConfig) -> Path | None:
+    """The study's ``policy.state_path`` (a learning policy's state across sessions), or None."""
+    state_path = config.get("policy.state_path")
+    return Path(state_path).expanduser().resolve() if state_path else None
+
+
 def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progress: TextIO | None = None) -> SessionResult:
     """Connect, play and record one session as the study says; returns its result.
 
@@ -733,9 +739,11 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
     simulator = build_simulator(config, options.user_model) if config.get("answers.input") == "simulated" else None
     from .policies import make_policy
 
-    if str(config.get("policy.kind")).startswith("usp:"):  # find a missing/stale policy before the robot moves
-        _close_quietly(make_policy(config.get("policy.kind"), config.get("policy.schedule"), False, None,
-                                   np.random.default_rng(0)), None)
+    if str(config.get("policy.kind")).startswith("usp:"):
+        # Find a missing or stale policy, or a torn/foreign learning-state file, before the robot moves
+        # (learning=False only reads and verifies; a state path inside the new session folder cannot exist yet).
+        _close_quietly(make_policy(config.get("policy.kind"), config.get("policy.schedule"), False,
+                                   _configured_state_path(config), np.random.default_rng(0)), None)
 
     with _signals_as_interrupt():
         return _run_wired(config, options, progress, dialogue, behaviors, seed, simulator)
@@ -782,10 +790,8 @@ def _run_wired(config: StudyConfig, options: RunOptions, progress: TextIO | None
         answers, buttons = _make_answers(config, robot, standin, connect_url, simulator, monitor,
                                          np.random.default_rng(participant_ss), options)
         policy_rng = np.random.default_rng(policy_ss)
-        state_path = config.get("policy.state_path")
         policy = make_policy(config.get("policy.kind"), config.get("policy.schedule"), bool(config.get("policy.learning")),
-                             Path(state_path).expanduser().resolve() if state_path else path / "policy_state.json",
-                             policy_rng)
+                             _configured_state_path(config) or path / "policy_state.json", policy_rng)
         session = Session(config, robot, answers, policy, recorder, dialogue, behaviors, np.random.default_rng(session_ss),
                           policy_rng, monitor, progress)
         try:

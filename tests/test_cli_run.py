@@ -203,3 +203,15 @@ def test_tactile_answers_from_any_naoqi_endpoint(tmp_path):
     rows = read_turns(only_folder(out))
     assert rows[0]["success"] == "True" and rows[0]["response"] == rows[0]["sequence"]
     assert rows[1]["success"] == "False" and len(rows[1]["response"]) == len(rows[1]["sequence"])
+
+
+def test_torn_policy_state_is_refused_before_the_robot_moves(tmp_path):
+    state = tmp_path / "p01_policy_state.json"
+    state.write_text('{"format": "nao-trainer/user-specific-policy", "format_ver')  # torn mid-write
+    study = tmp_path / "study.yaml"
+    study.write_text(f"policy:\n  kind: usp:1\n  state_path: {state}\n")
+    res = cli("--config", str(study), "--out", str(tmp_path / "out"), "--turns", "2", "--speed", "50")
+    assert res.returncode == 2, res.stderr
+    assert str(state) in res.stderr and "torn or corrupt" in res.stderr and "Traceback" not in res.stderr
+    assert not (tmp_path / "out").exists()  # nothing written, the robot never connected
+    assert state.read_text().endswith('"format_ver')  # never silently reset
