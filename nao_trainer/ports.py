@@ -43,6 +43,9 @@ class Robot(Protocol):
     def go_to_posture(self, name: str, speed: float) -> None:
         """Go to a predefined posture (ALRobotPosture.goToPosture)."""
 
+    def stop_all(self) -> None:
+        """Cut speech and sounds short (the operator interrupted the session)."""
+
     def subscribe_buttons(self, callback: Callable[[str, float], None]) -> None:
         """Call ``callback(letter, monotonic_time)`` on each head-button press (value 1.0)."""
 

@@ -265,6 +265,10 @@ class Session:
     def _interrupted_by_operator(self, by: str = "operator (Ctrl-C)") -> None:
         self.status = "interrupted"
         self.rec.event("interrupted", state=self.state, by=by)
+        try:  # the robot may be mid-sentence: silence it before the goodbye and the safe posture
+            self.robot.stop_all()
+        except (RuntimeError, RobotConnectionLost) as exc:
+            self.rec.event("robot_call_failed", what="stop speech", error=str(exc))
         if self.turn is not None and not self.turn.recorded:
             self._abandon_turn(f"interrupted: {by}")
         if self.state not in FINAL_STATES:

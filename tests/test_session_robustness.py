@@ -188,3 +188,32 @@ def test_ctrl_c_leaves_the_robot_safe_and_exits_130(tmp_path, signum):
     assert "interrupted" in names and "safe_state" in names
     by = next(e["by"] for e in events if e["event"] == "interrupted")
     assert by == ("operator (Ctrl-C)" if signum == signal.SIGINT else "SIGTERM received")
+
+
+def test_ctrl_c_cuts_a_long_utterance_short(tmp_path):
+    """At real speed the instructions take ~15 s; Ctrl-C must not wait for them to end."""
+    out = tmp_path / "out"
+    proc = run_cli("--turns", "3", "--speed", "1", "--out", str(out), "--no-practice", "--eeg", "off",
+                   "--policy", "random")
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:  # the greeting is said; the instructions have begun
+            assert proc.poll() is None, proc.communicate()
+            events = list(out.glob("*/events.jsonl"))
+            if events and '"what": "greeting"' in events[0].read_text():
+                break
+            time.sleep(0.05)
+        time.sleep(1.0)
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+        elapsed = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert elapsed < 6, f"Ctrl-C took {elapsed:.1f} s"
+    folder = events[0].parent
+    methods = [json.loads(ln)["method"] for ln in (folder / "robot_transcript.jsonl").read_text().splitlines()]
+    assert "stopAll" in methods

@@ -169,10 +169,21 @@ def is_connection_lost(error: BaseException | str) -> bool:
     return any(marker in text for marker in _LOST_MARKERS)
 
 
+#: Longest single blocking wait on a qi future. ``future.wait`` blocks in C++, where Python cannot
+#: deliver Ctrl-C/SIGTERM; waiting in slices lets an operator interrupt a long utterance at once.
+_WAIT_SLICE_S = 0.1
+
+
 def _wait(future: Any, timeout_s: float) -> bool:
-    """Wait for a qi future; True when it finished within ``timeout_s``."""
-    state = future.wait(max(1, int(timeout_s * 1000)))
-    return state != qi.FutureState.Running
+    """Wait for a qi future; True when it finished within ``timeout_s`` (interruptible by signals)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        remaining = deadline - time.monotonic()
+        state = future.wait(max(1, int(min(remaining, _WAIT_SLICE_S) * 1000)))
+        if state != qi.FutureState.Running:
+            return True
+        if remaining <= _WAIT_SLICE_S:
+            return False
 
 
 # ------------------------------------------------------------------------------------------------
