@@ -22,7 +22,7 @@ from typing import Any
 from .core.simulation import FORMAT_VERSION as SIMULATOR_FORMAT_VERSION
 from .core.simulation import UserSimulator
 from .errors import DataError, UserError
-from .files import write_text_atomic
+from .files import read_text, write_text_atomic
 
 MANIFEST = "manifest.json"
 MANIFEST_FORMAT = "nao-trainer/user-models"
@@ -94,15 +94,11 @@ def save_models(out_dir: Path, simulators: list[UserSimulator], clusters: list[d
 
 
 def _read_json(path: Path) -> Any:
+    text = read_text(path, DataError)
     try:
-        with open(path, encoding="utf-8") as fh:
-            return json.load(fh)
-    except FileNotFoundError:
-        raise DataError(f"{path}: no such file") from None
+        return json.loads(text)
     except json.JSONDecodeError as exc:
         raise DataError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg}); refit with `nao-trainer fit`") from None
-    except OSError as exc:
-        raise DataError(f"{path}: cannot read ({exc.strerror})") from None
 
 
 def load_manifest(models_dir: Path | None = None) -> dict[str, Any]:

@@ -8,9 +8,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
-
 from .errors import ConfigError
+from .files import read_yaml
 
 #: Session events that have a behavior.
 EVENTS: tuple[str, ...] = ("greeting", "instructions", "practice", "encouraging", "challenging",
@@ -51,28 +50,10 @@ def _color(value: object, where: str, key: str) -> int:
     raise ConfigError(f"{where}: key '{key}' must be a colour '#RRGGBB' (quoted), got {value!r}")
 
 
-def _lines(node: yaml.Node | None, prefix: str = "", out: dict[str, int] | None = None) -> dict[str, int]:
-    out = {} if out is None else out
-    if isinstance(node, yaml.MappingNode):
-        for k, v in node.value:
-            key = f"{prefix}.{k.value}" if prefix else str(k.value)
-            out[key] = k.start_mark.line + 1
-            _lines(v, key, out)
-    return out
-
-
 def load_behaviors(path: str | Path) -> Behaviors:
     """Load and validate a behaviors file; ``ConfigError`` names file, line and key on a problem."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-        lines = _lines(yaml.compose(text, Loader=yaml.SafeLoader))
-        data = yaml.safe_load(text)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: behaviors file not found; fix session.behaviors in the study config") from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise ConfigError(f"{path}:{mark.line + 1 if mark else '?'}: not valid YAML; fix the syntax") from None
+    data, lines, _ = read_yaml(path, "behaviors file not found", "fix session.behaviors in the study config")
 
     def where(key: str) -> str:
         return f"{path}:{lines[key]}" if key in lines else str(path)

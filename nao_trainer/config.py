@@ -17,9 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-import yaml
-
 from .errors import ConfigError
+from .files import read_yaml
 
 #: Repository root (parent of the package). Relative paths in configs resolve against it, so
 #: ``nao-trainer run`` works from any folder of a clone (installs are editable).
@@ -197,30 +196,8 @@ class _Loc:
 
 def _read_yaml(path: Path) -> tuple[Any, dict[str, _Loc], str]:
     """Parse ``path``; returns (data, dotted-key -> location, text)."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: file not found; check the path (relative paths resolve against {PROJECT_ROOT})") from None
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
-    try:
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"{path}:{mark.line + 1}" if mark else str(path)
-        raise ConfigError(f"{where}: not valid YAML ({getattr(exc, 'problem', exc)}); fix the syntax") from None
-    locs: dict[str, _Loc] = {}
-    _collect_lines(node, "", str(path), locs)
-    return data, locs, text
-
-
-def _collect_lines(node: yaml.Node | None, prefix: str, file: str, out: dict[str, _Loc]) -> None:
-    if isinstance(node, yaml.MappingNode):
-        for key_node, value_node in node.value:
-            key = f"{prefix}.{key_node.value}" if prefix else str(key_node.value)
-            out[key] = _Loc(file, key_node.start_mark.line + 1)
-            _collect_lines(value_node, key, file, out)
+    data, lines, text = read_yaml(path, fix=f"check the path (relative paths resolve against {PROJECT_ROOT})")
+    return data, {key: _Loc(str(path), line) for key, line in lines.items()}, text
 
 
 def _merge(base: dict, over: Mapping, schema: dict, prefix: str, locs: dict[str, _Loc], file: str) -> None:

@@ -38,7 +38,7 @@ from . import published
 from .core import mdp
 from .core.task import LENGTHS, level_of, score, signed_score
 from .errors import DataError, UserError
-from .files import write_text_atomic
+from .files import read_text, write_text_atomic
 
 IMPORTER_VERSION = 1
 COMPAT_MODES = (None, "authors2018")
@@ -140,12 +140,7 @@ def write_table(table: TurnTable, path: Path, provenance: dict[str, Any]) -> Pat
 def read_table(path: Path) -> TurnTable:
     """Read a turn table CSV written by :func:`write_table`; DataError naming file:line on problems."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise DataError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: cannot read ({exc})") from None
+    text = read_text(path, DataError)
     reader = csv.reader(io.StringIO(text))
     header = next(reader, None)
     if header != list(COLUMNS):

@@ -12,9 +12,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from .errors import ConfigError
+from .files import read_yaml
 
 #: Every event the session speaks, with the placeholders its variants may use.
 EVENTS: dict[str, frozenset[str]] = {
@@ -54,26 +54,10 @@ class Dialogue:
         return self.say(f"{style}_{'success' if success else 'failure'}", rng, **fields)
 
 
-def _line_of(node: yaml.Node | None, key: str) -> int | None:
-    if isinstance(node, yaml.MappingNode):
-        for k, _ in node.value:
-            if k.value == key:
-                return k.start_mark.line + 1
-    return None
-
-
 def load_dialogue(path: str | Path) -> Dialogue:
     """Load and validate a dialogue file; ``ConfigError`` names file, line and event on a problem."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
-        data = yaml.safe_load(text)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: dialogue file not found; fix session.dialogue in the study config") from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise ConfigError(f"{path}:{mark.line + 1 if mark else '?'}: not valid YAML; fix the syntax") from None
+    data, lines, _ = read_yaml(path, "dialogue file not found", "fix session.dialogue in the study config")
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: a dialogue file is a mapping of events to lists of sentences")
     language = data.pop("language", None)
@@ -81,7 +65,7 @@ def load_dialogue(path: str | Path) -> Dialogue:
         raise ConfigError(f"{path}: key 'language' is missing; add e.g. 'language: en'")
     variants: dict[str, tuple[str, ...]] = {}
     for event, items in data.items():
-        where = f"{path}:{_line_of(node, str(event)) or '?'}"
+        where = f"{path}:{lines.get(str(event), '?')}"
         if event not in EVENTS:
             raise ConfigError(f"{where}: unknown event '{event}'; events are {', '.join(EVENTS)}")
         if isinstance(items, str):

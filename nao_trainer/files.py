@@ -1,8 +1,55 @@
-"""File writing shared by every adapter that must never leave half a file behind."""
+"""Reading and writing the project's files: one-line errors on reads, never half a file on writes."""
 from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
+
+from .errors import ConfigError, UserError
+
+
+def read_text(path: str | os.PathLike, error: type[UserError], missing: str = "file not found", fix: str = "") -> str:
+    """The UTF-8 text of ``path``; ``error(...)`` naming the file (and ``fix``) when it cannot be read."""
+    path = Path(path)
+    tail = f"; {fix}" if fix else ""
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise error(f"{path}: {missing}{tail}") from None
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: not a text file ({exc.reason} at byte {exc.start}){tail}") from None
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({exc.strerror}){tail}") from None
+
+
+def read_yaml(path: str | os.PathLike, missing: str = "file not found", fix: str = "") -> tuple[Any, dict[str, int], str]:
+    """Parse a YAML file; returns (data, dotted key -> line number, text) so validation can say where.
+
+    Unreadable files and syntax errors raise ``ConfigError`` with file and line.
+    """
+    import yaml
+
+    text = read_text(path, ConfigError, missing, fix)
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}" if mark else str(path)
+        raise ConfigError(f"{where}: not valid YAML ({getattr(exc, 'problem', None) or exc}); fix the syntax") from None
+    lines: dict[str, int] = {}
+    _collect_lines(node, "", lines)
+    return data, lines, text
+
+
+def _collect_lines(node: Any, prefix: str, out: dict[str, int]) -> None:
+    import yaml
+
+    if isinstance(node, yaml.MappingNode):
+        for key_node, value_node in node.value:
+            key = f"{prefix}.{key_node.value}" if prefix else str(key_node.value)
+            out[key] = key_node.start_mark.line + 1
+            _collect_lines(value_node, key, out)
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> None:

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DataError
+from .files import read_text
 
 #: Scalp channel order of every 4-value line.
 CHANNELS: tuple[str, ...] = ("TP9", "AF7", "AF8", "TP10")
@@ -112,14 +113,7 @@ _LOG_LINE = re.compile(r"^\s*((?:\S+\s+){6}\S+)\s*(\[.*?\])\s*(\[.*?\])\s*$")
 
 
 def _read_text(path: Path) -> str:
-    try:
-        return Path(path).read_text()
-    except FileNotFoundError:
-        raise DataError(f"{path}: file not found") from None
-    except UnicodeDecodeError as exc:
-        raise DataError(f"{path}: not a text file ({exc.reason} at byte {exc.start})") from None
-    except OSError as exc:
-        raise DataError(f"{path}: cannot read ({exc.strerror})") from None
+    return read_text(path, DataError)
 
 
 def _as_int(text: str, path: Path, lineno: int, what: str) -> int:

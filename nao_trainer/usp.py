@@ -43,7 +43,7 @@ from .core import mdp
 from .core.qlearning import METHOD_TEXT, METHODS, QConfig, QLearner
 from .core.simulation import UserSimulator
 from .errors import ConfigError, DataError
-from .files import write_text_atomic
+from .files import read_text, write_text_atomic
 from .ports import Transition
 
 FORMAT = "nao-trainer/user-specific-policy"
@@ -125,12 +125,7 @@ def read_policy_file(path: Path) -> dict[str, Any]:
     Checks, in order: readable JSON, format and version, checksum, state/action definition.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise DataError(f"{path}: no such policy file; {RETRAIN}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: cannot read policy file ({exc})") from None
+    text = read_text(path, DataError, "no such policy file", RETRAIN)
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as exc:

@@ -79,3 +79,13 @@ def test_bad_behaviors_are_refused(tmp_path, old, new, words):
     with pytest.raises(ConfigError) as err:
         beh.load_behaviors(p)
     assert words in str(err.value) and str(p) in str(err.value)
+
+
+@pytest.mark.parametrize("loader", [dia.load_dialogue, beh.load_behaviors], ids=["dialogue", "behaviors"])
+def test_a_folder_or_binary_file_is_a_one_line_error(tmp_path, loader):
+    with pytest.raises(ConfigError, match=r"cannot read \(Is a directory\); fix session\."):
+        loader(tmp_path)
+    binary = tmp_path / "x.yaml"
+    binary.write_bytes(b"\xff\xfe\x00garbage")
+    with pytest.raises(ConfigError, match="not a text file"):
+        loader(binary)
