@@ -13,7 +13,6 @@ a file.
 """
 from __future__ import annotations
 
-import json
 import os
 import platform
 from pathlib import Path
@@ -22,7 +21,7 @@ from typing import Any
 from .core.simulation import FORMAT_VERSION as SIMULATOR_FORMAT_VERSION
 from .core.simulation import UserSimulator
 from .errors import DataError, UserError
-from .files import read_text, write_text_atomic
+from .files import read_json, write_json_atomic
 
 MANIFEST = "manifest.json"
 MANIFEST_FORMAT = "nao-trainer/user-models"
@@ -50,11 +49,6 @@ def library_versions() -> dict[str, str]:
     return out
 
 
-def write_json(path: Path, data: Any) -> None:
-    """Write JSON atomically (temporary file, fsync, rename)."""
-    write_text_atomic(path, json.dumps(data, indent=1) + "\n")
-
-
 def cluster_file(cluster_id: int) -> str:
     return f"cluster_{cluster_id}.json"
 
@@ -72,7 +66,7 @@ def save_models(out_dir: Path, simulators: list[UserSimulator], clusters: list[d
         rows = []
         for sim, row in zip(simulators, clusters, strict=True):
             name = cluster_file(int(row["id"]))
-            write_json(out / name, sim.to_dict())
+            write_json_atomic(out / name, sim.to_dict())
             rows.append({**row, "file": name, "fingerprint": sim.fingerprint()})
     except OSError as exc:
         where = exc.filename or out
@@ -87,18 +81,14 @@ def save_models(out_dir: Path, simulators: list[UserSimulator], clusters: list[d
     }
     path = out / MANIFEST
     try:
-        write_json(path, manifest)
+        write_json_atomic(path, manifest)
     except OSError as exc:
         raise UserError(f"{path}: cannot write ({exc.strerror}); choose another --out") from None
     return path
 
 
 def _read_json(path: Path) -> Any:
-    text = read_text(path, DataError)
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise DataError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg}); refit with `nao-trainer fit`") from None
+    return read_json(path, DataError, fix="refit with `nao-trainer fit`")
 
 
 def load_manifest(models_dir: Path | None = None) -> dict[str, Any]:

@@ -1,7 +1,9 @@
 """Reading and writing the project's files: one-line errors on reads, never half a file on writes."""
 from __future__ import annotations
 
+import json
 import os
+import re
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +22,16 @@ def read_text(path: str | os.PathLike, error: type[UserError], missing: str = "f
         raise error(f"{path}: not a text file ({exc.reason} at byte {exc.start}){tail}") from None
     except OSError as exc:
         raise error(f"{path}: cannot read ({exc.strerror}){tail}") from None
+
+
+def read_json(path: str | os.PathLike, error: type[UserError], missing: str = "file not found", fix: str = "") -> Any:
+    """The parsed JSON of ``path``; ``error`` naming file and line when unreadable or invalid (torn, edited)."""
+    text = read_text(path, error, missing, fix)
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        tail = f"; {fix}" if fix else ""
+        raise error(f"{path}:{exc.lineno}: not valid JSON ({exc.msg}): torn or corrupt{tail}") from None
 
 
 def read_yaml(path: str | os.PathLike, missing: str = "file not found", fix: str = "") -> tuple[Any, dict[str, int], str]:
@@ -50,6 +62,22 @@ def _collect_lines(node: Any, prefix: str, out: dict[str, int]) -> None:
             key = f"{prefix}.{key_node.value}" if prefix else str(key_node.value)
             out[key] = key_node.start_mark.line + 1
             _collect_lines(value_node, key, out)
+
+
+#: A JSON list holding only numbers (one table row): written on one line so a file stays readable.
+_NUMBER_LIST = re.compile(r"\[\s*(-?[0-9][-+0-9.eE]*(?:,\s*-?[0-9][-+0-9.eE]*)*)\s*\]")
+
+
+def _one_line(match: "re.Match[str]") -> str:
+    return "[" + ", ".join(v.strip() for v in match.group(1).split(",")) + "]"
+
+
+def write_json_atomic(path: str | os.PathLike, data: Any) -> None:
+    """Write ``data`` as indented JSON (number rows on one line) with ``write_text_atomic``.
+
+    NaN and infinity are refused (``ValueError``): they are not JSON and other tools reject them.
+    """
+    write_text_atomic(path, _NUMBER_LIST.sub(_one_line, json.dumps(data, indent=1, allow_nan=False)) + "\n")
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> None:

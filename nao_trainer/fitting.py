@@ -255,25 +255,31 @@ class ClusterFit:
     observed_states: int
 
     def summary(self) -> dict[str, Any]:
-        """The JSON row of ``nao-trainer fit --json``."""
+        """The JSON row of ``nao-trainer fit --json`` (null where a value does not exist, e.g. CV of one session)."""
         return {
             "id": self.id,
             "name": self.simulator.name,
             "size": len(self.sessions),
-            "p": [round(float(v), 6) for v in self.p],
-            "e": [round(float(v), 6) for v in self.e],
-            "rmse_performance": round(self.rmse_performance, 6),
-            "rmse_performance_regression": round(self.rmse_performance_regression, 6),
-            "rmse_engagement": round(self.rmse_engagement, 6),
-            "cv_rmse_performance": round(self.cv_rmse_performance, 6),
-            "cv_rmse_engagement": round(self.cv_rmse_engagement, 6),
-            "data_level_success": [round(float(v), 6) for v in self.data_level_success],
-            "simulated_level_success": [round(float(v), 6) for v in self.simulated_level_success],
+            "p": [_num(v) for v in self.p],
+            "e": [_num(v) for v in self.e],
+            "rmse_performance": _num(self.rmse_performance),
+            "rmse_performance_regression": _num(self.rmse_performance_regression),
+            "rmse_engagement": _num(self.rmse_engagement),
+            "cv_rmse_performance": _num(self.cv_rmse_performance),
+            "cv_rmse_engagement": _num(self.cv_rmse_engagement),
+            "data_level_success": [_num(v) for v in self.data_level_success],
+            "simulated_level_success": [_num(v) for v in self.simulated_level_success],
             "observed_states": self.observed_states,
             "paper_cluster": self.simulator.metadata.get("paper_cluster"),
             "fingerprint": self.simulator.fingerprint(),
             "sessions": list(self.sessions),
         }
+
+
+def _num(value: float) -> float | None:
+    """A JSON number rounded to 6 decimals, or None for NaN/infinity (not JSON)."""
+    value = float(value)
+    return round(value, 6) if np.isfinite(value) else None
 
 
 @dataclass

@@ -35,6 +35,7 @@ import numpy as np
 from .core import mdp
 from .core.qlearning import METHODS, BatchLearner, QConfig, QLearner, check_method, expected_scores
 from .core.simulation import UserSimulator
+from .files import write_json_atomic, write_text_atomic
 
 S0_INDEX = mdp.encode(*mdp.S0)
 
@@ -329,12 +330,11 @@ def write_s0_csv(result: GridResult, path: Path) -> None:
     """
     probs = result.s0_probabilities()
     visits = result.visits[..., S0_INDEX].mean(axis=2)
-    with open(path, "w", encoding="utf-8") as fh:
-        fh.write("cluster,method," + ",".join(mdp.ACTION_NAMES) + ",s0_visits_mean\n")
-        for c, cluster in enumerate(result.clusters):
-            for m, method in enumerate(result.spec.methods):
-                fh.write(f"{cluster},{method}," + ",".join(f"{v:.6f}" for v in probs[c, m])
-                         + f",{visits[c, m]:.1f}\n")
+    lines = ["cluster,method," + ",".join(mdp.ACTION_NAMES) + ",s0_visits_mean"]
+    for c, cluster in enumerate(result.clusters):
+        for m, method in enumerate(result.spec.methods):
+            lines.append(f"{cluster},{method}," + ",".join(f"{v:.6f}" for v in probs[c, m]) + f",{visits[c, m]:.1f}")
+    write_text_atomic(path, "\n".join(lines) + "\n")
 
 
 def default_methods(result: GridResult) -> dict[str, str]:
@@ -381,7 +381,7 @@ def write_outputs(result: GridResult, out_dir: Path, models_source: str, command
     summary["policies"] = policy_files
     summary["simulators"] = {cl: {"name": s.name, "fingerprint": s.fingerprint()}
                              for cl, s in zip(result.clusters, result.simulators)}
-    usp.write_json_atomic(paths["results"], summary)
+    write_json_atomic(paths["results"], summary)
     usp.write_manifest(out, {cl: result.spec.methods for cl in result.clusters}, summary["default_method"],
                        policy_files)
     if plots:

@@ -30,7 +30,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import re
 import sys
 from datetime import datetime, timezone
 from pathlib import Path
@@ -43,7 +42,7 @@ from .core import mdp
 from .core.qlearning import METHOD_TEXT, METHODS, QConfig, QLearner
 from .core.simulation import UserSimulator
 from .errors import ConfigError, DataError
-from .files import read_text, write_text_atomic
+from .files import read_json, read_text, write_json_atomic
 from .ports import Transition
 
 FORMAT = "nao-trainer/user-specific-policy"
@@ -74,22 +73,6 @@ def policy_filename(cluster: str, method: str) -> str:
 def canonical_digest(payload: dict[str, Any]) -> str:
     text = json.dumps(payload, sort_keys=True, separators=(",", ":"), allow_nan=False)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
-
-
-#: A JSON list holding only numbers (one table row): written on one line so a file stays readable.
-_NUMBER_LIST = re.compile(r"\[\s*(-?[0-9][-+0-9.eE]*(?:,\s*-?[0-9][-+0-9.eE]*)*)\s*\]")
-
-
-def _one_line(match: "re.Match[str]") -> str:
-    return "[" + ", ".join(v.strip() for v in match.group(1).split(",")) + "]"
-
-
-def write_json_atomic(path: Path, data: Any) -> None:
-    """Write JSON to a temporary file, fsync it, rename it over ``path`` and fsync the folder.
-
-    A reader (or a crash) sees the old file or the new one, never half of one.
-    """
-    write_text_atomic(path, _NUMBER_LIST.sub(_one_line, json.dumps(data, indent=1, allow_nan=False)) + "\n")
 
 
 def make_payload(learner: QLearner, cluster: str, simulator: UserSimulator,
@@ -197,14 +180,11 @@ def write_manifest(folder: Path, methods: dict[str, Any], default_method: dict[s
 
 def read_manifest(folder: Path) -> dict[str, Any]:
     path = Path(folder) / MANIFEST
-    if not path.exists():
-        raise DataError(f"{path}: no trained policies here; create them with `nao-trainer train --out {folder}`")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise DataError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg}); {RETRAIN}") from None
+    data = read_json(path, DataError, f"no trained policies here; create them with `nao-trainer train --out {folder}`")
     if not isinstance(data, dict) or data.get("format") != MANIFEST_FORMAT:
         raise DataError(f"{path}: not a nao-trainer policy manifest")
+    if data.get("format_version") != 1 or not isinstance(data.get("default_method", {}), dict):
+        raise DataError(f"{path}: policy manifest of an unknown version or shape; {RETRAIN}")
     return data
 
 

@@ -96,3 +96,15 @@ def test_figure_4_gets_the_per_sample_engagement_signal(dataset_root):
     assert sorted(series) == list(range(1, 26))
     assert all(len(v) > 10 and 0 <= v.min() and v.max() <= 1 for v in series.values())
     assert signal_of("user_999/session_1") is None
+
+
+def test_many_clusters_still_give_strict_json(dataset_root, tmp_path, tmp_path_factory, capsys):
+    """K = 8 leaves one-session clusters (no cross-validation): null, never NaN, in the report and manifest."""
+    out = tmp_path / "k8"
+    rc = main(["fit", str(dataset_root), "--out", str(out), "--compat", "authors2018", "--json", "--k", "8",
+               "--no-figures", "--cache", str(shared_cache(tmp_path_factory, "authors2018"))])
+    assert rc == 0
+    strict = dict(parse_constant=lambda name: pytest.fail(f"{name} is not JSON"))
+    report = json.loads(capsys.readouterr().out, **strict)
+    assert any(c["cv_rmse_performance"] is None for c in report["clusters"] if c["size"] == 1)
+    json.loads((out / "manifest.json").read_text(), **strict)

@@ -250,3 +250,14 @@ def test_a_crash_while_saving_leaves_the_previous_state_intact(trained, tmp_path
     assert state.read_bytes() == before  # the last complete state, still valid
     assert usp.read_policy_file(state)["live"]["turns_learned"] == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["learner.json"]
+
+
+def test_a_broken_policy_manifest_is_a_one_line_error(tmp_path):
+    (tmp_path / usp.MANIFEST).mkdir()
+    with pytest.raises(DataError, match=r"manifest.json: cannot read \(Is a directory\)"):
+        usp.read_manifest(tmp_path)
+    (tmp_path / usp.MANIFEST).rmdir()
+    (tmp_path / usp.MANIFEST).write_text(json.dumps({"format": usp.MANIFEST_FORMAT, "format_version": 1,
+                                                     "default_method": []}))
+    with pytest.raises(DataError, match="unknown version or shape"):
+        usp.read_manifest(tmp_path)

@@ -1,0 +1,31 @@
+"""The project's file helpers: one-line errors on reads, atomic strict-JSON writes."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from nao_trainer.errors import DataError
+from nao_trainer.files import read_json, write_json_atomic
+
+
+def test_write_json_refuses_nan_and_leaves_the_old_file(tmp_path):
+    path = tmp_path / "x.json"
+    write_json_atomic(path, {"rows": [[1.0, 2.5], [3, 4]]})
+    assert json.loads(path.read_text()) == {"rows": [[1.0, 2.5], [3, 4]]}
+    assert "[1.0, 2.5]" in path.read_text()  # number rows on one line
+    with pytest.raises(ValueError):
+        write_json_atomic(path, {"v": float("nan")})
+    assert json.loads(path.read_text()) == {"rows": [[1.0, 2.5], [3, 4]]}
+    assert [p.name for p in tmp_path.iterdir()] == ["x.json"]  # no temporary file left
+
+
+def test_read_json_errors_name_the_file(tmp_path):
+    with pytest.raises(DataError, match=r"missing.json: gone; do this"):
+        read_json(tmp_path / "missing.json", DataError, "gone", "do this")
+    with pytest.raises(DataError, match=r"cannot read \(Is a directory\)"):
+        read_json(tmp_path, DataError)
+    torn = tmp_path / "t.json"
+    torn.write_text('{"a": [1,\n 2')
+    with pytest.raises(DataError, match=r"t.json:2: not valid JSON .*torn or corrupt"):
+        read_json(torn, DataError)
