@@ -10,6 +10,7 @@ import pytest
 from nao_trainer import published as pub
 from nao_trainer.cli import main
 from nao_trainer.eeg import offline
+from nao_trainer.errors import DataError
 
 
 @pytest.fixture(scope="module")
@@ -228,3 +229,28 @@ def test_truncated_intro_falls_back_to_the_session_baseline(raw_root, tmp_path):
     assert r.baseline.startswith("session listening phases (intro unusable: ")
     assert "intro line" in r.baseline and "(the file looks truncated)" in r.baseline
     assert all(t.engagement is not None for t in r.turns)
+
+
+def test_cli_checks_options_and_output_folders_before_computing(dataset_root, tmp_path, capsys, monkeypatch):
+    sdir = dataset_root / "user_10" / "session_1"
+    root = tmp_path / "two"
+    for sid in ("user_2/session_2", "user_10/session_1"):
+        shutil.copytree(dataset_root / sid, root / sid)
+
+    def boom(*a, **k):
+        raise AssertionError("computed before the options were checked")
+
+    monkeypatch.setattr(offline, "session_engagement_many", boom)
+    for argv, msg in (
+        ([str(sdir), "--out", str(tmp_path / "missing" / "e.csv")], "missing does not exist"),
+        ([str(sdir), "--plot", str(tmp_path / "missing" / "e.png")], "missing does not exist"),
+        ([str(root), "--plot", str(tmp_path / "e.png")], "--plot needs a single session folder"),
+        ([str(root), "--compat", "authors2018", "--answer"], "authors' tables have no answer phase"),
+    ):
+        assert main(["engagement", *argv]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and msg in err and "Traceback" not in err
+    monkeypatch.undo()
+    # the option combination is checked once, not reported per session as a skipped one
+    with pytest.raises(DataError, match="drop --source raw"):
+        offline.session_engagement_many(root, "authors2018", "raw", workers=1, problems=[])

@@ -35,9 +35,17 @@ def register(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..errors import ConfigError, DataError
-    from ..published import is_session_dir
-    from ..eeg.offline import OfflineSettings, plot_session, session_engagement_many, to_csv, to_json
+    from ..published import find_sessions, is_session_dir
+    from ..eeg.offline import OfflineSettings, check_options, plot_session, session_engagement_many, to_csv, to_json
+    from ..files import write_text_atomic
 
+    # every option checked before the (long) computation
+    check_options(args.compat, args.source, args.answer)
+    if args.plot and len(find_sessions(args.session)) != 1:
+        raise ConfigError("--plot needs a single session folder, not a dataset root")
+    for opt, path in (("--out", args.out), ("--plot", args.plot)):
+        if path is not None and not path.parent.is_dir():
+            raise DataError(f"{path}: folder {path.parent} does not exist; create it or give another {opt} path")
     if args.fs is not None and not args.fs > 0:
         raise ConfigError(f"--fs must be > 0 Hz, got {args.fs}")
     if args.workers < 1:
@@ -54,10 +62,6 @@ def run(args: argparse.Namespace) -> int:
         elif done % 10 == 0 or done == total:
             print(f"[{done}/{total}] sessions", file=sys.stderr, flush=True)
 
-    if args.compat and args.answer:
-        raise ConfigError("--answer uses the project's definitions; the authors' tables have no answer phase")
-    if args.compat and args.source == "raw":
-        raise ConfigError("--compat authors2018 uses the Muse band lines; drop --source raw")
     problems: list = []
     results = session_engagement_many(args.session, args.compat, args.source, settings, args.workers, progress,
                                       answer=args.answer, problems=problems)
@@ -68,13 +72,18 @@ def run(args: argparse.Namespace) -> int:
     many = not is_session_dir(args.session)  # a dataset root: always a session column / a JSON list
     text = to_json(results, many) if args.format == "json" else to_csv(results, many)
     if args.out:
-        args.out.write_text(text)
+        try:
+            write_text_atomic(args.out, text)
+        except OSError as exc:
+            raise DataError(f"{args.out}: cannot write ({exc.strerror}); give another --out path") from None
         print(f"{args.out}: {sum(len(r.turns) for r in results)} turns of {len(results)} session(s)", file=sys.stderr)
     else:
         sys.stdout.write(text)
         sys.stdout.flush()
     if args.plot:
-        if len(results) != 1:
-            raise ConfigError("--plot needs a single session folder, not a dataset root")
-        print(f"{plot_session(results[0], args.plot)}: figure saved", file=sys.stderr)
+        try:
+            saved = plot_session(results[0], args.plot)
+        except OSError as exc:
+            raise DataError(f"{args.plot}: cannot write ({exc.strerror}); give another --plot path") from None
+        print(f"{saved}: figure saved", file=sys.stderr)
     return 0

@@ -129,8 +129,6 @@ def _band_file(session_dir: Path, name: str) -> Path | None:
 
 def _choose_source(session_dir: Path, first_recording: str, requested: str | None) -> str:
     if requested is not None:
-        if requested not in SOURCES:
-            raise DataError(f"source must be one of {', '.join(SOURCES)}, got {requested!r}")
         return requested
     if (session_dir / "EEG" / f"bands_{first_recording}").is_file():
         return "bands"
@@ -284,13 +282,27 @@ def session_engagement(
     Raises DataError when the session itself cannot be read (``state_EEG``); a bad recording only
     empties its turn.
     """
-    session_dir = Path(session_dir)
+    check_options(compat, source, answer)
+    return _session_engagement(Path(session_dir), compat, source, settings, answer)
+
+
+def check_options(compat: str | None, source: str | None, answer: bool) -> None:
+    """DataError when ``compat``, ``source`` and ``answer`` do not go together (checked once per call)."""
     if compat is not None and compat not in COMPAT_MODES:
         raise DataError(f"unknown compat mode {compat!r} (known: {', '.join(COMPAT_MODES)})")
+    if source is not None and source not in SOURCES:
+        raise DataError(f"source must be one of {', '.join(SOURCES)}, got {source!r}")
     if compat and source == "raw":
         raise DataError("--compat authors2018 uses the Muse band lines; drop --source raw")
     if compat and answer:
-        raise DataError("the authors' tables have no answer-phase values; drop --answer or --compat")
+        raise DataError("--answer uses the project's definitions; the authors' tables have no answer phase; "
+                        "drop --answer or --compat")
+
+
+def _session_engagement(
+    session_dir: Path, compat: str | None, source: str | None, settings: OfflineSettings, answer: bool
+) -> SessionEngagement:
+    """:func:`session_engagement` with options already checked."""
     if not (session_dir / "state_EEG").is_file():
         raise DataError(f"{session_dir}: no state_EEG file (not a session of the published layout?)")
     states = read_state_eeg(session_dir / "state_EEG")
@@ -402,7 +414,7 @@ class SessionProblem:
 def _one(args: tuple) -> "SessionEngagement | SessionProblem":
     path, compat, source, settings, answer, skip = args
     try:
-        return session_engagement(path, compat, source, settings, answer)
+        return _session_engagement(path, compat, source, settings, answer)
     except DataError as exc:
         if not skip:
             raise
@@ -425,6 +437,7 @@ def session_engagement_many(
     each session (the CLI prints it to stderr). A session that cannot be read raises DataError, unless
     a ``problems`` list is given: it is then appended there and skipped.
     """
+    check_options(compat, source, answer)
     sessions = find_sessions(Path(root))
     skip = problems is not None
     jobs = [(p, compat, source, settings, answer, skip) for p in sessions]
