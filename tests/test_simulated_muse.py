@@ -15,8 +15,9 @@ from nao_trainer.core.engagement import engagement_index, relative_band_powers
 from nao_trainer.eeg.inlet import EEGInlet, StreamQuery, resolve_eeg
 from nao_trainer.eeg.lsl_scope import configure_lsl
 from nao_trainer.eeg.simulated_muse import (MUSE_LABELS, MuseSignal, ReplayMuse, SimulatedMuse, load_raw_session,
-                                            read_raw_eeg, target_ratio)
+                                            target_ratio)
 from nao_trainer.errors import DataError
+from nao_trainer.published import read_recording
 
 configure_lsl("machine")
 
@@ -149,16 +150,16 @@ def test_replay_publishes_raw_samples_in_order(raw_root):
     assert np.array_equal(x.astype(np.float32), data[start : start + len(x)].astype(np.float32))
 
 
-def test_read_raw_eeg_reports_file_and_line(tmp_path):
+def test_raw_eeg_errors_report_file_and_line(tmp_path):
     good = "eeg 1 2 3 4\na 0.1 0.2 0.3 0.4\neeg 5 6 7 8\n"
     (tmp_path / "robot_1").write_text(good)
-    assert read_raw_eeg(tmp_path / "robot_1").tolist() == [[1, 2, 3, 4], [5, 6, 7, 8]]
+    assert read_recording(tmp_path / "robot_1", prefixes=("eeg",))["eeg"].tolist() == [[1, 2, 3, 4], [5, 6, 7, 8]]
     (tmp_path / "user_1").write_text(good + "eeg 9 10\n")
-    with pytest.raises(DataError, match=r"user_1:4: an 'eeg' line needs 4 values"):
+    with pytest.raises(DataError, match=r"user_1 line 4: expected 4 values after 'eeg', got 2"):
         load_raw_session(tmp_path)
     (tmp_path / "user_1").write_text("eeg 1 x 3 4\n")
-    with pytest.raises(DataError, match=r"user_1:1: non-numeric"):
-        read_raw_eeg(tmp_path / "user_1")
+    with pytest.raises(DataError, match=r"user_1 line 1: 'eeg' value 'x' is not a number"):
+        read_recording(tmp_path / "user_1", prefixes=("eeg",))
     with pytest.raises(DataError, match="robot_1: not a folder"):
         load_raw_session(tmp_path / "robot_1")
     empty = tmp_path / "empty"

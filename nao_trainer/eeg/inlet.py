@@ -15,11 +15,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import EEGUnavailable
+from ..published import CHANNELS
 from .lsl_scope import configure_lsl
 
 log = logging.getLogger(__name__)
 
-SCALP_LABELS = ("TP9", "AF7", "AF8", "TP10")
+SCALP_LABELS = CHANNELS  # kept by name; a Muse's fifth channel, Right AUX, is dropped
 #: Stamps further than this from the local clock are not on the LSL clock (seconds).
 CLOCK_MISMATCH_S = 5.0
 

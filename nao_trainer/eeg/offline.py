@@ -35,12 +35,11 @@ import numpy as np
 
 from ..core import engagement as core
 from ..errors import DataError
-from ..published import CHANNELS, Recording, find_sessions, read_recording, read_state_eeg, session_id
+from ..published import CHANNELS, RAW_RATE_HZ, Recording, find_sessions, read_recording, read_state_eeg, session_id
 
 COMPAT_MODES: tuple[str, ...] = ("authors2018",)
 SOURCES: tuple[str, ...] = ("bands", "raw")
 BAND_RATE_HZ = 10.0  # the Muse's band-power messages
-RAW_FS_HZ = 220.0  # raw EEG rate of the published recordings (dataset README)
 GOOD_CONTACT = (1.0, 2.0)  # h: 1 good, 2 ok, 4 bad
 COLUMNS: tuple[str, ...] = ("turn", "engagement_index", "engagement", "quality", "contact", "reason")
 ANSWER_COLUMNS: tuple[str, ...] = ("answer_index", "answer_engagement", "answer_quality", "answer_reason")
@@ -53,7 +52,7 @@ class OfflineSettings:
     a: float = 0.9  # EWMA factor per sample (10 Hz bands) or per window (raw, one every hop_s)
     min_channels: int = 2  # channels with good contact (bands) or clean signal (raw) per sample/window
     min_quality: float = 0.5  # fraction of usable samples/windows a turn needs
-    fs: float = RAW_FS_HZ  # raw EEG sampling rate
+    fs: float = RAW_RATE_HZ  # raw EEG sampling rate
     window_s: float = 2.0
     hop_s: float = 0.25
     thresholds: core.QualityThresholds = core.QualityThresholds()

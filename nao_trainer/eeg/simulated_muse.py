@@ -21,12 +21,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
+from ..published import CHANNELS, RAW_RATE_HZ, read_recording
 from .lsl_scope import configure_lsl
 
-MUSE_LABELS = ("TP9", "AF7", "AF8", "TP10", "Right AUX")
+MUSE_LABELS = CHANNELS + ("Right AUX",)
 MUSE_RATE_HZ = 256.0
 MUSE_CHUNK = 12
-RAW_RATE_HZ = 220.0  # the published recordings' nominal rate (Muse 2016 via the Muse SDK)
 
 #: Engagement ratio beta / (alpha + theta) of the oscillatory power at target 0 and at target 1.
 RATIO_LOW, RATIO_HIGH = 0.25, 2.5
@@ -292,31 +292,6 @@ def raw_recording_order(session_dir: Path) -> list[Path]:
     return files
 
 
-def read_raw_eeg(path: Path) -> np.ndarray:
-    """The ``eeg`` lines of one raw recording as an (n, 4) float array (TP9, AF7, AF8, TP10).
-
-    Other prefixes (band powers, contact, ...) are skipped. A malformed ``eeg`` line raises
-    ``DataError`` naming file and line.
-    """
-    rows: list[list[float]] = []
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        for lineno, line in enumerate(fh, 1):
-            if not line.startswith("eeg"):
-                continue
-            parts = line.split()
-            if parts[0] != "eeg":
-                continue
-            if len(parts) != 5:
-                raise DataError(f"{path}:{lineno}: an 'eeg' line needs 4 values (TP9 AF7 AF8 TP10), "
-                                f"got {len(parts) - 1}; the file is truncated or malformed - re-export it or remove the line")
-            try:
-                rows.append([float(v) for v in parts[1:]])
-            except ValueError:
-                raise DataError(f"{path}:{lineno}: non-numeric value in 'eeg' line {line.strip()[:60]!r}; "
-                                "fix or remove the line") from None
-    return np.asarray(rows, dtype=float).reshape(-1, 4)
-
-
 class ReplayMuse(_Publisher):
     """Replays a recorded raw session (published layout) as a live 4-channel EEG stream."""
 
@@ -333,7 +308,7 @@ class ReplayMuse(_Publisher):
         session_dir = Path(session_dir)
         data, boundaries = load_raw_session(session_dir)
         sid = source_id or f"Muse-replay-{session_dir.parent.name}-{session_dir.name}"
-        rep = cls(name=name, source_id=sid, labels=MUSE_LABELS[:4], fs=float(fs), chunk=int(chunk),
+        rep = cls(name=name, source_id=sid, labels=CHANNELS, fs=float(fs), chunk=int(chunk),
                   wall_clock=wall_clock, scope=scope)
         rep.data, rep.boundaries, rep.loop = data, boundaries, loop
         rep._open_outlet()
@@ -356,10 +331,13 @@ class ReplayMuse(_Publisher):
 
 
 def load_raw_session(session_dir: Path) -> tuple[np.ndarray, list[tuple[str, int]]]:
-    """All ``eeg`` samples of a raw session in recording order, with each file's start index."""
+    """All ``eeg`` samples of a raw session in recording order, with each file's start index.
+
+    A malformed ``eeg`` line raises DataError naming file and line (:func:`nao_trainer.published.read_recording`).
+    """
     parts, boundaries, start = [], [], 0
     for path in raw_recording_order(session_dir):
-        x = read_raw_eeg(path)
+        x = read_recording(path, prefixes=("eeg",))["eeg"]
         boundaries.append((path.name, start))
         parts.append(x)
         start += len(x)
