@@ -33,6 +33,9 @@ EVENTS: dict[str, frozenset[str]] = {
     "goodbye": frozenset({"total", "turns"}),
 }
 
+#: Values of the kind the session passes, used to trial-format every variant at load.
+SAMPLE_FIELDS: dict[str, Any] = {"pseudonym": "P01", "turns": 25, "level": 3, "length": 7, "total": 17}
+
 
 @dataclass(frozen=True)
 class Dialogue:
@@ -75,11 +78,20 @@ def load_dialogue(path: str | Path) -> Dialogue:
         for item in items:
             if not isinstance(item, str) or not item.strip():
                 raise ConfigError(f"{where}: event '{event}' has an empty or non-text variant {item!r}")
-            used = {name for _, name, _, _ in string.Formatter().parse(item) if name is not None}
+            try:
+                used = {name for _, name, _, _ in string.Formatter().parse(item) if name is not None}
+            except ValueError as exc:
+                raise ConfigError(f"{where}: event '{event}' has a broken placeholder in {item!r} ({exc}); "
+                                  "write {name} for a value and {{ }} for a literal brace") from None
             unknown = used - EVENTS[event]
             if unknown:
                 allowed = ", ".join("{%s}" % a for a in sorted(EVENTS[event])) or "none"
                 raise ConfigError(f"{where}: event '{event}' uses unknown placeholder {{{sorted(unknown)[0]}}}; allowed: {allowed}")
+            try:
+                item.format(**SAMPLE_FIELDS)
+            except (ValueError, KeyError, IndexError, AttributeError) as exc:
+                raise ConfigError(f"{where}: event '{event}' has a placeholder that cannot be filled in {item!r} "
+                                  f"({type(exc).__name__}: {exc}); write plain {{name}} placeholders") from None
         variants[event] = tuple(items)
     missing = [e for e in EVENTS if e not in variants]
     if missing:

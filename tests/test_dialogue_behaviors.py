@@ -89,3 +89,24 @@ def test_a_folder_or_binary_file_is_a_one_line_error(tmp_path, loader):
     binary.write_bytes(b"\xff\xfe\x00garbage")
     with pytest.raises(ConfigError, match="not a text file"):
         loader(binary)
+
+
+@pytest.mark.parametrize("bad, words", [
+    ('"Level {level."', "broken placeholder"),
+    ('"Level }."', "broken placeholder"),
+    ('"Level {level!x}."', "cannot be filled"),
+    ('"Level {level:q}."', "cannot be filled"),
+    ('"Level {level:%}{length:.2s}."', "cannot be filled"),
+])
+def test_a_placeholder_that_cannot_be_filled_is_refused_at_load(tmp_path, bad, words):
+    text = EN.read_text().replace('"Level {level}."', bad)
+    line = next(i for i, ln in enumerate(text.splitlines(), 1) if ln.startswith("level:"))
+    with pytest.raises(ConfigError, match=rf"d.yaml:{line}: event 'level' has a") as err:
+        dia.load_dialogue(write(tmp_path, text))
+    assert words in str(err.value) and "\n" not in str(err.value)
+
+
+def test_format_specs_that_fit_the_values_are_accepted(tmp_path):
+    text = EN.read_text().replace('"Level {level}."', '"Level {level:d} ({length:>2}), {{x}}."')
+    d = dia.load_dialogue(write(tmp_path, text))
+    assert d.say("level", np.random.default_rng(0), level=3, length=7) == "Level 3 ( 7), {x}."
