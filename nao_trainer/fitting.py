@@ -34,7 +34,7 @@ import numpy as np
 from .core import mdp
 from .core.simulation import TIME_QUANTILES, UserSimulator
 from .core.usermodel import Clustering, UserModels, cluster_users, user_models
-from .errors import DataError, UserError
+from .errors import DataError
 
 #: How states are turned into regression inputs (stored in the artifacts' metadata).
 FEATURE_ENCODING = (
@@ -449,11 +449,6 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
 
     say = progress or (lambda _m: None)
     source, out = Path(source), Path(out_dir)
-    if figures:
-        import importlib.util
-
-        if importlib.util.find_spec("matplotlib") is None:
-            raise UserError("figures need matplotlib: pip install 'nao-trainer[plots]', or add --no-figures") from None
     skipped: list[str] = []
     if source.is_file():
         table = dataset.read_table(source)

@@ -108,3 +108,23 @@ def test_many_clusters_still_give_strict_json(dataset_root, tmp_path, tmp_path_f
     report = json.loads(capsys.readouterr().out, **strict)
     assert any(c["cv_rmse_performance"] is None for c in report["clusters"] if c["size"] == 1)
     json.loads((out / "manifest.json").read_text(), **strict)
+
+
+def test_pyplot_without_matplotlib_is_a_user_error(monkeypatch):
+    from nao_trainer.errors import UserError
+    from nao_trainer.plots import pyplot
+
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
+    with pytest.raises(UserError, match=r"pip install 'nao-trainer\[plots\]'"):
+        pyplot()
+
+
+def test_fit_without_matplotlib_fails_before_reading(tmp_path, monkeypatch, capsys):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "matplotlib" else real(name, *a))
+    rc = main(["fit", str(tmp_path / "missing"), "--out", str(tmp_path / "m")])
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.strip().splitlines()) == 1
+    assert "pip install 'nao-trainer[plots]'" in err and "--no-figures" in err

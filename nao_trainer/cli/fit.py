@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import sys
 from pathlib import Path
@@ -35,6 +36,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.k < 1:
         raise ConfigError(f"--k must be a positive number of clusters, got {args.k}")
+    if not args.no_figures and importlib.util.find_spec("matplotlib") is None:  # fail before the import and fit
+        raise ConfigError("figures need matplotlib: pip install 'nao-trainer[plots]', or add --no-figures")
     say = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
     report = fit_and_save(args.source, args.out, compat=args.compat, k=args.k, seed=args.seed,
                           figures=not args.no_figures, cache=None if args.no_cache else (args.cache or "default"),

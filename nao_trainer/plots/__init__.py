@@ -1,1 +1,18 @@
 """Figures (matplotlib, imported lazily by the commands that draw)."""
+from __future__ import annotations
+
+PLOTS_HINT = "pip install 'nao-trainer[plots]'"
+
+
+def pyplot():
+    """``matplotlib.pyplot`` with the non-interactive Agg backend; a missing matplotlib is a UserError."""
+    try:
+        import matplotlib
+    except ImportError:
+        from ..errors import UserError
+
+        raise UserError(f"figures need matplotlib: {PLOTS_HINT}") from None
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt

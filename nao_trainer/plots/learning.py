@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core import mdp
+from . import pyplot
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..training import GridResult
@@ -17,15 +18,6 @@ if TYPE_CHECKING:  # pragma: no cover
 METHOD_COLORS = {"performance": "#4c72b0", "shaping": "#dd8452", "qaug": "#55a868"}
 METHOD_LABELS = {"performance": "performance (r)", "shaping": "reward shaping (r + 7.5e)",
                  "qaug": "Q-augmentation (Q + 0.8H)"}
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def bin_curve(values: np.ndarray, n_bins: int = 100) -> tuple[np.ndarray, np.ndarray]:
@@ -44,7 +36,7 @@ def plot_learning_curves(result: "GridResult", path: Path, n_bins: int = 100) ->
     Curves are binned over consecutive episodes so the trend is readable; the band is the binned
     per-episode 95 % interval of the mean over seeds.
     """
-    plt = _pyplot()
+    plt = pyplot()
     curves = result.curves()
     n_rows = len(result.clusters)
     fig, axes = plt.subplots(n_rows, 2, figsize=(10, 2.8 * n_rows), squeeze=False, sharex=True)
@@ -78,7 +70,7 @@ def plot_s0_policies(result: "GridResult", path: Path) -> Path:
     Each panel notes how often the agents visited S0 on average: a rarely visited state keeps a
     near-uniform policy, which is not the same as indifference.
     """
-    plt = _pyplot()
+    plt = pyplot()
     probs = result.s0_probabilities()
     from ..training import S0_INDEX
 

@@ -13,17 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from ..fitting import FitResult, Turns
+from . import pyplot
 
 COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:gray")
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def example_sessions(result: FitResult, count: int = 2) -> list[str]:
@@ -44,7 +36,7 @@ def plot_users(result: FitResult, turns: Turns, path: Path, sessions: list[str] 
     ``signals[session][turn]`` (optional) is the turn's per-sample normalised engagement; it is
     drawn as a continuous line behind the per-turn means (turn k spans k-0.5..k+0.5 on the x axis).
     """
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.lines import Line2D
 
     sessions = sessions or example_sessions(result)
@@ -85,7 +77,7 @@ def plot_users(result: FitResult, turns: Turns, path: Path, sessions: list[str] 
 
 def plot_clusters(result: FitResult, mds: np.ndarray, path: Path) -> Path:
     """Figure 5: MDS scatter by cluster, cluster mean success and engagement per level."""
-    plt = _pyplot()
+    plt = pyplot()
     cl = result.clustering
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
     for cid in range(1, cl.k + 1):
