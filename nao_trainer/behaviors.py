@@ -64,6 +64,9 @@ def load_behaviors(path: str | Path) -> Behaviors:
         if key not in ("postures", "events", "led_fade_s", "leds_reset"):
             raise ConfigError(f"{where(key)}: unknown key '{key}'; valid: postures, events, led_fade_s, leds_reset")
     postures = data.get("postures") or {}
+    if not isinstance(postures, dict):
+        raise ConfigError(f"{where('postures')}: key 'postures' must be a mapping like "
+                          f"{{start: Stand, end: Crouch, safe: Crouch}}, got {postures!r}")
     chosen = {}
     for which in ("start", "end", "safe"):
         name = postures.get(which)

@@ -110,3 +110,15 @@ def test_format_specs_that_fit_the_values_are_accepted(tmp_path):
     text = EN.read_text().replace('"Level {level}."', '"Level {level:d} ({length:>2}), {{x}}."')
     d = dia.load_dialogue(write(tmp_path, text))
     assert d.say("level", np.random.default_rng(0), level=3, length=7) == "Level 3 ( 7), {x}."
+
+
+@pytest.mark.parametrize("value", ["[Stand, Crouch, Crouch]", "Stand"])
+def test_postures_that_are_not_a_mapping_are_refused(tmp_path, value):
+    text = (ROOT / "behaviors" / "default.yaml").read_text()
+    start = text.index("postures:")
+    end = text.index("\n", text.index("safe:", start))
+    p = tmp_path / "b.yaml"
+    p.write_text(text[:start] + f"postures: {value}" + text[end:])
+    line = next(i for i, ln in enumerate(p.read_text().splitlines(), 1) if ln.startswith("postures:"))
+    with pytest.raises(ConfigError, match=rf"b.yaml:{line}: key 'postures' must be a mapping"):
+        beh.load_behaviors(p)
