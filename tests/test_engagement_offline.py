@@ -254,3 +254,23 @@ def test_cli_checks_options_and_output_folders_before_computing(dataset_root, tm
     # the option combination is checked once, not reported per session as a skipped one
     with pytest.raises(DataError, match="drop --source raw"):
         offline.session_engagement_many(root, "authors2018", "raw", workers=1, problems=[])
+
+
+def test_raw_source_uses_the_live_monitors_processing(tmp_path):
+    from nao_trainer.core import engagement as core
+    from nao_trainer.eeg.monitor import Processing
+    from nao_trainer.eeg.simulated_muse import MuseSignal
+
+    live, s = Processing(), offline.OfflineSettings()
+    assert (s.raw_a, s.window_s, s.hop_s, s.min_channels, s.min_quality) == (
+        live.ewma_a, live.window_s, live.hop_s, live.min_clean_channels, live.min_quality)
+    assert s.a == 0.9  # the 10 Hz band lines keep the authors' factor
+    x = MuseSignal(np.random.default_rng(3), fs=220.0, n_channels=4).next(220 * 8)
+    path = tmp_path / "robot_1"
+    path.write_text("".join("eeg " + " ".join(f"{v:.3f}" for v in row) + "\n" for row in x))
+    ph = offline._from_raw(pub.read_recording(path, prefixes=("eeg", "h")), s)
+    est = core.OnlineEngagement(220.0, 4, live.window_s, live.hop_s, live.ewma_a, core.QualityThresholds(),
+                                live.min_clean_channels, channel_names=pub.CHANNELS)
+    rec = pub.read_recording(path, prefixes=("eeg",))["eeg"]
+    want = [w.index_smoothed for w in est.push(rec, np.arange(len(rec)) / 220.0)]
+    np.testing.assert_allclose(ph.smoothed, np.array(want, dtype=float))

@@ -15,7 +15,8 @@ Two definitions:
     the correct EWMA ``s_t = a s_(t-1) + (1-a) E_t`` restarted per turn over the usable samples.
     *raw source* (recordings with only raw ``eeg`` lines, or ``source="raw"``): the online estimator
     (:class:`nao_trainer.core.engagement.OnlineEngagement`) on the raw EEG at ``fs`` Hz, samples stamped
-    ``i / fs``. ``engagement_index`` = mean raw E of the usable samples/windows, ``engagement`` = mean of
+    ``i / fs``, with the live monitor's processing defaults (``eeg.monitor.Processing``: EWMA a = 0.75 per
+    0.25 s window). ``engagement_index`` = mean raw E of the usable samples/windows, ``engagement`` = mean of
     their smoothed E normalised per participant (:class:`EngagementNormaliser`): baseline = the
     ``intro`` recording (greeting and instructions) when present, then bounds widened turn by turn;
     without ``intro`` the baseline is all listening-phase values of the session itself.
@@ -36,6 +37,7 @@ import numpy as np
 from ..core import engagement as core
 from ..errors import DataError
 from ..published import CHANNELS, RAW_RATE_HZ, Recording, find_sessions, read_recording, read_state_eeg, session_id
+from .monitor import Processing
 
 COMPAT_MODES: tuple[str, ...] = ("authors2018",)
 SOURCES: tuple[str, ...] = ("bands", "raw")
@@ -45,16 +47,25 @@ COLUMNS: tuple[str, ...] = ("turn", "engagement_index", "engagement", "quality",
 ANSWER_COLUMNS: tuple[str, ...] = ("answer_index", "answer_engagement", "answer_quality", "answer_reason")
 
 
+#: The live monitor's processing defaults (``eeg.processing``): the raw source re-analyses a recording
+#: exactly as a live session would have.
+_LIVE = Processing()
+
+
 @dataclass(frozen=True)
 class OfflineSettings:
-    """Knobs of the project's own offline definition (ignored by ``compat="authors2018"``)."""
+    """Knobs of the project's own offline definition (ignored by ``compat="authors2018"``).
 
-    a: float = 0.9  # EWMA factor per sample (10 Hz bands) or per window (raw, one every hop_s)
-    min_channels: int = 2  # channels with good contact (bands) or clean signal (raw) per sample/window
-    min_quality: float = 0.5  # fraction of usable samples/windows a turn needs
+    The raw-EEG defaults are the live monitor's (:class:`nao_trainer.eeg.monitor.Processing`).
+    """
+
+    a: float = 0.9  # EWMA factor per 10 Hz band sample (time constant 0.1 s / (1 - a) = 1 s)
+    raw_a: float = _LIVE.ewma_a  # EWMA factor per raw-EEG window (one every hop_s): 0.75, also 1 s
+    min_channels: int = _LIVE.min_clean_channels  # good-contact (bands) / clean (raw) channels per sample/window
+    min_quality: float = _LIVE.min_quality  # fraction of usable samples/windows a turn needs
     fs: float = RAW_RATE_HZ  # raw EEG sampling rate
-    window_s: float = 2.0
-    hop_s: float = 0.25
+    window_s: float = _LIVE.window_s
+    hop_s: float = _LIVE.hop_s
     thresholds: core.QualityThresholds = core.QualityThresholds()
 
 
@@ -226,7 +237,7 @@ def _from_raw(rec: Recording, settings: OfflineSettings) -> _Phase:
     n_ch = eeg.shape[1]
     names = CHANNELS[:n_ch] if n_ch <= len(CHANNELS) else None
     est = core.OnlineEngagement(
-        settings.fs, n_ch, settings.window_s, settings.hop_s, settings.a,
+        settings.fs, n_ch, settings.window_s, settings.hop_s, settings.raw_a,
         settings.thresholds, min(settings.min_channels, n_ch), channel_names=names,
     )
     windows = est.push(eeg, np.arange(len(eeg)) / settings.fs)
