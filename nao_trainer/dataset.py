@@ -101,8 +101,6 @@ class TurnTable:
         for name, kind in COLUMNS.items():
             values = [r[name] for r in rows]
             cols[name] = np.array(values, dtype=float if kind is float else (np.int64 if kind is int else str))
-            if kind is str and not values:
-                cols[name] = np.array([], dtype=str)
         return cls(cols)
 
     def to_csv(self) -> str:
@@ -183,7 +181,7 @@ def produced_by(length: int, feedback: int, turn_index: int) -> int:
     return level_of(length) - 1
 
 
-def _check_turns(sid: str, log: list[published.LogRow], states: list[published.StateRow]) -> None:
+def _check_turns(log: list[published.LogRow], states: list[published.StateRow]) -> None:
     """Raise DataError when logfile and state_EEG disagree or turns are missing."""
     if not log:
         raise DataError("logfile has no turns")
@@ -199,6 +197,8 @@ def _check_turns(sid: str, log: list[published.LogRow], states: list[published.S
             raise DataError(f"logfile {where}: length must be one of {LENGTHS}, got {r.length}")
         if r.success not in (1, -1):
             raise DataError(f"logfile {where}: success must be 1 or -1, got {r.success}")
+        if r.rf not in (0, 1, 2):
+            raise DataError(f"logfile {where}: robot feedback (rf) must be 0, 1 or 2, got {r.rf}")
         if (s.length, s.rf) != (r.length, r.rf):
             raise DataError(f"{where}: state_EEG says length {s.length} rf {s.rf}, logfile {r.length} {r.rf}")
         expected_prev = 0 if i == 0 else signed_score(level_of(log[i - 1].length), log[i - 1].success == 1)
@@ -208,7 +208,6 @@ def _check_turns(sid: str, log: list[published.LogRow], states: list[published.S
             )
         if r.rf > 0 and i > 0 and r.length != log[i - 1].length:
             raise DataError(f"{where}: feedback turn changes length ({log[i - 1].length} -> {r.length})")
-        mdp.encode(s.length, s.rf, s.previous_score)
 
 
 def _engagement(session_dir: Path, n: int, compat: str | None) -> list[tuple[float, float, float, float, str]]:
@@ -236,10 +235,8 @@ def import_session(session_dir: Path, compat: str | None = None) -> list[dict[st
     sid = published.session_id(session_dir)
     log = published.read_logfile(session_dir / "logfile")
     states = published.read_state_eeg(session_dir / "state_EEG")
-    _check_turns(sid, log, states)
-    states = states[: len(log)]
-    n = len(log)
-    eeg = _engagement(session_dir, n, compat)
+    _check_turns(log, states)
+    eeg = _engagement(session_dir, len(log), compat)
     rows = []
     for i, (r, s) in enumerate(zip(log, states)):
         index, normed, quality, contact, note = eeg[i]

@@ -185,3 +185,19 @@ def test_unusable_cache_folder_only_warns(dataset_root, tmp_path, capsys):
     result = import_dataset(root, cache_dir=blocker / "cache")
     assert len(result.table.sessions) == 1 and result.cached == 0
     assert "import cache" in capsys.readouterr().err
+
+
+def test_robot_feedback_out_of_range_names_the_turn(dataset_root, tmp_path):
+    root = _copy(dataset_root, tmp_path / "data", SAMPLE[:2])
+    sdir = root / SAMPLE[0]
+    for name, col in (("logfile", 2), ("state_EEG", 1)):  # rf = 3 on turn 1, consistently in both files
+        lines = (sdir / name).read_text().splitlines()
+        fields = lines[0].split(" ")
+        fields[col] = "3"
+        lines[0] = " ".join(fields)
+        (sdir / name).write_text("\n".join(lines) + "\n")
+    result = import_dataset(root)
+    assert result.table.sessions == [SAMPLE[1]]
+    [problem] = result.problems
+    assert problem.session == SAMPLE[0]
+    assert problem.reason == "logfile turn 1: robot feedback (rf) must be 0, 1 or 2, got 3"
