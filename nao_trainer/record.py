@@ -24,6 +24,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from .errors import ConfigError
 from .files import write_text_atomic
 
 TURN_COLUMNS: tuple[str, ...] = (
@@ -54,10 +55,27 @@ def _fsync(f) -> None:
     os.fsync(f.fileno())
 
 
+_OUTPUT_FIX = "point session.output (or --out) at a folder you can write to"
+
+
+def ensure_output_dir(out: Path) -> Path:
+    """Create ``out`` (with parents) and check it is a writable folder; ``ConfigError`` in one line if not."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"session.output: cannot create the folder {out} ({exc.strerror}); {_OUTPUT_FIX}") from None
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise ConfigError(f"session.output: the folder {out} is not writable; {_OUTPUT_FIX}")
+    return out
+
+
 def create_session_dir(out: Path, pseudonym: str, when: dt.datetime | None = None) -> Path:
-    """A new, empty folder ``<out>/<pseudonym>_<stamp>[_n]``; never an existing one."""
+    """A new, empty folder ``<out>/<pseudonym>_<stamp>[_n]``; never an existing one.
+
+    A folder that cannot be created is a one-line ``ConfigError`` naming it.
+    """
     stamp = (when or dt.datetime.now()).strftime("%Y%m%d-%H%M%S")
-    out.mkdir(parents=True, exist_ok=True)
+    ensure_output_dir(out)
     for n in range(1, 1000):
         path = out / (f"{pseudonym}_{stamp}" + (f"_{n}" if n > 1 else ""))
         try:
@@ -65,6 +83,9 @@ def create_session_dir(out: Path, pseudonym: str, when: dt.datetime | None = Non
             return path
         except FileExistsError:
             continue
+        except OSError as exc:
+            raise ConfigError(f"session.output: cannot create the session folder {path} ({exc.strerror}); "
+                              f"{_OUTPUT_FIX}") from None
     raise FileExistsError(f"{out}: too many sessions named {pseudonym}_{stamp}")
 
 

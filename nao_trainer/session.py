@@ -44,7 +44,7 @@ from .dialogue import Dialogue, load_dialogue
 from .errors import ConfigError, Interrupted, RobotUnavailable, UserError
 from .ports import (Answer, AnswerSource, EngagementMonitor, NullMonitor, PhaseEngagement, Policy, Robot,
                     RobotConnectionLost, Transition, TurnContext)
-from .record import SessionRecorder, now_iso, versions
+from .record import SessionRecorder, ensure_output_dir, now_iso, versions
 
 # ----------------------------------------------------------------------------------------------
 # The state machine, as data
@@ -748,6 +748,7 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
         # (learning=False only reads and verifies; a state path inside the new session folder cannot exist yet).
         _close_quietly(make_policy(config.get("policy.kind"), config.get("policy.schedule"), False,
                                    _configured_state_path(config), np.random.default_rng(0)), None)
+    ensure_output_dir(config.output_dir())  # an unusable output folder is found before the robot moves
 
     with _signals_as_interrupt():
         return _run_wired(config, options, progress, dialogue, behaviors, seed, simulator)

@@ -215,3 +215,13 @@ def test_torn_policy_state_is_refused_before_the_robot_moves(tmp_path):
     assert str(state) in res.stderr and "torn or corrupt" in res.stderr and "Traceback" not in res.stderr
     assert not (tmp_path / "out").exists()  # nothing written, the robot never connected
     assert state.read_text().endswith('"format_ver')  # never silently reset
+
+
+def test_an_output_folder_that_cannot_be_created_is_one_line_before_the_robot_connects(tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    res = cli("--out", str(blocker / "sub"), "--turns", "2", "--speed", "50", "--robot", "tcp://127.0.0.1:1")
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip() == (f"nao-trainer run: error: session.output: cannot create the folder {blocker / 'sub'} "
+                                  "(Not a directory); point session.output (or --out) at a folder you can write to")
+    assert "connecting" not in res.stderr

@@ -67,3 +67,16 @@ def test_session_plot(tmp_path):
     rec.close("robot lost", 3)
     out = plot_session(path)
     assert out == path / "session.png" and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 10_000
+
+
+def test_a_session_folder_that_cannot_be_created_is_a_config_error(tmp_path):
+    import pytest
+
+    from nao_trainer.errors import ConfigError
+
+    blocker = tmp_path / "f"
+    blocker.write_text("")
+    with pytest.raises(ConfigError, match=r"session.output: cannot create the folder .*f/out \(Not a directory\); point"):
+        create_session_dir(blocker / "out", "P01")
+    with pytest.raises(ConfigError, match="cannot create the folder"):
+        SessionRecorder(blocker / "out", "P01").open({})
