@@ -16,8 +16,8 @@ usable EEG samples of the turn and ``contact`` the fraction of the listening rec
 samples with all four electrodes in good or ok contact.
 
 Cache: each session's rows are stored in ``<cache_dir>/<user>__<session>.json`` keyed by the
-importer version, the compatibility mode and the names, sizes and modification times of all the
-session's files; a re-import reads only the cache for unchanged sessions.
+importer version, the package version, the offline engagement settings, the compatibility mode and
+the names, sizes and modification times of all the session's files; a re-import reads only the cache for unchanged sessions.
 """
 from __future__ import annotations
 
@@ -259,8 +259,17 @@ def import_session(session_dir: Path, compat: str | None = None) -> list[dict[st
 # ------------------------------------------------------------------------------------------------
 
 
+def engagement_definition() -> str:
+    """What the cached engagement columns depend on besides the files: the package version and the
+    offline engagement settings (``eeg.offline.OfflineSettings``). A change invalidates the cache."""
+    import nao_trainer
+    from .eeg import offline
+
+    return f"nao-trainer {nao_trainer.__version__}|{offline.OfflineSettings()!r}"
+
+
 def _session_key(session_dir: Path, compat: str | None) -> str:
-    h = hashlib.sha256(f"v{IMPORTER_VERSION}|{compat}".encode())
+    h = hashlib.sha256(f"v{IMPORTER_VERSION}|{compat}|{engagement_definition()}".encode())
     with os.scandir(session_dir) as it:
         entries = sorted(it, key=lambda e: e.name)
     for e in entries:

@@ -201,3 +201,21 @@ def test_robot_feedback_out_of_range_names_the_turn(dataset_root, tmp_path):
     [problem] = result.problems
     assert problem.session == SAMPLE[0]
     assert problem.reason == "logfile turn 1: robot feedback (rf) must be 0, 1 or 2, got 3"
+
+
+def test_cache_key_follows_the_engagement_definition(dataset_root, tmp_path, monkeypatch):
+    import dataclasses
+
+    import nao_trainer
+    from nao_trainer.eeg import offline
+
+    root = _copy(dataset_root, tmp_path / "data", SAMPLE[:1])
+    cache = tmp_path / "cache"
+    assert import_dataset(root, cache_dir=cache).cached == 0
+    assert import_dataset(root, cache_dir=cache).cached == 1
+    monkeypatch.setattr(nao_trainer, "__version__", nao_trainer.__version__ + ".post1")
+    assert import_dataset(root, cache_dir=cache).cached == 0  # another release: read again
+    assert import_dataset(root, cache_dir=cache).cached == 1
+    defaults = offline.OfflineSettings()
+    monkeypatch.setattr(offline, "OfflineSettings", lambda: dataclasses.replace(defaults, a=0.8))
+    assert import_dataset(root, cache_dir=cache).cached == 0  # other engagement settings: read again
