@@ -79,6 +79,13 @@ def _schedule(value: list) -> str | None:
     return None
 
 
+def _lsl_property(value: str) -> str | None:
+    # The EEG inlet resolves streams with an XPath predicate in single quotes (eeg/inlet.py refuses a quote).
+    if "'" in value:
+        return "must not contain a quote ('): LSL stream properties are matched inside quotes; remove it"
+    return None
+
+
 SCHEMA: dict[str, Any] = {
     "study": {"name": Field(str), "description": Field(str, nullable=True)},
     "participant": {"pseudonym": Field(str, check=lambda v: None if re.fullmatch(r"[A-Za-z0-9_-]{1,40}", v)
@@ -130,9 +137,9 @@ SCHEMA: dict[str, Any] = {
     "eeg": {
         "mode": Field(str, choices=EEG_MODES),
         "required": Field(bool),
-        "stream_type": Field(str),
-        "stream_name": Field(str, nullable=True),
-        "source_id": Field(str, nullable=True),
+        "stream_type": Field(str, check=_lsl_property),
+        "stream_name": Field(str, nullable=True, check=_lsl_property),
+        "source_id": Field(str, nullable=True, check=_lsl_property),
         "lsl_scope": Field(str, choices=LSL_SCOPES),
         "processing": Field(dict, free=True),
     },

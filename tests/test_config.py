@@ -69,6 +69,9 @@ def test_unknown_section(tmp_path):
     ("eeg:\n  required: yes please\n", 2, "eeg.required", "true/false"),
     ("eeg:\n  mode: lsl\n  lsl_scope: universe\n", 3, "eeg.lsl_scope", "machine"),
     ("participant:\n  pseudonym: John Smith\n", 2, "participant.pseudonym", "never a real name"),
+    ("eeg:\n  mode: lsl\n  stream_name: \"Muse's\"\n", 3, "eeg.stream_name", "must not contain a quote"),
+    ("eeg:\n  source_id: \"Muse'00\"\n", 2, "eeg.source_id", "must not contain a quote"),
+    ("eeg:\n  stream_type: \"EEG'\"\n", 2, "eeg.stream_type", "must not contain a quote"),
 ])
 def test_bad_values_name_file_line_key(tmp_path, text, line, key, words):
     path = study(tmp_path, text)
