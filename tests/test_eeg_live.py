@@ -291,3 +291,73 @@ def test_reader_errors_are_logged_not_raised(tmp_path):
         monitor.close()
     errors = [r for r in _rows(tmp_path / "eeg" / "events.csv") if r["event"] == "eeg_error"]
     assert len(errors) == 3 and "injected failure" in errors[0]["detail"]
+
+
+def _bare_monitor(now: list[float]) -> LslMonitor:
+    """An LslMonitor without a reader thread or LSL: windows are fed by the test, the clock is ``now[0]``."""
+    import threading
+    from types import SimpleNamespace
+
+    from nao_trainer.core.engagement import EngagementNormaliser
+    from nao_trainer.eeg.monitor import _SessionFiles
+
+    m = LslMonitor.__new__(LslMonitor)
+    m._clock = lambda: now[0]
+    m.settings = EEGSettings()
+    m.proc = m.settings.processing
+    m.files, m.normaliser = _SessionFiles(None), EngagementNormaliser()
+    m.windows, m.gaps, m.phases = [], [], []
+    m.inlet, m.unavailable_reason, m._lost = SimpleNamespace(), "", False
+    m._phase, m._had_baseline = None, False
+    m._cond, m._urgent = threading.Condition(), threading.Event()
+    m._last_stamp = -np.inf
+    return m
+
+
+def _windows(t0: float, t1: float, hop: float, rng) -> list:
+    from nao_trainer.core.engagement import WindowResult
+
+    ts = np.arange(t0 + hop, t1 + 1e-9, hop)
+    return [WindowResult(float(t), float(v), float(v), 1.0) for t, v in zip(ts, rng.uniform(0.3, 0.9, len(ts)))]
+
+
+def test_end_phase_keeps_early_windows_of_a_long_phase_while_the_reader_prunes():
+    now = [0.0]
+    m = _bare_monitor(now)
+    m.begin_phase("listening", 1)
+    m.windows = _windows(0.0, 100.1, 0.025, np.random.default_rng(0))  # > 4000: the reader prunes
+    n = len(m.windows)
+    now[0] = m._last_stamp = 100.2
+    collect = m._windows_until
+
+    def reader_prunes_meanwhile(t0, t1):  # the reader thread runs _prune while end_phase waits
+        m._prune()
+        return collect(t0, t1)
+
+    m._windows_until = reader_prunes_meanwhile
+    assert len(m.end_phase().series) == n > 4000 and m._phase is None
+
+
+def test_no_scale_reason_says_baseline_too_short_and_phase_value_matches_core():
+    from nao_trainer.core.engagement import aggregate_phase
+
+    rng = np.random.default_rng(1)
+    now = [0.0]
+    m = _bare_monitor(now)
+    m.begin_phase("baseline", None)
+    m.windows = _windows(0.0, 0.5, 0.25, rng)  # 2 windows: too short for a scale
+    now[0] = m._last_stamp = 0.5
+    m.end_phase()
+    m.begin_phase("listening", 1)
+    m.windows += _windows(0.5, 0.75, 0.25, rng)
+    now[0] = m._last_stamp = 0.75
+    r = m.end_phase()
+    assert r.engagement is None and r.index is not None
+    assert r.reason == "no normalisation scale yet (3 windows seen, 5 needed; baseline too short: 2 usable windows)"
+    # the phase value is the core's (normalised once, not twice)
+    m.begin_phase("listening", 2)
+    m.windows += _windows(0.75, 3.0, 0.25, rng)
+    now[0] = m._last_stamp = 3.0
+    r = m.end_phase()
+    want = aggregate_phase([w for w in m.windows if w.t_end > 0.75], 0.75, 3.0, 0.25, m.normaliser)
+    assert r.engagement is not None and r.engagement == want.engagement and r.index == want.index

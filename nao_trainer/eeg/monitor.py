@@ -27,10 +27,9 @@ from __future__ import annotations
 import csv
 import itertools
 import os
-import json
 import logging
 import threading
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -39,6 +38,7 @@ import numpy as np
 from ..core.engagement import (EngagementNormaliser, OnlineEngagement, QualityThresholds, WindowResult,
                                aggregate_phase)
 from ..errors import ConfigError, EEGUnavailable
+from ..files import write_json_atomic
 from ..ports import EngagementMonitor, NullMonitor, PhaseEngagement
 from .inlet import EEGInlet, StreamQuery, resolve_eeg
 from .lsl_scope import SCOPES, configure_lsl
@@ -218,7 +218,7 @@ class _SessionFiles:
 
     def write_json(self, name: str, data: dict) -> None:
         if self.dir is not None:
-            (self.dir / name).write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+            write_json_atomic(self.dir / name, data)
 
     def close(self) -> None:
         with self.lock:
@@ -285,6 +285,7 @@ class LslMonitor:
         self.samples_received = 0
         self.thread_cpu_s = 0.0  # CPU time of the reader thread (benchmarks)
         self._phase: _Phase | None = None
+        self._had_baseline = False  # a baseline phase was summarised (for the no-scale reason)
         self._resolver = None  # a pylsl.ContinuousResolver while waiting for a stream
         self._rejected: set[str] = set()  # source_ids found but unusable
         self._cond = threading.Condition()
@@ -494,9 +495,9 @@ class LslMonitor:
         ph = self._phase
         if ph is None:
             return PhaseEngagement(None, None, 0.0, "no EEG phase was open")
-        self._phase = None
         t1 = self._clock()
         windows = self._windows_until(ph.t0, t1)
+        self._phase = None  # only now: until the windows are collected, _prune keeps the whole phase
         result, rows = self._summarise(ph, t1, windows)
         self.phases.append((ph, t1, result))
         self._write_phase(ph, t1, result, rows)
@@ -527,20 +528,27 @@ class LslMonitor:
         finite = smooth[np.isfinite(smooth)]
         if ph.name == "baseline":
             self.normaliser.fit_baseline(finite)
+            self._had_baseline = True
         else:  # running bounds: every phase's windows join the scale's history
             self.normaliser.extend(finite)
-        agg = aggregate_phase(windows, ph.t0, t1, self.proc.hop_s, self.normaliser, self.proc.min_quality)
+        agg = aggregate_phase(windows, ph.t0, t1, self.proc.hop_s, None, self.proc.min_quality)
+        norm = self.normaliser.normalise(smooth)  # once, for the phase value and the window rows
+        if agg.index is not None:
+            usable = norm[np.array([w.usable for w in windows], dtype=bool)]
+            if np.isfinite(usable).all():  # as aggregate_phase computes it from a normaliser
+                agg = replace(agg, engagement=float(np.mean(usable)))
         reason = agg.reason
         if self.inlet is None:
             reason = f"EEG unavailable: {self.unavailable_reason or 'no stream'}"
         elif agg.index is None and lost_s > 0:
             reason = f"stream lost for {lost_s:.1f} s of the phase ({reason})"
         elif agg.engagement is None and agg.index is not None:
+            why = (f"baseline too short: {self.normaliser.baseline_n_} usable windows" if self._had_baseline
+                   else "no baseline phase")
             reason = (f"no normalisation scale yet ({len(self.normaliser.history)} windows seen, "
-                      f"{self.normaliser.min_values} needed; no baseline phase)"
+                      f"{self.normaliser.min_values} needed; {why})"
                       if self.normaliser.baseline_n_ < self.normaliser.min_values else "normalisation scale is flat")
         engagement = agg.engagement if agg.index is not None else None
-        norm = self.normaliser.normalise(smooth)
         result = PhaseEngagement(engagement, agg.index, round(agg.quality, 4), reason if engagement is None else "",
                                  series=smooth)
         rows = [[ph.turn if ph.turn is not None else "", ph.name, f"{w.t_end:.6f}", _fmt(w.index_raw),
