@@ -34,7 +34,8 @@ import numpy as np
 from .core import mdp
 from .core.simulation import TIME_QUANTILES, UserSimulator
 from .core.usermodel import Clustering, UserModels, cluster_users, user_models
-from .errors import DataError
+from .errors import ConfigError, DataError
+from .files import read_json
 
 #: How states are turned into regression inputs (stored in the artifacts' metadata).
 FEATURE_ENCODING = (
@@ -438,12 +439,38 @@ def user_cache_dir(root: Path, compat: str | None) -> Path:
     return base / f"{digest}-{compat or 'default'}"
 
 
+def table_provenance(csv_path: Path, compat: str | None) -> tuple[str | None, list[str]]:
+    """(compat mode, skipped sessions) of a turn-table CSV from its sidecar ``<csv>.json`` (``write_table``).
+
+    Without a sidecar: ``compat`` as given and no skipped list. A ``compat`` that contradicts the
+    sidecar is a ConfigError: the table's engagement column was computed in the sidecar's mode.
+    """
+    from .dataset import COMPAT_MODES
+
+    sidecar = Path(csv_path).with_name(Path(csv_path).name + ".json")
+    if not sidecar.exists():
+        return compat, []
+    fix = "re-create it with `nao-trainer import`"
+    prov = read_json(sidecar, DataError, fix=fix)
+    if not isinstance(prov, dict) or prov.get("compat") not in COMPAT_MODES:
+        raise DataError(f"{sidecar}: key 'compat' must be one of {', '.join(map(str, COMPAT_MODES[1:]))} or null; {fix}")
+    skipped = prov.get("skipped", [])
+    if not (isinstance(skipped, list) and all(isinstance(v, str) for v in skipped)):
+        raise DataError(f"{sidecar}: key 'skipped' must be a list of strings; {fix}")
+    recorded = prov["compat"]
+    if compat is not None and compat != recorded:
+        raise ConfigError(f"{sidecar}: the table was imported with compat {recorded or 'none'}, not {compat}; "
+                          f"drop --compat or re-import with `nao-trainer import --compat {compat}`")
+    return recorded, list(skipped)
+
+
 def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int = 3, seed: int = 0,
                  figures: bool = True, cache: Path | str | None = "default",
                  progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Import (or read a turn-table CSV), fit, write artifacts and figures; returns the JSON report.
 
-    ``cache``: a folder, ``"default"`` (:func:`user_cache_dir`) or None (no cache).
+    ``cache``: a folder, ``"default"`` (:func:`user_cache_dir`) or None (no cache). For a turn-table
+    CSV, the compat mode and skipped sessions come from its sidecar (:func:`table_provenance`).
     """
     from . import artifacts, dataset
 
@@ -452,6 +479,7 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
     skipped: list[str] = []
     if source.is_file():
         table = dataset.read_table(source)
+        compat, skipped = table_provenance(source, compat)
         say(f"{source}: {len(table)} turns from {len(table.sessions)} sessions")
     else:
         cache_dir = user_cache_dir(source, compat) if cache == "default" else cache

@@ -128,3 +128,26 @@ def test_fit_without_matplotlib_fails_before_reading(tmp_path, monkeypatch, caps
     err = capsys.readouterr().err
     assert rc == 2 and len(err.strip().splitlines()) == 1
     assert "pip install 'nao-trainer[plots]'" in err and "--no-figures" in err
+
+
+def test_fit_from_a_table_follows_its_provenance_sidecar(dataset_root, tmp_path_factory, tmp_path, capsys):
+    table = tmp_path / "turns.csv"
+    cache = shared_cache(tmp_path_factory, "authors2018")
+    assert main(["import", str(dataset_root), "--out", str(table), "--compat", "authors2018", "--cache", str(cache),
+                 "-q"]) == 0
+    sidecar = tmp_path / "turns.csv.json"
+    prov = json.loads(sidecar.read_text())
+    prov["skipped"] = ["user_9/session_9: skipped: logfile not found"]
+    sidecar.write_text(json.dumps(prov))
+    capsys.readouterr()
+    assert main(["fit", str(table), "--out", str(tmp_path / "m"), "--no-figures", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["compat"] == "authors2018" and report["skipped"] == prov["skipped"]
+    manifest = json.loads((tmp_path / "m" / artifacts.MANIFEST).read_text())
+    assert manifest["compat"] == "authors2018" and manifest["skipped"] == prov["skipped"]
+    prov["compat"] = None  # a table imported without --compat cannot be fitted as authors2018
+    sidecar.write_text(json.dumps(prov))
+    assert main(["fit", str(table), "--out", str(tmp_path / "n"), "--no-figures", "--compat", "authors2018"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(sidecar) in err and "compat none" in err
+    assert not (tmp_path / "n").exists()
