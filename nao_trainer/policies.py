@@ -73,8 +73,7 @@ class UniformRandom:
         pass
 
 
-def make_policy(spec: str, schedule: Sequence[str], learning: bool, state_path: Path | None,
-                rng: np.random.Generator) -> Policy:
+def make_policy(spec: str, schedule: Sequence[str], learning: bool, state_path: Path | None) -> Policy:
     """The policy named by ``spec``: "schedule", "random" or "usp:CLUSTER[:METHOD]"."""
     if spec == "schedule":
         return FixedSchedule(schedule)
@@ -86,5 +85,5 @@ def make_policy(spec: str, schedule: Sequence[str], learning: bool, state_path: 
         except ImportError as exc:
             raise ConfigError(f"policy {spec!r}: learned policies are not available in this install ({exc}); "
                               "use --policy schedule or random") from None
-        return load_policy(spec, learning, state_path, rng)
+        return load_policy(spec, learning, state_path)
     raise ConfigError(f"policy {spec!r}: use 'schedule', 'random' or 'usp:CLUSTER[:METHOD]'")

@@ -743,28 +743,29 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
     simulator = build_simulator(config, options.user_model) if config.get("answers.input") == "simulated" else None
     from .policies import make_policy
 
-    if str(config.get("policy.kind")).startswith("usp:"):
-        # Find a missing or stale policy, or a torn/foreign learning-state file, before the robot moves
-        # (learning=False only reads and verifies; a state path inside the new session folder cannot exist yet).
-        _close_quietly(make_policy(config.get("policy.kind"), config.get("policy.schedule"), False,
-                                   _configured_state_path(config), np.random.default_rng(0)), None)
+    # Loaded once, before the robot moves: a missing or stale policy, or a torn/foreign learning-state
+    # file, is found here. Without policy.state_path a learning policy saves into the session folder,
+    # which gets its path once the folder exists (_run_wired).
+    policy = make_policy(config.get("policy.kind"), config.get("policy.schedule"), bool(config.get("policy.learning")),
+                         _configured_state_path(config))
+    # Not closed on failure here: closing a learning policy saves it, and nothing is written before the robot answers.
     ensure_output_dir(config.output_dir())  # an unusable output folder is found before the robot moves
 
     with _signals_as_interrupt():
-        return _run_wired(config, options, progress, dialogue, behaviors, seed, simulator)
+        return _run_wired(config, options, progress, dialogue, behaviors, seed, simulator, policy)
 
 
 def _run_wired(config: StudyConfig, options: RunOptions, progress: TextIO | None, dialogue: Dialogue,
-               behaviors: Behaviors, seed: int, simulator: UserSimulator | None) -> SessionResult:
-    """``run_session`` once the files are loaded: connect, wire the ports, play, clean up."""
-    from .policies import make_policy
+               behaviors: Behaviors, seed: int, simulator: UserSimulator | None, policy: Policy) -> SessionResult:
+    """``run_session`` once the files and the policy are loaded: connect, wire the ports, play, clean up."""
     from .robot.naoqi import NaoqiRobot, redact_url
 
     session_ss, policy_ss, participant_ss, eeg_ss = np.random.SeedSequence(seed).spawn(4)
     input_kind = config.get("answers.input")
     speed = float(config.get("timing.speed"))
     url = config.get("robot.url")
-    standin = robot = recorder = monitor = answers = policy = buttons = None
+    standin = robot = recorder = monitor = answers = buttons = None
+    policy_to_close: Policy | None = None  # closed (and a learning policy saved) only once the folder exists
     session: Session | None = None
     status, code, error = "error", 1, ""
     try:
@@ -795,8 +796,9 @@ def _run_wired(config: StudyConfig, options: RunOptions, progress: TextIO | None
         answers, buttons = _make_answers(config, robot, standin, connect_url, simulator, monitor,
                                          np.random.default_rng(participant_ss), options)
         policy_rng = np.random.default_rng(policy_ss)
-        policy = make_policy(config.get("policy.kind"), config.get("policy.schedule"), bool(config.get("policy.learning")),
-                             _configured_state_path(config) or path / "policy_state.json", policy_rng)
+        if getattr(policy, "learning", False) and getattr(policy, "state_path", "") is None:
+            policy.state_path = path / "policy_state.json"
+        policy_to_close = policy
         session = Session(config, robot, answers, policy, recorder, dialogue, behaviors, np.random.default_rng(session_ss),
                           policy_rng, monitor, progress)
         try:
@@ -822,7 +824,7 @@ def _run_wired(config: StudyConfig, options: RunOptions, progress: TextIO | None
                 session.leave_safe()
             elif session is None and robot is not None and status != "completed":
                 _safe_without_session(robot, behaviors, config)
-            for closer in (answers, policy, monitor, buttons):
+            for closer in (answers, policy_to_close, monitor, buttons):
                 _close_quietly(closer, recorder)
             if robot is not None:
                 _close_quietly(robot, recorder)

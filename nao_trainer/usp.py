@@ -19,7 +19,7 @@ SHA-256 detects a torn or edited file. A file whose ``mdp_definition``, states o
 from this build, or whose simulator fingerprint differs from the user model it claims to be
 trained on, is refused: it would choose actions for states that mean something else.
 
-``load_policy("usp:CLUSTER[:METHOD]", learning, state_path, rng)`` returns a ``LivePolicy``
+``load_policy("usp:CLUSTER[:METHOD]", learning, state_path)`` returns a ``LivePolicy``
 (``ports.Policy``) that keeps learning from the session's real outcomes and engagement with the
 method it was trained with, and writes its whole state atomically to ``state_path`` after every
 turn. If ``state_path`` already holds the state of the same policy (a previous or interrupted
@@ -204,8 +204,8 @@ class LivePolicy:
     """
 
     def __init__(self, learner: QLearner, payload: dict[str, Any], learning: bool, state_path: Path | None) -> None:
-        if learning and state_path is None:
-            raise ConfigError("policy.state_path: a learning policy needs a file to save its state to")
+        # A learning policy needs ``state_path`` only when it saves: the session may set it once its
+        # folder exists (the policy is loaded and checked before the robot connects).
         self.learner = learner
         self.payload = payload
         self.learning = learning
@@ -234,6 +234,8 @@ class LivePolicy:
 
     def save(self) -> None:
         """Write the learner's whole state (a valid policy file) atomically to ``state_path``."""
+        if self.state_path is None:
+            raise ConfigError("policy.state_path: a learning policy needs a file to save its state to")
         payload = self.payload
         for key in ("q", "h", "h_counts", "visits"):
             payload[key] = getattr(self.learner, key).tolist()
@@ -262,14 +264,13 @@ def parse_spec(spec: str) -> tuple[str, str | None]:
     return parts[1], method
 
 
-def load_policy(spec: str, learning: bool, state_path: Path | None, rng: np.random.Generator | None = None,
-                policies_dir: Path | None = None, models_dir: Path | None = None) -> LivePolicy:
+def load_policy(spec: str, learning: bool, state_path: Path | None, policies_dir: Path | None = None, models_dir: Path | None = None) -> LivePolicy:
     """The trained policy ``usp:CLUSTER[:METHOD]`` for a live session (see the module docstring).
 
     METHOD defaults to the folder manifest's ``default_method`` for the cluster (the method whose
     policies scored best in training). The policy's simulator fingerprint must match the current
-    user model of that cluster (``nao_trainer.artifacts.load_simulator``). ``rng`` is unused: the
-    session passes its generator to ``act``.
+    user model of that cluster (``nao_trainer.artifacts.load_simulator``). The session passes its
+    generator to ``act``.
     """
     from .artifacts import load_simulator
 

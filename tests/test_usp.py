@@ -37,7 +37,7 @@ def trained(tmp_path_factory):
 
 def load(trained, spec="usp:1:qaug", learning=True, state_path=None):
     models, policies = trained
-    return usp.load_policy(spec, learning, state_path, np.random.default_rng(0), policies_dir=policies,
+    return usp.load_policy(spec, learning, state_path, policies_dir=policies,
                            models_dir=models)
 
 
@@ -108,9 +108,9 @@ def test_simulator_fingerprint_mismatch_is_refused(trained, tmp_path):
     changed = UserSimulator.from_level_rates("cluster-1", [0.9, 0.8, 0.35, 0.06], [0.3, 0.4, 0.5, 0.6])
     artifacts.save_models(refit, [changed, simulators()[1]], [{"id": 1}, {"id": 2}], {"k": 2})
     with pytest.raises(DataError, match=r"usp_1_qaug.json: trained on user model 'cluster-1'.*fingerprint.*retrain"):
-        usp.load_policy("usp:1:qaug", True, None, None, policies_dir=policies, models_dir=refit)
+        usp.load_policy("usp:1:qaug", True, None, policies_dir=policies, models_dir=refit)
     # Cluster 2 did not change: its policy still loads.
-    usp.load_policy("usp:2:qaug", False, None, None, policies_dir=policies, models_dir=refit)
+    usp.load_policy("usp:2:qaug", False, None, policies_dir=policies, models_dir=refit)
 
 
 def test_spec_parsing_and_default_method(trained):
@@ -122,8 +122,8 @@ def test_spec_parsing_and_default_method(trained):
         load(trained, "usp:1:sarsa")
     with pytest.raises(ConfigError, match="no policy for cluster '7'"):
         load(trained, "usp:7")
-    with pytest.raises(ConfigError, match="needs a file"):
-        load(trained, "usp:1:qaug", learning=True, state_path=None)
+    with pytest.raises(ConfigError, match="needs a file"):  # checked when it saves (the path may come later)
+        load(trained, "usp:1:qaug", learning=True, state_path=None).save()
 
 
 def test_live_policy_learns_and_saves_after_every_observe(trained, tmp_path):
@@ -203,7 +203,7 @@ def test_shipped_policies_match_the_shipped_user_models():
         pytest.skip("no shipped policies")
     manifest = usp.read_manifest(usp.DEFAULT_POLICIES_DIR)
     for cluster in manifest["default_method"]:
-        policy = usp.load_policy(f"usp:{cluster}", False, None, None, policies_dir=usp.DEFAULT_POLICIES_DIR,
+        policy = usp.load_policy(f"usp:{cluster}", False, None, policies_dir=usp.DEFAULT_POLICIES_DIR,
                                  models_dir=artifacts.DEFAULT_MODELS_DIR)
         assert abs(policy.probabilities(S0).sum() - 1) < 1e-9
 
@@ -261,3 +261,37 @@ def test_a_broken_policy_manifest_is_a_one_line_error(tmp_path):
                                                      "default_method": []}))
     with pytest.raises(DataError, match="unknown version or shape"):
         usp.read_manifest(tmp_path)
+
+
+def test_a_learning_policy_gets_its_state_path_when_it_first_saves(trained, tmp_path):
+    from nao_trainer.errors import ConfigError
+
+    policy = load(trained, "usp:1:shaping", state_path=None)  # loaded before the session folder exists
+    step = Transition(mdp.START, 1, 2, 0.5, mdp.encode(5, 0, 0), False)
+    with pytest.raises(ConfigError, match="policy.state_path: a learning policy needs a file"):
+        policy.observe(step)
+    policy.state_path = tmp_path / "later.json"
+    policy.observe(step)
+    assert usp.read_policy_file(tmp_path / "later.json")["live"]["turns_learned"] >= 1
+
+
+def test_a_resumed_policy_is_loaded_once_per_session(tmp_path):
+    """The policy is loaded (and its resume message printed) once, before the robot connects."""
+    import subprocess
+    import sys
+
+    if not (usp.DEFAULT_POLICIES_DIR / usp.MANIFEST).exists():
+        pytest.skip("no shipped policies")
+    state = tmp_path / "p_state.json"
+    study = tmp_path / "study.yaml"
+    study.write_text(f"policy:\n  kind: usp:1:performance\n  state_path: {state}\n")
+    cmd = [sys.executable, "-m", "nao_trainer", "run", "--config", str(study), "--user-model", "1", "--turns", "2",
+           "--speed", "50", "--out", str(tmp_path / "out"), "--quiet", "--no-practice", "--seed", "5"]
+    first = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert first.returncode == 0, first.stderr
+    assert "resuming" not in first.stderr
+    second = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert second.returncode == 0, second.stderr
+    resumed = [ln for ln in second.stderr.splitlines() if "resuming from" in ln]
+    assert resumed == [f"policy usp:1:performance: resuming from {state} (2 live turns learned)"], second.stderr
+    assert usp.read_policy_file(state)["live"]["turns_learned"] == 4
