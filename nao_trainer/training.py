@@ -33,7 +33,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .core import mdp
-from .core.qlearning import METHODS, BatchLearner, QConfig, QLearner, check_method, expected_scores
+from .core.qlearning import METHODS, BatchLearner, QConfig, QLearner, expected_scores
 from .core.simulation import UserSimulator
 from .files import write_json_atomic, write_text_atomic
 
@@ -55,10 +55,12 @@ class TrainingSpec:
     block: int = 200  # episodes of random numbers drawn per agent at a time (speed only)
 
     def __post_init__(self) -> None:
+        # Messages start with the field's name (the CLI prefixes "--" to name its option).
         if not self.methods:
             raise ValueError("methods: give at least one of " + ", ".join(METHODS))
         for m in self.methods:
-            check_method(m)
+            if m not in METHODS:
+                raise ValueError(f"methods: unknown method {m!r} (each method must be one of {', '.join(METHODS)})")
         if len(set(self.methods)) != len(self.methods):
             raise ValueError(f"methods: each method once, got {', '.join(self.methods)}")
         for name, low in (("seeds", 1), ("episodes", 1), ("turns", 1), ("workers", 1), ("block", 1)):

@@ -162,3 +162,45 @@ def test_cli_train_errors_are_one_line(models_dir, tmp_path, capsys):
     assert main(["train", "--models", str(models_dir), "--out", str(tmp_path / "a_file")]) == 2
     captured = capsys.readouterr()
     assert "a_file: cannot create the output folder" in captured.err and "agents" not in captured.err  # nothing ran
+
+
+def test_cli_train_option_errors_name_the_option_once(models_dir, tmp_path, capsys):
+    assert main(["train", "--models", str(models_dir), "--methods", "performance,sarsa", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("nao-trainer train: error: --methods: unknown method 'sarsa' (each method must be one of ")
+    assert "::" not in err and err.count("--methods") == 1  # was "--methods:: methods: ..."
+    assert main(["train", "--models", str(models_dir), "--methods", ",", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()  # was "--methods:: methods: give at least one of ..."
+    assert err == "nao-trainer train: error: --methods: give at least one of performance, shaping, qaug"
+    assert main(["train", "--models", str(models_dir), "--seeds", "0", "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.strip() == "nao-trainer train: error: --seeds must be an integer >= 1, got 0"
+
+
+def test_cli_train_records_the_arguments_it_was_given(models_dir, tmp_path, monkeypatch):
+    import sys
+
+    monkeypatch.setattr(sys, "argv", ["pytest", "-q", "somewhere"])  # not what main() parsed
+    out = tmp_path / "out"
+    argv = ["train", "--models", str(models_dir), "--seeds", "1", "--episodes", "5", "--workers", "1",
+            "--methods", "qaug", "--out", str(out), "--no-plots", "--json"]
+    assert main(argv) == 0
+    command = json.loads((out / "results.json").read_text())["spec"]["command"]
+    assert command == "nao-trainer " + " ".join(argv)
+
+
+def test_help_and_version_do_not_import_numpy():
+    import subprocess
+    import sys
+
+    for flag in ("--help", "--version"):
+        code = (f"import sys; from nao_trainer.cli import main\ntry: main([{flag!r}])\nexcept SystemExit: pass\n"
+                "print('numpy' in sys.modules)")
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+        assert done.stdout.strip().splitlines()[-1] == "False", (flag, done.stdout, done.stderr)
+
+
+def test_cli_method_names_match_the_learner():
+    from nao_trainer.cli import train
+    from nao_trainer.core.qlearning import METHODS
+
+    assert train.METHODS == METHODS

@@ -36,6 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     if not argv:
         argv = ["run"]  # no command: the demo study
     args = parser.parse_args(argv)
+    args.argv = argv  # what was parsed (recorded by commands that log their command line), not sys.argv
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
