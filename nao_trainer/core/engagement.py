@@ -257,7 +257,6 @@ class WindowResult:
     index_smoothed: float | None
     clean_fraction: float  # fraction of scalp channels that were clean (0 for a gap)
     reason: str = ""  # why the index is None, or "gap ..." for a reported gap
-    bands: tuple[float, float, float] | None = None  # mean relative theta, alpha, beta of clean channels
 
     @property
     def usable(self) -> bool:
@@ -373,7 +372,6 @@ class OnlineEngagement:
         if clean.sum() < self.min_clean_channels:
             bad = ", ".join(f"{n} {r}" for n, r in zip(self.channel_names, reasons) if r)
             reason = f"{int(clean.sum())} clean channels < {self.min_clean_channels} needed ({bad})"
-            self.smoother.update(float("nan"))
             return WindowResult(t_end, None, None, frac, reason)
         rel = relative_band_powers(w[:, clean], self.fs)
         bands = np.nanmean(rel, axis=0) if np.isfinite(rel).any() else np.full(3, np.nan)
@@ -381,7 +379,7 @@ class OnlineEngagement:
         if not np.isfinite(e):
             return WindowResult(t_end, None, None, frac, "no band power")
         s = self.smoother.update(e)
-        return WindowResult(t_end, e, s, frac, "", (float(bands[0]), float(bands[1]), float(bands[2])))
+        return WindowResult(t_end, e, s, frac)
 
 
 # ----------------------------------------------------------------------------------------------

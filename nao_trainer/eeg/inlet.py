@@ -82,7 +82,6 @@ def resolve_eeg(query: StreamQuery, timeout_s: float, scope: str = "machine"):
     while not any(i.name() == query.prefer_name for i in infos) and time.monotonic() < settle:
         time.sleep(0.05)
         infos = resolver.results() or infos
-    del resolver
     preferred = [i for i in infos if i.name() == query.prefer_name]
     chosen = (preferred or infos)[0]
     if len(infos) > 1:
@@ -216,4 +215,3 @@ class EEGInlet:
                 inlet.close_stream()
             except Exception:  # already gone: nothing to release
                 pass
-            del inlet

@@ -49,7 +49,6 @@ class MarkerOutlet:
         info.desc().append_child_value("manufacturer", "nao-trainer")
         self._outlet = pylsl.StreamOutlet(info)
         self._lock = threading.Lock()
-        self.pushed = 0
 
     def push(self, event: str, turn: int | None = None) -> float:
         """Publish one event now; returns its LSL timestamp (0.0 when the outlet is closed)."""
@@ -59,7 +58,6 @@ class MarkerOutlet:
                 return 0.0
             stamp = self._pylsl.local_clock()
             self._outlet.push_sample([name], stamp)
-            self.pushed += 1
         return stamp
 
     def has_consumers(self) -> bool:

@@ -361,11 +361,11 @@ def _normalise_authors(phases: list[_Phase]) -> tuple[str, list[np.ndarray | Non
     values = [p.smoothed for p in phases if p.usable]
     if not values:
         return label, [None] * len(phases)
-    allv = np.concatenate(values)
-    lo, hi = np.nanmin(allv), np.nanmax(allv)
-    if not hi > lo:
+    scaled = core.minmax_scale(np.concatenate(values))
+    if np.isnan(scaled).all():  # a flat session: no scale
         return label, [None] * len(phases)
-    return label, [(p.smoothed - lo) / (hi - lo) if p.usable else None for p in phases]
+    parts = iter(np.split(scaled, np.cumsum([len(v) for v in values])[:-1]))
+    return label, [next(parts) if p.usable else None for p in phases]
 
 
 def _baseline_values(session_dir: Path, src: str, settings: OfflineSettings) -> np.ndarray | None:

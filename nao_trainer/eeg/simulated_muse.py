@@ -245,10 +245,6 @@ class SimulatedMuse(_Publisher):
         sim._start_thread()
         return sim
 
-    @property
-    def target(self) -> float:
-        return self.signal._target
-
     def set_target(self, target: float) -> None:
         """Engagement in [0, 1] the signal shows from now on (glides in over ~0.15 s)."""
         with self._lock:
@@ -314,11 +310,6 @@ class ReplayMuse(_Publisher):
         rep._open_outlet()
         rep._start_thread()
         return rep
-
-    @property
-    def position(self) -> int:
-        """Index of the next sample to publish."""
-        return self._pos
 
     def _samples(self, n: int) -> np.ndarray | None:
         if self._pos >= len(self.data):
