@@ -9,6 +9,7 @@ import uuid
 import numpy as np
 import pytest
 
+from nao_trainer.eeg.inlet import StreamQuery
 from nao_trainer.eeg.lsl_scope import configure_lsl
 from nao_trainer.eeg.markers import MarkerOutlet, event_name, marker_source_id
 from nao_trainer.eeg.monitor import EEGSettings, LslMonitor, Processing, open_monitor
@@ -361,3 +362,15 @@ def test_no_scale_reason_says_baseline_too_short_and_phase_value_matches_core():
     r = m.end_phase()
     want = aggregate_phase([w for w in m.windows if w.t_end > 0.75], 0.75, 3.0, 0.25, m.normaliser)
     assert r.engagement is not None and r.engagement == want.engagement and r.index == want.index
+
+
+def test_stream_query_pick_prefers_the_muse_name():
+    from types import SimpleNamespace
+
+    def info(name):
+        return SimpleNamespace(name=lambda: name)
+
+    q = StreamQuery()
+    a, muse, b = info("OpenBCI"), info("Muse"), info("Other")
+    assert q.pick([a, muse, b]) is muse and q.pick([a, b]) is a and q.pick([]) is None
+    assert StreamQuery(prefer_name="Other").pick(iter([a, muse, b])) is b

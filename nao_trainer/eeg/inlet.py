@@ -43,6 +43,13 @@ class StreamQuery:
             parts.append(f"source_id='{_quote(self.source_id)}'")
         return " and ".join(parts)
 
+    def pick(self, infos):
+        """The stream to use among matching ``pylsl.StreamInfo``s: the first named ``prefer_name``, else the
+        first one; None when there is none."""
+        infos = list(infos)
+        preferred = [i for i in infos if i.name() == self.prefer_name]
+        return (preferred or infos or [None])[0]
+
     def describe(self) -> str:
         bits = [f"type {self.stream_type!r}"]
         if self.name:
@@ -82,8 +89,7 @@ def resolve_eeg(query: StreamQuery, timeout_s: float, scope: str = "machine"):
     while not any(i.name() == query.prefer_name for i in infos) and time.monotonic() < settle:
         time.sleep(0.05)
         infos = resolver.results() or infos
-    preferred = [i for i in infos if i.name() == query.prefer_name]
-    chosen = (preferred or infos)[0]
+    chosen = query.pick(infos)
     if len(infos) > 1:
         log.warning("%d EEG streams match %s; using %r (source_id %r)", len(infos), query.describe(),
                     chosen.name(), chosen.source_id())

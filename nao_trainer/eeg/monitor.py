@@ -372,8 +372,7 @@ class LslMonitor:
             self._resolver = pylsl.ContinuousResolver(pred=self.query.predicate(), forget_after=5.0)
         infos = [i for i in self._resolver.results() if i.source_id() not in self._rejected]
         if infos and not self._stop.is_set():
-            preferred = [i for i in infos if i.name() == self.query.prefer_name]
-            info = (preferred or infos)[0]
+            info = self.query.pick(infos)
             try:
                 inlet = EEGInlet.open(info, self.settings.lsl_scope)
             except Exception as exc:  # not usable (e.g. irregular rate): say so once, keep looking
