@@ -89,8 +89,8 @@ class PressWindow:
 class TactileAnswers:
     """Answers from the NAO's head buttons (front/middle/rear = A/B/C), counted on the press.
 
-    Subscribes through ``robot.subscribe_buttons``; after a reconnection call ``resubscribe()``
-    (the session does) so presses keep arriving.
+    Subscribes through ``robot.subscribe_buttons``; after a reconnection the robot re-subscribes
+    the same callback itself (``NaoqiRobot.reconnect``), so presses keep arriving.
     """
 
     def __init__(self, robot: Robot, debounce_s: float = 0.08, grace_s: float = 0.4) -> None:
@@ -100,9 +100,6 @@ class TactileAnswers:
 
     def _on_press(self, letter: str, t: float) -> None:
         self.window.add(key=letter, letter=letter if letter in ("A", "B", "C") else None, t=t)
-
-    def resubscribe(self) -> None:
-        self.robot.subscribe_buttons(self._on_press)
 
     def prepare(self, context: TurnContext) -> None:
         pass

@@ -136,11 +136,6 @@ class SimulatedParticipant:
         """The turn was interrupted: stop pressing (presses must not land in a later window)."""
         self._generation += 1
 
-    def resubscribe(self) -> None:
-        """After a reconnection: the inner tactile source subscribes to the buttons again."""
-        if self.inner is not None and hasattr(self.inner, "resubscribe"):
-            self.inner.resubscribe()
-
     def close(self) -> None:
         self._generation += 1
         if self.inner is not None:

@@ -594,7 +594,7 @@ class Session:
         return "resume_turn"
 
     def _reconnect(self) -> bool:
-        """Reconnect with exponential backoff until ``robot.max_reconnect_s``; then re-subscribe."""
+        """Reconnect with exponential backoff until ``robot.max_reconnect_s`` (the robot re-subscribes the buttons)."""
         r = self.cfg["robot"]
         deadline = time.monotonic() + r["max_reconnect_s"]
         backoff, attempt = r["backoff_initial_s"], 0
@@ -603,8 +603,6 @@ class Session:
             attempt += 1
             try:
                 self.robot.reconnect(max(0.5, min(r["connect_deadline_s"], deadline - time.monotonic())))
-                if hasattr(self.answers, "resubscribe"):
-                    self.answers.resubscribe()
                 self.rec.event("reconnected", attempt=attempt)
                 if self.progress is not None:
                     print(f"robot back after {attempt} attempt(s): resuming", file=self.progress, flush=True)

@@ -98,7 +98,7 @@ def test_head_buttons_over_qi(standin_robot):
         ans = tactile.collect(3, timeout_s=3.0)
         assert ans.response == ("A", "B", "A") and not ans.timed_out
         assert tactile.window.discarded >= 1
-        tactile.resubscribe()  # replaces the subscription: one press still counts once
+        robot.reconnect(5.0)  # re-subscribes the saved callback: one press still counts once
         tactile.open_window()
         standin.press("B")
         ans = tactile.collect(1, timeout_s=3.0)

@@ -203,3 +203,33 @@ def test_a_refused_posture_is_logged_and_the_session_goes_on(tmp_path):
     failed = [e for e in read_events(path) if e["event"] == "robot_call_failed"]
     assert len(failed) == 1 and failed[0]["what"] == "posture Kneel" and "unknown posture" in failed[0]["error"]
     assert len(read_turns(path)) == 2
+
+
+def test_after_a_reconnection_the_buttons_are_subscribed_once(tmp_path):
+    from nao_trainer.answers import TactileAnswers
+    from nao_trainer.robot.naoqi import NaoqiRobot
+    from nao_trainer.robot.standin import StandIn
+
+    cfg = config(tmp_path, session__turns=1, session__practice=False)
+    standin = StandIn.start(speed=50)
+    robot = NaoqiRobot.connect(standin.url, 5.0, debounce_s=0.01)
+    rec = SessionRecorder(tmp_path, "B")
+    rec.open({})
+    tactile = TactileAnswers(robot, debounce_s=0.01, grace_s=0.1)
+    subscribed = []
+    subscribe = robot.subscribe_buttons
+    robot.subscribe_buttons = lambda callback: (subscribed.append(callback), subscribe(callback))[1]
+    try:
+        s = sess.Session(cfg, robot, tactile, UniformRandom(), rec, load_dialogue(cfg.path("session.dialogue")),
+                         load_behaviors(cfg.path("session.behaviors")), np.random.default_rng(1),
+                         np.random.default_rng(2), progress=None)
+        assert s._reconnect()
+        assert len(subscribed) == 1  # NaoqiRobot.reconnect re-subscribes; nobody else does it again
+        tactile.open_window()
+        standin.press("A")
+        assert tactile.collect(1, timeout_s=3.0).response == ("A",)
+    finally:
+        tactile.close()
+        rec.close("completed", 0)
+        robot.close()
+        standin.stop()
