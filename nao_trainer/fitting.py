@@ -50,12 +50,10 @@ def state_features(states: np.ndarray) -> np.ndarray:
     s = np.asarray(states, dtype=int)
     if s.size and (s.min() < 0 or s.max() >= mdp.N_TURN_STATES):
         raise ValueError(f"turn-state indices must be in 0..{mdp.N_TURN_STATES - 1}")
-    level, rest = np.divmod(s, 27)
-    feedback, prev = np.divmod(rest, 9)
-    prev = prev - 4
+    prev = mdp.PREVIOUS[s]
     x = np.zeros((len(s), 10))
-    x[np.arange(len(s)), level] = 1.0
-    x[np.arange(len(s)), 4 + feedback] = 1.0
+    x[np.arange(len(s)), mdp.LEVEL[s] - 1] = 1.0
+    x[np.arange(len(s)), 4 + mdp.FEEDBACK[s]] = 1.0
     x[:, 7] = prev < 0
     x[:, 8] = prev > 0
     x[:, 9] = np.abs(prev) / 4.0
@@ -304,15 +302,6 @@ class FitResult:
     clusters: list[ClusterFit]
     options: FitOptions
     metadata: dict[str, Any] = field(default_factory=dict)
-
-    def summary(self) -> dict[str, Any]:
-        return {
-            "k": self.clustering.k,
-            "inertia": round(self.clustering.inertia, 9),
-            "sessions": len(self.user_models.sessions),
-            "clusters": [c.summary() for c in self.clusters],
-            **self.metadata,
-        }
 
 
 def _level_success(turns: Turns, p: np.ndarray | None = None) -> np.ndarray:

@@ -84,8 +84,6 @@ class SequenceLearningEnv(gym.Env):
         self.render_mode = render_mode
         self.observation_space = spaces.Discrete(mdp.N_STATES)
         self.action_space = spaces.Discrete(mdp.N_ACTIONS)
-        self._p = np.asarray(simulator.p_success)
-        self._phi = np.asarray(simulator.engagement)
         self.state = mdp.START
         self.turn = 0
         self._success = False
@@ -109,13 +107,13 @@ class SequenceLearningEnv(gym.Env):
         if invalid:
             a = 0
         nxt = int(mdp.NEXT_STATE[self.state, a, int(self._success)])
-        success = bool(self.np_random.random() < self._p[nxt])
+        success = self.simulator.sample_success(nxt, self.np_random)
         self.state, self._success = nxt, success
         self.turn += 1
         reward = float(mdp.SCORE[nxt, int(success)])
         info = {
             "action_mask": mdp.action_mask(nxt),
-            "engagement": float(self._phi[nxt, int(success)]),
+            "engagement": self.simulator.engagement_of(nxt, success),
             "success": success,
             "turn": self.turn,
             "score": int(mdp.SIGNED_SCORE[nxt, int(success)]),

@@ -37,8 +37,6 @@ from .core.qlearning import METHODS, BatchLearner, QConfig, QLearner, expected_s
 from .core.simulation import UserSimulator
 from .files import write_json_atomic, write_text_atomic
 
-S0_INDEX = mdp.encode(*mdp.S0)
-
 
 @dataclass(frozen=True)
 class TrainingSpec:
@@ -165,7 +163,7 @@ class GridResult:
                     }
         return rows
 
-    def s0_probabilities(self, state: int = S0_INDEX) -> np.ndarray:
+    def s0_probabilities(self, state: int = mdp.S0_INDEX) -> np.ndarray:
         """Mean over seeds of each agent's final P(a | state) (C, M, 6); qaug uses Q' (Figure 8)."""
         C, M, K = self.q.shape[:3]
         out = np.zeros((C, M, mdp.N_ACTIONS))
@@ -331,7 +329,7 @@ def write_s0_csv(result: GridResult, path: Path) -> None:
     A policy at a rarely visited state stays close to uniform: ``s0_visits_mean`` tells which.
     """
     probs = result.s0_probabilities()
-    visits = result.visits[..., S0_INDEX].mean(axis=2)
+    visits = result.visits[..., mdp.S0_INDEX].mean(axis=2)
     lines = ["cluster,method," + ",".join(mdp.ACTION_NAMES) + ",s0_visits_mean"]
     for c, cluster in enumerate(result.clusters):
         for m, method in enumerate(result.spec.methods):

@@ -58,3 +58,10 @@ def test_reachable_states_count():
     # rf=0: 4 lengths x 9 previous results; rf>0: 4 lengths x 2 feedbacks x (+level, -level)
     assert int(mdp.REACHABLE.sum()) == 36 + 16
     assert mdp.REACHABLE[38]
+
+
+def test_component_tables_and_s0_index_agree_with_decode():
+    for s in range(mdp.N_TURN_STATES):
+        st = mdp.decode(s)
+        assert (mdp.LEVEL[s], mdp.FEEDBACK[s], mdp.PREVIOUS[s]) == (st.level, st.feedback, st.previous)
+    assert mdp.S0_INDEX == mdp.encode(*mdp.S0) == 38

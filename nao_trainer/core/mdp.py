@@ -44,7 +44,6 @@ import numpy as np
 from .task import LENGTHS, length_of, level_of, score, signed_score
 
 FEEDBACKS: tuple[int, ...] = (0, 1, 2)
-FEEDBACK_NAMES: dict[int, str] = {0: "none", 1: "encouraging", 2: "challenging"}
 PREVIOUS_RESULTS: tuple[int, ...] = tuple(range(-4, 5))
 
 N_TURN_STATES = len(LENGTHS) * len(FEEDBACKS) * len(PREVIOUS_RESULTS)  # 108
@@ -55,9 +54,6 @@ ACTION_NAMES: tuple[str, ...] = ("L1", "L2", "L3", "L4", "RF1", "RF2")
 N_ACTIONS = len(ACTION_NAMES)
 LEVEL_ACTIONS: tuple[int, ...] = (0, 1, 2, 3)
 ENCOURAGE, CHALLENGE = 4, 5
-
-#: The state the paper's Figure 8 shows policies for.
-S0 = (5, 1, -2)
 
 #: A text that identifies this state/action definition; stored with policies and simulators so a
 #: file made for another definition is refused.
@@ -106,6 +102,11 @@ def decode(index: int) -> State:
     return State(LENGTHS[level], feedback, prev - 4)
 
 
+#: The state the paper's Figure 8 shows policies for, and its index (38).
+S0 = (5, 1, -2)
+S0_INDEX = encode(*S0)
+
+
 def action_mask(state: int) -> np.ndarray:
     """Boolean mask of the allowed actions (only level actions in ``START``)."""
     return ACTION_MASK[state].copy()
@@ -119,17 +120,19 @@ def next_state(state: int, action: int, success: bool) -> int:
     return nxt
 
 
-def _build_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _build_tables() -> tuple[np.ndarray, ...]:
     mask = np.ones((N_STATES, N_ACTIONS), dtype=bool)
     mask[START, [ENCOURAGE, CHALLENGE]] = False
     nxt = np.full((N_STATES, N_ACTIONS, 2), -1, dtype=np.int64)
     scores = np.zeros((N_TURN_STATES, 2), dtype=np.int64)
     signed = np.zeros((N_TURN_STATES, 2), dtype=np.int64)
     levels = np.zeros(N_TURN_STATES, dtype=np.int64)
+    feedback = np.zeros(N_TURN_STATES, dtype=np.int64)
+    previous = np.zeros(N_TURN_STATES, dtype=np.int64)
     reachable = np.zeros(N_TURN_STATES, dtype=bool)
     for s in range(N_TURN_STATES):
         st = decode(s)
-        levels[s] = st.level
+        levels[s], feedback[s], previous[s] = st.level, st.feedback, st.previous
         for o in (0, 1):
             scores[s, o] = score(st.level, bool(o))
             signed[s, o] = signed_score(st.level, bool(o))
@@ -143,17 +146,18 @@ def _build_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.
         reachable[s] = first_turn or after_level or after_feedback
     for a in LEVEL_ACTIONS:
         nxt[START, a, :] = encode(length_of(a + 1), 0, 0)
-    for table in (mask, nxt, scores, signed, levels, reachable):
+    for table in (mask, nxt, scores, signed, levels, feedback, previous, reachable):
         table.setflags(write=False)
-    return mask, nxt, scores, signed, levels, reachable
+    return mask, nxt, scores, signed, levels, feedback, previous, reachable
 
 
 #: ACTION_MASK[s, a]: action a allowed in state s.
 #: NEXT_STATE[s, a, o]: next turn state (-1 where not allowed).
 #: SCORE[s, o]: equation (1) for the turn played in turn state s with outcome o.
 #: SIGNED_SCORE[s, o]: +level / -level (the next state's previous result).
-#: LEVEL[s]: difficulty level of turn state s.  REACHABLE[s]: the state can occur in a session.
-ACTION_MASK, NEXT_STATE, SCORE, SIGNED_SCORE, LEVEL, REACHABLE = _build_tables()
+#: LEVEL[s], FEEDBACK[s], PREVIOUS[s]: level (1..4), robot feedback RF and previous result PR of turn state s.
+#: REACHABLE[s]: the state can occur in a session.
+ACTION_MASK, NEXT_STATE, SCORE, SIGNED_SCORE, LEVEL, FEEDBACK, PREVIOUS, REACHABLE = _build_tables()
 
 
 def state_label(index: int) -> str:

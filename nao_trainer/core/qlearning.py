@@ -351,10 +351,6 @@ class BatchResult:
     episode_score: np.ndarray  # (n, episodes)
     episode_engagement: np.ndarray  # (n, episodes)
 
-    def learner(self, i: int, method: str, config: QConfig) -> QLearner:
-        return QLearner(method, config, self.q[i].copy(), self.h[i].copy(), self.h_counts[i].copy(),
-                        self.visits[i].copy())
-
 
 class BatchLearner:
     """``n`` independent Q-learners, each training on its own simulated user, stepped together.

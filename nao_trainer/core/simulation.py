@@ -76,11 +76,6 @@ class UserSimulator:
         ct = float(np.interp(u[1], TIME_QUANTILES, self.completion_quantiles[level - 1]))
         return rt, max(rt, ct)
 
-    def level_success_rates(self, states: np.ndarray | None = None) -> np.ndarray:
-        """Mean P(success) per level over ``states`` (default: all reachable turn states)."""
-        mask = mdp.REACHABLE if states is None else np.isin(np.arange(mdp.N_TURN_STATES), states)
-        return np.array([self.p_success[mask & (mdp.LEVEL == lv)].mean() for lv in (1, 2, 3, 4)])
-
     # -- identity and serialisation -------------------------------------------------------------
 
     def fingerprint(self) -> str:

@@ -92,7 +92,6 @@ class Clustering:
     centers: np.ndarray  # (K, 8); centers[k-1] is cluster k's mean user model
     sizes: np.ndarray  # (K,)
     inertia: float
-    n_init: int
 
     @property
     def k(self) -> int:
@@ -130,7 +129,6 @@ def cluster_users(features: np.ndarray, k: int = 3, n_init: int = 200, seed: int
         centers=centers[order],
         sizes=np.bincount(labels - 1, minlength=k),
         inertia=float(km.inertia_),
-        n_init=n_init,
     )
 
 
