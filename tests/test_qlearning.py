@@ -230,3 +230,9 @@ def _extreme_run(p, e, cfg):
                 s, o = s2, o2
         assert np.array_equal(ql.q, res.q[i])
         assert np.isfinite(ql.probabilities(S0)).all()
+
+
+@pytest.mark.parametrize("name, value", [("alpha", "0.5"), ("tau0", None), ("beta1", "x"), ("h_prior", [0.1])])
+def test_config_with_a_non_number_is_a_value_error_naming_it(name, value):
+    with pytest.raises(ValueError, match=f"QConfig.{name} must be a number"):
+        QConfig(**{name: value})

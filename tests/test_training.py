@@ -204,3 +204,23 @@ def test_cli_method_names_match_the_learner():
     from nao_trainer.core.qlearning import METHODS
 
     assert train.METHODS == METHODS
+
+
+def test_figure_labels_show_the_runs_weights():
+    from nao_trainer.core.qlearning import QConfig
+    from nao_trainer.plots.learning import method_label
+
+    config = QConfig(beta1=3.0, beta2=0.25)
+    assert method_label("shaping", config) == "reward shaping (r + 3e)"
+    assert method_label("qaug", config) == "Q-augmentation (Q + 0.25H)"
+    assert method_label("qaug", QConfig()) == "Q-augmentation (Q + 0.8H)"
+    assert method_label("performance", config) == "performance (r)"
+
+
+def test_learning_curves_are_gzip_level_6(small_run, tmp_path):
+    from nao_trainer.training import write_curves_csv
+
+    path = tmp_path / "curves.csv.gz"
+    write_curves_csv(small_run, path)
+    assert path.read_bytes()[8] == 0  # gzip XFL: 2 = level 9 (the old default), 4 = level 1, 0 = others
+    assert gzip.decompress(path.read_bytes()).startswith(b"cluster,method,episode,")

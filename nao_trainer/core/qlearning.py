@@ -81,6 +81,12 @@ class QConfig:
     h_prior: float = 0.0
 
     def __post_init__(self) -> None:
+        ranges = {"alpha": "(0, 1]", "gamma": "[0, 1]", "tau0": "> 0", "tau_min": "(0, tau0]",
+                  "n_half": "> 0", "beta1": "finite", "beta2": "finite", "h_prior": "[0, 1]"}
+        for name in ranges:  # types first: the range checks below compare numbers
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or isinstance(value, bool):
+                raise ValueError(f"QConfig.{name} must be a number in {ranges[name]}, got {value!r}")
         checks = {
             "alpha": 0 < self.alpha <= 1,
             "gamma": 0 <= self.gamma <= 1,
@@ -91,12 +97,9 @@ class QConfig:
             "beta2": np.isfinite(self.beta2),
             "h_prior": 0 <= self.h_prior <= 1,
         }
-        ranges = {"alpha": "(0, 1]", "gamma": "[0, 1]", "tau0": "> 0", "tau_min": "(0, tau0]",
-                  "n_half": "> 0", "beta1": "finite", "beta2": "finite", "h_prior": "[0, 1]"}
         for name, ok in checks.items():
-            value = getattr(self, name)
-            if not isinstance(value, (int, float)) or isinstance(value, bool) or not ok:
-                raise ValueError(f"QConfig.{name} must be {ranges[name]}, got {value!r}")
+            if not ok:
+                raise ValueError(f"QConfig.{name} must be {ranges[name]}, got {getattr(self, name)!r}")
 
     def to_dict(self) -> dict[str, float]:
         return {k: float(v) for k, v in asdict(self).items()}

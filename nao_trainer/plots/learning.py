@@ -13,11 +13,16 @@ from ..core import mdp
 from . import pyplot
 
 if TYPE_CHECKING:  # pragma: no cover
+    from ..core.qlearning import QConfig
     from ..training import GridResult
 
 METHOD_COLORS = {"performance": "#4c72b0", "shaping": "#dd8452", "qaug": "#55a868"}
-METHOD_LABELS = {"performance": "performance (r)", "shaping": "reward shaping (r + 7.5e)",
-                 "qaug": "Q-augmentation (Q + 0.8H)"}
+
+
+def method_label(method: str, config: "QConfig") -> str:
+    """Legend text of a method with the run's weights, e.g. ``reward shaping (r + 7.5e)``."""
+    return {"performance": "performance (r)", "shaping": f"reward shaping (r + {config.beta1:g}e)",
+            "qaug": f"Q-augmentation (Q + {config.beta2:g}H)"}.get(method, method)
 
 
 def bin_curve(values: np.ndarray, n_bins: int = 100) -> tuple[np.ndarray, np.ndarray]:
@@ -49,7 +54,7 @@ def plot_learning_curves(result: "GridResult", path: Path, n_bins: int = 100) ->
                 _, lo = bin_curve(curves[f"{name}_lo"][c, m], n_bins)
                 _, hi = bin_curve(curves[f"{name}_hi"][c, m], n_bins)
                 color = METHOD_COLORS.get(method)
-                ax.plot(x, mean, color=color, label=METHOD_LABELS.get(method, method), lw=1.4)
+                ax.plot(x, mean, color=color, label=method_label(method, result.spec.config), lw=1.4)
                 ax.fill_between(x, lo, hi, color=color, alpha=0.25, lw=0)
             ax.set_ylabel(label)
             ax.set_title(f"user model {cluster}", fontsize=10)
