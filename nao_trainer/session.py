@@ -42,6 +42,7 @@ from .core import mdp, task
 from .core.simulation import UserSimulator
 from .dialogue import Dialogue, load_dialogue
 from .errors import ConfigError, Interrupted, RobotUnavailable, UserError
+from .files import write_text_atomic
 from .ports import (Answer, AnswerSource, EngagementMonitor, NullMonitor, PhaseEngagement, Policy, Robot,
                     RobotConnectionLost, Transition, TurnContext)
 from .record import SessionRecorder, ensure_output_dir, now_iso, versions
@@ -617,19 +618,29 @@ class Session:
 
     def leave_safe(self) -> None:
         """Safe posture and LEDs reset, whatever happened; failures are logged, never raised."""
-        alive = getattr(self.robot, "is_connected", None)
-        if alive is not None and not alive():
-            self.rec.event("safe_state_skipped", why="robot not connected")
-            return
-        for what, call in (
-            ("posture", lambda: self.robot.go_to_posture(self.behaviors.safe_posture, self.cfg.get("robot.posture_speed"))),
-            ("leds", lambda: self.robot.set_eye_leds(self.behaviors.leds_reset, 0.0)),
-        ):
-            try:
-                call()
-                self.rec.event("safe_state", what=what)
-            except Exception as exc:  # noqa: BLE001 - shutdown must go on (robot may be gone)
-                self.rec.event("safe_state_failed", what=what, error=str(exc))
+        leave_robot_safe(self.robot, self.behaviors, self.cfg.get("robot.posture_speed"), self.rec)
+
+
+def leave_robot_safe(robot: Robot, behaviors: Behaviors, posture_speed: float,
+                     recorder: SessionRecorder | None = None) -> None:
+    """Safe posture and LEDs reset, whatever happened; failures are logged to ``recorder``, never raised."""
+    def log(name: str, **data: Any) -> None:
+        if recorder is not None:
+            recorder.event(name, **data)
+
+    alive = getattr(robot, "is_connected", None)
+    if alive is not None and not alive():
+        log("safe_state_skipped", why="robot not connected")
+        return
+    for what, call in (
+        ("posture", lambda: robot.go_to_posture(behaviors.safe_posture, posture_speed)),
+        ("leds", lambda: robot.set_eye_leds(behaviors.leds_reset, 0.0)),
+    ):
+        try:
+            call()
+            log("safe_state", what=what)
+        except Exception as exc:  # noqa: BLE001 - shutdown must go on (robot may be gone)
+            log("safe_state_failed", what=what, error=str(exc))
 
 
 def _who(exc: BaseException) -> str:
@@ -821,7 +832,7 @@ def _run_wired(config: StudyConfig, options: RunOptions, progress: TextIO | None
             if session is not None and status != "completed":
                 session.leave_safe()
             elif session is None and robot is not None and status != "completed":
-                _safe_without_session(robot, behaviors, config)
+                leave_robot_safe(robot, behaviors, config.get("robot.posture_speed"), recorder)
             for closer in (answers, policy_to_close, monitor, buttons):
                 _close_quietly(closer, recorder)
             if robot is not None:
@@ -860,14 +871,6 @@ def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, sim
                                 min_gap_s=max(0.3, 4 * config.get("answers.debounce_s"))), buttons
 
 
-def _safe_without_session(robot: Robot, behaviors: Behaviors, config: StudyConfig) -> None:
-    try:
-        robot.go_to_posture(behaviors.safe_posture, config.get("robot.posture_speed"))
-        robot.set_eye_leds(behaviors.leds_reset, 0.0)
-    except Exception:  # noqa: BLE001 - best effort on the way out
-        pass
-
-
 def _close_quietly(obj: Any, recorder: SessionRecorder | None) -> None:
     if obj is None or not hasattr(obj, "close"):
         return
@@ -884,6 +887,4 @@ def _write_transcript(path: Path | None, transcript: list[dict[str, Any]]) -> No
 
     if path is None:
         return
-    with open(path / "robot_transcript.jsonl", "w", encoding="utf-8") as f:
-        for entry in transcript:
-            f.write(json.dumps(entry, default=str) + "\n")
+    write_text_atomic(path / "robot_transcript.jsonl", "".join(json.dumps(entry, default=str) + "\n" for entry in transcript))
