@@ -7,16 +7,15 @@ temporary folder first (not timed). Prints one line per figure; exit 1 if a targ
 from __future__ import annotations
 
 import os
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+from _data import extract, shared_dir
+
 os.environ.setdefault("QI_LOG_LEVEL", "silent")
-ROOT = Path(__file__).resolve().parents[1]
-SHARED = Path(os.environ.get("NAO_TRAINER_SHARED", ROOT.parent / "shared"))
-ARCHIVE = SHARED / "data" / "sequence-learning" / "clean_data_bands.tar.xz"
+ARCHIVE = shared_dir() / "data" / "sequence-learning" / "clean_data_bands.tar.xz"
 TARGET_FIT_S, TARGET_CACHED_S = 20.0, 2.0
 
 
@@ -28,8 +27,7 @@ def main(argv: list[str]) -> int:
         if argv:
             root = Path(argv[0])
         else:
-            subprocess.run(["tar", "-xJf", str(ARCHIVE), "-C", tmp], check=True)
-            root = Path(tmp) / "clean_data"
+            root = extract(ARCHIVE, Path(tmp)) / "clean_data"
         cache = Path(tmp) / "cache"
         t0 = time.perf_counter()
         imported = import_dataset(root, compat="authors2018", cache_dir=cache)

@@ -32,7 +32,8 @@ def main() -> int:
         cpu1 = resource.getrusage(resource.RUSAGE_SELF)
     cpu = (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)
     print(f"demo session: {args.turns} turns at speed {config.get('timing.speed'):g}, status {result.status}")
-    print(f"  wall time          {wall:7.2f} s   (target < 60 s for 25 turns)")
+    verdict = "" if args.turns != 25 else (" OK" if wall < 60 else " MISSED")
+    print(f"  wall time          {wall:7.2f} s   (target < 60 s for 25 turns){verdict}")
     print(f"  per turn           {wall / args.turns:7.3f} s")
     print(f"  CPU (this process) {cpu:7.2f} s   ({100 * cpu / wall:.0f} % of one core)")
     return 0 if result.exit_code == 0 and (args.turns != 25 or wall < 60) else 1
