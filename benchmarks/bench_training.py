@@ -7,8 +7,8 @@ included, output writing excluded) and simulated turns per second. Uses the ship
 
     python benchmarks/bench_training.py [--episodes N] [--seeds N] [--workers N] [--repeat N]
 
-Exit 1 when the best run misses the target rate (45 M turns / 20 s = 2.25 M turns/s; other grid
-sizes are judged by the same rate, so small grids pay relatively more for worker start-up).
+Exit 1 when the best run of the full grid (the defaults) misses the target; smaller grids are only
+measured (worker start-up dominates them, so the target's rate does not apply).
 """
 from __future__ import annotations
 
@@ -62,9 +62,11 @@ def main() -> int:
         print(f"  run {i + 1}: {wall:6.2f} s  {n_turns / wall / 1e6:5.2f} M turns/s  "
               f"(CPU {cpu:.1f} s over all processes; load average before: {load:.2f})")
     best = min(times)
-    ok = n_turns / best >= TARGET_TURNS / TARGET_S
+    judged = n_turns >= TARGET_TURNS
+    ok = not judged or best <= TARGET_S * n_turns / TARGET_TURNS
+    verdict = ("OK" if ok else "MISSED") if judged else "(smaller grid: not judged)"
     print(f"best: {best:.2f} s, {n_turns / best / 1e6:.2f} M simulated turns/s (target: 45 M turns in <= 20 s) "
-          f"{'OK' if ok else 'MISSED'}")
+          f"{verdict}")
     return 0 if ok else 1
 
 
