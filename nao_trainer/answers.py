@@ -110,6 +110,9 @@ class TactileAnswers:
     def collect(self, n_expected: int, timeout_s: float) -> Answer:
         return self.window.collect(n_expected, timeout_s)
 
+    def abandon(self) -> None:
+        pass  # presses outside an open window are discarded anyway
+
     def close(self) -> None:
         self.window.close()
         try:
@@ -188,6 +191,9 @@ class KeyboardAnswers:
                 if ch in " \r\n\t":
                     continue
                 self.window.add(key=ch, letter=KEY_LETTERS.get(ch.lower()), t=now)
+
+    def abandon(self) -> None:
+        pass  # keys typed outside an open window are discarded anyway
 
     def close(self) -> None:
         self._stop_reader()

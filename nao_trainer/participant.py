@@ -18,7 +18,7 @@ import numpy as np
 
 from .core import task
 from .core.simulation import UserSimulator
-from .ports import Answer, AnswerSource, EngagementMonitor, NullMonitor, Press, TurnContext
+from .ports import Answer, AnswerSource, EngagementMonitor, NullMonitor, Press, RobotConnectionLost, TurnContext
 
 #: Relative frequency of mistake kinds when a turn fails.
 MISTAKES: dict[str, float] = {"substitute": 0.6, "swap": 0.25, "omit": 0.15}
@@ -79,7 +79,7 @@ class SimulatedParticipant:
         self.plan: Plan | None = None
         self._opened = 0.0
         self._presser: threading.Thread | None = None
-        self.press_errors: list[str] = []
+        self._press_error: str | None = None  # a press that failed (robot gone): collect() reports it
         self._generation = 0
 
     def prepare(self, context: TurnContext) -> None:
@@ -95,6 +95,7 @@ class SimulatedParticipant:
     def open_window(self) -> None:
         self._opened = time.monotonic()
         self._generation += 1
+        self._press_error = None
         if self.inner is not None:
             self.inner.open_window()
             self._presser = threading.Thread(target=self._press_all, args=(self.plan, self._opened, self._generation),
@@ -112,7 +113,7 @@ class SimulatedParticipant:
             try:
                 self.press(letter)
             except Exception as exc:  # noqa: BLE001 - robot gone: the session sees it on its next call
-                self.press_errors.append(str(exc))
+                self._press_error = str(exc)
                 return
 
     def collect(self, n_expected: int, timeout_s: float) -> Answer:
@@ -122,6 +123,9 @@ class SimulatedParticipant:
             answer = self.inner.collect(n_expected, timeout_s)
             if self._presser is not None:
                 self._presser.join(timeout=max(0.0, self._opened + timeout_s - time.monotonic()) + 1.0)
+            error, self._press_error = self._press_error, None
+            if error is not None:
+                raise RobotConnectionLost(f"a head-button press failed during the answer window: {error}")
             return answer
         presses = tuple(Press(key=l, letter=l, t=t / self.speed)
                         for l, t in zip(self.plan.response, self.plan.times) if t / self.speed <= timeout_s)

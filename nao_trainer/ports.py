@@ -55,6 +55,9 @@ class Robot(Protocol):
     def reconnect(self, deadline_s: float) -> None:
         """Connect again after a loss, re-fetch services and re-subscribe the buttons."""
 
+    def is_connected(self) -> bool:
+        """Whether the connection is up (asked after an answer window, which does not talk to the robot)."""
+
     def close(self) -> None:
         """Disconnect signals and close the qi session."""
 
@@ -113,7 +116,13 @@ class AnswerSource(Protocol):
         """Called right after the beep: the answer window opens, time 0 for press times."""
 
     def collect(self, n_expected: int, timeout_s: float) -> Answer:
-        """Block until ``n_expected`` presses or the timeout; return what was pressed."""
+        """Block until ``n_expected`` presses or the timeout; return what was pressed.
+
+        Raises ``RobotConnectionLost`` when the answers could not reach the robot (a simulated press failed).
+        """
+
+    def abandon(self) -> None:
+        """The turn was interrupted (robot lost): nothing of it may land in a later window. Often a no-op."""
 
     def close(self) -> None: ...
 

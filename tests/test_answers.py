@@ -166,3 +166,30 @@ def test_simulated_participant_presses_the_stand_in_buttons(standin_robot):
                            "FrontTactilTouched"]
     finally:
         p.close()
+
+
+def test_a_failed_simulated_press_is_a_lost_robot_when_collecting():
+    from nao_trainer.ports import RobotConnectionLost
+
+    class Robotless:  # a TactileAnswers stand-in: the presses never reach it
+        def __init__(self):
+            self.window = PressWindow(0.0, 0.05)
+
+        def open_window(self):
+            self.window.open()
+
+        def collect(self, n, timeout_s):
+            return self.window.collect(n, timeout_s)
+
+        def close(self):
+            self.window.close()
+
+    def press(letter):
+        raise RuntimeError("Socket is not connected")
+
+    p = SimulatedParticipant(sim(), np.random.default_rng(2), speed=50, press=press, inner=Robotless())
+    p.prepare(TurnContext(1, mdp.encode(3, 0, 0), 3, ("A", "B", "C")))
+    p.open_window()
+    with pytest.raises(RobotConnectionLost, match="a head-button press failed during the answer window: Socket is not"):
+        p.collect(3, timeout_s=0.3)
+    p.close()
