@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
+from .core import mdp
 from .errors import ConfigError
 from .files import read_yaml
 
@@ -26,7 +27,6 @@ PROJECT_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_CONFIG = PROJECT_ROOT / "config" / "default.yaml"
 DEMO_STUDY = PROJECT_ROOT / "config" / "studies" / "demo.yaml"
 
-ACTION_NAMES = ("L1", "L2", "L3", "L4", "RF1", "RF2")
 INPUTS = ("simulated", "tactile", "keyboard")
 EEG_MODES = ("off", "simulated", "lsl")
 LSL_SCOPES = ("machine", "link", "site", "organization", "global")
@@ -69,12 +69,12 @@ def _policy_spec(value: str) -> str | None:
 
 
 def _schedule(value: list) -> str | None:
-    bad = [a for a in value if a not in ACTION_NAMES]
+    bad = [a for a in value if a not in mdp.ACTION_NAMES]
     if bad:
-        return f"unknown action {bad[0]!r}; use {', '.join(ACTION_NAMES)}"
+        return f"unknown action {bad[0]!r}; use {', '.join(mdp.ACTION_NAMES)}"
     if not value:
         return "needs at least one action"
-    if value[0] not in ACTION_NAMES[:4]:
+    if value[0] not in mdp.ACTION_NAMES[:4]:
         return f"must start with a level action (L1..L4), got {value[0]!r}: there is no outcome to give feedback on yet"
     return None
 

@@ -24,21 +24,17 @@ class FixedSchedule:
 
     name = "schedule"
 
-    def __init__(self, actions: Sequence[str | int]) -> None:
+    def __init__(self, actions: Sequence[str]) -> None:
         if not actions:
             raise ConfigError("policy.schedule: the schedule needs at least one action")
         self.actions = tuple(self._action_index(a) for a in actions)
         self._i = 0
 
     @staticmethod
-    def _action_index(a: str | int) -> int:
-        if isinstance(a, str):
-            if a not in mdp.ACTION_NAMES:
-                raise ConfigError(f"policy.schedule: unknown action {a!r}; use {', '.join(mdp.ACTION_NAMES)}")
-            return mdp.ACTION_NAMES.index(a)
-        if not 0 <= int(a) < mdp.N_ACTIONS:
-            raise ConfigError(f"policy.schedule: action index must be 0..5, got {a!r}")
-        return int(a)
+    def _action_index(a: str) -> int:
+        if a not in mdp.ACTION_NAMES:
+            raise ConfigError(f"policy.schedule: unknown action {a!r}; use {', '.join(mdp.ACTION_NAMES)}")
+        return mdp.ACTION_NAMES.index(a)
 
     def act(self, state: int, rng: np.random.Generator) -> int:
         action = self.actions[self._i % len(self.actions)]

@@ -144,9 +144,6 @@ class SessionRecorder:
         _fsync(self._turns)
         self.rows += 1
 
-    def update(self, **info: Any) -> None:
-        self._info.update(info)
-
     def _write_json(self) -> None:
         write_text_atomic(self.path / "session.json", json.dumps(self._info, indent=2, default=str) + "\n")
 

@@ -653,9 +653,7 @@ def _round(x: float | None, nd: int = 4) -> float | None:
 class RunOptions:
     """Things chosen on the command line that are not study configuration."""
 
-    user_model: str | None = None
     quiet: bool = False
-    keyboard_fd: int | None = None
 
 
 @contextmanager
@@ -692,9 +690,10 @@ def _no_interrupts() -> Iterator[None]:
             signal.signal(s, h)
 
 
-def build_simulator(config: StudyConfig, user_model: str | None) -> UserSimulator:
-    """The simulated participant's model: a fitted one (``--user-model``) or the config's level rates."""
-    spec = user_model or config.get("participant_model.user_model")
+def build_simulator(config: StudyConfig) -> UserSimulator:
+    """The simulated participant's model: a fitted one (``participant_model.user_model``, ``--user-model``)
+    or the config's level rates."""
+    spec = config.get("participant_model.user_model")
     if spec:
         try:
             from .artifacts import load_simulator
@@ -741,7 +740,7 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
     behaviors = load_behaviors(config.path("session.behaviors"))
     seed = config.get("session.seed")
     seed = int(seed) if seed is not None else secrets.randbelow(2**31)
-    simulator = build_simulator(config, options.user_model) if config.get("answers.input") == "simulated" else None
+    simulator = build_simulator(config) if config.get("answers.input") == "simulated" else None
     from .policies import make_policy
 
     # Loaded once, before the robot moves: a missing or stale policy, or a torn/foreign learning-state
@@ -753,10 +752,10 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
     ensure_output_dir(config.output_dir())  # an unusable output folder is found before the robot moves
 
     with _signals_as_interrupt():
-        return _run_wired(config, options, progress, dialogue, behaviors, seed, simulator, policy)
+        return _run_wired(config, progress, dialogue, behaviors, seed, simulator, policy)
 
 
-def _run_wired(config: StudyConfig, options: RunOptions, progress: TextIO | None, dialogue: Dialogue,
+def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
                behaviors: Behaviors, seed: int, simulator: UserSimulator | None, policy: Policy) -> SessionResult:
     """``run_session`` once the files and the policy are loaded: connect, wire the ports, play, clean up."""
     from .robot.naoqi import NaoqiRobot, redact_url
@@ -795,7 +794,7 @@ def _run_wired(config: StudyConfig, options: RunOptions, progress: TextIO | None
             print(f"session folder: {path}", file=progress, flush=True)
         monitor = open_engagement_monitor(config, path, np.random.default_rng(eeg_ss))
         answers, buttons = _make_answers(config, robot, standin, connect_url, simulator, monitor,
-                                         np.random.default_rng(participant_ss), options)
+                                         np.random.default_rng(participant_ss))
         policy_rng = np.random.default_rng(policy_ss)
         if getattr(policy, "learning", False) and getattr(policy, "state_path", "") is None:
             policy.state_path = path / "policy_state.json"
@@ -839,7 +838,7 @@ def _run_wired(config: StudyConfig, options: RunOptions, progress: TextIO | None
 
 
 def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, simulator: UserSimulator | None,
-                  monitor: EngagementMonitor, rng: np.random.Generator, options: RunOptions) -> tuple[AnswerSource, Any]:
+                  monitor: EngagementMonitor, rng: np.random.Generator) -> tuple[AnswerSource, Any]:
     from .answers import KeyboardAnswers, TactileAnswers
     from .participant import SimulatedParticipant, StandInButtons
 
@@ -849,7 +848,7 @@ def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, sim
     if kind == "tactile":
         return TactileAnswers(robot, debounce, grace), None
     if kind == "keyboard":  # key events do not bounce (the keyboard's firmware debounces)
-        return KeyboardAnswers(options.keyboard_fd, 0.0, grace), None
+        return KeyboardAnswers(None, 0.0, grace), None
     assert simulator is not None
     buttons = None
     press = standin.press if standin is not None else None

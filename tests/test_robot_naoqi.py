@@ -306,7 +306,7 @@ def test_urls_with_credentials_are_refused_and_never_echoed():
 def test_credentials_from_env():
     assert credentials_from_env({}) is None
     creds = credentials_from_env({"NAO_USER": "nao", "NAO_PASSWORD": "pw"})
-    assert tuple(creds) == ("nao", "pw")
+    assert (creds.user, creds.password) == ("nao", "pw")
     assert "pw" not in repr(creds) and "pw" not in str(creds)
     with pytest.raises(ConfigError, match="NAO_PASSWORD is not set"):
         credentials_from_env({"NAO_USER": "nao"})

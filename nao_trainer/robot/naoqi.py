@@ -107,9 +107,6 @@ class Credentials:
 
     __str__ = __repr__
 
-    def __iter__(self):  # allows ``user, password = creds`` like the tuple form
-        return iter((self.user, self.password))
-
 
 def credentials_from_env(environ: dict[str, str] | None = None) -> Credentials | None:
     """The robot credentials from ``NAO_USER`` / ``NAO_PASSWORD``; None when neither is set."""
@@ -229,7 +226,7 @@ class NaoqiRobot:
         cls,
         url: str,
         deadline_s: float = 10.0,
-        credentials: tuple[str, str] | Credentials | None = None,
+        credentials: Credentials | None = None,
         *,
         timeouts: CallTimeouts = CallTimeouts(),
         debounce_s: float = 0.15,
@@ -244,7 +241,7 @@ class NaoqiRobot:
             raise ConfigError(f"button debounce must be >= 0 seconds, got {debounce_s!r}")
         if deadline_s <= 0:
             raise ConfigError(f"robot connect deadline must be > 0 seconds, got {deadline_s!r}")
-        creds = _as_credentials(credentials) if credentials is not None else credentials_from_env()
+        creds = credentials if credentials is not None else credentials_from_env()
         if qi_url.startswith("tcps://") and creds is None:
             raise ConfigError(
                 f"robot address {qi_url} is NAOqi 2.9 (tcps): set {USER_ENV} and {PASSWORD_ENV} in the environment"
@@ -571,16 +568,6 @@ class _ButtonHandler:
 
     def __call__(self, value: Any) -> None:
         self._robot._on_button(self._key, value)
-
-
-def _as_credentials(credentials: tuple[str, str] | Credentials) -> Credentials:
-    if isinstance(credentials, Credentials):
-        return credentials
-    try:
-        user, password = credentials
-    except (TypeError, ValueError):
-        raise ConfigError("robot credentials must be a (user, password) pair") from None
-    return Credentials(str(user), str(password))
 
 
 def _new_session(creds: Credentials | None) -> Any:
