@@ -17,7 +17,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from .core import mdp
 from .errors import ConfigError
 from .files import read_yaml
 
@@ -69,6 +68,8 @@ def _policy_spec(value: str) -> str | None:
 
 
 def _schedule(value: list) -> str | None:
+    from .core import mdp  # lazily: `nao-trainer --help` parses without numpy
+
     bad = [a for a in value if a not in mdp.ACTION_NAMES]
     if bad:
         return f"unknown action {bad[0]!r}; use {', '.join(mdp.ACTION_NAMES)}"

@@ -174,10 +174,9 @@ def read_events(path: Path) -> list[dict[str, Any]]:
 def plot_session(path: Path) -> Path:
     """``session.png`` in the session folder: level per turn (success/failure, feedback), running
     score and engagement, for a look at a session without reading the table."""
-    import matplotlib
+    from .plots import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     rows = [r for r in read_turns(path) if r["success"] in ("True", "False")]
     if not rows:

@@ -708,14 +708,9 @@ def open_engagement_monitor(config: StudyConfig, session_dir: Path, rng: np.rand
     """The EEG monitor of the study's ``eeg.mode`` ("off" -> ports.NullMonitor)."""
     eeg = dict(config["eeg"])
     if eeg["mode"] == "off":
-        return NullMonitor()
-    try:
-        from .eeg.monitor import open_monitor
-    except ImportError as exc:
-        raise ConfigError(f"eeg.mode {eeg['mode']!r} is not available in this install ({exc}); use --eeg off") from None
-    from .eeg.lsl_scope import configure_lsl
+        return NullMonitor()  # without importing pylsl
+    from .eeg.monitor import open_monitor  # sets LSL's scope before its first stream object
 
-    configure_lsl(eeg["lsl_scope"])
     return open_monitor(eeg["mode"], eeg, session_dir, rng, config.get("participant.pseudonym"))
 
 

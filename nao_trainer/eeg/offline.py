@@ -510,10 +510,9 @@ def to_json(results: Sequence[SessionEngagement], as_list: bool | None = None) -
 
 def plot_session(result: SessionEngagement, path: Path) -> Path:
     """Save a figure: per-turn engagement (bars) and the per-sample series of every turn (line)."""
-    import matplotlib
+    from ..plots import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(10, 6), constrained_layout=True)
     turns = [t.turn for t in result.turns]
