@@ -20,8 +20,8 @@ TARGET_FIT_S, TARGET_CACHED_S = 20.0, 2.0
 
 
 def main(argv: list[str]) -> int:
-    from nao_trainer.dataset import import_dataset
-    from nao_trainer.fitting import FitOptions, Turns, fit_dataset
+    from nao_trainer.data.dataset import import_dataset
+    from nao_trainer.learn.fitting import FitOptions, Turns, fit_dataset
 
     with tempfile.TemporaryDirectory() as tmp:
         if argv:

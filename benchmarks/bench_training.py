@@ -19,13 +19,13 @@ import sys
 import time
 
 from nao_trainer.core.simulation import UserSimulator
-from nao_trainer.training import TrainingSpec, train_grid
+from nao_trainer.learn.training import TrainingSpec, train_grid
 
 TARGET_TURNS, TARGET_S = 45e6, 20.0  # the full grid in <= 20 s
 
 def simulators() -> tuple[list[UserSimulator], list[str], str]:
     try:
-        from nao_trainer import artifacts
+        from nao_trainer.learn import artifacts
 
         ids = artifacts.available_models()
         return [artifacts.load_simulator(i) for i in ids], ids, "sim/models"

@@ -7,7 +7,10 @@ import re
 from pathlib import Path
 from typing import Any
 
-from .errors import ConfigError, UserError
+from nao_trainer.errors import ConfigError, UserError
+
+#: The checkout that holds config/, dialogue/, behaviors/ and sim/ beside the package.
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
 
 
 def read_text(path: str | os.PathLike, error: type[UserError], missing: str = "file not found", fix: str = "") -> str:

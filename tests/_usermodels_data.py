@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from nao_trainer.dataset import ImportResult, import_dataset
+from nao_trainer.data.dataset import ImportResult, import_dataset
 
 
 def shared_cache(tmp_path_factory, compat: str | None) -> Path:

@@ -9,10 +9,10 @@ import time
 import numpy as np
 import pytest
 
-from nao_trainer.answers import KeyboardAnswers, PressWindow, TactileAnswers
+from nao_trainer.answers.inputs import KeyboardAnswers, PressWindow, TactileAnswers
 from nao_trainer.core import mdp, task
 from nao_trainer.core.simulation import UserSimulator
-from nao_trainer.participant import SimulatedParticipant, make_mistake
+from nao_trainer.answers.simulated import SimulatedParticipant, make_mistake
 from nao_trainer.ports import TurnContext
 
 

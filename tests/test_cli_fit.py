@@ -9,7 +9,7 @@ import sys
 import pytest
 
 from _usermodels_data import shared_cache
-from nao_trainer import artifacts
+from nao_trainer.learn import artifacts
 from nao_trainer.cli import main
 
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -89,7 +89,7 @@ def test_fit_on_too_few_sessions_says_so(dataset_root, tmp_path, capsys):
 
 
 def test_figure_4_gets_the_per_sample_engagement_signal(dataset_root):
-    from nao_trainer.fitting import _engagement_signals
+    from nao_trainer.learn.fitting import _engagement_signals
 
     signal_of = _engagement_signals(dataset_root, "authors2018")
     series = signal_of("user_1/session_4")

@@ -9,7 +9,7 @@ import threading
 import time
 from pathlib import Path
 
-from nao_trainer.record import read_events, read_turns
+from nao_trainer.session.record import read_events, read_turns
 
 
 def cli(*args: str, stdin=None, timeout: float = 120) -> subprocess.CompletedProcess:

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from nao_trainer.config import DEFAULT_CONFIG, SCHEMA, load_config
+from nao_trainer.session.config import DEFAULT_CONFIG, SCHEMA, load_config
 from nao_trainer.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]

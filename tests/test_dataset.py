@@ -11,9 +11,9 @@ import pytest
 from _usermodels_data import import_published
 from nao_trainer.cli import main
 from nao_trainer.core import mdp
-from nao_trainer.dataset import COLUMNS, import_dataset, read_table, write_table
+from nao_trainer.data.dataset import COLUMNS, import_dataset, read_table, write_table
 from nao_trainer.errors import DataError
-from nao_trainer.published import read_turn_table
+from nao_trainer.data.published import read_turn_table
 
 
 @pytest.fixture(scope="module")
@@ -207,7 +207,7 @@ def test_cache_key_follows_the_engagement_definition(dataset_root, tmp_path, mon
     import dataclasses
 
     import nao_trainer
-    from nao_trainer.eeg import offline
+    from nao_trainer.data import engagement as offline
 
     root = _copy(dataset_root, tmp_path / "data", SAMPLE[:1])
     cache = tmp_path / "cache"

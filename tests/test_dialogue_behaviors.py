@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nao_trainer import behaviors as beh
-from nao_trainer import dialogue as dia
+from nao_trainer.session import behaviors as beh
+from nao_trainer.session import dialogue as dia
 from nao_trainer.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]

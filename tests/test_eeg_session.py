@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nao_trainer import session as sess
-from nao_trainer.config import load_config
+from nao_trainer.session import engine as sess
+from nao_trainer.session.config import load_config
 from nao_trainer.eeg.lsl_scope import configure_lsl
 from nao_trainer.eeg.simulated_muse import SimulatedMuse
 from nao_trainer.errors import EEGUnavailable
-from nao_trainer.record import read_turns
+from nao_trainer.session.record import read_turns
 
 configure_lsl("machine")
 

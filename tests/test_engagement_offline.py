@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nao_trainer import published as pub
+from nao_trainer.data import published as pub
 from nao_trainer.cli import main
-from nao_trainer.eeg import offline
+from nao_trainer.data import engagement as offline
 from nao_trainer.errors import DataError
 
 

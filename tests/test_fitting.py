@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from _usermodels_data import import_published
-from nao_trainer import artifacts
+from nao_trainer.learn import artifacts
 from nao_trainer.core import mdp
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import DataError
-from nao_trainer.fitting import EngagementModel, FitOptions, PerformanceModel, Turns, fit_dataset, time_quantiles
+from nao_trainer.learn.fitting import EngagementModel, FitOptions, PerformanceModel, Turns, fit_dataset, time_quantiles
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ from gymnasium.utils.env_checker import check_env  # noqa: E402
 
 from nao_trainer.core import mdp  # noqa: E402
 from nao_trainer.core.simulation import UserSimulator  # noqa: E402
-from nao_trainer.gym_env import ENV_ID, SequenceLearningEnv  # noqa: E402
+from nao_trainer.learn.gym_env import ENV_ID, SequenceLearningEnv  # noqa: E402
 
 
 @pytest.fixture

@@ -4,7 +4,7 @@ import shutil
 import numpy as np
 import pytest
 
-from nao_trainer import published as pub
+from nao_trainer.data import published as pub
 from nao_trainer.errors import DataError
 
 

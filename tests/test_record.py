@@ -9,7 +9,7 @@ import subprocess
 import sys
 import textwrap
 
-from nao_trainer.record import TURN_COLUMNS, SessionRecorder, create_session_dir, read_events, read_turns
+from nao_trainer.session.record import TURN_COLUMNS, SessionRecorder, create_session_dir, read_events, read_turns
 
 
 def test_session_folders_are_never_reused(tmp_path):
@@ -39,7 +39,7 @@ def test_events_before_open_are_kept_and_json_is_final(tmp_path):
 def test_a_killed_writer_leaves_every_completed_turn(tmp_path):
     script = textwrap.dedent(f"""
         import sys, time
-        from nao_trainer.record import SessionRecorder
+        from nao_trainer.session.record import SessionRecorder
         rec = SessionRecorder({str(tmp_path)!r}, "K")
         path = rec.open({{}})
         for i in range(1, 4):
@@ -57,7 +57,7 @@ def test_a_killed_writer_leaves_every_completed_turn(tmp_path):
 
 
 def test_session_plot(tmp_path):
-    from nao_trainer.record import plot_session
+    from nao_trainer.session.record import plot_session
 
     rec = SessionRecorder(tmp_path, "PL")
     path = rec.open({})

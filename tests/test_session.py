@@ -7,15 +7,15 @@ from pathlib import Path
 
 import numpy as np
 
-from nao_trainer import session as sess
-from nao_trainer.behaviors import load_behaviors
-from nao_trainer.config import PROJECT_ROOT, load_config
+from nao_trainer.session import engine as sess
+from nao_trainer.session.behaviors import load_behaviors
+from nao_trainer.session.config import PROJECT_ROOT, load_config
 from nao_trainer.core import mdp, task
 from nao_trainer.core.simulation import UserSimulator
-from nao_trainer.dialogue import load_dialogue
-from nao_trainer.participant import SimulatedParticipant
-from nao_trainer.policies import FixedSchedule, UniformRandom
-from nao_trainer.record import SessionRecorder, read_events, read_turns
+from nao_trainer.session.dialogue import load_dialogue
+from nao_trainer.answers.simulated import SimulatedParticipant
+from nao_trainer.session.policies import FixedSchedule, UniformRandom
+from nao_trainer.session.record import SessionRecorder, read_events, read_turns
 
 
 def config(tmp_path: Path, **over):
@@ -171,7 +171,7 @@ def test_fixed_schedule_and_uniform_random_policies():
 
 def test_state_diagram_in_docs_is_up_to_date():
     assert sess.DIAGRAM_PATH.read_text() == sess.diagram_markdown(), \
-        "docs/session-states.md is stale: run python -c 'from nao_trainer.session import export_diagram; export_diagram()'"
+        "docs/session-states.md is stale: run python -c 'from nao_trainer.session.engine import export_diagram; export_diagram()'"
     text = sess.diagram_markdown()
     for state in sess.STATES:
         assert f'state "{state}"' in text
@@ -206,7 +206,7 @@ def test_a_refused_posture_is_logged_and_the_session_goes_on(tmp_path):
 
 
 def test_after_a_reconnection_the_buttons_are_subscribed_once(tmp_path):
-    from nao_trainer.answers import TactileAnswers
+    from nao_trainer.answers.inputs import TactileAnswers
     from nao_trainer.robot.naoqi import NaoqiRobot
     from nao_trainer.robot.standin import StandIn
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 
-from nao_trainer.record import read_events, read_turns
+from nao_trainer.session.record import read_events, read_turns
 from nao_trainer.robot.standin import spawn_standin
 
 

@@ -17,7 +17,7 @@ from nao_trainer.eeg.lsl_scope import configure_lsl
 from nao_trainer.eeg.simulated_muse import (MUSE_LABELS, MuseSignal, ReplayMuse, SimulatedMuse, load_raw_session,
                                             target_ratio)
 from nao_trainer.errors import DataError
-from nao_trainer.published import read_recording
+from nao_trainer.data.published import read_recording
 
 configure_lsl("machine")
 

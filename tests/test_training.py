@@ -8,11 +8,13 @@ import json
 import numpy as np
 import pytest
 
-from nao_trainer import artifacts, usp
+from nao_trainer.learn import artifacts
+
+from nao_trainer.learn import usp
 from nao_trainer.cli import main
 from nao_trainer.core import mdp
 from nao_trainer.core.simulation import UserSimulator
-from nao_trainer.training import TrainingSpec, mean_ci, train_grid, write_outputs
+from nao_trainer.learn.training import TrainingSpec, mean_ci, train_grid, write_outputs
 
 
 def simulators():
@@ -55,7 +57,7 @@ def test_grid_shapes_and_summary(small_run):
 
 
 def test_diff_ci_is_a_welch_interval(small_run):
-    from nao_trainer.training import diff_ci
+    from nao_trainer.learn.training import diff_ci
 
     out = diff_ci(np.array([1.0, 2.0, 3.0]), np.array([0.0, 0.0, 3.0]))
     # se^2 = 1/3 + 3/3; Welch dof = (4/3)^2 / ((1/3)^2/2 + 1/2) = 3.2
@@ -218,7 +220,7 @@ def test_figure_labels_show_the_runs_weights():
 
 
 def test_learning_curves_are_gzip_level_6(small_run, tmp_path):
-    from nao_trainer.training import write_curves_csv
+    from nao_trainer.learn.training import write_curves_csv
 
     path = tmp_path / "curves.csv.gz"
     write_curves_csv(small_run, path)

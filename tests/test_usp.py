@@ -6,13 +6,15 @@ import json
 import numpy as np
 import pytest
 
-from nao_trainer import artifacts, usp
+from nao_trainer.learn import artifacts
+
+from nao_trainer.learn import usp
 from nao_trainer.core import mdp
 from nao_trainer.core.qlearning import QConfig, QLearner
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.ports import Transition
-from nao_trainer.training import TrainingSpec, train_grid, write_outputs
+from nao_trainer.learn.training import TrainingSpec, train_grid, write_outputs
 
 S0 = mdp.encode(*mdp.S0)
 

@@ -10,8 +10,8 @@ import importlib
 import os
 import sys
 
-from .. import __version__
-from ..errors import Interrupted, UserError
+from nao_trainer import __version__
+from nao_trainer.errors import Interrupted, UserError
 
 #: Subcommand modules, in the order ``--help`` lists them.
 COMMANDS = ("run", "mock_robot", "simulate_muse", "engagement", "import_data", "fit", "train")

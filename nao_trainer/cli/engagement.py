@@ -34,10 +34,10 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..errors import ConfigError, DataError
-    from ..published import find_sessions, is_session_dir
-    from ..eeg.offline import OfflineSettings, check_options, plot_session, session_engagement_many, to_csv, to_json
-    from ..files import write_text_atomic
+    from nao_trainer.errors import ConfigError, DataError
+    from nao_trainer.data.published import find_sessions, is_session_dir
+    from nao_trainer.data.engagement import OfflineSettings, check_options, plot_session, session_engagement_many, to_csv, to_json
+    from nao_trainer.files import write_text_atomic
 
     # every option checked before the (long) computation
     check_options(args.compat, args.source, args.answer)

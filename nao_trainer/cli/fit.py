@@ -32,8 +32,8 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..errors import ConfigError
-    from ..fitting import fit_and_save
+    from nao_trainer.errors import ConfigError
+    from nao_trainer.learn.fitting import fit_and_save
 
     if args.k < 1:
         raise ConfigError(f"--k must be a positive number of clusters, got {args.k}")

@@ -26,7 +26,7 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..dataset import default_cache_dir, import_dataset, write_table
+    from nao_trainer.data.dataset import default_cache_dir, import_dataset, write_table
 
     cache = None if args.no_cache else (args.cache or default_cache_dir(args.out))
     progress = None if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))

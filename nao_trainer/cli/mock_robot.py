@@ -34,7 +34,7 @@ def register(sub) -> None:
 def _run(args: argparse.Namespace) -> int:
     import sys
 
-    from ..robot.standin import serve  # imports qi: keep `nao-trainer --help` fast
+    from nao_trainer.robot.standin import serve  # imports qi: keep `nao-trainer --help` fast
 
     return serve(args.listen, speed=args.speed, transcript_path=args.transcript, allow_remote=args.allow_remote,
                  echo=sys.stderr if args.echo else None)

@@ -40,9 +40,9 @@ def register(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from ..errors import ConfigError
-    from ..eeg.lsl_scope import configure_lsl
-    from ..eeg.simulated_muse import ReplayMuse, SimulatedMuse
+    from nao_trainer.errors import ConfigError
+    from nao_trainer.eeg.lsl_scope import configure_lsl
+    from nao_trainer.eeg.simulated_muse import ReplayMuse, SimulatedMuse
 
     if not 0.0 <= args.engagement <= 1.0:
         raise ConfigError(f"--engagement: {args.engagement} is outside [0, 1]; give a value between 0 and 1")

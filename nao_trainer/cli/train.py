@@ -7,7 +7,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from ..errors import ConfigError, DataError
+from nao_trainer.errors import ConfigError, DataError
 
 #: ``core.qlearning.METHODS``, repeated here so that ``--help`` does not import numpy (a test keeps them equal).
 METHODS = ("performance", "shaping", "qaug")
@@ -35,8 +35,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from .. import artifacts
-    from ..training import TrainingSpec, train_grid, write_outputs
+    from nao_trainer.learn import artifacts
+    from nao_trainer.learn.training import TrainingSpec, train_grid, write_outputs
 
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
     try:

@@ -1,7 +1,7 @@
 """Engagement maths: band powers, the engagement index, smoothing, signal quality, normalisation.
 
 Pure: numpy only, no I/O, no clocks. The live monitor (``nao_trainer.eeg``) and the offline reader of
-the published data (``nao_trainer.eeg.offline``) both build on these functions, so a session and a
+the published data (``nao_trainer.data.engagement``) both build on these functions, so a session and a
 re-analysis compute engagement the same way.
 
 Definitions (see ``docs/engagement.md``)

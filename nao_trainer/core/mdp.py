@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .task import LENGTHS, length_of, level_of, score, signed_score
+from nao_trainer.core.task import LENGTHS, length_of, level_of, score, signed_score
 
 FEEDBACKS: tuple[int, ...] = (0, 1, 2)
 PREVIOUS_RESULTS: tuple[int, ...] = tuple(range(-4, 5))

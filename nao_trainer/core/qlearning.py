@@ -49,7 +49,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from . import mdp
+from nao_trainer.core import mdp
 
 METHODS: tuple[str, ...] = ("performance", "shaping", "qaug")
 METHOD_TEXT: dict[str, str] = {

@@ -7,8 +7,8 @@ Pure: no I/O. A ``UserSimulator`` holds, for every turn state of ``core.mdp``:
 * per-level quantiles of reaction and completion times (seconds from the beep), sampled by
   inverse-CDF interpolation.
 
-Fitting from data lives in ``core.usermodel`` / ``nao_trainer.fitting``; files in
-``nao_trainer.artifacts``. Tables make simulation a lookup, which is what lets training vectorise.
+Fitting from data lives in ``core.usermodel`` / ``nao_trainer.learn.fitting``; files in
+``nao_trainer.learn.artifacts``. Tables make simulation a lookup, which is what lets training vectorise.
 """
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from . import mdp
+from nao_trainer.core import mdp
 
 #: Probability levels of the stored time quantiles (0, 0.05, ..., 1).
 TIME_QUANTILES = np.linspace(0.0, 1.0, 21)

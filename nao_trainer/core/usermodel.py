@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import DataError
-from .task import LEVELS
+from nao_trainer.errors import DataError
+from nao_trainer.core.task import LEVELS
 
 FEATURE_NAMES: tuple[str, ...] = ("p1", "p2", "p3", "p4", "e1", "e2", "e3", "e4")
 

@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import EEGUnavailable
-from ..published import CHANNELS
-from .lsl_scope import configure_lsl
+from nao_trainer.errors import EEGUnavailable
+from nao_trainer.data.published import CHANNELS
+from nao_trainer.eeg.lsl_scope import configure_lsl
 
 log = logging.getLogger(__name__)
 

@@ -11,7 +11,7 @@ import re
 import socket
 import threading
 
-from .lsl_scope import configure_lsl
+from nao_trainer.eeg.lsl_scope import configure_lsl
 
 _SAFE = re.compile(r"[^A-Za-z0-9_.-]+")
 

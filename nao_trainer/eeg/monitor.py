@@ -35,14 +35,14 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..core.engagement import (EngagementNormaliser, OnlineEngagement, QualityThresholds, WindowResult,
+from nao_trainer.core.engagement import (EngagementNormaliser, OnlineEngagement, QualityThresholds, WindowResult,
                                aggregate_phase)
-from ..errors import ConfigError, EEGUnavailable
-from ..files import write_json_atomic
-from ..ports import EngagementMonitor, NullMonitor, PhaseEngagement
-from .inlet import EEGInlet, StreamQuery, resolve_eeg
-from .lsl_scope import SCOPES, configure_lsl
-from .markers import MarkerOutlet, event_name, marker_source_id
+from nao_trainer.errors import ConfigError, EEGUnavailable
+from nao_trainer.files import write_json_atomic
+from nao_trainer.ports import EngagementMonitor, NullMonitor, PhaseEngagement
+from nao_trainer.eeg.inlet import EEGInlet, StreamQuery, resolve_eeg
+from nao_trainer.eeg.lsl_scope import SCOPES, configure_lsl
+from nao_trainer.eeg.markers import MarkerOutlet, event_name, marker_source_id
 
 log = logging.getLogger(__name__)
 
@@ -622,7 +622,7 @@ def open_monitor(mode: str, eeg_cfg: Mapping[str, Any] | None, session_dir: Path
     simulator = None
     query = StreamQuery(settings.stream_type, settings.stream_name, settings.source_id)
     if settings.mode == "simulated":
-        from .simulated_muse import SimulatedMuse, fake_mac
+        from nao_trainer.eeg.simulated_muse import SimulatedMuse, fake_mac
 
         # The simulator draws from its own generator (seeded from the session's) in its own thread,
         # so the session's random stream stays reproducible.

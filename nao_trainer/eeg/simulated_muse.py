@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataError
-from ..published import CHANNELS, RAW_RATE_HZ, read_recording
-from .lsl_scope import configure_lsl
+from nao_trainer.errors import DataError
+from nao_trainer.data.published import CHANNELS, RAW_RATE_HZ, read_recording
+from nao_trainer.eeg.lsl_scope import configure_lsl
 
 MUSE_LABELS = CHANNELS + ("Right AUX",)
 MUSE_RATE_HZ = 256.0
@@ -324,7 +324,7 @@ class ReplayMuse(_Publisher):
 def load_raw_session(session_dir: Path) -> tuple[np.ndarray, list[tuple[str, int]]]:
     """All ``eeg`` samples of a raw session in recording order, with each file's start index.
 
-    A malformed ``eeg`` line raises DataError naming file and line (:func:`nao_trainer.published.read_recording`).
+    A malformed ``eeg`` line raises DataError naming file and line (:func:`nao_trainer.data.published.read_recording`).
     """
     parts, boundaries, start = [], [], 0
     for path in raw_recording_order(session_dir):

@@ -9,7 +9,7 @@ def pyplot():
     try:
         import matplotlib
     except ImportError:
-        from ..errors import UserError
+        from nao_trainer.errors import UserError
 
         raise UserError(f"figures need matplotlib: {PLOTS_HINT}") from None
     matplotlib.use("Agg")

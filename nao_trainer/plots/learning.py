@@ -9,12 +9,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core import mdp
-from . import pyplot
+from nao_trainer.core import mdp
+from nao_trainer.plots import pyplot
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..core.qlearning import QConfig
-    from ..training import GridResult
+    from nao_trainer.core.qlearning import QConfig
+    from nao_trainer.learn.training import GridResult
 
 METHOD_COLORS = {"performance": "#4c72b0", "shaping": "#dd8452", "qaug": "#55a868"}
 

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fitting import FitResult, Turns
-from . import pyplot
+from nao_trainer.learn.fitting import FitResult, Turns
+from nao_trainer.plots import pyplot
 
 COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:gray")
 

@@ -21,8 +21,8 @@ from typing import Any, Callable
 os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise; must precede `import qi`
 import qi  # noqa: E402
 
-from ..errors import ConfigError, RobotUnavailable  # noqa: E402
-from ..ports import BUTTON_LETTERS, RobotConnectionLost  # noqa: E402
+from nao_trainer.errors import ConfigError, RobotUnavailable  # noqa: E402
+from nao_trainer.ports import BUTTON_LETTERS, RobotConnectionLost  # noqa: E402
 
 log = logging.getLogger(__name__)
 

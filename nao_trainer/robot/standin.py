@@ -39,8 +39,8 @@ from typing import Any, TextIO
 os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise; must precede `import qi`
 import qi  # noqa: E402
 
-from ..errors import ConfigError, RobotUnavailable  # noqa: E402
-from ..ports import BUTTON_LETTERS  # noqa: E402
+from nao_trainer.errors import ConfigError, RobotUnavailable  # noqa: E402
+from nao_trainer.ports import BUTTON_LETTERS  # noqa: E402
 
 #: Speaking time per character at speed 1.0 (a NAO speaks roughly 12-15 characters a second).
 SECONDS_PER_CHARACTER = 0.06

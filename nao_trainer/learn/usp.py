@@ -37,20 +37,20 @@ from typing import Any
 
 import numpy as np
 
-from . import __version__
-from .core import mdp
-from .core.qlearning import METHOD_TEXT, METHODS, QConfig, QLearner
-from .core.simulation import UserSimulator
-from .errors import ConfigError, DataError
-from .files import read_json, read_text, write_json_atomic
-from .ports import Transition
+from nao_trainer import __version__
+from nao_trainer.core import mdp
+from nao_trainer.core.qlearning import METHOD_TEXT, METHODS, QConfig, QLearner
+from nao_trainer.core.simulation import UserSimulator
+from nao_trainer.errors import ConfigError, DataError
+from nao_trainer.files import PROJECT_ROOT, read_json, read_text, write_json_atomic
+from nao_trainer.ports import Transition
 
 FORMAT = "nao-trainer/user-specific-policy"
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
 MANIFEST_FORMAT = "nao-trainer/user-specific-policies"
 #: Where the policies trained on the default user models ship.
-DEFAULT_POLICIES_DIR = Path(__file__).resolve().parents[1] / "sim" / "policies"
+DEFAULT_POLICIES_DIR = PROJECT_ROOT / "sim" / "policies"
 POLICIES_ENV = "NAO_TRAINER_POLICIES"
 RETRAIN = "retrain with `nao-trainer train --out DIR` (or restore the file)"
 
@@ -269,10 +269,10 @@ def load_policy(spec: str, learning: bool, state_path: Path | None, policies_dir
 
     METHOD defaults to the folder manifest's ``default_method`` for the cluster (the method whose
     policies scored best in training). The policy's simulator fingerprint must match the current
-    user model of that cluster (``nao_trainer.artifacts.load_simulator``). The session passes its
+    user model of that cluster (``nao_trainer.learn.artifacts.load_simulator``). The session passes its
     generator to ``act``.
     """
-    from .artifacts import load_simulator
+    from nao_trainer.learn.artifacts import load_simulator
 
     cluster, method = parse_spec(spec)
     folder = Path(policies_dir) if policies_dir else default_policies_dir()

@@ -18,16 +18,16 @@ import platform
 from pathlib import Path
 from typing import Any
 
-from .core.simulation import FORMAT_VERSION as SIMULATOR_FORMAT_VERSION
-from .core.simulation import UserSimulator
-from .errors import DataError, UserError
-from .files import read_json, write_json_atomic
+from nao_trainer.core.simulation import FORMAT_VERSION as SIMULATOR_FORMAT_VERSION
+from nao_trainer.core.simulation import UserSimulator
+from nao_trainer.errors import DataError, UserError
+from nao_trainer.files import PROJECT_ROOT, read_json, write_json_atomic
 
 MANIFEST = "manifest.json"
 MANIFEST_FORMAT = "nao-trainer/user-models"
 MANIFEST_VERSION = 1
 #: Where the project's default user models ship (fitted from the published data).
-DEFAULT_MODELS_DIR = Path(__file__).resolve().parents[1] / "sim" / "models"
+DEFAULT_MODELS_DIR = PROJECT_ROOT / "sim" / "models"
 MODELS_ENV = "NAO_TRAINER_MODELS"
 
 

@@ -2,7 +2,7 @@
 
 Importing this module registers ``"NaoTrainer/SequenceLearning-v0"``::
 
-    import gymnasium, nao_trainer.gym_env
+    import gymnasium, nao_trainer.learn.gym_env
     env = gymnasium.make("NaoTrainer/SequenceLearning-v0", simulator="1")  # cluster 1 of sim/models
 
 The rest of nao-trainer never imports gymnasium.
@@ -18,11 +18,11 @@ try:
     from gymnasium import spaces
 except ImportError as exc:  # pragma: no cover - exercised only without the extra
     raise ImportError(
-        "nao_trainer.gym_env needs gymnasium: pip install 'nao-trainer[gym]' (or pip install gymnasium)"
+        "nao_trainer.learn.gym_env needs gymnasium: pip install 'nao-trainer[gym]' (or pip install gymnasium)"
     ) from exc
 
-from .core import mdp
-from .core.simulation import UserSimulator
+from nao_trainer.core import mdp
+from nao_trainer.core.simulation import UserSimulator
 
 ENV_ID = "NaoTrainer/SequenceLearning-v0"
 
@@ -62,7 +62,7 @@ class SequenceLearningEnv(gym.Env):
     ``score`` (signed +level/-level), ``level``, ``invalid_action``.
 
     ## Arguments
-    ``simulator``: a ``UserSimulator`` or a spec for ``nao_trainer.artifacts.load_simulator``
+    ``simulator``: a ``UserSimulator`` or a spec for ``nao_trainer.learn.artifacts.load_simulator``
     (cluster id or JSON path); ``turns``: episode length; ``render_mode``: None or ``"ansi"``.
     """
 
@@ -70,7 +70,7 @@ class SequenceLearningEnv(gym.Env):
 
     def __init__(self, simulator: UserSimulator | str = "1", turns: int = 25, render_mode: str | None = None):
         if isinstance(simulator, str):
-            from .artifacts import load_simulator
+            from nao_trainer.learn.artifacts import load_simulator
 
             simulator = load_simulator(simulator)
         if not isinstance(simulator, UserSimulator):

@@ -16,7 +16,7 @@ import threading
 import time
 from typing import Callable
 
-from .ports import Answer, Press, Robot, TurnContext
+from nao_trainer.ports import Answer, Press, Robot, TurnContext
 
 KEY_LETTERS: dict[str, str] = {"a": "A", "b": "B", "c": "C"}
 

@@ -1,7 +1,7 @@
 """Import sessions of the published layout into one tidy turn table (one row per turn).
 
-Reads every ``user_<id>/session_<k>/`` under a root with ``nao_trainer.published`` (logfile,
-state_EEG, recordings) and ``nao_trainer.eeg.offline.session_engagement`` (per-turn engagement),
+Reads every ``user_<id>/session_<k>/`` under a root with ``nao_trainer.data.published`` (logfile,
+state_EEG, recordings) and ``nao_trainer.data.engagement.session_engagement`` (per-turn engagement),
 checks that logfile and state_EEG agree, and derives the MDP columns (state index, the action that
 produced the turn). A session that cannot be read is reported in one line and skipped; the others
 import.
@@ -34,11 +34,11 @@ from typing import Any
 
 import numpy as np
 
-from . import published
-from .core import mdp
-from .core.task import LENGTHS, level_of, score, signed_score
-from .errors import DataError, UserError
-from .files import read_text, write_text_atomic
+from nao_trainer.data import published
+from nao_trainer.core import mdp
+from nao_trainer.core.task import LENGTHS, level_of, score, signed_score
+from nao_trainer.errors import DataError, UserError
+from nao_trainer.files import read_text, write_text_atomic
 
 IMPORTER_VERSION = 1
 COMPAT_MODES = (None, "authors2018")
@@ -212,7 +212,7 @@ def _check_turns(log: list[published.LogRow], states: list[published.StateRow]) 
 
 def _engagement(session_dir: Path, n: int, compat: str | None) -> list[tuple[float, float, float, float, str]]:
     """Per turn: (engagement_index, engagement, quality, contact, note) from ``eeg.offline``."""
-    from .eeg.offline import session_engagement
+    from nao_trainer.data.engagement import session_engagement
 
     nan = float("nan")
     eng = session_engagement(session_dir, compat=compat)
@@ -263,7 +263,7 @@ def engagement_definition() -> str:
     """What the cached engagement columns depend on besides the files: the package version and the
     offline engagement settings (``eeg.offline.OfflineSettings``). A change invalidates the cache."""
     import nao_trainer
-    from .eeg import offline
+    from nao_trainer.data import engagement as offline
 
     return f"nao-trainer {nao_trainer.__version__}|{offline.OfflineSettings()!r}"
 

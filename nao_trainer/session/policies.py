@@ -1,7 +1,7 @@
 """Policies the session can follow without learning: a fixed schedule and a seeded uniform one.
 
 Both implement ``ports.Policy``. Learned, user-specific policies (``usp:CLUSTER[:METHOD]``) come
-from ``nao_trainer.usp`` and are imported only when asked for.
+from ``nao_trainer.learn.usp`` and are imported only when asked for.
 """
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ from typing import Sequence
 
 import numpy as np
 
-from .core import mdp
-from .errors import ConfigError
-from .ports import Policy, Transition
+from nao_trainer.core import mdp
+from nao_trainer.errors import ConfigError
+from nao_trainer.ports import Policy, Transition
 
 
 class FixedSchedule:
@@ -77,7 +77,7 @@ def make_policy(spec: str, schedule: Sequence[str], learning: bool, state_path: 
         return UniformRandom()
     if spec.startswith("usp:"):
         try:
-            from .usp import load_policy
+            from nao_trainer.learn.usp import load_policy
         except ImportError as exc:
             raise ConfigError(f"policy {spec!r}: learned policies are not available in this install ({exc}); "
                               "use --policy schedule or random") from None

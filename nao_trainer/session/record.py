@@ -24,8 +24,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from .errors import ConfigError
-from .files import write_text_atomic
+from nao_trainer.errors import ConfigError
+from nao_trainer.files import write_text_atomic
 
 TURN_COLUMNS: tuple[str, ...] = (
     "turn", "start_time", "state", "length", "level", "feedback", "previous_score", "action",
@@ -174,7 +174,7 @@ def read_events(path: Path) -> list[dict[str, Any]]:
 def plot_session(path: Path) -> Path:
     """``session.png`` in the session folder: level per turn (success/failure, feedback), running
     score and engagement, for a look at a session without reading the table."""
-    from .plots import pyplot
+    from nao_trainer.plots import pyplot
 
     plt = pyplot()
 

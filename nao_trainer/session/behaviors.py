@@ -8,8 +8,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import ConfigError
-from .files import read_yaml
+from nao_trainer.errors import ConfigError
+from nao_trainer.files import read_yaml
 
 #: Session events that have a behavior.
 EVENTS: tuple[str, ...] = ("greeting", "instructions", "practice", "encouraging", "challenging",

@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from .errors import ConfigError
-from .files import read_yaml
+from nao_trainer.errors import ConfigError
+from nao_trainer.files import read_yaml
 
 #: Every event the session speaks, with the placeholders its variants may use.
 EVENTS: dict[str, frozenset[str]] = {

@@ -35,17 +35,17 @@ from typing import Any, Callable, Iterator, TextIO
 import numpy as np
 from transitions import Machine
 
-from . import __version__
-from .behaviors import Behaviors, load_behaviors
-from .config import PROJECT_ROOT, StudyConfig
-from .core import mdp, task
-from .core.simulation import UserSimulator
-from .dialogue import Dialogue, load_dialogue
-from .errors import ConfigError, Interrupted, RobotUnavailable, UserError
-from .files import write_text_atomic
-from .ports import (Answer, AnswerSource, EngagementMonitor, NullMonitor, PhaseEngagement, Policy, Robot,
+from nao_trainer import __version__
+from nao_trainer.session.behaviors import Behaviors, load_behaviors
+from nao_trainer.session.config import PROJECT_ROOT, StudyConfig
+from nao_trainer.core import mdp, task
+from nao_trainer.core.simulation import UserSimulator
+from nao_trainer.session.dialogue import Dialogue, load_dialogue
+from nao_trainer.errors import ConfigError, Interrupted, RobotUnavailable, UserError
+from nao_trainer.files import write_text_atomic
+from nao_trainer.ports import (Answer, AnswerSource, EngagementMonitor, NullMonitor, PhaseEngagement, Policy, Robot,
                     RobotConnectionLost, Transition, TurnContext)
-from .record import SessionRecorder, ensure_output_dir, now_iso, versions
+from nao_trainer.session.record import SessionRecorder, ensure_output_dir, now_iso, versions
 
 # ----------------------------------------------------------------------------------------------
 # The state machine, as data
@@ -99,7 +99,7 @@ def diagram_markdown() -> str:
     source = "\n".join(ln for ln in body if ln.strip() and not ln.strip().startswith(("classDef", "Class ")))
     return (
         "# Session states\n\n"
-        "Generated from `nao_trainer.session.STATES` / `TRANSITIONS` by `nao_trainer.session.export_diagram()`;\n"
+        "Generated from `nao_trainer.session.engine.STATES` / `TRANSITIONS` by `nao_trainer.session.engine.export_diagram()`;\n"
         "a test fails when this file is out of date. See docs/session.md for what each state does.\n\n"
         f"```mermaid\n{source}\n```\n"
     )
@@ -696,7 +696,7 @@ def build_simulator(config: StudyConfig) -> UserSimulator:
     spec = config.get("participant_model.user_model")
     if spec:
         try:
-            from .artifacts import load_simulator
+            from nao_trainer.learn.artifacts import load_simulator
         except ImportError as exc:
             raise ConfigError(f"user model {spec!r}: data-driven simulators are not available in this install ({exc})") from None
         return load_simulator(spec)
@@ -709,7 +709,7 @@ def open_engagement_monitor(config: StudyConfig, session_dir: Path, rng: np.rand
     eeg = dict(config["eeg"])
     if eeg["mode"] == "off":
         return NullMonitor()  # without importing pylsl
-    from .eeg.monitor import open_monitor  # sets LSL's scope before its first stream object
+    from nao_trainer.eeg.monitor import open_monitor  # sets LSL's scope before its first stream object
 
     return open_monitor(eeg["mode"], eeg, session_dir, rng, config.get("participant.pseudonym"))
 
@@ -736,7 +736,7 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
     seed = config.get("session.seed")
     seed = int(seed) if seed is not None else secrets.randbelow(2**31)
     simulator = build_simulator(config) if config.get("answers.input") == "simulated" else None
-    from .policies import make_policy
+    from nao_trainer.session.policies import make_policy
 
     # Loaded once, before the robot moves: a missing or stale policy, or a torn/foreign learning-state
     # file, is found here. Without policy.state_path a learning policy saves into the session folder,
@@ -753,7 +753,7 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
 def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
                behaviors: Behaviors, seed: int, simulator: UserSimulator | None, policy: Policy) -> SessionResult:
     """``run_session`` once the files and the policy are loaded: connect, wire the ports, play, clean up."""
-    from .robot.naoqi import NaoqiRobot, redact_url
+    from nao_trainer.robot.naoqi import NaoqiRobot, redact_url
 
     session_ss, policy_ss, participant_ss, eeg_ss = np.random.SeedSequence(seed).spawn(4)
     input_kind = config.get("answers.input")
@@ -765,7 +765,7 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
     status, code, error = "error", 1, ""
     try:
         if url == "mock":
-            from .robot.standin import StandIn
+            from nao_trainer.robot.standin import StandIn
 
             standin = StandIn.start("tcp://127.0.0.1:0", speed=speed)
             connect_url = standin.url
@@ -834,8 +834,8 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
 
 def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, simulator: UserSimulator | None,
                   monitor: EngagementMonitor, rng: np.random.Generator) -> tuple[AnswerSource, Any]:
-    from .answers import KeyboardAnswers, TactileAnswers
-    from .participant import SimulatedParticipant, StandInButtons
+    from nao_trainer.answers.inputs import KeyboardAnswers, TactileAnswers
+    from nao_trainer.answers.simulated import SimulatedParticipant, StandInButtons
 
     speed = float(config.get("timing.speed"))
     debounce, grace = config.get("answers.debounce_s") / speed, config.get("timing.grace_s") / speed

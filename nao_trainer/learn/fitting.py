@@ -31,11 +31,11 @@ from typing import Any
 
 import numpy as np
 
-from .core import mdp
-from .core.simulation import TIME_QUANTILES, UserSimulator
-from .core.usermodel import Clustering, UserModels, cluster_users, user_models
-from .errors import ConfigError, DataError
-from .files import read_json
+from nao_trainer.core import mdp
+from nao_trainer.core.simulation import TIME_QUANTILES, UserSimulator
+from nao_trainer.core.usermodel import Clustering, UserModels, cluster_users, user_models
+from nao_trainer.errors import ConfigError, DataError
+from nao_trainer.files import read_json
 
 #: How states are turned into regression inputs (stored in the artifacts' metadata).
 FEATURE_ENCODING = (
@@ -434,7 +434,7 @@ def table_provenance(csv_path: Path, compat: str | None) -> tuple[str | None, li
     Without a sidecar: ``compat`` as given and no skipped list. A ``compat`` that contradicts the
     sidecar is a ConfigError: the table's engagement column was computed in the sidecar's mode.
     """
-    from .dataset import COMPAT_MODES
+    from nao_trainer.data.dataset import COMPAT_MODES
 
     sidecar = Path(csv_path).with_name(Path(csv_path).name + ".json")
     if not sidecar.exists():
@@ -461,7 +461,8 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
     ``cache``: a folder, ``"default"`` (:func:`user_cache_dir`) or None (no cache). For a turn-table
     CSV, the compat mode and skipped sessions come from its sidecar (:func:`table_provenance`).
     """
-    from . import artifacts, dataset
+    from nao_trainer.learn import artifacts
+    from nao_trainer.data import dataset
 
     say = progress or (lambda _m: None)
     source, out = Path(source), Path(out_dir)
@@ -508,8 +509,8 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
                            "skipped": skipped, "inertia": report["inertia"]})
     say(f"wrote {out / artifacts.MANIFEST} and {len(result.clusters)} simulators")
     if figures:
-        from .core.usermodel import mds_projection
-        from .plots.usermodels import plot_all
+        from nao_trainer.core.usermodel import mds_projection
+        from nao_trainer.plots.usermodels import plot_all
 
         mds = mds_projection(result.user_models.features, seed=seed)
         signal_of = None if source.is_file() else _engagement_signals(source, compat)
@@ -520,8 +521,8 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
 
 def _engagement_signals(root: Path, compat: str | None) -> Callable[[str], dict[int, np.ndarray] | None]:
     """Per-sample normalised engagement of a session of ``root`` (for Figure 4), None if unreadable."""
-    from . import published
-    from .eeg.offline import session_engagement
+    from nao_trainer.data import published
+    from nao_trainer.data.engagement import session_engagement
 
     dirs = {published.session_id(d): d for d in published.find_sessions(root)}
 

@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import DataError
-from .files import read_text
+from nao_trainer.errors import DataError
+from nao_trainer.files import read_text
 
 #: Scalp channel order of every 4-value line (and of a Muse's LSL stream, before ``Right AUX``).
 CHANNELS: tuple[str, ...] = ("TP9", "AF7", "AF8", "TP10")

@@ -2,7 +2,7 @@
 
 ``train_grid`` trains one Q-learner per (cluster, method, seed) with ``core.qlearning.BatchLearner``,
 split over worker processes, and summarises the runs; ``write_outputs`` writes the figures, CSV
-tables, ``results.json`` and one policy file per (cluster, method) (format: ``nao_trainer.usp``).
+tables, ``results.json`` and one policy file per (cluster, method) (format: ``nao_trainer.learn.usp``).
 
 Reproducibility: agent (cluster, method, seed index) draws from
 ``SeedSequence(base_seed, spawn_key=(cluster_key, method_index, seed_index))`` where
@@ -32,10 +32,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .core import mdp
-from .core.qlearning import METHODS, BatchLearner, QConfig, QLearner, expected_scores
-from .core.simulation import UserSimulator
-from .files import write_json_atomic, write_text_atomic
+from nao_trainer.core import mdp
+from nao_trainer.core.qlearning import METHODS, BatchLearner, QConfig, QLearner, expected_scores
+from nao_trainer.core.simulation import UserSimulator
+from nao_trainer.files import write_json_atomic, write_text_atomic
 
 
 @dataclass(frozen=True)
@@ -350,7 +350,7 @@ def default_methods(result: GridResult) -> dict[str, str]:
 def write_outputs(result: GridResult, out_dir: Path, models_source: str, command: str,
                   plots: bool = True) -> dict[str, Path]:
     """Write curves, S0 probabilities, figures, results.json, policies and their manifest to ``out_dir``."""
-    from . import usp
+    from nao_trainer.learn import usp
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -385,7 +385,7 @@ def write_outputs(result: GridResult, out_dir: Path, models_source: str, command
     usp.write_manifest(out, {cl: result.spec.methods for cl in result.clusters}, summary["default_method"],
                        policy_files)
     if plots:
-        from .plots.learning import plot_learning_curves, plot_s0_policies
+        from nao_trainer.plots.learning import plot_learning_curves, plot_s0_policies
 
         paths["figure7"] = plot_learning_curves(result, out / FIGURE7)
         paths["figure8"] = plot_s0_policies(result, out / FIGURE8)

@@ -34,10 +34,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..core import engagement as core
-from ..errors import DataError
-from ..published import CHANNELS, RAW_RATE_HZ, Recording, find_sessions, read_recording, read_state_eeg, session_id
-from .monitor import Processing
+from nao_trainer.core import engagement as core
+from nao_trainer.errors import DataError
+from nao_trainer.data.published import CHANNELS, RAW_RATE_HZ, Recording, find_sessions, read_recording, read_state_eeg, session_id
+from nao_trainer.eeg.monitor import Processing
 
 COMPAT_MODES: tuple[str, ...] = ("authors2018",)
 SOURCES: tuple[str, ...] = ("bands", "raw")
@@ -510,7 +510,7 @@ def to_json(results: Sequence[SessionEngagement], as_list: bool | None = None) -
 
 def plot_session(result: SessionEngagement, path: Path) -> Path:
     """Save a figure: per-turn engagement (bars) and the per-sample series of every turn (line)."""
-    from ..plots import pyplot
+    from nao_trainer.plots import pyplot
 
     plt = pyplot()
 

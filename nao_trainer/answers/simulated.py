@@ -16,9 +16,9 @@ from typing import Callable
 
 import numpy as np
 
-from .core import task
-from .core.simulation import UserSimulator
-from .ports import Answer, AnswerSource, EngagementMonitor, NullMonitor, Press, RobotConnectionLost, TurnContext
+from nao_trainer.core import task
+from nao_trainer.core.simulation import UserSimulator
+from nao_trainer.ports import Answer, AnswerSource, EngagementMonitor, NullMonitor, Press, RobotConnectionLost, TurnContext
 
 #: Relative frequency of mistake kinds when a turn fails.
 MISTAKES: dict[str, float] = {"substitute": 0.6, "swap": 0.25, "omit": 0.15}
@@ -160,8 +160,8 @@ class StandInButtons:
         self._lock = threading.Lock()
 
     def __call__(self, letter: str) -> None:
-        from .errors import RobotUnavailable
-        from .robot.standin import StandInClient
+        from nao_trainer.errors import RobotUnavailable
+        from nao_trainer.robot.standin import StandInClient
 
         with self._lock:
             for attempt in (1, 2):  # a stale connection (the stand-in restarted) gets one fresh try
@@ -190,8 +190,8 @@ class StandInButtons:
     @classmethod
     def probe(cls, url: str, deadline_s: float = 3.0) -> "StandInButtons | None":
         """A presser when ``url`` serves the stand-in's control service, else None (a real NAO)."""
-        from .errors import RobotUnavailable
-        from .robot.standin import StandInClient
+        from nao_trainer.errors import RobotUnavailable
+        from nao_trainer.robot.standin import StandInClient
 
         buttons = cls(url, deadline_s)
         try:

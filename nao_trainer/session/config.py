@@ -17,12 +17,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from .errors import ConfigError
-from .files import read_yaml
+from nao_trainer.errors import ConfigError
+from nao_trainer.files import PROJECT_ROOT, read_yaml
 
 #: Repository root (parent of the package). Relative paths in configs resolve against it, so
 #: ``nao-trainer run`` works from any folder of a clone (installs are editable).
-PROJECT_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_CONFIG = PROJECT_ROOT / "config" / "default.yaml"
 DEMO_STUDY = PROJECT_ROOT / "config" / "studies" / "demo.yaml"
 
@@ -68,7 +67,7 @@ def _policy_spec(value: str) -> str | None:
 
 
 def _schedule(value: list) -> str | None:
-    from .core import mdp  # lazily: `nao-trainer --help` parses without numpy
+    from nao_trainer.core import mdp  # lazily: `nao-trainer --help` parses without numpy
 
     bad = [a for a in value if a not in mdp.ACTION_NAMES]
     if bad:
@@ -289,7 +288,7 @@ def _validate_eeg_processing(processing: dict, locs: dict[str, _Loc]) -> None:
     if not processing:
         return
     try:
-        from .eeg.monitor import Processing
+        from nao_trainer.eeg.monitor import Processing
     except ImportError:  # EEG support not installed: the session refuses eeg modes other than off
         return
     try:

@@ -1,0 +1,1 @@
+"""Answer sources: the NAO's head buttons, a keyboard or buzzer box, and the simulated participant."""
