@@ -258,7 +258,7 @@ def test_cli_checks_options_and_output_folders_before_computing(dataset_root, tm
 
 def test_raw_source_uses_the_live_monitors_processing(tmp_path):
     from nao_trainer.core import engagement as core
-    from nao_trainer.eeg.monitor import Processing
+    from nao_trainer.core.eeg import Processing
     from nao_trainer.eeg.simulated_muse import MuseSignal
 
     live, s = Processing(), offline.OfflineSettings()

@@ -15,7 +15,7 @@ Two definitions:
     the correct EWMA ``s_t = a s_(t-1) + (1-a) E_t`` restarted per turn over the usable samples.
     *raw source* (recordings with only raw ``eeg`` lines, or ``source="raw"``): the online estimator
     (:class:`nao_trainer.core.engagement.OnlineEngagement`) on the raw EEG at ``fs`` Hz, samples stamped
-    ``i / fs``, with the live monitor's processing defaults (``eeg.monitor.Processing``: EWMA a = 0.75 per
+    ``i / fs``, with the live monitor's processing defaults (``core.eeg.Processing``: EWMA a = 0.75 per
     0.25 s window). ``engagement_index`` = mean raw E of the usable samples/windows, ``engagement`` = mean of
     their smoothed E normalised per participant (:class:`EngagementNormaliser`): baseline = the
     ``intro`` recording (greeting and instructions) when present, then bounds widened turn by turn;
@@ -36,8 +36,8 @@ import numpy as np
 
 from nao_trainer.core import engagement as core
 from nao_trainer.errors import DataError
-from nao_trainer.data.published import CHANNELS, RAW_RATE_HZ, Recording, find_sessions, read_recording, read_state_eeg, session_id
-from nao_trainer.eeg.monitor import Processing
+from nao_trainer.core.eeg import CHANNELS, RAW_RATE_HZ, Processing
+from nao_trainer.data.published import Recording, find_sessions, read_recording, read_state_eeg, session_id
 
 COMPAT_MODES: tuple[str, ...] = ("authors2018",)
 SOURCES: tuple[str, ...] = ("bands", "raw")
@@ -56,7 +56,7 @@ _LIVE = Processing()
 class OfflineSettings:
     """Knobs of the project's own offline definition (ignored by ``compat="authors2018"``).
 
-    The raw-EEG defaults are the live monitor's (:class:`nao_trainer.eeg.monitor.Processing`).
+    The raw-EEG defaults are the live monitor's (:class:`nao_trainer.core.eeg.Processing`).
     """
 
     a: float = 0.9  # EWMA factor per 10 Hz band sample (time constant 0.1 s / (1 - a) = 1 s)

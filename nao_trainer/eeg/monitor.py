@@ -29,7 +29,7 @@ import itertools
 import os
 import logging
 import threading
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -37,122 +37,18 @@ import numpy as np
 
 from nao_trainer.core.engagement import (EngagementNormaliser, OnlineEngagement, QualityThresholds, WindowResult,
                                aggregate_phase)
-from nao_trainer.errors import ConfigError, EEGUnavailable
+from nao_trainer.errors import EEGUnavailable
 from nao_trainer.files import write_json_atomic
 from nao_trainer.ports import EngagementMonitor, NullMonitor, PhaseEngagement
 from nao_trainer.eeg.inlet import EEGInlet, StreamQuery, resolve_eeg
-from nao_trainer.eeg.lsl_scope import SCOPES, configure_lsl
+from nao_trainer.eeg.lsl_scope import configure_lsl
+from nao_trainer.eeg.settings import EEGSettings
 from nao_trainer.eeg.markers import MarkerOutlet, event_name, marker_source_id
 
 log = logging.getLogger(__name__)
 
-MODES = ("off", "simulated", "lsl")
 PHASES = ("baseline", "listening", "answer")
 _SIM_COUNTER = itertools.count(1)
-
-
-# ----------------------------------------------------------------------------------------------
-# Configuration
-# ----------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Processing:
-    """Engagement processing options (``eeg.processing`` in a study config).
-
-    window_s / hop_s: analysis window and step (2 s windows every 0.25 s: 1 Hz Welch resolution,
-    four values a second). ewma_a: smoothing factor a of ``s_t = a s_(t-1) + (1-a) y_t``; 0.75 at
-    4 windows/s gives a time constant hop/(1-a) = 1 s, the authors' 0.9 at their 10 Hz band rate.
-    resolve_timeout_s: how long to look for the stream at start. loss_timeout_s: silence after
-    which the stream counts as lost. min_quality: clean fraction a phase needs for a value.
-    min_clean_channels: clean scalp channels a window needs. gap_tolerance_s: a jump in sample
-    stamps larger than this restarts the windows. end_wait_s: longest wait at a phase end for
-    samples still in flight. poll_s: how often the reader drains the inlet between phase ends (a
-    phase end drains it at once; 0.2 s keeps the reader well under 1 % of a core). record_raw: save the scalp samples to ``eeg/raw.csv``.
-    """
-
-    window_s: float = 2.0
-    hop_s: float = 0.25
-    ewma_a: float = 0.75
-    resolve_timeout_s: float = 5.0
-    loss_timeout_s: float = 1.0
-    min_quality: float = 0.5
-    min_clean_channels: int = 2
-    gap_tolerance_s: float = 0.1
-    end_wait_s: float = 0.04
-    poll_s: float = 0.2
-    record_raw: bool = True
-
-    def __post_init__(self) -> None:
-        rules = {
-            "window_s": (0.25, 30.0), "hop_s": (0.01, 30.0), "ewma_a": (0.0, 0.999),
-            "resolve_timeout_s": (0.0, 120.0), "loss_timeout_s": (0.1, 60.0), "min_quality": (0.0, 1.0),
-            "min_clean_channels": (1, 4), "gap_tolerance_s": (0.0, 10.0), "end_wait_s": (0.0, 1.0), "poll_s": (0.005, 1.0),
-        }
-        for key, (lo, hi) in rules.items():
-            value = getattr(self, key)
-            if not lo <= value <= hi:
-                raise ConfigError(f"eeg.processing.{key}: {value!r} is out of range; use a value in [{lo}, {hi}]")
-        if self.hop_s > self.window_s:
-            raise ConfigError(f"eeg.processing.hop_s: {self.hop_s} exceeds window_s {self.window_s}; "
-                              "use a hop no longer than the window")
-
-    @classmethod
-    def from_mapping(cls, data: Mapping[str, Any] | None) -> "Processing":
-        """Validate ``eeg.processing``; unknown keys and wrong types raise ``ConfigError`` naming the key."""
-        data = dict(data or {})
-        known = {f.name: f for f in fields(cls)}
-        values: dict[str, Any] = {}
-        for key, value in data.items():
-            if key not in known:
-                raise ConfigError(f"eeg.processing.{key}: unknown key; known keys are {', '.join(known)}")
-            default = known[key].default
-            if isinstance(default, bool):
-                if not isinstance(value, bool):
-                    raise ConfigError(f"eeg.processing.{key}: must be true or false, got {value!r}")
-            elif isinstance(default, int):
-                if isinstance(value, bool) or not isinstance(value, int):
-                    raise ConfigError(f"eeg.processing.{key}: must be an integer, got {value!r}")
-            elif isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ConfigError(f"eeg.processing.{key}: must be a number, got {value!r}")
-            values[key] = float(value) if isinstance(default, float) else value
-        return cls(**values)
-
-
-@dataclass(frozen=True)
-class EEGSettings:
-    """The ``eeg`` section of a study config, validated."""
-
-    mode: str = "simulated"
-    required: bool = False
-    stream_type: str = "EEG"
-    stream_name: str | None = None
-    source_id: str | None = None
-    lsl_scope: str = "machine"
-    processing: Processing = field(default_factory=Processing)
-
-    @classmethod
-    def from_mapping(cls, data: Mapping[str, Any] | None, mode: str | None = None) -> "EEGSettings":
-        data = dict(data or {})
-        known = {f.name for f in fields(cls)}
-        for key in data:
-            if key not in known:
-                raise ConfigError(f"eeg.{key}: unknown key; known keys are {', '.join(sorted(known))}")
-        mode = mode or data.get("mode", "simulated")
-        if mode not in MODES:
-            raise ConfigError(f"eeg.mode: {mode!r} is not one of {', '.join(MODES)}")
-        scope = data.get("lsl_scope", "machine")
-        if scope not in SCOPES:
-            raise ConfigError(f"eeg.lsl_scope: {scope!r} is not one of {', '.join(SCOPES)}")
-        for key in ("stream_type", "stream_name", "source_id"):
-            value = data.get(key)
-            if value is not None and (not isinstance(value, str) or not value.strip() or "'" in value):
-                raise ConfigError(f"eeg.{key}: must be a non-empty text without quotes, got {value!r}")
-        if not isinstance(data.get("required", False), bool):
-            raise ConfigError(f"eeg.required: must be true or false, got {data['required']!r}")
-        return cls(mode=mode, required=data.get("required", False), stream_type=data.get("stream_type") or "EEG",
-                   stream_name=data.get("stream_name"), source_id=data.get("source_id"), lsl_scope=scope,
-                   processing=Processing.from_mapping(data.get("processing")))
 
 
 # ----------------------------------------------------------------------------------------------

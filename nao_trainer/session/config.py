@@ -288,7 +288,7 @@ def _validate_eeg_processing(processing: dict, locs: dict[str, _Loc]) -> None:
     if not processing:
         return
     try:
-        from nao_trainer.eeg.monitor import Processing
+        from nao_trainer.core.eeg import Processing
     except ImportError:  # EEG support not installed: the session refuses eeg modes other than off
         return
     try:
