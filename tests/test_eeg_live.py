@@ -301,17 +301,17 @@ def _bare_monitor(now: list[float]) -> LslMonitor:
     import threading
     from types import SimpleNamespace
 
-    from nao_trainer.core.engagement import EngagementNormaliser
+    from nao_trainer.core.engagement import PhaseSummariser
     from nao_trainer.eeg.monitor import _SessionFiles
 
     m = LslMonitor.__new__(LslMonitor)
     m._clock = lambda: now[0]
     m.settings = EEGSettings()
     m.proc = m.settings.processing
-    m.files, m.normaliser = _SessionFiles(None), EngagementNormaliser()
+    m.files, m.summariser = _SessionFiles(None), PhaseSummariser(m.proc.hop_s, m.proc.min_quality)
     m.windows, m.gaps, m.phases = [], [], []
     m.inlet, m.unavailable_reason, m._lost = SimpleNamespace(), "", False
-    m._phase, m._had_baseline = None, False
+    m._phase = None
     m._cond, m._urgent = threading.Condition(), threading.Event()
     m._last_stamp = -np.inf
     return m

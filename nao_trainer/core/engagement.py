@@ -13,7 +13,7 @@ Definitions (see ``docs/engagement.md``)
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import Iterable, Sequence
 
@@ -518,3 +518,61 @@ def aggregate_phase(
         norm = normaliser.normalise(smooth)
         eng = float(np.mean(norm)) if np.isfinite(norm).all() else None
     return PhaseAggregate(float(raw.mean()), float(smooth.mean()), eng, quality, len(inside))
+
+
+# ----------------------------------------------------------------------------------------------
+# The phase rule of a session (live monitor and offline re-analysis share it)
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PhaseSummary:
+    """One session phase: the aggregate, its normalised engagement, and the per-window values."""
+
+    aggregate: PhaseAggregate
+    engagement: float | None  # mean normalised smoothed E of the usable windows (None: see reason)
+    smoothed: np.ndarray  # smoothed E per window (NaN where unusable)
+    normalised: np.ndarray  # the same, normalised with the bounds after this phase
+    reason: str  # why there is no engagement ("" when there is)
+
+
+@dataclass
+class PhaseSummariser:
+    """A session's phases in the order they ended -> per-phase engagement.
+
+    The rule the live monitor applies and the offline re-analysis of a recorded session replays, so
+    both give the same numbers from the same windows: the baseline phase starts the normaliser's
+    bounds, every later phase widens them with its usable smoothed values (running bounds), and a
+    phase's engagement is the mean of its usable windows normalised with the bounds after it.
+    """
+
+    hop_s: float
+    min_quality: float
+    normaliser: EngagementNormaliser = field(default_factory=EngagementNormaliser)
+    had_baseline: bool = False
+
+    def summarise(self, phase: str, windows: Sequence[WindowResult], t0: float, t1: float) -> PhaseSummary:
+        """Summarise the windows ending in ``(t0, t1]`` of a phase named ``phase``."""
+        smooth = np.array([w.index_smoothed if w.usable else np.nan for w in windows], dtype=float)
+        finite = smooth[np.isfinite(smooth)]
+        if phase == "baseline":
+            self.normaliser.fit_baseline(finite)
+            self.had_baseline = True
+        else:
+            self.normaliser.extend(finite)
+        agg = aggregate_phase(windows, t0, t1, self.hop_s, None, self.min_quality)
+        norm = self.normaliser.normalise(smooth)
+        engagement = None
+        if agg.index is not None:
+            usable = norm[np.array([w.usable for w in windows], dtype=bool)]
+            if np.isfinite(usable).all():  # as aggregate_phase computes it from a normaliser
+                engagement = float(np.mean(usable))
+        reason = agg.reason
+        if agg.index is not None and engagement is None:
+            n = self.normaliser
+            why = (f"baseline too short: {n.baseline_n_} usable windows" if self.had_baseline
+                   else "no baseline phase")
+            reason = (f"no normalisation scale yet ({len(n.history)} windows seen, {n.min_values} needed; {why})"
+                      if n.baseline_n_ < n.min_values else "normalisation scale is flat")
+        return PhaseSummary(replace(agg, engagement=engagement), engagement, smooth, norm,
+                            "" if engagement is not None else reason)

@@ -35,8 +35,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from nao_trainer.core.engagement import (EngagementNormaliser, OnlineEngagement, QualityThresholds, WindowResult,
-                               aggregate_phase)
+from nao_trainer.core.engagement import (EngagementNormaliser, OnlineEngagement, PhaseSummariser, QualityThresholds,
+                                         WindowResult)
 from nao_trainer.errors import EEGUnavailable
 from nao_trainer.files import write_json_atomic
 from nao_trainer.ports import EngagementMonitor, NullMonitor, PhaseEngagement
@@ -82,8 +82,9 @@ class _CsvLog:
             self._fh.close()
 
 
-def _fmt(v: float | None, digits: int = 6) -> str:
-    return "" if v is None or not np.isfinite(v) else f"{v:.{digits}g}"
+def _fmt(v: float | None) -> str:
+    """Full precision (``repr``): the offline re-analysis checks its values against these to 1e-9."""
+    return "" if v is None or not np.isfinite(v) else repr(float(v))
 
 
 class _SessionFiles:
@@ -126,7 +127,7 @@ class _SessionFiles:
 EVENTS_HEADER = ["lsl_time", "event", "detail"]
 WINDOWS_HEADER = ["turn", "phase", "t_end", "index_raw", "index_smoothed", "engagement", "clean_fraction", "reason"]
 PHASES_HEADER = ["turn", "phase", "t_begin", "t_end", "engagement", "engagement_index", "eeg_quality",
-                 "n_windows", "lost_s", "reason"]
+                 "n_windows", "lost_s", "reason", "last_sample"]
 GAPS_HEADER = ["start", "end", "duration_s", "kind"]
 
 
@@ -140,6 +141,7 @@ class _Phase:
     name: str
     turn: int | None
     t0: float
+    last_sample: float | None = None  # stamp of the last sample processed when the phase was summarised
 
 
 @dataclass
@@ -172,7 +174,7 @@ class LslMonitor:
         self.simulator = simulator
         self.inlet: EEGInlet | None = None
         self.engine: OnlineEngagement | None = None
-        self.normaliser = EngagementNormaliser()
+        self.summariser = PhaseSummariser(self.proc.hop_s, self.proc.min_quality)
         self.windows: list[WindowResult] = []
         self.gaps: list[Gap] = []
         self.phases: list[tuple[_Phase, float, PhaseEngagement]] = []
@@ -181,7 +183,6 @@ class LslMonitor:
         self.samples_received = 0
         self.thread_cpu_s = 0.0  # CPU time of the reader thread (benchmarks)
         self._phase: _Phase | None = None
-        self._had_baseline = False  # a baseline phase was summarised (for the no-scale reason)
         self._resolver = None  # a pylsl.ContinuousResolver while waiting for a stream
         self._rejected: set[str] = set()  # source_ids found but unusable
         self._cond = threading.Condition()
@@ -199,6 +200,11 @@ class LslMonitor:
         self._thread.start()
 
     # -- state --------------------------------------------------------------------------------
+
+    @property
+    def normaliser(self) -> EngagementNormaliser:
+        """The per-participant scale (baseline plus running bounds) of this session."""
+        return self.summariser.normaliser
 
     @property
     def available(self) -> bool:
@@ -318,7 +324,7 @@ class LslMonitor:
         self._raw_pending, self._raw_n = [], 0
         if log_ is None:
             return
-        row = ",".join(["%.6f"] + ["%.3f"] * len(labels)) + "\n"
+        row = ",".join(["%r"] * (1 + len(labels))) + "\n"  # exact: offline re-analysis replays these
         with self.files.lock:
             fh = log_.raw_file()
             fh.write((row * len(block)) % tuple(block.ravel().tolist()))  # one format op: cheap
@@ -414,49 +420,36 @@ class LslMonitor:
                     self._cond.wait(remaining)
             finally:
                 self._urgent.clear()
+            if self._phase is not None and np.isfinite(self._last_stamp):
+                # every window up to this sample was computed: an offline replay selects the same ones
+                self._phase.last_sample = self._last_stamp
             return [w for w in self.windows if t0 < w.t_end <= t1]
 
     def _summarise(self, ph: _Phase, t1: float, windows: list[WindowResult]):
         now = self._clock()
         lost_s = sum(g.overlap(ph.t0, t1, now) for g in self.gaps)
-        smooth = np.array([w.index_smoothed if w.usable else np.nan for w in windows], dtype=float)
-        finite = smooth[np.isfinite(smooth)]
-        if ph.name == "baseline":
-            self.normaliser.fit_baseline(finite)
-            self._had_baseline = True
-        else:  # running bounds: every phase's windows join the scale's history
-            self.normaliser.extend(finite)
-        agg = aggregate_phase(windows, ph.t0, t1, self.proc.hop_s, None, self.proc.min_quality)
-        norm = self.normaliser.normalise(smooth)  # once, for the phase value and the window rows
-        if agg.index is not None:
-            usable = norm[np.array([w.usable for w in windows], dtype=bool)]
-            if np.isfinite(usable).all():  # as aggregate_phase computes it from a normaliser
-                agg = replace(agg, engagement=float(np.mean(usable)))
-        reason = agg.reason
+        summary = self.summariser.summarise(ph.name, windows, ph.t0, t1)  # the rule offline replays too
+        agg = summary.aggregate
+        reason = summary.reason
         if self.inlet is None:
             reason = f"EEG unavailable: {self.unavailable_reason or 'no stream'}"
         elif agg.index is None and lost_s > 0:
             reason = f"stream lost for {lost_s:.1f} s of the phase ({reason})"
-        elif agg.engagement is None and agg.index is not None:
-            why = (f"baseline too short: {self.normaliser.baseline_n_} usable windows" if self._had_baseline
-                   else "no baseline phase")
-            reason = (f"no normalisation scale yet ({len(self.normaliser.history)} windows seen, "
-                      f"{self.normaliser.min_values} needed; {why})"
-                      if self.normaliser.baseline_n_ < self.normaliser.min_values else "normalisation scale is flat")
-        engagement = agg.engagement if agg.index is not None else None
+        engagement = summary.engagement
         result = PhaseEngagement(engagement, agg.index, round(agg.quality, 4), reason if engagement is None else "",
-                                 series=smooth)
-        rows = [[ph.turn if ph.turn is not None else "", ph.name, f"{w.t_end:.6f}", _fmt(w.index_raw),
+                                 series=summary.smoothed)
+        rows = [[ph.turn if ph.turn is not None else "", ph.name, repr(w.t_end), _fmt(w.index_raw),
                  _fmt(w.index_smoothed), _fmt(float(n)), f"{w.clean_fraction:.3f}", w.reason]
-                for w, n in zip(windows, norm)]
+                for w, n in zip(windows, summary.normalised)]
         return result, (rows, lost_s)
 
     def _write_phase(self, ph: _Phase, t1: float, result: PhaseEngagement, rows_lost) -> None:
         rows, lost_s = rows_lost
         self.files.write("windows.csv", WINDOWS_HEADER, rows)
         self.files.write("phases.csv", PHASES_HEADER, [[
-            ph.turn if ph.turn is not None else "", ph.name, f"{ph.t0:.6f}", f"{t1:.6f}", _fmt(result.engagement),
-            _fmt(result.index), f"{result.quality:.3f}", len(rows), f"{lost_s:.3f}", result.reason]])
+            ph.turn if ph.turn is not None else "", ph.name, repr(ph.t0), repr(t1), _fmt(result.engagement),
+            _fmt(result.index), f"{result.quality:.3f}", len(rows), f"{lost_s:.3f}", result.reason,
+            "" if ph.last_sample is None else repr(ph.last_sample)]])
 
     def close(self) -> None:
         """Stop the reader, record an open gap, close the inlet, the marker outlet, the simulator, files."""
