@@ -9,12 +9,14 @@ from pathlib import Path
 def register(sub) -> None:
     p = sub.add_parser(
         "import",
-        help="read sessions of the published layout into one turn table (CSV)",
-        description="Read every user_<id>/session_<k>/ under DATASET_ROOT (logfile, state_EEG, EEG recordings) "
-        "into one CSV with a row per turn, plus FILE.json with provenance. Sessions that cannot be read are "
-        "reported one line each and skipped. Exit 0 when at least one session imported.",
+        help="read recorded sessions (yours or the published ones) into one turn table (CSV)",
+        description="Read every session under ROOT into one CSV with a row per turn, plus FILE.json with "
+        "provenance: session folders written by `nao-trainer run` (a study folder holding many, or one), and "
+        "user_<id>/session_<k>/ folders of the published layout. Sessions that cannot be read are reported one "
+        "line each and skipped; interrupted or invalid turns are left out of the table with the reason. "
+        "Exit 0 when at least one session imported. Schema: docs/data.md.",
     )
-    p.add_argument("root", metavar="DATASET_ROOT", type=Path, help="dataset root, or one session folder")
+    p.add_argument("root", metavar="ROOT", type=Path, help="study folder, dataset root, or one session folder")
     p.add_argument("--out", "-o", type=Path, required=True, metavar="FILE", help="CSV file to write")
     p.add_argument("--compat", choices=["authors2018"], default=None,
                    help="compute per-turn engagement exactly as the dataset's authors did")
@@ -31,10 +33,20 @@ def run(args: argparse.Namespace) -> int:
     cache = None if args.no_cache else (args.cache or default_cache_dir(args.out))
     progress = None if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     result = import_dataset(args.root, compat=args.compat, cache_dir=cache, progress=progress)
-    for problem in result.problems:
-        print(f"nao-trainer import: {problem}", file=sys.stderr)
+    for line in report_lines(result):
+        print(f"nao-trainer import: {line}", file=sys.stderr)
     write_table(result.table, args.out, result.provenance)
     t = result.table
     print(f"{args.out}: {len(t)} turns from {len(t.sessions)} sessions"
           f" ({result.cached} from cache, {len(result.problems)} skipped)", file=sys.stderr)
     return 0
+
+
+def report_lines(result) -> list[str]:
+    """One line per session left out, per note, and the count of turns left out (with each turn)."""
+    lines = [str(p) for p in result.problems] + list(result.notes)
+    summary = result.excluded_summary()
+    if summary:
+        lines.append(summary + ":")
+        lines += [f"  {e}" for e in result.excluded]
+    return lines

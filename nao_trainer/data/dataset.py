@@ -1,12 +1,19 @@
-"""Import sessions of the published layout into one tidy turn table (one row per turn).
+"""Import recorded sessions into one tidy turn table (one row per turn).
 
-Reads every ``user_<id>/session_<k>/`` under a root with ``nao_trainer.data.published`` (logfile,
-state_EEG, recordings) and ``nao_trainer.data.engagement.session_engagement`` (per-turn engagement),
-checks that logfile and state_EEG agree, and derives the MDP columns (state index, the action that
-produced the turn). A session that cannot be read is reported in one line and skipped; the others
-import.
+Two layouts import into the same columns and encodings (the schema: ``docs/data.md``):
 
-Columns (:data:`COLUMNS`): ``session turn state length level feedback previous_score action
+* the published layout: every ``user_<id>/session_<k>/`` under a root, read with
+  ``nao_trainer.data.published`` (logfile, state_EEG, recordings) and
+  ``nao_trainer.data.engagement.session_engagement`` (per-turn engagement); logfile and state_EEG
+  must agree; the MDP columns (state index, the action that produced the turn) are derived;
+* the folders ``nao-trainer run`` writes (``<pseudonym>_<stamp>/`` with session.json), read with
+  ``nao_trainer.data.own``: success 0/1 and the action index from turns.csv, engagement recomputed
+  from the session's raw EEG. Interrupted or invalid turns stay in turns.csv but are left out of
+  the table, each with the reason (:attr:`ImportResult.excluded`).
+
+A session that cannot be read is reported in one line and skipped; the others import.
+
+Columns (:data:`COLUMNS`): ``session pseudonym turn state length level feedback previous_score action
 sequence response success score signed_score reaction_time completion_time engagement_index
 engagement eeg_quality contact eeg_note``. ``action`` is the core.mdp action that produced the turn (a
 level action from START on turn 1; RF1/RF2 when the turn followed robot feedback). ``score`` is
@@ -40,12 +47,13 @@ from nao_trainer.core.task import LENGTHS, level_of, score, signed_score
 from nao_trainer.errors import DataError, UserError
 from nao_trainer.files import read_text, write_text_atomic
 
-IMPORTER_VERSION = 1
+IMPORTER_VERSION = 2  # 2: pseudonym column; sessions written by `run`
 COMPAT_MODES = (None, "authors2018")
 
 #: Column name -> kind (str, int, float). The CSV's header is exactly these names in this order.
 COLUMNS: dict[str, type] = {
     "session": str,
+    "pseudonym": str,
     "turn": int,
     "state": int,
     "length": int,
@@ -243,7 +251,7 @@ def import_session(session_dir: Path, compat: str | None = None) -> list[dict[st
         lv = level_of(r.length)
         ok = r.success == 1
         rows.append({
-            "session": sid, "turn": r.turn, "state": mdp.encode(s.length, s.rf, s.previous_score),
+            "session": sid, "pseudonym": Path(sid).parent.name, "turn": r.turn, "state": mdp.encode(s.length, s.rf, s.previous_score),
             "length": r.length, "level": lv, "feedback": r.rf, "previous_score": s.previous_score,
             "action": produced_by(r.length, r.rf, i), "sequence": _letters(r.sequence),
             "response": _letters(r.response), "success": int(ok), "score": score(lv, ok),
@@ -302,6 +310,75 @@ class ImportResult:
     problems: list[SessionProblem]
     cached: int = 0
     provenance: dict[str, Any] = field(default_factory=dict)
+    excluded: list[Any] = field(default_factory=list)  # data.own.Excluded: turns kept out of the table
+    notes: list[str] = field(default_factory=list)  # read as far as valid (a torn last line), mixed layouts
+
+    def excluded_summary(self) -> str:
+        """``3 turns left out (interrupted: 2, invalid: 1)``, or "" when none."""
+        if not self.excluded:
+            return ""
+        kinds: dict[str, int] = {}
+        for e in self.excluded:
+            kind = "invalid" if e.reason.startswith("invalid") else (
+                "interrupted" if e.reason.startswith("interrupted") else "no outcome")
+            kinds[kind] = kinds.get(kind, 0) + 1
+        detail = ", ".join(f"{k}: {n}" for k, n in kinds.items())
+        return f"{len(self.excluded)} turns left out of the table, kept in their turns.csv ({detail})"
+
+
+@dataclass(frozen=True)
+class Discovered:
+    """The sessions under a root, by layout."""
+
+    published: list[Path]
+    own: list[Path]
+
+    @property
+    def all(self) -> list[tuple[str, Path]]:
+        return [("published", p) for p in self.published] + [("own", p) for p in self.own]
+
+    def mixed_note(self, root: Path) -> str:
+        if not (self.published and self.own):
+            return ""
+        return (f"{root} holds both layouts ({len(self.published)} published, {len(self.own)} written by `run`): "
+                "both are imported, but their engagement comes from different signals (Muse band lines vs raw EEG)")
+
+
+def discover(root: Path) -> Discovered:
+    """Session folders of both layouts under ``root`` (or ``root`` itself); DataError when none."""
+    from nao_trainer.data import own
+
+    root = Path(root)
+    if not root.exists():
+        raise DataError(f"{root}: no such folder (give a session folder, a study folder or a dataset root)")
+    try:
+        pub = published.find_sessions(root)
+    except DataError:
+        pub = []
+    mine = [p for p in own.find_own_sessions(root) if p not in pub]
+    if not pub and not mine:
+        raise DataError(f"{root}: no sessions found (expected session folders written by `nao-trainer run` "
+                        "(with session.json), or user_<id>/session_<k>/ folders with a logfile or state_EEG)")
+    return Discovered(pub, mine)
+
+
+def session_name(layout: str, path: Path) -> str:
+    from nao_trainer.data import own
+
+    return published.session_id(path) if layout == "published" else own.session_id(path)
+
+
+def import_own_session(session_dir: Path) -> tuple[list[dict[str, Any]], list[Any], list[str]]:
+    """(rows, excluded turns, notes) of one session written by ``run``; DataError when unreadable."""
+    from nao_trainer.data import own
+
+    sess = own.read_session(session_dir)
+    eng = own.own_session_engagement(session_dir)
+    rows, excluded = own.table_rows(sess, {t.turn: t for t in eng.turns})
+    notes = list(sess.notes)
+    if not (Path(session_dir) / "eeg").is_dir():
+        notes.append("no eeg/ folder: no engagement")
+    return rows, excluded, notes
 
 
 def import_dataset(root: Path, compat: str | None = None, cache_dir: Path | None = None,
@@ -310,12 +387,15 @@ def import_dataset(root: Path, compat: str | None = None, cache_dir: Path | None
 
     Raises DataError when no session folder exists or none could be imported.
     """
+    from nao_trainer.data.own import Excluded
+
     if compat not in COMPAT_MODES:
         known = ", ".join(str(c) for c in COMPAT_MODES[1:])
         raise DataError(f"unknown compatibility mode {compat!r}: use one of {known} (or none)")
     root = Path(root)
     say = progress or (lambda _m: None)
-    sessions = published.find_sessions(root)
+    found = discover(root)
+    sessions = found.all
     if cache_dir is not None:
         try:
             Path(cache_dir).mkdir(parents=True, exist_ok=True)
@@ -325,28 +405,47 @@ def import_dataset(root: Path, compat: str | None = None, cache_dir: Path | None
             cache_dir = None
     rows: list[dict[str, Any]] = []
     problems: list[SessionProblem] = []
+    excluded: list[Excluded] = []
+    notes: list[str] = [n for n in (found.mixed_note(root),) if n]
     cached = 0
-    for k, sdir in enumerate(sessions, 1):
-        sid = published.session_id(sdir)
+    for k, (layout, sdir) in enumerate(sessions, 1):
+        sid = session_name(layout, sdir)
+        if layout == "own" and compat is not None:
+            problems.append(SessionProblem(sid, f"--compat {compat} applies to the published layout only "
+                                                "(sessions written by `run` have raw EEG, not Muse band lines)"))
+            continue
         key = _session_key(sdir, compat) if cache_dir is not None else ""
         if cache_dir is not None:
             hit = _read_cache(_cache_file(Path(cache_dir), sid), key)
             if hit is not None:
-                rows.extend(hit)
+                srows, sexcl, snotes = hit
+                rows.extend(srows)
+                excluded.extend(Excluded(**e) for e in sexcl)
+                notes.extend(f"{sid}: {n}" for n in snotes)
                 cached += 1
                 continue
         say(f"import {k}/{len(sessions)} {sid}")
         try:
-            srows = import_session(sdir, compat)
+            if layout == "published":
+                srows, sexcl, snotes = import_session(sdir, compat), [], []
+            else:
+                srows, sexcl, snotes = import_own_session(sdir)
         except DataError as exc:
             problems.append(SessionProblem(sid, str(exc)))
             continue
         except Exception as exc:  # noqa: BLE001 - one odd session must not stop the import
             problems.append(SessionProblem(sid, f"unexpected {type(exc).__name__}: {exc}".replace("\n", " ")))
             continue
+        if not srows:
+            why = f"no completed turn ({len(sexcl)} left out)" if sexcl else "no turns"
+            problems.append(SessionProblem(sid, why))
+            excluded.extend(sexcl)
+            continue
         rows.extend(srows)
+        excluded.extend(sexcl)
+        notes.extend(f"{sid}: {n}" for n in snotes)
         if cache_dir is not None:
-            _write_cache(_cache_file(Path(cache_dir), sid), key, srows)
+            _write_cache(_cache_file(Path(cache_dir), sid), key, srows, sexcl, snotes)
     if not rows:
         detail = f" ({problems[0]})" if problems else ""
         raise DataError(f"{root}: none of {len(sessions)} sessions could be imported{detail}")
@@ -359,12 +458,14 @@ def import_dataset(root: Path, compat: str | None = None, cache_dir: Path | None
         "sessions": len(table.sessions),
         "turns": len(table),
         "skipped": [str(p) for p in problems],
+        "excluded_turns": [str(e) for e in excluded],
+        "notes": notes,
         "fingerprint": table.fingerprint(),
     }
-    return ImportResult(table, problems, cached, provenance)
+    return ImportResult(table, problems, cached, provenance, excluded, notes)
 
 
-def _read_cache(path: Path, key: str) -> list[dict[str, Any]] | None:
+def _read_cache(path: Path, key: str) -> tuple[list[dict[str, Any]], list[dict[str, Any]], list[str]] | None:
     try:
         with open(path, encoding="utf-8") as fh:
             data = json.load(fh)
@@ -372,12 +473,16 @@ def _read_cache(path: Path, key: str) -> list[dict[str, Any]] | None:
         return None
     if not isinstance(data, dict) or data.get("key") != key or not isinstance(data.get("rows"), list):
         return None
-    return _from_json(data["rows"])
+    return _from_json(data["rows"]), list(data.get("excluded", [])), list(data.get("notes", []))
 
 
-def _write_cache(path: Path, key: str, rows: list[dict[str, Any]]) -> None:
+def _write_cache(path: Path, key: str, rows: list[dict[str, Any]], excluded: list[Any] = (),
+                 notes: list[str] = ()) -> None:
+    from dataclasses import asdict
+
     try:
-        write_text_atomic(path, json.dumps({"key": key, "rows": _json_safe(rows)}))
+        write_text_atomic(path, json.dumps({"key": key, "rows": _json_safe(rows),
+                                            "excluded": [asdict(e) for e in excluded], "notes": list(notes)}))
     except OSError as exc:  # a cache that cannot be written only costs time
         print(f"nao-trainer: warning: cannot write import cache {path}: {exc.strerror}", file=sys.stderr)
 

@@ -474,8 +474,10 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
     else:
         cache_dir = user_cache_dir(source, compat) if cache == "default" else cache
         imported = dataset.import_dataset(source, compat=compat, cache_dir=cache_dir, progress=say)
-        for problem in imported.problems:
-            say(f"nao-trainer fit: {problem}")
+        for line in [str(p) for p in imported.problems] + imported.notes:
+            say(f"nao-trainer fit: {line}")
+        if imported.excluded:
+            say(f"nao-trainer fit: {imported.excluded_summary()}")
         skipped = [str(p) for p in imported.problems]
         table = imported.table
         say(f"imported {len(table)} turns from {len(table.sessions)} sessions ({imported.cached} from cache)")

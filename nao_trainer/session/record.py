@@ -32,6 +32,8 @@ TURN_COLUMNS: tuple[str, ...] = (
     "sequence", "response", "success", "score", "signed_score", "reaction_time", "completion_time",
     "engagement", "engagement_index", "eeg_quality", "answer_engagement", "engagement_note", "notes",
 )
+#: session.json's format and version (``data/own.py`` reads them and refuses a newer version).
+FORMAT = {"format": "nao-trainer/session", "format_version": 1}
 VERSIONED = ("nao-trainer", "qi", "numpy", "pylsl", "transitions", "PyYAML", "scikit-learn")
 
 
@@ -106,7 +108,7 @@ class SessionRecorder:
     def open(self, info: dict[str, Any]) -> Path:
         """Create the folder and its files; ``info`` is the initial content of session.json."""
         self.path = create_session_dir(Path(self.out), self.pseudonym)
-        self._info = dict(info, status="running", started=now_iso())
+        self._info = dict(FORMAT, **info, status="running", started=now_iso())
         self._write_json()
         self._turns = open(self.path / "turns.csv", "w", newline="", encoding="utf-8")
         self._writer = csv.DictWriter(self._turns, fieldnames=TURN_COLUMNS, extrasaction="raise")

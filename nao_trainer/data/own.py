@@ -1,0 +1,390 @@
+"""Sessions written by ``nao-trainer run``, read back as data.
+
+A session folder ``<study>/<pseudonym>_<YYYYmmdd-HHMMSS>[_n]/`` (``session/record.py``) holds
+``session.json`` (format ``nao-trainer/session``, version :data:`FORMAT_VERSION`; older folders have no
+version and count as version 1), ``turns.csv`` (one row per turn, interrupted turns included),
+``events.jsonl`` and, with EEG, ``eeg/`` (the live monitor's files: ``stream.json``, ``raw.csv``,
+``phases.csv``, ``windows.csv``, ``events.csv``, ``gaps.csv``) and ``session.xdf``.
+
+Two things are read here:
+
+* the turns, converted to the encodings of the tidy turn table (``data/dataset.py``): success 0/1,
+  the action as its ``core.mdp`` index. A turn that was interrupted, or whose fields contradict
+  each other, is kept out with the reason (:class:`Excluded`);
+* the per-turn engagement, **recomputed from the raw EEG the session saved** (``eeg/raw.csv``) with
+  the processing settings the session used (``eeg/stream.json``), replaying the session's phases
+  (``eeg/phases.csv``) in order through the same code as the live monitor
+  (``core.engagement.OnlineEngagement`` and ``PhaseSummariser``). For a session recorded by this
+  version the result equals the live values in ``phases.csv`` (tested to 1e-9).
+
+A torn last line (a killed session) is dropped and said; anything else malformed is a one-line
+``DataError`` naming the file and line.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+import re
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nao_trainer.core import mdp, task
+from nao_trainer.core.eeg import Processing
+from nao_trainer.core.engagement import OnlineEngagement, PhaseSummariser, QualityThresholds, WindowResult
+from nao_trainer.errors import DataError
+from nao_trainer.files import read_json, read_text
+
+FORMAT = "nao-trainer/session"
+FORMAT_VERSION = 1
+#: turns.csv columns the reader needs (the file has more; see ``session/record.py``).
+TURN_FIELDS = ("turn", "state", "length", "level", "feedback", "previous_score", "action", "sequence", "response",
+               "success", "score", "signed_score", "reaction_time", "completion_time", "engagement",
+               "engagement_index", "eeg_quality", "engagement_note", "notes")
+PHASE_FIELDS = ("turn", "phase", "t_begin", "t_end", "engagement", "engagement_index")
+_STAMP = re.compile(r"_\d{8}-\d{6}(?:_\d+)?$")
+
+
+def is_own_session(path: Path) -> bool:
+    """A folder written by ``nao-trainer run``: it has a ``session.json``."""
+    return Path(path).is_dir() and (Path(path) / "session.json").is_file()
+
+
+def find_own_sessions(root: Path) -> list[Path]:
+    """``root`` itself when it is a session, else the session folders up to two levels below it."""
+    root = Path(root)
+    if is_own_session(root):
+        return [root]
+    found = {p.parent for pattern in ("*/session.json", "*/*/session.json") for p in root.glob(pattern)}
+    return sorted(p for p in found if is_own_session(p))
+
+
+def session_id(path: Path) -> str:
+    """The session's folder name (``<pseudonym>_<stamp>``): unique within a study."""
+    return Path(path).resolve().name
+
+
+# ----------------------------------------------------------------------------------------------
+# session.json and turns.csv
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Excluded:
+    """A turn kept in the record (turns.csv) but left out of the turn table and the models."""
+
+    session: str
+    turn: int
+    reason: str
+
+    def __str__(self) -> str:
+        return f"{self.session} turn {self.turn}: {self.reason}"
+
+
+@dataclass
+class OwnSession:
+    """One session folder of ``nao-trainer run``: its metadata and its turns.csv rows (as text)."""
+
+    path: Path
+    info: dict[str, Any]
+    rows: list[dict[str, str]]
+    notes: list[str] = field(default_factory=list)  # e.g. a torn last line that was dropped
+
+    @property
+    def id(self) -> str:
+        return session_id(self.path)
+
+    @property
+    def pseudonym(self) -> str:
+        cfg = self.info.get("config") if isinstance(self.info.get("config"), dict) else {}
+        values = cfg.get("values", cfg) if isinstance(cfg, dict) else {}
+        p = (values.get("participant") or {}).get("pseudonym") if isinstance(values, dict) else None
+        return str(p) if p else _STAMP.sub("", self.id)
+
+    @property
+    def status(self) -> str:
+        status = str(self.info.get("status", "?"))
+        return "incomplete (no end recorded: killed?)" if status == "running" else status
+
+
+def read_info(path: Path) -> dict[str, Any]:
+    """``session.json``, its format and version checked (a newer version is refused, not guessed)."""
+    info = read_json(Path(path) / "session.json", DataError)
+    if not isinstance(info, dict):
+        raise DataError(f"{Path(path) / 'session.json'}: not a session record (expected a JSON object)")
+    fmt, version = info.get("format", FORMAT), info.get("format_version", 1)
+    if fmt != FORMAT:
+        raise DataError(f"{Path(path) / 'session.json'}: format {fmt!r} is not {FORMAT!r}")
+    if not isinstance(version, int) or version > FORMAT_VERSION or version < 1:
+        raise DataError(f"{Path(path) / 'session.json'}: format_version {version!r} is unknown to this nao-trainer "
+                        f"(reads 1..{FORMAT_VERSION}); upgrade nao-trainer to read it")
+    return info
+
+
+def _csv_rows(path: Path, required: tuple[str, ...], notes: list[str]) -> list[dict[str, str]]:
+    """Rows of a CSV file written line by line; a torn last line is dropped (and noted), others are errors."""
+    text = read_text(path, DataError)
+    lines = text.splitlines()
+    if not lines:
+        raise DataError(f"{path}: empty (no header)")
+    header = next(csv.reader([lines[0]]))
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise DataError(f"{path}:1: missing columns {', '.join(missing)}")
+    rows = []
+    records = list(csv.reader(io.StringIO(text)))[1:]
+    complete = text.endswith("\n")  # every row is written whole, newline included: a missing one is a torn write
+    for k, rec in enumerate(records, 2):
+        last = k == len(records) + 1
+        if not rec and not last:
+            continue
+        if last and (not complete or len(rec) != len(header)):
+            if rec:
+                notes.append(f"{path.name} line {k} torn ({len(rec)} of {len(header)} fields): dropped")
+            break
+        if len(rec) != len(header):
+            raise DataError(f"{path}:{k}: expected {len(header)} fields, got {len(rec)}")
+        rows.append(dict(zip(header, rec)))
+    return rows
+
+
+def read_session(path: Path) -> OwnSession:
+    """Read one session folder (metadata and turns); DataError when it cannot be read at all."""
+    path = Path(path)
+    info = read_info(path)
+    notes: list[str] = []
+    turns = path / "turns.csv"
+    rows = _csv_rows(turns, TURN_FIELDS, notes) if turns.is_file() else []
+    if not turns.is_file():
+        notes.append("no turns.csv")
+    return OwnSession(path, info, rows, notes)
+
+
+# ----------------------------------------------------------------------------------------------
+# Turns -> tidy turn-table rows
+# ----------------------------------------------------------------------------------------------
+
+
+def _int(v: str, what: str) -> int:
+    try:
+        return int(v)
+    except ValueError:
+        raise ValueError(f"{what} {v!r} is not a whole number") from None
+
+
+def _float(v: str) -> float:
+    try:
+        return float(v) if v.strip() else math.nan
+    except ValueError:
+        return math.nan
+
+
+def _turn_row(r: dict[str, str]) -> dict[str, Any]:
+    """One completed turn in the table's encodings; ValueError saying why it is invalid."""
+    if r["success"] not in ("True", "False"):
+        notes = r.get("notes", "")
+        why = next((n.strip() for n in notes.split(";") if n.strip().startswith("interrupted")), "")
+        raise ValueError(why or f"no outcome (success {r['success']!r})")
+    ok = r["success"] == "True"
+    state = _int(r["state"], "state")
+    if not 0 <= state < mdp.N_TURN_STATES:
+        raise ValueError(f"invalid: state {state} is not in 0..{mdp.N_TURN_STATES - 1}")
+    st = mdp.decode(state)
+    parts = {"length": st.length, "level": st.level, "feedback": st.feedback, "previous_score": st.previous}
+    for name, want in parts.items():
+        if _int(r[name], name) != want:
+            raise ValueError(f"invalid: {name} {r[name]} contradicts state {state} ({mdp.state_label(state)})")
+    if r["action"] not in mdp.ACTION_NAMES:
+        raise ValueError(f"invalid: unknown action {r['action']!r} (known: {', '.join(mdp.ACTION_NAMES)})")
+    if len(r["sequence"]) != st.length:
+        raise ValueError(f"invalid: sequence {r['sequence']!r} is not {st.length} letters long")
+    score, signed = task.score(st.level, ok), task.signed_score(st.level, ok)
+    if _int(r["score"], "score") != score or _int(r["signed_score"], "signed_score") != signed:
+        raise ValueError(f"invalid: score {r['score']}/{r['signed_score']} contradicts level {st.level} and success {ok}")
+    return {
+        "turn": _int(r["turn"], "turn"), "state": state, **parts, "action": mdp.ACTION_NAMES.index(r["action"]),
+        "sequence": r["sequence"], "response": r["response"], "success": int(ok), "score": score,
+        "signed_score": signed, "reaction_time": _float(r["reaction_time"]),
+        "completion_time": _float(r["completion_time"]),
+    }
+
+
+def table_rows(session: OwnSession, engagement: "dict[int, Any] | None" = None
+               ) -> tuple[list[dict[str, Any]], list[Excluded]]:
+    """The session's completed, valid turns as turn-table rows, and the turns left out with why.
+
+    ``engagement``: turn -> ``data.engagement.TurnEngagement`` (the offline re-analysis); without one
+    (or for a turn it lacks) the live values of turns.csv are used.
+    """
+    out: list[dict[str, Any]] = []
+    excluded: list[Excluded] = []
+    for r in session.rows:
+        try:
+            row = _turn_row(r)
+        except ValueError as exc:
+            excluded.append(Excluded(session.id, _turn_number(r), str(exc)))
+            continue
+        t = (engagement or {}).get(row["turn"])
+        if t is not None:
+            eeg = (_nan(t.engagement_index), _nan(t.engagement), float(t.quality), t.reason)
+        else:
+            eeg = (_float(r["engagement_index"]), _float(r["engagement"]), _float(r["eeg_quality"]),
+                   r.get("engagement_note", "") or ("" if r["engagement"] else "no EEG"))
+        out.append({"session": session.id, "pseudonym": session.pseudonym, **row,
+                    "engagement_index": eeg[0], "engagement": eeg[1],
+                    "eeg_quality": 0.0 if math.isnan(eeg[2]) else eeg[2], "contact": math.nan, "eeg_note": eeg[3]})
+    return out, excluded
+
+
+def _turn_number(r: dict[str, str]) -> int:
+    try:
+        return int(r.get("turn", "0"))
+    except ValueError:
+        return 0
+
+
+def _nan(v: float | None) -> float:
+    return math.nan if v is None else float(v)
+
+
+# ----------------------------------------------------------------------------------------------
+# Offline engagement: replay the session's phases over its raw EEG
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ReplayedPhase:
+    """One row of phases.csv recomputed: the live values beside the offline ones."""
+
+    turn: int | None
+    phase: str
+    t_begin: float
+    t_end: float
+    live_engagement: float | None
+    live_index: float | None
+    engagement: float | None
+    index: float | None
+    quality: float
+    reason: str
+
+
+def _processing(stream: dict[str, Any], path: Path) -> Processing:
+    proc = stream.get("processing")
+    if not isinstance(proc, dict):
+        raise DataError(f"{path}: no 'processing' settings; the session's EEG cannot be re-analysed")
+    known = {f.name for f in fields(Processing)}
+    return Processing.from_mapping({k: v for k, v in proc.items() if k in known})
+
+
+def read_raw(path: Path, n_channels: int) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """``eeg/raw.csv``: (samples ``(n, n_channels)``, stamps ``(n,)``, notes); a torn last line is dropped."""
+    text = read_text(path, DataError)
+    lines = text.split("\n")
+    notes: list[str] = []
+    body = [ln for ln in lines[1:] if ln.strip()]
+    if body and (not text.endswith("\n") or body[-1].count(",") != n_channels):
+        notes.append(f"{path.name}: torn last line dropped")
+        body = body[:-1]
+    if not body:
+        return np.empty((0, n_channels)), np.empty(0), notes
+    try:
+        arr = np.array([ln.split(",") for ln in body], dtype=float)
+    except ValueError:
+        bad = next(i for i, ln in enumerate(body) if len(ln.split(",")) != n_channels + 1 or not _numbers(ln))
+        raise DataError(f"{path}:{bad + 2}: expected {n_channels + 1} numbers, got {body[bad]!r}") from None
+    return arr[:, 1:], arr[:, 0], notes
+
+
+def _numbers(line: str) -> bool:
+    try:
+        [float(v) for v in line.split(",")]
+        return True
+    except ValueError:
+        return False
+
+
+def _opt(v: str) -> float | None:
+    return float(v) if v.strip() else None
+
+
+def replay_phases(session_dir: Path) -> tuple[list[ReplayedPhase], list[str]]:
+    """Recompute every phase of ``eeg/phases.csv`` from ``eeg/raw.csv`` as the live monitor did.
+
+    Raises DataError when the session has no EEG record (no ``eeg/`` folder, no stream or phases file).
+    """
+    eeg = Path(session_dir) / "eeg"
+    if not eeg.is_dir():
+        raise DataError(f"{session_dir}: no eeg/ folder (EEG was off, or the folder was removed)")
+    stream = read_json(eeg / "stream.json", DataError, missing="no EEG stream was recorded (stream.json missing)")
+    proc = _processing(stream, eeg / "stream.json")
+    labels = list(stream.get("scalp_channels") or [])
+    fs = float(stream.get("nominal_srate") or 0)
+    if not labels or fs <= 0:
+        raise DataError(f"{eeg / 'stream.json'}: needs scalp_channels and nominal_srate > 0")
+    notes: list[str] = []
+    phases = _csv_rows(eeg / "phases.csv", PHASE_FIELDS, notes) if (eeg / "phases.csv").is_file() else []
+    windows: list[WindowResult] = []
+    if (eeg / "raw.csv").is_file():
+        x, ts, raw_notes = read_raw(eeg / "raw.csv", len(labels))
+        notes += raw_notes
+        engine = OnlineEngagement(fs, len(labels), window_s=proc.window_s, hop_s=proc.hop_s, a=proc.ewma_a,
+                                  thresholds=QualityThresholds(),
+                                  min_clean_channels=min(proc.min_clean_channels, len(labels)),
+                                  gap_factor=max(2.0, proc.gap_tolerance_s * fs), channel_names=labels)
+        windows = engine.push(x, ts) if len(ts) else []
+    t_end = np.array([w.t_end for w in windows])
+    summariser = PhaseSummariser(proc.hop_s, proc.min_quality)
+    out: list[ReplayedPhase] = []
+    for k, p in enumerate(phases, 2):
+        try:
+            t0, t1 = float(p["t_begin"]), float(p["t_end"])
+            last = _opt(p.get("last_sample") or "")
+            live_e, live_i = _opt(p["engagement"]), _opt(p["engagement_index"])
+            turn = int(p["turn"]) if p["turn"].strip() else None
+        except ValueError as exc:
+            raise DataError(f"{eeg / 'phases.csv'}:{k}: {exc}") from None
+        upto = t1 if last is None else min(t1, last)
+        lo, hi = np.searchsorted(t_end, t0, side="right"), np.searchsorted(t_end, upto, side="right")
+        s = summariser.summarise(p["phase"], windows[lo:hi], t0, t1)
+        out.append(ReplayedPhase(turn, p["phase"], t0, t1, live_e, live_i, s.engagement, s.aggregate.index,
+                                 round(s.aggregate.quality, 4), s.reason))
+    return out, notes
+
+
+def own_session_engagement(session_dir: Path, answer: bool = False):
+    """Per-turn engagement of a ``run`` session, recomputed from its raw EEG (``data.engagement`` types).
+
+    One row per turn of turns.csv; a turn played twice (interrupted, then replayed) takes the phase of
+    its last play. Without an EEG record every turn is empty, with the reason.
+    """
+    from nao_trainer.data.engagement import SessionEngagement, TurnEngagement
+
+    session_dir = Path(session_dir)
+    sess = read_session(session_dir)
+    numbers = list(dict.fromkeys(_turn_number(r) for r in sess.rows))
+    try:
+        phases, _notes = replay_phases(session_dir)
+        why = ""
+    except DataError as exc:
+        phases, why = [], str(exc)
+    last: dict[tuple[int, str], ReplayedPhase] = {}
+    for ph in phases:
+        if ph.turn is not None:
+            last[(ph.turn, ph.phase)] = ph
+    turns = []
+    for n in numbers:
+        lis, ans = last.get((n, "listening")), last.get((n, "answer"))
+        extra = {}
+        if answer:
+            extra = dict(answer_index=ans.index if ans else None, answer_engagement=ans.engagement if ans else None,
+                         answer_quality=ans.quality if ans else None,
+                         answer_reason=(ans.reason if ans else why or "no answer phase"))
+        if lis is None:
+            turns.append(TurnEngagement(n, None, None, 0.0, None, why or "no listening phase recorded", **extra))
+        else:
+            turns.append(TurnEngagement(n, lis.index, lis.engagement, lis.quality, None, lis.reason, **extra))
+    return SessionEngagement(sess.id, session_dir, None, "raw", "session baseline + running bounds (live rule)",
+                             turns, {}, answer)
