@@ -1,4 +1,4 @@
-"""`nao-trainer engagement SESSION_DIR`: per-turn engagement of recorded sessions of the published layout."""
+"""`nao-trainer engagement SESSION_DIR`: per-turn engagement of recorded sessions (yours or the published ones)."""
 from __future__ import annotations
 
 import argparse
@@ -9,13 +9,15 @@ from pathlib import Path
 def register(sub) -> None:
     p = sub.add_parser(
         "engagement",
-        help="per-turn engagement of a recorded session (published layout)",
+        help="per-turn engagement of a recorded session (yours or the published layout)",
         description="Print one row per turn (turn, engagement_index, engagement, quality, contact, reason) "
-        "computed from a session folder of the published layout (user_<id>/session_<k>/ with state_EEG and "
-        "EEG/bands_robot_N or raw robot_N recordings). Given a dataset root, every session is computed and a "
-        "session column is added. Empty values come with the reason.",
+        "computed from a session folder: one written by `nao-trainer run` (recomputed from its eeg/raw.csv with "
+        "the live monitor's rule and settings), or one of the published layout (user_<id>/session_<k>/ with "
+        "state_EEG and EEG/bands_robot_N or raw robot_N recordings). Given a study folder or a dataset root, "
+        "every session is computed and a session column is added. Empty values come with the reason.",
     )
-    p.add_argument("session", metavar="SESSION_DIR", type=Path, help="a session folder, or a dataset root")
+    p.add_argument("session", metavar="SESSION_DIR", type=Path,
+                   help="a session folder, a study folder of sessions, or a dataset root")
     p.add_argument("--compat", choices=["authors2018"], default=None,
                    help="reproduce the authors' published index_1.csv / normalized_1.csv values exactly")
     p.add_argument("--format", choices=["csv", "json"], default="csv", help="output format (default csv)")
@@ -35,13 +37,16 @@ def register(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nao_trainer.errors import ConfigError, DataError
-    from nao_trainer.data.published import find_sessions, is_session_dir
-    from nao_trainer.data.engagement import OfflineSettings, check_options, plot_session, session_engagement_many, to_csv, to_json
+    from nao_trainer.data.dataset import discover
+    from nao_trainer.data.engagement import (OfflineSettings, SessionProblem, check_options, plot_session,
+                                             session_engagement_many, to_csv, to_json)
+    from nao_trainer.data.own import own_session_engagement
     from nao_trainer.files import write_text_atomic
 
     # every option checked before the (long) computation
     check_options(args.compat, args.source, args.answer)
-    if args.plot and len(find_sessions(args.session)) != 1:
+    found = discover(args.session)
+    if args.plot and len(found.all) != 1:
         raise ConfigError("--plot needs a single session folder, not a dataset root")
     for opt, path in (("--out", args.out), ("--plot", args.plot)):
         if path is not None and not path.parent.is_dir():
@@ -63,13 +68,26 @@ def run(args: argparse.Namespace) -> int:
             print(f"[{done}/{total}] sessions", file=sys.stderr, flush=True)
 
     problems: list = []
-    results = session_engagement_many(args.session, args.compat, args.source, settings, args.workers, progress,
-                                      answer=args.answer, problems=problems)
+    results = []
+    if found.published:
+        results = session_engagement_many(args.session, args.compat, args.source, settings, args.workers, progress,
+                                          answer=args.answer, problems=problems)
+    for path in found.own:
+        sid = path.name
+        if args.compat or args.source == "bands":
+            opt = "--compat authors2018" if args.compat else "--source bands"
+            problems.append(SessionProblem(sid, f"{opt} needs Muse band lines; sessions written by `run` have raw "
+                                                "EEG (drop the option)"))
+            continue
+        try:
+            results.append(own_session_engagement(path, answer=args.answer))
+        except DataError as exc:
+            problems.append(SessionProblem(sid, str(exc)))
     for prob in problems:
         print(f"nao-trainer engagement: skipped {prob.session}: {prob.message}", file=sys.stderr)
     if not results:
         raise DataError(f"{args.session}: no session could be read ({len(problems)} skipped)")
-    many = not is_session_dir(args.session)  # a dataset root: always a session column / a JSON list
+    many = len(found.all) != 1 or found.all[0][1].resolve() != args.session.resolve()  # a root: a session column
     text = to_json(results, many) if args.format == "json" else to_csv(results, many)
     if args.out:
         try:

@@ -14,8 +14,9 @@ def register(sub) -> None:
         help="publish a muselsl-compatible EEG stream (simulated, or replaying a recorded session)",
         description=(
             "Publish an LSL stream laid out like muselsl's (name Muse, type EEG, TP9 AF7 AF8 TP10 Right AUX, "
-            "256 Hz) whose band content shows the given engagement, or replay the raw 'eeg' lines of a "
-            "published session folder (intro, robot_N, user_N) at 220 Hz. Runs until Ctrl-C or --duration. "
+            "256 Hz) whose band content shows the given engagement, or replay a recorded session: the eeg/raw.csv of "
+            "a folder written by `nao-trainer run` at its recorded rate, or the raw 'eeg' lines of a published "
+            "session folder (intro, robot_N, user_N) at 220 Hz. Runs until Ctrl-C or --duration. "
             "LSL stays on this machine unless --lsl-scope widens it."
         ),
     )
@@ -23,7 +24,8 @@ def register(sub) -> None:
                    help="target engagement in [0, 1] the signal shows (default 0.5)")
     p.add_argument("--seed", type=int, default=None, help="seed of the signal (default: drawn and printed)")
     p.add_argument("--replay", type=Path, default=None, metavar="SESSION_DIR",
-                   help="replay a raw published session folder instead of simulating")
+                   help="replay a session folder written by `nao-trainer run` (its eeg/raw.csv), or a raw published "
+                   "session folder, instead of simulating")
     p.add_argument("--loop", action="store_true", help="with --replay: start over at the end")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     p.add_argument("--source-id", default=None, metavar="ID",

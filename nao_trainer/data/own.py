@@ -35,6 +35,7 @@ import numpy as np
 from nao_trainer.core import mdp, task
 from nao_trainer.core.eeg import Processing
 from nao_trainer.core.engagement import OnlineEngagement, PhaseSummariser, QualityThresholds, WindowResult
+from nao_trainer.data.engagement import SessionEngagement, TurnEngagement
 from nao_trainer.errors import DataError
 from nao_trainer.files import read_json, read_text
 
@@ -354,14 +355,12 @@ def replay_phases(session_dir: Path) -> tuple[list[ReplayedPhase], list[str]]:
     return out, notes
 
 
-def own_session_engagement(session_dir: Path, answer: bool = False):
+def own_session_engagement(session_dir: Path, answer: bool = False) -> SessionEngagement:
     """Per-turn engagement of a ``run`` session, recomputed from its raw EEG (``data.engagement`` types).
 
     One row per turn of turns.csv; a turn played twice (interrupted, then replayed) takes the phase of
     its last play. Without an EEG record every turn is empty, with the reason.
     """
-    from nao_trainer.data.engagement import SessionEngagement, TurnEngagement
-
     session_dir = Path(session_dir)
     sess = read_session(session_dir)
     numbers = list(dict.fromkeys(_turn_number(r) for r in sess.rows))

@@ -290,7 +290,8 @@ def raw_recording_order(session_dir: Path) -> list[Path]:
 
 
 class ReplayMuse(_Publisher):
-    """Replays a recorded raw session (published layout) as a live 4-channel EEG stream."""
+    """Replays a recorded raw session as a live 4-channel EEG stream: a folder written by ``nao-trainer run``
+    (its ``eeg/raw.csv``, at the recorded stream's rate) or a raw session of the published layout (220 Hz)."""
 
     data: np.ndarray
     boundaries: list[tuple[str, int]]  # (file name, index of its first sample)
@@ -302,10 +303,16 @@ class ReplayMuse(_Publisher):
               fs: float = RAW_RATE_HZ, chunk: int = MUSE_CHUNK, loop: bool = False,
               wall_clock: bool = False, scope: str = "machine") -> "ReplayMuse":
         """Read every raw file of ``session_dir`` (errors name file:line) and start publishing."""
+        from nao_trainer.data.own import is_own_session
+
         session_dir = Path(session_dir)
-        data, boundaries = load_raw_session(session_dir)
+        labels: tuple[str, ...] = CHANNELS
+        if is_own_session(session_dir):
+            data, boundaries, fs, labels = load_own_session(session_dir)
+        else:
+            data, boundaries = load_raw_session(session_dir)
         sid = source_id or f"Muse-replay-{session_dir.parent.name}-{session_dir.name}"
-        rep = cls(name=name, source_id=sid, labels=CHANNELS, fs=float(fs), chunk=int(chunk),
+        rep = cls(name=name, source_id=sid, labels=labels, fs=float(fs), chunk=int(chunk),
                   wall_clock=wall_clock, scope=scope)
         rep.data, rep.boundaries, rep.loop = data, boundaries, loop
         rep._open_outlet()
@@ -338,3 +345,22 @@ def load_raw_session(session_dir: Path) -> tuple[np.ndarray, list[tuple[str, int
         raise DataError(f"{session_dir}: the raw recordings hold no 'eeg' lines (band-only files?); "
                         "replay needs the raw layout with 'eeg' lines")
     return data, boundaries
+
+
+def load_own_session(session_dir: Path) -> tuple[np.ndarray, list[tuple[str, int]], float, tuple[str, ...]]:
+    """The scalp samples a ``nao-trainer run`` session saved (``eeg/raw.csv``), its rate and channel names."""
+    from nao_trainer.data.own import read_raw
+    from nao_trainer.files import read_json
+
+    eeg = Path(session_dir) / "eeg"
+    if not (eeg / "raw.csv").is_file():
+        raise DataError(f"{session_dir}: no eeg/raw.csv to replay (EEG was off, or eeg.processing.record_raw false)")
+    stream = read_json(eeg / "stream.json", DataError)
+    labels = tuple(stream.get("scalp_channels") or CHANNELS)
+    fs = float(stream.get("nominal_srate") or 0)
+    if fs <= 0:
+        raise DataError(f"{eeg / 'stream.json'}: nominal_srate must be > 0 to replay")
+    data, _ts, _notes = read_raw(eeg / "raw.csv", len(labels))
+    if len(data) == 0:
+        raise DataError(f"{eeg / 'raw.csv'}: no samples to replay")
+    return data, [("eeg/raw.csv", 0)], fs, labels

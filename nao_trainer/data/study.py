@@ -1,0 +1,100 @@
+"""A study at a glance: one row per session written by ``nao-trainer run`` (``nao-trainer study``).
+
+Columns (:data:`STUDY_COLUMNS`): the session folder, pseudonym, start date, completed turns, total score
+(equation (1)), success rate per level (empty when the level was not played), mean listening-phase
+engagement (recomputed from the raw EEG, ``data/own.py``), the policy, the session's status and its
+duration in seconds. Turns left out of the turn table (interrupted, invalid) do not count.
+"""
+from __future__ import annotations
+
+import csv
+import datetime as dt
+import io
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from nao_trainer.data import own
+from nao_trainer.errors import DataError
+
+STUDY_COLUMNS: tuple[str, ...] = ("session", "pseudonym", "date", "turns", "score", "success_L1", "success_L2",
+                                  "success_L3", "success_L4", "engagement", "policy", "status", "duration_s")
+
+
+@dataclass
+class StudySession:
+    """One row of the study table, and the per-turn levels behind the figure."""
+
+    row: dict[str, Any]
+    levels: list[int] = field(default_factory=list)  # level of each completed turn, in order
+    engagement: list[float] = field(default_factory=list)  # per completed turn (NaN when none)
+
+
+@dataclass
+class Study:
+    sessions: list[StudySession]
+    problems: list[str]  # one line per session left out
+    notes: list[str]
+
+    def to_csv(self) -> str:
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(STUDY_COLUMNS)
+        for s in self.sessions:
+            w.writerow(["" if v is None or (isinstance(v, float) and math.isnan(v)) else v
+                        for v in (s.row[c] for c in STUDY_COLUMNS)])
+        return buf.getvalue()
+
+
+def _when(text: Any) -> dt.datetime | None:
+    try:
+        return dt.datetime.fromisoformat(str(text))
+    except ValueError:
+        return None
+
+
+def study_session(path: Path) -> StudySession:
+    """The study row of one session folder; DataError when it cannot be read."""
+    sess = own.read_session(path)
+    eng = own.own_session_engagement(path)
+    rows, _excluded = own.table_rows(sess, {t.turn: t for t in eng.turns})
+    started, ended = _when(sess.info.get("started")), _when(sess.info.get("ended"))
+    success = {}
+    for level in (1, 2, 3, 4):
+        played = [r["success"] for r in rows if r["level"] == level]
+        success[f"success_L{level}"] = round(sum(played) / len(played), 4) if played else None
+    values = [r["engagement"] for r in rows if not math.isnan(r["engagement"])]
+    policy = sess.info.get("policy")
+    row = {
+        "session": sess.id, "pseudonym": sess.pseudonym,
+        "date": started.date().isoformat() if started else "",
+        "turns": len(rows), "score": sum(r["score"] for r in rows), **success,
+        "engagement": round(sum(values) / len(values), 4) if values else None,
+        "policy": policy if policy is not None else "",
+        "status": sess.status,
+        "duration_s": round((ended - started).total_seconds(), 1) if started and ended else None,
+    }
+    return StudySession(row, [r["level"] for r in rows], [r["engagement"] for r in rows])
+
+
+def read_study(root: Path) -> Study:
+    """Every session folder written by ``run`` under ``root``, by start time; DataError when none reads."""
+    root = Path(root)
+    if not root.is_dir():
+        raise DataError(f"{root}: no such folder (give a study folder holding session folders written by `run`)")
+    paths = own.find_own_sessions(root)
+    if not paths:
+        raise DataError(f"{root}: no session folders written by `nao-trainer run` (folders with a session.json)")
+    sessions, problems, notes = [], [], []
+    for p in paths:
+        try:
+            s = study_session(p)
+        except DataError as exc:
+            problems.append(f"{own.session_id(p)}: skipped: {exc}")
+            continue
+        sessions.append(s)
+    if not sessions:
+        raise DataError(f"{root}: none of {len(paths)} sessions could be read ({problems[0]})")
+    sessions.sort(key=lambda s: (s.row["date"], s.row["session"]))
+    return Study(sessions, problems, notes)
