@@ -28,8 +28,10 @@ setup(
     extras_require={
         "plots": ["matplotlib>=3.7"],
         "gym": ["gymnasium>=1.0"],
-        "test": ["pytest>=7", "pytest-xdist>=3"],
-        "all": ["matplotlib>=3.7", "gymnasium>=1.0"],
+        # session.xdf: LabRecorder's engine (a release candidate, binary wheels) and the reader
+        "xdf": ["labrecorder>=1.0.0rc0", "pyxdf>=1.16"],
+        "test": ["pytest>=7", "pytest-xdist>=3", "pyxdf>=1.16"],
+        "all": ["matplotlib>=3.7", "gymnasium>=1.0", "labrecorder>=1.0.0rc0", "pyxdf>=1.16"],
     },
     entry_points={"console_scripts": ["nao-trainer=nao_trainer.cli:entry_point"]},
     include_package_data=True,

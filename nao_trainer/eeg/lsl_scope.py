@@ -59,3 +59,35 @@ def configure_lsl(scope: str = "machine") -> str:
     pylsl.set_config_content(text)
     _configured = scope
     return _configured
+
+
+def config_file(scope: str = "machine") -> str:
+    """A liblsl config file for another liblsl in this process or a child (e.g. LabRecorder's own copy).
+
+    ``LSLAPICFG`` when the environment sets it; otherwise the project's config for ``scope``, written
+    once to the temporary folder. Such a liblsl reads only a file, never ``pylsl.set_config_content``.
+    """
+    import tempfile
+
+    from nao_trainer.files import write_text_atomic
+
+    if scope not in SCOPES:
+        raise ValueError(f"LSL scope must be one of {', '.join(SCOPES)}, got {scope!r}")
+    cfg = os.environ.get("LSLAPICFG")
+    if cfg:
+        if not os.path.isfile(cfg):
+            raise ConfigError(f"LSLAPICFG={cfg}: no such file; liblsl would then discover streams beyond this "
+                              "machine. Fix the path or unset LSLAPICFG (the project then uses machine scope)")
+        return cfg
+    text = MACHINE_SCOPE_CONFIG.replace("ResolveScope = machine", f"ResolveScope = {scope}")
+    if scope != "machine":
+        text = text.replace("KnownPeers = {127.0.0.1}\n", "")
+    path = os.path.join(tempfile.gettempdir(), f"nao-trainer-lsl-{scope}-{os.getuid()}.cfg")
+    try:
+        with open(path, encoding="utf-8") as fh:
+            if fh.read() == text:
+                return path
+    except OSError:
+        pass
+    write_text_atomic(path, text)
+    return path

@@ -1,0 +1,210 @@
+"""Record a session's EEG and marker streams to XDF with LabRecorder's engine (``labrecorder`` on PyPI).
+
+XDF is the Lab Streaming Layer's file format: every stream with its LSL timestamps, its metadata
+and the clock offsets measured while recording, readable by ``pyxdf``, MNE, EEGLAB and others.
+No XDF writer lives here: LabRecorder's own engine writes the file.
+
+The engine runs in a child process (``python -m nao_trainer.eeg.xdf``), for three reasons:
+
+* its C++ side prints progress lines ("Opened the stream ...", "Wrote footer ...") on stdout and
+  stderr: the child's output goes to the session's ``eeg/xdf.log``, never to the operator's terminal;
+* it bundles its own liblsl, which reads only a config file: the child gets ``LSLAPICFG`` pointing
+  at the project's scope (``lsl_scope.config_file``), so discovery stays on this machine;
+* a killed session still leaves a complete file: the child stops when its stdin closes, which
+  happens when the session ends for any reason, SIGKILL included; it then waits ``flush_s`` (the
+  engine writes in chunks), stops the recording and writes every stream's footer. If the child
+  itself is killed, the file is readable by pyxdf up to the last chunk written (tested); the
+  monitor's CSV files stay the crash-safe record either way.
+
+The child pins the streams by source_id. A marker pushed before the recorder's inlet connects is
+not recorded: :meth:`XdfRecorder.start` returns once the marker outlet has a consumer.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from nao_trainer.errors import EEGUnavailable
+
+INSTALL_HINT = "pip install 'nao-trainer[xdf]'"
+#: How long the child keeps recording after the stop request: the engine writes in chunks of ~0.5 s.
+FLUSH_S = 1.0
+
+
+class XdfUnavailable(EEGUnavailable):
+    """No XDF recording: the engine is not installed, or it found no stream."""
+
+
+def available() -> bool:
+    """Whether LabRecorder's engine (the ``labrecorder`` package) is installed."""
+    return importlib.util.find_spec("labrecorder") is not None
+
+
+@dataclass
+class XdfRecorder:
+    """A running XDF recording (the child process); :meth:`stop` ends it and waits for the file."""
+
+    path: Path
+    log_path: Path
+    process: subprocess.Popen
+    source_ids: tuple[str, ...]
+    flush_s: float = FLUSH_S
+
+    @classmethod
+    def start(cls, path: Path, source_ids: list[str] | tuple[str, ...], scope: str = "machine",
+              log_path: Path | None = None, ready=None, timeout_s: float = 10.0,
+              flush_s: float = FLUSH_S) -> "XdfRecorder":
+        """Start recording the streams ``source_ids`` into ``path``.
+
+        ``ready()``: returns True once the recorder is connected (e.g. ``MarkerOutlet.has_consumers``);
+        start returns when it does. Raises :class:`XdfUnavailable` (one line, with the fix) when the
+        engine is missing, a stream is not found or the recorder does not connect within ``timeout_s``.
+        """
+        from nao_trainer.eeg.lsl_scope import config_file
+
+        if not available():
+            raise XdfUnavailable(f"session.xdf not recorded: LabRecorder's engine is not installed; {INSTALL_HINT}")
+        path, ids = Path(path), tuple(source_ids)
+        log_path = Path(log_path) if log_path is not None else path.with_suffix(".log")
+        env = dict(os.environ, LSLAPICFG=config_file(scope), PYTHONUNBUFFERED="1")
+        cmd = [sys.executable, "-m", "nao_trainer.eeg.xdf", "--out", str(path), "--timeout", str(timeout_s),
+               "--flush", str(flush_s), *ids]
+        with open(log_path, "ab") as log:
+            # own session: Ctrl-C in the terminal reaches the session, which then stops the recorder in order
+            proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=log, stderr=subprocess.STDOUT, env=env,
+                                    start_new_session=True, close_fds=True)
+        rec = cls(path, log_path, proc, ids, flush_s)
+        deadline = time.monotonic() + timeout_s + 5.0
+        while True:
+            if proc.poll() is not None:
+                raise XdfUnavailable(f"session.xdf not recorded: {rec.log_tail() or f'recorder exited ({proc.returncode})'}")
+            if rec._recording() and (ready is None or ready()):
+                break
+            if time.monotonic() > deadline:
+                rec.kill()
+                raise XdfUnavailable(f"session.xdf not recorded: the recorder did not connect within {timeout_s:g} s "
+                                     f"(see {log_path})")
+            time.sleep(0.02)
+        return rec
+
+    def _recording(self) -> bool:
+        """The child said it started the engine (its own line in the log)."""
+        try:
+            return "xdf: recording" in self.log_path.read_text(errors="replace")
+        except OSError:
+            return False
+
+    @property
+    def running(self) -> bool:
+        return self.process.poll() is None
+
+    def log_tail(self) -> str:
+        """The last line the recorder wrote that says what went wrong."""
+        try:
+            lines = [ln for ln in self.log_path.read_text(errors="replace").splitlines() if ln.startswith("xdf:")]
+        except OSError:
+            return ""
+        return lines[-1][4:].strip() if lines else ""
+
+    def stop(self, timeout_s: float = 10.0) -> int:
+        """Ask the recorder to finish (it records ``flush_s`` more, then writes the footers); its exit code."""
+        if self.process.poll() is None:
+            try:
+                self.process.stdin.write(b"stop\n")
+                self.process.stdin.close()
+            except (BrokenPipeError, OSError, ValueError):
+                pass
+            try:
+                self.process.wait(self.flush_s + timeout_s)
+            except subprocess.TimeoutExpired:
+                self.kill()
+        elif self.process.stdin is not None and not self.process.stdin.closed:
+            self.process.stdin.close()
+        return self.process.returncode
+
+    def kill(self) -> None:
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.wait(5.0)
+        if self.process.stdin is not None and not self.process.stdin.closed:
+            try:
+                self.process.stdin.close()
+            except OSError:
+                pass
+
+
+# ----------------------------------------------------------------------------------------------
+# The child process
+# ----------------------------------------------------------------------------------------------
+
+
+def _resolve(source_ids: tuple[str, ...], timeout_s: float):
+    """StreamInfos of every source_id (a continuous resolver answers on time; see platform notes)."""
+    import pylsl
+
+    pred = " or ".join(f"source_id='{s}'" for s in source_ids)
+    resolver = pylsl.ContinuousResolver(pred=pred, forget_after=5.0)
+    deadline = time.monotonic() + timeout_s
+    found = {}
+    while time.monotonic() < deadline:
+        found = {i.source_id(): i for i in resolver.results() if i.source_id() in source_ids}
+        if len(found) == len(source_ids):
+            return [found[s] for s in source_ids]
+        time.sleep(0.05)
+    missing = [s for s in source_ids if s not in found]
+    raise XdfUnavailable(f"no LSL stream with source_id {', '.join(missing)} within {timeout_s:g} s")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The recorder: record until stdin says ``stop`` or closes (the session ended or died), then flush."""
+    ap = argparse.ArgumentParser(prog="python -m nao_trainer.eeg.xdf")
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--timeout", type=float, default=10.0)
+    ap.add_argument("--flush", type=float, default=FLUSH_S)
+    ap.add_argument("source_ids", nargs="+")
+    args = ap.parse_args(argv)
+    if not os.environ.get("LSLAPICFG"):  # the engine's liblsl would discover streams beyond this machine
+        print("xdf: LSLAPICFG is not set; refusing to record", flush=True)
+        return 2
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the session decides when the recording ends
+    try:
+        infos = _resolve(tuple(args.source_ids), args.timeout)
+    except XdfUnavailable as exc:
+        print(f"xdf: {exc}", flush=True)
+        return 4
+    import labrecorder
+
+    rec = labrecorder.Recording(args.out, infos)
+    print(f"xdf: recording {', '.join(args.source_ids)} to {args.out}", flush=True)
+
+    def wait_stdin() -> None:
+        try:
+            while sys.stdin.buffer.readline() not in (b"", b"stop\n"):
+                pass
+        except OSError:
+            pass
+        stop.set()
+
+    threading.Thread(target=wait_stdin, daemon=True).start()
+    while not stop.wait(0.2):
+        pass
+    time.sleep(args.flush)  # samples and markers still on their way into the file
+    rec.stop()
+    del rec
+    print("xdf: stopped", flush=True)
+    sys.stdout.flush()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

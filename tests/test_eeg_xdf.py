@@ -1,0 +1,89 @@
+"""XDF recording with LabRecorder's engine over real LSL streams (machine scope, streams pinned by source_id)."""
+from __future__ import annotations
+
+import os
+import signal
+import time
+import uuid
+
+import numpy as np
+import pytest
+
+from nao_trainer.eeg import xdf
+from nao_trainer.eeg.lsl_scope import configure_lsl
+from nao_trainer.eeg.markers import MarkerOutlet
+from nao_trainer.eeg.simulated_muse import SimulatedMuse
+
+configure_lsl("machine")
+pyxdf = pytest.importorskip("pyxdf")
+pytestmark = pytest.mark.skipif(not xdf.available(), reason="labrecorder not installed")
+
+
+def _uid(prefix: str) -> str:
+    return f"{prefix}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+
+
+def _streams(path):
+    streams, _header = pyxdf.load_xdf(str(path))
+    return {s["info"]["name"][0]: s for s in streams}
+
+
+@pytest.fixture
+def outlets():
+    eeg = SimulatedMuse.start(np.random.default_rng(0), source_id=_uid("xdf-eeg"))
+    markers = MarkerOutlet(_uid("xdf-markers"))
+    yield eeg, markers
+    markers.close()
+    eeg.stop()
+
+
+def test_recording_holds_every_marker_and_the_eeg_with_lsl_times(tmp_path, outlets, capfd):
+    eeg, markers = outlets
+    rec = xdf.XdfRecorder.start(tmp_path / "session.xdf", [eeg.source_id, markers.source_id],
+                                log_path=tmp_path / "xdf.log", ready=markers.has_consumers)
+    pushed = []
+    for k in range(6):
+        pushed.append((f"turn_{k}_start", markers.push("turn_start", k)))
+        time.sleep(0.1)
+    n_before = eeg.samples_pushed
+    assert rec.stop() == 0
+    streams = _streams(tmp_path / "session.xdf")
+    assert set(streams) == {"Muse", "Markers"}
+    m, e = streams["Markers"], streams["Muse"]
+    assert [v[0] for v in m["time_series"]] == [name for name, _ in pushed]  # none lost, the first included
+    np.testing.assert_allclose(m["time_stamps"], [t for _, t in pushed], atol=2e-3)  # LSL clock, synchronised
+    assert int(e["info"]["channel_count"][0]) == 5 and e["time_series"].shape[1] == 5
+    assert int(m["info"]["channel_count"][0]) == 1
+    assert e["info"]["source_id"][0] == eeg.source_id and m["info"]["source_id"][0] == markers.source_id
+    footer = int(e["footer"]["info"]["sample_count"][0])
+    assert footer == len(e["time_stamps"]) and 0.5 * n_before < footer <= eeg.samples_pushed
+    assert np.all(np.diff(e["time_stamps"]) > 0)
+    assert e["time_stamps"][0] <= pushed[0][1] and e["time_stamps"][-1] >= pushed[-1][1]
+    assert len(e["clock_times"]) > 0  # clock offsets were measured and stored
+    out, err = capfd.readouterr()
+    assert "Opened the stream" not in out + err and "footer" not in out + err  # the engine's lines: log only
+    assert "Wrote footer" in (tmp_path / "xdf.log").read_text()
+
+
+def test_a_killed_recorder_leaves_a_file_readable_up_to_what_was_written(tmp_path, outlets):
+    eeg, markers = outlets
+    rec = xdf.XdfRecorder.start(tmp_path / "s.xdf", [eeg.source_id, markers.source_id],
+                                log_path=tmp_path / "xdf.log", ready=markers.has_consumers)
+    early = [markers.push("turn_start", k) for k in range(3)]
+    time.sleep(1.5)  # the engine writes in chunks
+    markers.push("late_marker")
+    os.kill(rec.process.pid, signal.SIGKILL)
+    rec.process.wait(5)
+    streams = _streams(tmp_path / "s.xdf")  # no footers: still readable
+    names = [v[0] for v in streams["Markers"]["time_series"]]
+    assert names[:3] == ["turn_0_start", "turn_1_start", "turn_2_start"]
+    np.testing.assert_allclose(streams["Markers"]["time_stamps"][:3], early, atol=2e-3)
+    assert len(streams["Muse"]["time_stamps"]) > 256  # over a second of EEG made it
+
+
+def test_no_stream_or_no_engine_is_one_line(tmp_path, monkeypatch):
+    with pytest.raises(xdf.XdfUnavailable, match=r"no LSL stream with source_id nobody-\S+ within 0.5 s"):
+        xdf.XdfRecorder.start(tmp_path / "x.xdf", [_uid("nobody")], timeout_s=0.5)
+    monkeypatch.setattr(xdf, "available", lambda: False)
+    with pytest.raises(xdf.XdfUnavailable, match=r"pip install 'nao-trainer\[xdf\]'"):
+        xdf.XdfRecorder.start(tmp_path / "x.xdf", ["a"])
