@@ -1,0 +1,87 @@
+"""The data loop end to end, as a user runs it: sessions -> import -> fit -> train -> a session with the policy.
+
+Eight sessions sped up x50 with a simulated Muse, four from each of two clearly different simulated
+participants (strong: succeeds at every level, high engagement; weak: fails from level 2 on, low
+engagement). They must come out of `fit --k 2` as the two clusters; `train` then learns a policy per
+cluster and `run` plays a session with it against the fitted user model.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+STUDY = """\
+study: {{name: loop-{group}}}
+robot: {{url: mock}}
+session: {{turns: 8, practice: false}}
+timing: {{speed: 50}}
+answers: {{input: simulated}}
+participant_model: {{success_by_level: {p}, engagement_by_level: {e}}}
+policy: {{kind: schedule, schedule: [L1, L2, L3, L4]}}
+eeg: {{mode: simulated, processing: {{window_s: 0.25, hop_s: 0.05}}}}
+"""
+GROUPS = {"strong": ([0.98, 0.95, 0.9, 0.85], [0.85, 0.85, 0.9, 0.9]),
+          "weak": ([0.9, 0.45, 0.1, 0.02], [0.15, 0.15, 0.1, 0.1])}
+
+
+def _env(**extra: str) -> dict[str, str]:
+    return dict(os.environ, QI_LOG_LEVEL="silent", **extra)
+
+
+def _cli(*args: str, env=None, timeout: float = 120) -> subprocess.CompletedProcess:
+    res = subprocess.run([sys.executable, "-m", "nao_trainer", *args], capture_output=True, text=True,
+                         env=env or _env(), timeout=timeout)
+    assert res.returncode == 0, f"nao-trainer {' '.join(args)} failed ({res.returncode}): {res.stderr[-2000:]}"
+    assert "Traceback" not in res.stderr
+    return res
+
+
+def test_sessions_import_fit_train_and_play_a_trained_policy(tmp_path):
+    study = tmp_path / "study"
+    runs = []
+    for group, (p, e) in GROUPS.items():
+        cfg = tmp_path / f"{group}.yaml"
+        cfg.write_text(STUDY.format(group=group, p=p, e=e))
+        for i in range(1, 5):
+            cmd = [sys.executable, "-m", "nao_trainer", "run", "--config", str(cfg), "--pseudonym", f"{group}{i}",
+                   "--seed", str(i + (10 if group == "weak" else 0)), "--out", str(study), "--quiet"]
+            runs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env()))
+    for proc in runs:  # the sessions mostly wait (speech, answers): they run side by side
+        out, err = proc.communicate(timeout=120)
+        assert proc.returncode == 0, err[-2000:]
+    sessions = sorted(p.name for p in study.iterdir())
+    assert len(sessions) == 8 and all((study / s / "session.json").exists() for s in sessions)
+
+    _cli("import", str(study), "--out", str(tmp_path / "turns.csv"))
+    with open(tmp_path / "turns.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 64 and {r["success"] for r in rows} <= {"0", "1"}
+    assert {r["pseudonym"] for r in rows} == {f"{g}{i}" for g in GROUPS for i in range(1, 5)}
+
+    fit = _cli("fit", str(tmp_path / "turns.csv"), "--out", str(tmp_path / "models"), "--k", "2",
+               "--no-figures", "--json")
+    report = json.loads(fit.stdout)
+    groups = [{s.split("_")[0].rstrip("1234") for s in c["sessions"]} for c in report["clusters"]]
+    assert sorted(map(sorted, groups)) == [["strong"], ["weak"]], report["clusters"]
+    strong = next(c["id"] for c, g in zip(report["clusters"], groups) if g == {"strong"})
+    assert [c["size"] for c in report["clusters"]] == [4, 4]
+
+    _cli("train", "--models", str(tmp_path / "models"), "--out", str(tmp_path / "policies"), "--seeds", "2",
+         "--episodes", "300", "--turns", "8", "--methods", "performance", "--no-plots")
+    env = _env(NAO_TRAINER_MODELS=str(tmp_path / "models"), NAO_TRAINER_POLICIES=str(tmp_path / "policies"))
+    _cli("run", "--config", str(tmp_path / "strong.yaml"), "--user-model", str(strong), "--policy",
+         f"usp:{strong}", "--pseudonym", "trained", "--out", str(tmp_path / "next"), "--quiet", env=env)
+    (folder,) = (tmp_path / "next").iterdir()
+    info = json.loads((folder / "session.json").read_text())
+    assert info["status"] == "completed" and info["policy"] == f"usp:{strong}"
+    assert info["user_model"] == f"cluster-{strong}"
+    with open(folder / "turns.csv", newline="") as fh:
+        assert len(list(csv.DictReader(fh))) == 8
+    # ... and the new session is data again: it imports beside the first eight
+    _cli("import", str(tmp_path), "--out", str(tmp_path / "again.csv"))
+    with open(tmp_path / "again.csv", newline="") as fh:
+        assert len(list(csv.DictReader(fh))) == 72
