@@ -33,7 +33,7 @@ def trained(tmp_path_factory):
     artifacts.save_models(models, simulators(), [{"id": 1}, {"id": 2}], {"k": 2})
     policies = tmp_path_factory.mktemp("policies")
     result = train_grid(simulators(), ["1", "2"], TrainingSpec(seeds=2, episodes=30, workers=1), progress=False)
-    write_outputs(result, policies, str(models), "test", plots=False)
+    write_outputs(result, policies, str(models), "test")
     return models, policies
 
 
