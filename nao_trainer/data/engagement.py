@@ -35,6 +35,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from nao_trainer.core import engagement as core
+from nao_trainer.core import phase
 from nao_trainer.errors import DataError
 from nao_trainer.core.eeg import CHANNELS, RAW_RATE_HZ, Processing
 from nao_trainer.data.published import Recording, find_sessions, read_recording, read_state_eeg, session_id
@@ -248,7 +249,7 @@ def _from_raw(rec: Recording, settings: OfflineSettings) -> _Phase:
     ph.t = np.array([w.t_end for w in windows])
     ph.raw = np.array([np.nan if w.index_raw is None else w.index_raw for w in windows])
     ph.smoothed = np.array([np.nan if w.index_smoothed is None else w.index_smoothed for w in windows])
-    agg = core.aggregate_phase(windows, ph.t[0] - settings.hop_s, ph.t[-1], settings.hop_s, None, settings.min_quality)
+    agg = phase.aggregate_phase(windows, ph.t[0] - settings.hop_s, ph.t[-1], settings.hop_s, None, settings.min_quality)
     ph.quality, ph.reason = agg.quality, agg.reason
     return ph
 
@@ -361,7 +362,7 @@ def _normalise_authors(phases: list[_Phase]) -> tuple[str, list[np.ndarray | Non
     values = [p.smoothed for p in phases if p.usable]
     if not values:
         return label, [None] * len(phases)
-    scaled = core.minmax_scale(np.concatenate(values))
+    scaled = phase.minmax_scale(np.concatenate(values))
     if np.isnan(scaled).all():  # a flat session: no scale
         return label, [None] * len(phases)
     parts = iter(np.split(scaled, np.cumsum([len(v) for v in values])[:-1]))
@@ -388,7 +389,7 @@ def _normalise_own(
     settings: OfflineSettings,
 ) -> tuple[str, list[np.ndarray | None], list[np.ndarray | None] | None]:
     """The project's rule: intro baseline plus running bounds in recording order; else the session itself."""
-    normaliser = core.EngagementNormaliser()
+    normaliser = phase.EngagementNormaliser()
     why = ""
     try:
         base = _baseline_values(session_dir, src, settings)
