@@ -15,7 +15,7 @@ import time
 os.environ.setdefault("QI_LOG_LEVEL", "silent")
 
 from nao_trainer.session.config import load_config  # noqa: E402
-from nao_trainer.session.engine import RunOptions, run_session  # noqa: E402
+from nao_trainer.session.wiring import RunOptions, run_session  # noqa: E402
 
 
 def main() -> int:

@@ -4,7 +4,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from nao_trainer.session.config import EEG_MODES, INPUTS
+from nao_trainer.eeg.settings import MODES as EEG_MODES
+from nao_trainer.session.config import INPUTS
 
 
 def register(sub) -> None:
@@ -56,7 +57,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, object]:
 
 def run(args: argparse.Namespace) -> int:
     from nao_trainer.session.config import load_config
-    from nao_trainer.session.engine import RunOptions, run_session
+    from nao_trainer.session.wiring import RunOptions, run_session
 
     config = load_config(args.config, overrides_from_args(args))
     result = run_session(config, RunOptions(quiet=args.quiet))

@@ -181,8 +181,8 @@ class LivePolicy:
     """
 
     def __init__(self, learner: QLearner, payload: dict[str, Any], learning: bool, state_path: Path | None) -> None:
-        # A learning policy needs ``state_path`` only when it saves: the session may set it once its
-        # folder exists (the policy is loaded and checked before the robot connects).
+        # A learning policy needs ``state_path`` only when it saves: without one, the session binds
+        # it to its folder once that exists (the policy is loaded and checked before the robot connects).
         self.learner = learner
         self.payload = payload
         self.learning = learning
@@ -200,7 +200,7 @@ class LivePolicy:
         if not self.learning:
             return
         if self._closed:
-            raise RuntimeError("policy is closed")
+            raise ValueError("policy is closed: observe() after close()")
         t = transition
         self.learner.update(t.state, t.action, t.score, t.engagement, t.next_state, t.done)
         live = self.payload["live"]
@@ -208,6 +208,11 @@ class LivePolicy:
         live["turns_without_engagement"] += int(t.engagement is None)
         live["updated"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
         self.save()
+
+    def bind_state_dir(self, folder: Path) -> None:
+        """Without a configured state file, a learning policy saves into the session ``folder``."""
+        if self.learning and self.state_path is None:
+            self.state_path = Path(folder) / "policy_state.json"
 
     def save(self) -> None:
         """Write the learner's whole state (a valid policy file) atomically to ``state_path``."""
