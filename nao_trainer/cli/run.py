@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     result = run_session(config, RunOptions(quiet=args.quiet))
     print(result.summary())
     if args.plot and result.path is not None and result.completed_rows:
-        from nao_trainer.session.record import plot_session
+        from nao_trainer.plots.session import plot_session
 
         print(f"plot: {plot_session(result.path)}")
     return result.exit_code
