@@ -14,7 +14,7 @@ Two things are read here:
 * the per-turn engagement, **recomputed from the raw EEG the session saved** (``eeg/raw.csv``) with
   the processing settings the session used (``eeg/stream.json``), replaying the session's phases
   (``eeg/phases.csv``) in order through the same code as the live monitor
-  (``core.engagement.OnlineEngagement`` and ``PhaseSummariser``). For a session recorded by this
+  (``core.engagement.OnlineEngagement`` and ``core.phase.summarise_phase``). For a session recorded by this
   version the result equals the live values in ``phases.csv`` (tested to 1e-9).
 
 A torn last line (a killed session) is dropped and said; anything else malformed is a one-line
@@ -34,7 +34,8 @@ import numpy as np
 
 from nao_trainer.core import mdp, task
 from nao_trainer.core.eeg import Processing
-from nao_trainer.core.engagement import OnlineEngagement, PhaseSummariser, QualityThresholds, WindowResult
+from nao_trainer.core.engagement import OnlineEngagement, QualityThresholds, WindowResult
+from nao_trainer.core.phase import EngagementNormaliser, summarise_phase
 from nao_trainer.data.engagement import SessionEngagement, TurnEngagement
 from nao_trainer.errors import DataError
 from nao_trainer.files import read_json, read_text
@@ -337,7 +338,7 @@ def replay_phases(session_dir: Path) -> tuple[list[ReplayedPhase], list[str]]:
                                   gap_factor=max(2.0, proc.gap_tolerance_s * fs), channel_names=labels)
         windows = engine.push(x, ts) if len(ts) else []
     t_end = np.array([w.t_end for w in windows])
-    summariser = PhaseSummariser(proc.hop_s, proc.min_quality)
+    normaliser, had_baseline = EngagementNormaliser(), False
     out: list[ReplayedPhase] = []
     for k, p in enumerate(phases, 2):
         try:
@@ -349,9 +350,11 @@ def replay_phases(session_dir: Path) -> tuple[list[ReplayedPhase], list[str]]:
             raise DataError(f"{eeg / 'phases.csv'}:{k}: {exc}") from None
         upto = t1 if last is None else min(t1, last)
         lo, hi = np.searchsorted(t_end, t0, side="right"), np.searchsorted(t_end, upto, side="right")
-        s = summariser.summarise(p["phase"], windows[lo:hi], t0, t1)
-        out.append(ReplayedPhase(turn, p["phase"], t0, t1, live_e, live_i, s.engagement, s.aggregate.index,
-                                 round(s.aggregate.quality, 4), s.reason))
+        had_baseline = had_baseline or p["phase"] == "baseline"
+        s = summarise_phase(windows[lo:hi], t0, t1, normaliser, baseline=p["phase"] == "baseline",
+                            had_baseline=had_baseline, hop_s=proc.hop_s, min_quality=proc.min_quality)
+        out.append(ReplayedPhase(turn, p["phase"], t0, t1, live_e, live_i, s.engagement, s.index,
+                                 round(s.quality, 4), s.reason))
     return out, notes
 
 

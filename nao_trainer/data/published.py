@@ -20,7 +20,6 @@ from pathlib import Path
 
 import numpy as np
 
-from nao_trainer.core.eeg import CHANNELS, RAW_RATE_HZ  # the recordings' channel order and raw rate
 from nao_trainer.errors import DataError
 from nao_trainer.files import read_text
 

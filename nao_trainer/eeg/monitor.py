@@ -24,111 +24,31 @@ closed. Files in ``<session>/eeg/``: ``stream.json``, ``events.csv``, ``windows.
 """
 from __future__ import annotations
 
-import csv
 import itertools
 import os
 import logging
 import threading
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
-from nao_trainer.core.engagement import (EngagementNormaliser, OnlineEngagement, PhaseSummariser, QualityThresholds,
-                                         WindowResult)
+from nao_trainer.core.engagement import OnlineEngagement, QualityThresholds, WindowResult
+from nao_trainer.core.phase import EngagementNormaliser, summarise_phase
 from nao_trainer.errors import EEGUnavailable
-from nao_trainer.files import write_json_atomic
 from nao_trainer.ports import EngagementMonitor, NullMonitor, PhaseEngagement
 from nao_trainer.eeg.inlet import EEGInlet, StreamQuery, resolve_eeg
 from nao_trainer.eeg.lsl_scope import configure_lsl
 from nao_trainer.eeg.settings import EEGSettings
 from nao_trainer.eeg.markers import MarkerOutlet, event_name, marker_source_id
+from nao_trainer.eeg.session_files import (EVENTS_HEADER, GAPS_HEADER, PHASES_HEADER, WINDOWS_HEADER, SessionFiles,
+                                          fmt)
 
 log = logging.getLogger(__name__)
 
 PHASES = ("baseline", "listening", "answer")
 _SIM_COUNTER = itertools.count(1)
-
-
-# ----------------------------------------------------------------------------------------------
-# Session files
-# ----------------------------------------------------------------------------------------------
-
-
-class _CsvLog:
-    """An append-only CSV file that is flushed after every write (nothing lost on a crash)."""
-
-    def __init__(self, path: Path, header: list[str]) -> None:
-        self.path = path
-        new = not path.exists()
-        self._fh = open(path, "a", newline="", encoding="utf-8")
-        self._w = csv.writer(self._fh)
-        if new:
-            self._w.writerow(header)
-            self._fh.flush()
-
-    def write(self, rows: list[list[Any]], flush: bool = True) -> None:
-        self._w.writerows(rows)
-        if flush:
-            self._fh.flush()
-
-    def raw_file(self):
-        return self._fh
-
-    def close(self) -> None:
-        if not self._fh.closed:
-            self._fh.flush()
-            self._fh.close()
-
-
-def _fmt(v: float | None) -> str:
-    """Full precision (``repr``): the offline re-analysis checks its values against these to 1e-9."""
-    return "" if v is None or not np.isfinite(v) else repr(float(v))
-
-
-class _SessionFiles:
-    """The monitor's files in ``<session>/eeg/`` (no files when there is no session folder)."""
-
-    def __init__(self, session_dir: Path | None) -> None:
-        self.dir = None if session_dir is None else Path(session_dir) / "eeg"
-        self._logs: dict[str, _CsvLog] = {}
-        self.closed = False
-        self.lock = threading.Lock()  # the reader thread and the session both write
-        if self.dir is not None:
-            self.dir.mkdir(parents=True, exist_ok=True)
-
-    def log(self, name: str, header: list[str]) -> _CsvLog | None:
-        if self.dir is None or self.closed:  # after close(): nothing more is written
-            return None
-        with self.lock:
-            if name not in self._logs:
-                self._logs[name] = _CsvLog(self.dir / name, header)
-            return self._logs[name]
-
-    def write(self, name: str, header: list[str], rows: list[list[Any]], flush: bool = True) -> None:
-        log_ = self.log(name, header)
-        if log_ is not None:
-            with self.lock:
-                if not self.closed:
-                    log_.write(rows, flush)
-
-    def write_json(self, name: str, data: dict) -> None:
-        if self.dir is not None:
-            write_json_atomic(self.dir / name, data)
-
-    def close(self) -> None:
-        with self.lock:
-            self.closed = True
-            for log_ in self._logs.values():
-                log_.close()
-
-
-EVENTS_HEADER = ["lsl_time", "event", "detail"]
-WINDOWS_HEADER = ["turn", "phase", "t_end", "index_raw", "index_smoothed", "engagement", "clean_fraction", "reason"]
-PHASES_HEADER = ["turn", "phase", "t_begin", "t_end", "engagement", "engagement_index", "eeg_quality",
-                 "n_windows", "lost_s", "reason", "last_sample"]
-GAPS_HEADER = ["start", "end", "duration_s", "kind"]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -169,12 +89,12 @@ class LslMonitor:
         self.settings = settings
         self.proc = settings.processing
         self.query = query
-        self.files = _SessionFiles(session_dir)
+        self.files = SessionFiles(session_dir)
         self.markers = markers
         self.simulator = simulator
         self.inlet: EEGInlet | None = None
         self.engine: OnlineEngagement | None = None
-        self.summariser = PhaseSummariser(self.proc.hop_s, self.proc.min_quality)
+        self.normaliser = EngagementNormaliser()
         self.windows: list[WindowResult] = []
         self.gaps: list[Gap] = []
         self.phases: list[tuple[_Phase, float, PhaseEngagement]] = []
@@ -183,6 +103,7 @@ class LslMonitor:
         self.samples_received = 0
         self.thread_cpu_s = 0.0  # CPU time of the reader thread (benchmarks)
         self._phase: _Phase | None = None
+        self._had_baseline = False  # a baseline phase was summarised (for the no-scale reason)
         self._resolver = None  # a pylsl.ContinuousResolver while waiting for a stream
         self._rejected: set[str] = set()  # source_ids found but unusable
         self._cond = threading.Condition()
@@ -202,9 +123,9 @@ class LslMonitor:
     # -- state --------------------------------------------------------------------------------
 
     @property
-    def normaliser(self) -> EngagementNormaliser:
-        """The per-participant scale (baseline plus running bounds) of this session."""
-        return self.summariser.normaliser
+    def records_eeg(self) -> bool:
+        """Always: this monitor records EEG (``ports.EngagementMonitor``), even while the stream is away."""
+        return True
 
     @property
     def available(self) -> bool:
@@ -324,7 +245,7 @@ class LslMonitor:
         self._raw_pending, self._raw_n = [], 0
         if log_ is None:
             return
-        row = ",".join(["%r"] * (1 + len(labels))) + "\n"  # exact: offline re-analysis replays these
+        row = ",".join(["%r"] * (1 + len(labels))) + "\n"  # exact: the offline re-analysis replays these
         with self.files.lock:
             fh = log_.raw_file()
             fh.write((row * len(block)) % tuple(block.ravel().tolist()))  # one format op: cheap
@@ -428,27 +349,22 @@ class LslMonitor:
     def _summarise(self, ph: _Phase, t1: float, windows: list[WindowResult]):
         now = self._clock()
         lost_s = sum(g.overlap(ph.t0, t1, now) for g in self.gaps)
-        summary = self.summariser.summarise(ph.name, windows, ph.t0, t1)  # the rule offline replays too
-        agg = summary.aggregate
-        reason = summary.reason
-        if self.inlet is None:
-            reason = f"EEG unavailable: {self.unavailable_reason or 'no stream'}"
-        elif agg.index is None and lost_s > 0:
-            reason = f"stream lost for {lost_s:.1f} s of the phase ({reason})"
-        engagement = summary.engagement
-        result = PhaseEngagement(engagement, agg.index, round(agg.quality, 4), reason if engagement is None else "",
-                                 series=summary.smoothed)
-        rows = [[ph.turn if ph.turn is not None else "", ph.name, repr(w.t_end), _fmt(w.index_raw),
-                 _fmt(w.index_smoothed), _fmt(float(n)), f"{w.clean_fraction:.3f}", w.reason]
-                for w, n in zip(windows, summary.normalised)]
+        self._had_baseline = self._had_baseline or ph.name == "baseline"
+        s = summarise_phase(windows, ph.t0, t1, self.normaliser, baseline=ph.name == "baseline",
+                            had_baseline=self._had_baseline, hop_s=self.proc.hop_s, min_quality=self.proc.min_quality,
+                            lost_s=lost_s, unavailable=self.unavailable_reason if self.inlet is None else None)
+        result = PhaseEngagement(s.engagement, s.index, round(s.quality, 4), s.reason, series=s.smoothed)
+        rows = [[ph.turn if ph.turn is not None else "", ph.name, repr(w.t_end), fmt(w.index_raw),
+                 fmt(w.index_smoothed), fmt(float(n)), f"{w.clean_fraction:.3f}", w.reason]
+                for w, n in zip(windows, s.normalised)]
         return result, (rows, lost_s)
 
     def _write_phase(self, ph: _Phase, t1: float, result: PhaseEngagement, rows_lost) -> None:
         rows, lost_s = rows_lost
         self.files.write("windows.csv", WINDOWS_HEADER, rows)
         self.files.write("phases.csv", PHASES_HEADER, [[
-            ph.turn if ph.turn is not None else "", ph.name, repr(ph.t0), repr(t1), _fmt(result.engagement),
-            _fmt(result.index), f"{result.quality:.3f}", len(rows), f"{lost_s:.3f}", result.reason,
+            ph.turn if ph.turn is not None else "", ph.name, repr(ph.t0), repr(t1), fmt(result.engagement),
+            fmt(result.index), f"{result.quality:.3f}", len(rows), f"{lost_s:.3f}", result.reason,
             "" if ph.last_sample is None else repr(ph.last_sample)]])
 
     def close(self) -> None:

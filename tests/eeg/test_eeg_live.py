@@ -301,17 +301,17 @@ def _bare_monitor(now: list[float]) -> LslMonitor:
     import threading
     from types import SimpleNamespace
 
-    from nao_trainer.core.engagement import PhaseSummariser
-    from nao_trainer.eeg.monitor import _SessionFiles
+    from nao_trainer.core.phase import EngagementNormaliser
+    from nao_trainer.eeg.session_files import SessionFiles
 
     m = LslMonitor.__new__(LslMonitor)
     m._clock = lambda: now[0]
     m.settings = EEGSettings()
     m.proc = m.settings.processing
-    m.files, m.summariser = _SessionFiles(None), PhaseSummariser(m.proc.hop_s, m.proc.min_quality)
+    m.files, m.normaliser = SessionFiles(None), EngagementNormaliser()
     m.windows, m.gaps, m.phases = [], [], []
     m.inlet, m.unavailable_reason, m._lost = SimpleNamespace(), "", False
-    m._phase = None
+    m._phase, m._had_baseline = None, False
     m._cond, m._urgent = threading.Condition(), threading.Event()
     m._last_stamp = -np.inf
     return m
@@ -342,7 +342,7 @@ def test_end_phase_keeps_early_windows_of_a_long_phase_while_the_reader_prunes()
 
 
 def test_no_scale_reason_says_baseline_too_short_and_phase_value_matches_core():
-    from nao_trainer.core.engagement import aggregate_phase
+    from nao_trainer.core.phase import aggregate_phase
 
     rng = np.random.default_rng(1)
     now = [0.0]
