@@ -21,6 +21,9 @@ reason. A stream that stops delivering for ``loss_timeout_s`` is marked lost (ev
 the inlet reconnects by itself when a stream with the same source_id returns, and the gap is
 closed. Files in ``<session>/eeg/``: ``stream.json``, ``events.csv``, ``windows.csv``,
 ``phases.csv``, ``gaps.csv`` and ``raw.csv`` (scalp samples with LSL stamps), all flushed as written.
+Values and stamps are written at full precision, and each phase row names the last sample the phase
+saw, so ``data/own.py`` recomputes every phase from ``raw.csv`` exactly. With ``record_xdf`` the
+session's EEG and marker streams also go to ``<session>/session.xdf`` (``eeg/xdf.py``).
 """
 from __future__ import annotations
 
@@ -82,7 +85,7 @@ class LslMonitor:
 
     def __init__(self, settings: EEGSettings, query: StreamQuery, session_dir: Path | None,
                  inlet: EEGInlet | None, markers: MarkerOutlet | None, unavailable_reason: str = "",
-                 simulator=None) -> None:
+                 simulator=None, record_xdf: bool = False) -> None:
         import pylsl
 
         self._clock = pylsl.local_clock
@@ -115,10 +118,14 @@ class LslMonitor:
         self._raw_n = 0
         self._lost = False
         self._closed = False
+        self.xdf = None  # the session.xdf recorder (eeg.xdf.XdfRecorder) once a stream is attached
+        self._xdf_wanted = record_xdf and settings.xdf and session_dir is not None and markers is not None
         if inlet is not None:
             self._attach(inlet)
         self._thread = threading.Thread(target=self._run, name="eeg-monitor", daemon=True)
         self._thread.start()
+        if inlet is not None:
+            self._start_xdf()  # before the session's first marker; the reader already runs meanwhile
 
     # -- state --------------------------------------------------------------------------------
 
@@ -151,6 +158,36 @@ class LslMonitor:
                                               "processing": asdict(self.proc)})
         self._event("eeg_stream_found", f"{inlet.name} {inlet.source_id} {inlet.fs:g} Hz "
                                         f"{'/'.join(inlet.scalp_labels)}")
+
+    def _start_xdf(self) -> None:
+        """Record ``session.xdf`` (this EEG stream and the marker stream); without it, say why and go on.
+
+        Returns once the recorder's marker inlet is connected: a marker pushed earlier would be lost.
+        """
+        if not self._xdf_wanted or self.xdf is not None or self.inlet is None:
+            return
+        self._xdf_wanted = False
+        from nao_trainer.eeg.xdf import XdfRecorder, XdfUnavailable
+
+        path = self.files.dir.parent / "session.xdf"
+        try:
+            self.xdf = XdfRecorder.start(path, [self.inlet.source_id, self.markers.source_id],
+                                         self.settings.lsl_scope, log_path=self.files.dir / "xdf.log",
+                                         ready=self.markers.has_consumers)
+        except XdfUnavailable as exc:
+            log.warning("%s", exc)
+            self._event("xdf_unavailable", str(exc), publish=False)
+            return
+        self._event("xdf_recording", f"{path.name}: {self.inlet.source_id} + {self.markers.source_id}", publish=False)
+
+    def _stop_xdf(self) -> None:
+        """Finish session.xdf while the streams still run (the recorder keeps their last chunks)."""
+        if self.xdf is None:
+            return
+        code = self.xdf.stop()
+        self._event("xdf_stopped" if code == 0 else "xdf_failed", f"exit {code} (log: eeg/xdf.log)", publish=False)
+        if code != 0:
+            log.warning("session.xdf: the recorder ended with exit code %s; see %s", code, self.xdf.log_path)
 
     def _event(self, event: str, detail: str = "", turn: int | None = None, publish: bool = True) -> float:
         name = event_name(event, turn)
@@ -204,6 +241,7 @@ class LslMonitor:
                 return
             self._attach(inlet)
             self._resolver = None
+            self._start_xdf()  # a stream that appeared late: recorded from now on
         else:
             self._stop.wait(0.5)
 
@@ -374,6 +412,7 @@ class LslMonitor:
         self._closed = True
         self._stop.set()
         self._thread.join(3.0)
+        self._stop_xdf()
         if self.gaps and self.gaps[-1].end is None:
             g = self.gaps[-1]
             self.files.write("gaps.csv", GAPS_HEADER, [[f"{g.start:.6f}", "", "", f"{g.kind} (until the end)"]])
@@ -412,13 +451,15 @@ def _no_stream_message(query: StreamQuery, settings: EEGSettings) -> str:
 
 
 def open_monitor(mode: str, eeg_cfg: Mapping[str, Any] | None, session_dir: Path | None,
-                 rng: np.random.Generator, pseudonym: str | None = None) -> EngagementMonitor:
+                 rng: np.random.Generator, pseudonym: str | None = None, record_xdf: bool = False) -> EngagementMonitor:
     """The session's engagement monitor for ``mode`` "lsl", "simulated" or "off".
 
     ``eeg_cfg`` is the study's ``eeg`` section (validated here: a wrong key raises ``ConfigError``
     naming it). "lsl" without a stream: ``EEGUnavailable`` when ``required``, otherwise a monitor
     whose phases say "EEG unavailable" and that attaches if a stream appears later.
     "simulated" starts a simulated Muse (seeded from ``rng``) that ``set_target`` drives.
+    ``record_xdf``: also record ``<session_dir>/session.xdf`` (``eeg.xdf`` can turn it off), started
+    before this returns, so the session's first marker is in the file.
     """
     settings = EEGSettings.from_mapping(eeg_cfg, mode)
     if settings.mode == "off":
@@ -455,7 +496,7 @@ def open_monitor(mode: str, eeg_cfg: Mapping[str, Any] | None, session_dir: Path
         if inlet is None:
             log.warning("EEG unavailable: %s", reason)
         markers = MarkerOutlet(marker_source_id(pseudonym), scope=settings.lsl_scope)
-        monitor = LslMonitor(settings, query, session_dir, inlet, markers, reason, simulator)
+        monitor = LslMonitor(settings, query, session_dir, inlet, markers, reason, simulator, record_xdf)
         if simulator is not None:  # a simulated headband is "put on" before the greeting: fill one window
             monitor.wait_for_windows(1, settings.processing.window_s + 2.0)
         return monitor

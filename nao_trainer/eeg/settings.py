@@ -43,6 +43,7 @@ class EEGSettings:
     source_id: str | None = None
     lsl_scope: str = "machine"
     processing: Processing = field(default_factory=Processing)
+    xdf: bool = True  # also record session.xdf (EEG + markers) with LabRecorder's engine (eeg/xdf.py)
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any] | None, mode: str | None = None,
@@ -67,6 +68,9 @@ class EEGSettings:
         required = data.get("required", False)
         if not isinstance(required, bool):
             raise fail("eeg.required", f"key 'eeg.required' must be true/false, got {required!r}")
+        xdf = data.get("xdf", True)
+        if not isinstance(xdf, bool):
+            raise fail("eeg.xdf", f"key 'eeg.xdf' must be true/false, got {xdf!r}")
         scope = data.get("lsl_scope", "machine")
         if scope not in SCOPES:
             raise fail("eeg.lsl_scope", f"key 'eeg.lsl_scope' must be one of {', '.join(SCOPES)}, got {scope!r}")
@@ -88,4 +92,4 @@ class EEGSettings:
             raise fail(str(exc).split(":", 1)[0], str(exc)) from None
         return cls(mode=mode, required=required, stream_type=data.get("stream_type") or "EEG",
                    stream_name=data.get("stream_name"), source_id=data.get("source_id"), lsl_scope=scope,
-                   processing=proc)
+                   processing=proc, xdf=xdf)

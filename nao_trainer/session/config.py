@@ -136,6 +136,7 @@ SCHEMA: dict[str, Any] = {
         "source_id": Field(str, nullable=True),
         "lsl_scope": Field(str),
         "processing": Field(dict, free=True),
+        "xdf": Field(bool),
     },
 }
 

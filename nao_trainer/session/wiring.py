@@ -93,7 +93,8 @@ def open_engagement_monitor(config: StudyConfig, session_dir: Path, rng: np.rand
         return NullMonitor()  # without importing pylsl
     from nao_trainer.eeg.monitor import open_monitor  # sets LSL's scope before its first stream object
 
-    return open_monitor(eeg.mode, dataclasses.asdict(eeg), session_dir, rng, config.participant.pseudonym)
+    return open_monitor(eeg.mode, dataclasses.asdict(eeg), session_dir, rng, config.participant.pseudonym,
+                        record_xdf=True)  # session.xdf beside the session's files (eeg.xdf: false turns it off)
 
 
 def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progress: TextIO | None = None) -> SessionResult:
