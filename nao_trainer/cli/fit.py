@@ -12,11 +12,12 @@ def register(sub) -> None:
     p = sub.add_parser(
         "fit",
         help="fit user models, clusters and per-cluster simulated users from data",
-        description="Import SOURCE (a dataset root, or a turn table CSV from `nao-trainer import`), compute the "
+        description="Import SOURCE (a study folder of sessions written by `nao-trainer run`, a dataset root of the "
+        "published layout, or a turn table CSV from `nao-trainer import`), compute the "
         "user models [P1..P4, E1..E4], cluster them with K-means and fit one simulated user per cluster. "
         "Writes DIR/manifest.json, DIR/cluster_<id>.json and the figures DIR/users.png, DIR/clusters.png.",
     )
-    p.add_argument("source", metavar="SOURCE", type=Path, help="dataset root or turn-table CSV")
+    p.add_argument("source", metavar="SOURCE", type=Path, help="study folder, dataset root or turn-table CSV")
     p.add_argument("--out", "-o", type=Path, required=True, metavar="DIR", help="folder for the models and figures")
     p.add_argument("--compat", choices=["authors2018"], default=None,
                    help="per-turn engagement as the authors computed it (reproduces the paper's user models); "

@@ -28,6 +28,7 @@ class StudySession:
 
     row: dict[str, Any]
     levels: list[int] = field(default_factory=list)  # level of each completed turn, in order
+    success: list[int] = field(default_factory=list)  # 1/0 per completed turn
     engagement: list[float] = field(default_factory=list)  # per completed turn (NaN when none)
 
 
@@ -75,7 +76,8 @@ def study_session(path: Path) -> StudySession:
         "status": sess.status,
         "duration_s": round((ended - started).total_seconds(), 1) if started and ended else None,
     }
-    return StudySession(row, [r["level"] for r in rows], [r["engagement"] for r in rows])
+    return StudySession(row, [r["level"] for r in rows], [r["success"] for r in rows],
+                        [r["engagement"] for r in rows])
 
 
 def read_study(root: Path) -> Study:

@@ -27,10 +27,17 @@ def plot_study(study: Study, path: Path) -> Path:
             ax.plot(x[idx], vals, "o-", color=color[p], label=p)
         ax.set(xlabel="session (by date)", ylabel=label, xticks=x)
     axes[1].set_ylim(-0.05, 1.05)
+    offsets = {p: (i - (len(people) - 1) / 2) * 0.08 for i, p in enumerate(people)}  # keep the lines apart
     for s in study.sessions:
+        p = s.row["pseudonym"]
         turns = np.arange(1, len(s.levels) + 1)
-        axes[2].step(turns, s.levels, where="mid", color=color[s.row["pseudonym"]], alpha=0.6, lw=1.2)
-    axes[2].set(xlabel="turn", ylabel="level", yticks=[1, 2, 3, 4], ylim=(0.5, 4.5), title="level over turns")
+        levels = np.asarray(s.levels, dtype=float) + offsets[p]
+        axes[2].step(turns, levels, where="mid", color=color[p], alpha=0.5, lw=1.0)
+        failed = np.asarray(s.success) == 0
+        axes[2].scatter(turns[~failed], levels[~failed], s=12, color=color[p], zorder=3)
+        axes[2].scatter(turns[failed], levels[failed], s=22, marker="x", color=color[p], zorder=3)
+    axes[2].set(xlabel="turn", ylabel="level (dot: success, x: failure)", yticks=[1, 2, 3, 4], ylim=(0.5, 4.5),
+                title="level over turns")
     axes[0].legend(title="pseudonym", fontsize=8)
     axes[0].set_title("score per session")
     axes[1].set_title("engagement per session")
