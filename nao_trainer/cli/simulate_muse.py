@@ -24,8 +24,8 @@ def register(sub) -> None:
                    help="target engagement in [0, 1] the signal shows (default 0.5)")
     p.add_argument("--seed", type=int, default=None, help="seed of the signal (default: drawn and printed)")
     p.add_argument("--replay", type=Path, default=None, metavar="SESSION_DIR",
-                   help="replay a session folder written by `nao-trainer run` (its eeg/raw.csv), or a raw published "
-                   "session folder, instead of simulating")
+                   help="replay a session folder written by `nao-trainer run` (its eeg/raw.csv), a study folder of them "
+                   "(one after another), or a raw published session folder, instead of simulating")
     p.add_argument("--loop", action="store_true", help="with --replay: start over at the end")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     p.add_argument("--source-id", default=None, metavar="ID",

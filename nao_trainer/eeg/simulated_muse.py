@@ -291,7 +291,8 @@ def raw_recording_order(session_dir: Path) -> list[Path]:
 
 class ReplayMuse(_Publisher):
     """Replays a recorded raw session as a live 4-channel EEG stream: a folder written by ``nao-trainer run``
-    (its ``eeg/raw.csv``, at the recorded stream's rate) or a raw session of the published layout (220 Hz)."""
+    (its ``eeg/raw.csv``, at the recorded stream's rate), a study folder of them (one after another), or
+    a raw session of the published layout (220 Hz)."""
 
     data: np.ndarray
     boundaries: list[tuple[str, int]]  # (file name, index of its first sample)
@@ -303,12 +304,14 @@ class ReplayMuse(_Publisher):
               fs: float = RAW_RATE_HZ, chunk: int = MUSE_CHUNK, loop: bool = False,
               wall_clock: bool = False, scope: str = "machine") -> "ReplayMuse":
         """Read every raw file of ``session_dir`` (errors name file:line) and start publishing."""
-        from nao_trainer.data.own import is_own_session
+        from nao_trainer.data.own import find_own_sessions, is_own_session
 
         session_dir = Path(session_dir)
         labels: tuple[str, ...] = CHANNELS
         if is_own_session(session_dir):
             data, boundaries, fs, labels = load_own_session(session_dir)
+        elif not (session_dir / "state_EEG").exists() and find_own_sessions(session_dir):
+            data, boundaries, fs, labels = load_own_study(session_dir)
         else:
             data, boundaries = load_raw_session(session_dir)
         sid = source_id or f"Muse-replay-{session_dir.parent.name}-{session_dir.name}"
@@ -364,3 +367,28 @@ def load_own_session(session_dir: Path) -> tuple[np.ndarray, list[tuple[str, int
     if len(data) == 0:
         raise DataError(f"{eeg / 'raw.csv'}: no samples to replay")
     return data, [("eeg/raw.csv", 0)], fs, labels
+
+
+def load_own_study(study_dir: Path) -> tuple[np.ndarray, list[tuple[str, int]], float, tuple[str, ...]]:
+    """Every session of a study folder with saved EEG, one after another (they must share rate and channels).
+
+    Sessions without ``eeg/raw.csv`` are passed over; DataError when none has EEG.
+    """
+    from nao_trainer.data.own import find_own_sessions
+
+    parts, boundaries, start, shape = [], [], 0, None
+    for folder in find_own_sessions(study_dir):
+        if not (folder / "eeg" / "raw.csv").is_file():
+            continue
+        data, _b, fs, labels = load_own_session(folder)
+        if shape is None:
+            shape = (fs, labels)
+        elif (fs, labels) != shape:
+            raise DataError(f"{folder}: recorded at {fs:g} Hz with {'/'.join(labels)}, the study's first session at "
+                            f"{shape[0]:g} Hz with {'/'.join(shape[1])}; replay the sessions one by one")
+        boundaries.append((f"{folder.name}/eeg/raw.csv", start))
+        parts.append(data)
+        start += len(data)
+    if shape is None:
+        raise DataError(f"{study_dir}: no session with eeg/raw.csv to replay")
+    return np.concatenate(parts), boundaries, shape[0], shape[1]

@@ -132,6 +132,9 @@ def test_own_sessions_import_into_the_published_tables_columns_and_encodings(stu
         if want:
             assert abs(table["engagement"][i] - float(want)) <= 5e-5
     assert "no eeg/ folder" in err  # P3 had EEG off: said, and imported
+    code, out, err = _cli(["fit", str(study), "--out", str(tmp_path / "m"), "--k", "1", "--no-figures", "--no-cache",
+                           "--json"], capsys)
+    assert code == 0 and json.loads(out)["sessions"] == 3 and json.loads(out)["turns"] == 18
 
 
 def test_study_table_and_figure(study, tmp_path, capsys):
@@ -160,6 +163,13 @@ def test_replay_publishes_the_raw_eeg_a_session_saved(study):
     try:
         assert rep.fs == 256.0 and tuple(rep.labels) == ("TP9", "AF7", "AF8", "TP10")
         np.testing.assert_array_equal(rep.data, x)
+    finally:
+        rep.stop()
+    rep = ReplayMuse.start(study, source_id=f"replay-study-{os.getpid()}")  # a study: its sessions in a row
+    try:
+        firsts = [own.read_raw(_session(study, p) / "eeg" / "raw.csv", 4)[0] for p in ("P1", "P2")]
+        assert [b[0].split("/")[0] for b in rep.boundaries] == [_session(study, p).name for p in ("P1", "P2")]
+        np.testing.assert_array_equal(rep.data, np.concatenate(firsts))
     finally:
         rep.stop()
 
