@@ -199,8 +199,23 @@ class LivePolicy:
         self._closed = False
 
     def choice_values(self, state: int) -> np.ndarray:
-        """What ``act`` chooses on: the learner's values plus the guidance term ``guidance * n_guided(s, a)``."""
-        return self.learner.values(state) + self.guidance * self.guided[state]
+        """What ``act`` chooses on: the learner's values ``V(s, .)`` plus the guidance term.
+
+        ``G(s, a) = guidance * n(s, a) / n(s) * (max V(s, .) - min V(s, .) + 1)`` over the allowed
+        actions, where ``n(s, a)`` counts the supervisor's overrides toward ``a`` in ``s`` and
+        ``n(s)`` all of them in ``s``. Scaled by the spread of the values, so it means the same in
+        every state: with ``guidance >= 1``, an action the supervisor always chose in ``s`` is
+        preferred there by at least ``guidance`` value points. The Q tables themselves learn only
+        from outcomes (off-policy, in ``observe``).
+        """
+        values = self.learner.values(state)
+        n = self.guided[state]
+        total = n.sum()
+        if not (self.guidance and total):
+            return values
+        allowed = values[mdp.ACTION_MASK[state]]
+        spread = float(allowed.max() - allowed.min()) + 1.0
+        return values + self.guidance * (n / total) * spread
 
     def act(self, state: int, rng: np.random.Generator) -> int:
         if not (self.guidance and self.guided[state].any()):

@@ -144,7 +144,7 @@ SCHEMA: dict[str, Any] = {
         "schedule": Field(list, item=str, check=_schedule),
         "learning": Field(bool),
         "state_path": Field(str, nullable=True, check=lambda v: _state_path(v)),
-        "guidance": Field((int, float), min=0, max=100),
+        "guidance": Field((int, float), min=0, max=10),
     },
     "console": {
         "enabled": Field(bool),
