@@ -28,11 +28,15 @@ setup(
     extras_require={
         "plots": ["matplotlib>=3.7"],
         "gym": ["gymnasium>=1.0"],
+        "console": ["starlette>=0.37", "uvicorn>=0.29"],
         # session.xdf: LabRecorder's engine (a release candidate, binary wheels) and the reader
         "xdf": ["labrecorder>=1.0.0rc0", "pyxdf>=1.16"],
-        "test": ["pytest>=7", "pytest-xdist>=3", "pyxdf>=1.16"],
-        "all": ["matplotlib>=3.7", "gymnasium>=1.0", "labrecorder>=1.0.0rc0", "pyxdf>=1.16"],
+        "test": ["pytest>=7", "pytest-xdist>=3", "playwright>=1.40", "pyxdf>=1.16"],
+        "all": ["matplotlib>=3.7", "gymnasium>=1.0", "starlette>=0.37", "uvicorn>=0.29", "labrecorder>=1.0.0rc0",
+                "pyxdf>=1.16"],
     },
+    # The console's page and the vendored uPlot (MIT; version and licence in console/static/).
+    package_data={"nao_trainer.console": ["static/*"]},
     entry_points={"console_scripts": ["nao-trainer=nao_trainer.cli:entry_point"]},
     include_package_data=True,
     classifiers=[

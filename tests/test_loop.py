@@ -53,7 +53,7 @@ def test_sessions_import_fit_train_and_play_a_trained_policy(tmp_path):
     for proc in runs:  # the sessions mostly wait (speech, answers): they run side by side
         out, err = proc.communicate(timeout=120)
         assert proc.returncode == 0, err[-2000:]
-    sessions = sorted(p.name for p in study.iterdir())
+    sessions = sorted(p.name for p in study.iterdir() if (p / "session.json").exists())
     assert len(sessions) == 8 and all((study / s / "session.json").exists() for s in sessions)
 
     _cli("import", str(study), "--out", str(tmp_path / "turns.csv"))
@@ -75,7 +75,7 @@ def test_sessions_import_fit_train_and_play_a_trained_policy(tmp_path):
     env = _env(NAO_TRAINER_MODELS=str(tmp_path / "models"), NAO_TRAINER_POLICIES=str(tmp_path / "policies"))
     _cli("run", "--config", str(tmp_path / "strong.yaml"), "--user-model", str(strong), "--policy",
          f"usp:{strong}", "--pseudonym", "trained", "--out", str(tmp_path / "next"), "--quiet", env=env)
-    (folder,) = (tmp_path / "next").iterdir()
+    (folder,) = [p for p in (tmp_path / "next").iterdir() if (p / "session.json").exists()]
     info = json.loads((folder / "session.json").read_text())
     assert info["status"] == "completed" and info["policy"] == f"usp:{strong}"
     assert info["user_model"] == f"cluster-{strong}"

@@ -14,8 +14,10 @@ Two things are read here:
 * the per-turn engagement, **recomputed from the raw EEG the session saved** (``eeg/raw.csv``) with
   the processing settings the session used (``eeg/stream.json``), replaying the session's phases
   (``eeg/phases.csv``) in order through the same code as the live monitor
-  (``core.engagement.OnlineEngagement`` and ``core.phase.summarise_phase``). For a session recorded by this
-  version the result equals the live values in ``phases.csv`` (tested to 1e-9).
+  (``core.engagement.OnlineEngagement`` and ``core.phase.summarise_phase``), with a fresh estimator and
+  scale where the session started them (``eeg/segments.csv``, ``monitor_started``: a resumed session).
+  For a session recorded by this version the result equals the live values in ``phases.csv`` (tested
+  to 1e-9).
 
 A torn last line (a killed session) is dropped and said; anything else malformed is a one-line
 ``DataError`` naming the file and line.
@@ -186,6 +188,9 @@ def _float(v: str) -> float:
 
 def _turn_row(r: dict[str, str]) -> dict[str, Any]:
     """One completed turn in the table's encodings; ValueError saying why it is invalid."""
+    if r.get("invalid", "") == "True":  # the operator marked it (recorded, not learned from)
+        said = next((n.strip() for n in r.get("notes", "").split(";") if n.strip().startswith("invalid (")), "")
+        raise ValueError(f"invalid: marked by the operator{f' ({said})' if said else ''}")
     if r["success"] not in ("True", "False"):
         notes = r.get("notes", "")
         why = next((n.strip() for n in notes.split(";") if n.strip().startswith("interrupted")), "")
@@ -332,13 +337,17 @@ def replay_phases(session_dir: Path) -> tuple[list[ReplayedPhase], list[str]]:
     if (eeg / "raw.csv").is_file():
         x, ts, raw_notes = read_raw(eeg / "raw.csv", len(labels))
         notes += raw_notes
-        engine = OnlineEngagement(fs, len(labels), window_s=proc.window_s, hop_s=proc.hop_s, a=proc.ewma_a,
-                                  thresholds=QualityThresholds(),
-                                  min_clean_channels=min(proc.min_clean_channels, len(labels)),
-                                  gap_factor=max(2.0, proc.gap_tolerance_s * fs), channel_names=labels)
-        windows = engine.push(x, ts) if len(ts) else []
+        starts = _segment_starts(eeg / "segments.csv", notes)
+        cuts = [0, *sorted({int(np.searchsorted(ts, t)) for t in starts} - {0}), len(ts)]
+        for a, b in zip(cuts[:-1], cuts[1:]):  # a fresh estimator where the monitor started one
+            if b > a:
+                engine = OnlineEngagement(fs, len(labels), window_s=proc.window_s, hop_s=proc.hop_s, a=proc.ewma_a,
+                                          thresholds=QualityThresholds(),
+                                          min_clean_channels=min(proc.min_clean_channels, len(labels)),
+                                          gap_factor=max(2.0, proc.gap_tolerance_s * fs), channel_names=labels)
+                windows += engine.push(x[a:b], ts[a:b])
     t_end = np.array([w.t_end for w in windows])
-    normaliser, had_baseline = EngagementNormaliser(), False
+    normaliser, had_baseline, monitor = EngagementNormaliser(), False, None
     out: list[ReplayedPhase] = []
     for k, p in enumerate(phases, 2):
         try:
@@ -350,12 +359,27 @@ def replay_phases(session_dir: Path) -> tuple[list[ReplayedPhase], list[str]]:
             raise DataError(f"{eeg / 'phases.csv'}:{k}: {exc}") from None
         upto = t1 if last is None else min(t1, last)
         lo, hi = np.searchsorted(t_end, t0, side="right"), np.searchsorted(t_end, upto, side="right")
+        if p.get("monitor_started", "") != monitor:  # a new monitor (a resumed session): a new scale
+            normaliser, had_baseline, monitor = EngagementNormaliser(), False, p.get("monitor_started", "")
         had_baseline = had_baseline or p["phase"] == "baseline"
         s = summarise_phase(windows[lo:hi], t0, t1, normaliser, baseline=p["phase"] == "baseline",
                             had_baseline=had_baseline, hop_s=proc.hop_s, min_quality=proc.min_quality)
         out.append(ReplayedPhase(turn, p["phase"], t0, t1, live_e, live_i, s.engagement, s.index,
                                  round(s.quality, 4), s.reason))
     return out, notes
+
+
+def _segment_starts(path: Path, notes: list[str]) -> list[float]:
+    """First sample of every estimator run the monitor started (``eeg/segments.csv``; none in older folders)."""
+    if not path.is_file():
+        return []
+    out = []
+    for k, row in enumerate(_csv_rows(path, ("first_sample",), notes), 2):
+        try:
+            out.append(float(row["first_sample"]))
+        except ValueError:
+            raise DataError(f"{path}:{k}: first_sample {row['first_sample']!r} is not a number") from None
+    return out
 
 
 def own_session_engagement(session_dir: Path, answer: bool = False) -> SessionEngagement:

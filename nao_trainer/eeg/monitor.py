@@ -45,7 +45,8 @@ from nao_trainer.eeg.inlet import EEGInlet, StreamQuery, resolve_eeg
 from nao_trainer.eeg.lsl_scope import configure_lsl
 from nao_trainer.eeg.settings import EEGSettings
 from nao_trainer.eeg.markers import MarkerOutlet, event_name, marker_source_id
-from nao_trainer.eeg.session_files import (EVENTS_HEADER, GAPS_HEADER, PHASES_HEADER, WINDOWS_HEADER, SessionFiles,
+from nao_trainer.eeg.session_files import (EVENTS_HEADER, GAPS_HEADER, PHASES_HEADER, SEGMENTS_HEADER, WINDOWS_HEADER,
+                                          SessionFiles,
                                           fmt)
 
 log = logging.getLogger(__name__)
@@ -89,6 +90,8 @@ class LslMonitor:
         import pylsl
 
         self._clock = pylsl.local_clock
+        self._started = self._clock()  # names this monitor in phases.csv / segments.csv
+        self._segment_open = False  # the current estimator's first sample is in segments.csv
         self.settings = settings
         self.proc = settings.processing
         self.query = query
@@ -115,6 +118,7 @@ class LslMonitor:
         self._last_arrival = self._clock()
         self._last_stamp = -np.inf
         self._raw_pending: list[np.ndarray] = []
+        self._raw_lock = threading.Lock()
         self._raw_n = 0
         self._lost = False
         self._closed = False
@@ -145,8 +149,22 @@ class LslMonitor:
             return "unavailable"
         return "lost" if self._lost else "streaming"
 
+    def live(self) -> dict | None:
+        """Latest index and per-channel contact (``ports.EngagementMonitor.live``); reads only, any thread."""
+        windows, engine = self.windows, self.engine
+        last = windows[-1] if windows else None
+        clean = getattr(engine, "last_clean", None) if engine is not None else None
+        return {
+            "status": self.status,
+            "index": None if last is None or last.index_smoothed is None else round(float(last.index_smoothed), 4),
+            "clean_fraction": None if last is None else round(float(last.clean_fraction), 3),
+            "channels": {} if clean is None else {str(n): bool(c) for n, c in zip(engine.channel_names, clean)},
+            "reason": "" if last is None else last.reason,
+        }
+
     def _attach(self, inlet: EEGInlet) -> None:
         self.inlet = inlet
+        self._segment_open = False
         p = self.proc
         self.engine = OnlineEngagement(
             inlet.fs, len(inlet.scalp_index), window_s=p.window_s, hop_s=p.hop_s, a=p.ewma_a,
@@ -170,6 +188,10 @@ class LslMonitor:
         from nao_trainer.eeg.xdf import XdfRecorder, XdfUnavailable
 
         path = self.files.dir.parent / "session.xdf"
+        for k in range(2, 1000):  # a resumed session keeps the first file: session_2.xdf, ...
+            if not path.exists():
+                break
+            path = path.with_name(f"session_{k}.xdf")
         try:
             self.xdf = XdfRecorder.start(path, [self.inlet.source_id, self.markers.source_id],
                                          self.settings.lsl_scope, log_path=self.files.dir / "xdf.log",
@@ -258,6 +280,9 @@ class LslMonitor:
                 self._mark_lost("no samples for %.1f s" % (now - self._last_arrival))
             return
         results = self.engine.push(x, ts)
+        if not self._segment_open:  # a new estimator started here: an offline replay starts one here too
+            self._segment_open = True
+            self.files.write("segments.csv", SEGMENTS_HEADER, [[repr(float(ts[0])), repr(self._started)]])
         if self.proc.record_raw:
             self._record_raw(x, ts)
         with self._cond:
@@ -271,7 +296,21 @@ class LslMonitor:
             self._cond.notify_all()
 
     def _record_raw(self, x: np.ndarray, ts: np.ndarray, force: bool = False) -> None:
-        """Append scalp samples to ``eeg/raw.csv`` in blocks of about a second (never more unwritten)."""
+        """Append scalp samples to ``eeg/raw.csv`` in blocks of about a second (never more unwritten).
+
+        ``force`` (a phase end, the close) writes what is pending: a phase's row in phases.csv is never on
+        disk before the samples it was computed from, so even a killed session's phases replay exactly.
+        """
+        if self.inlet is None:
+            return
+        with self._raw_lock:  # the reader thread appends, a phase end flushes
+            self._record_raw_locked(x, ts, force)
+
+    def _flush_raw(self) -> None:
+        if self._raw_pending:
+            self._record_raw(np.empty((0, len(self.inlet.scalp_index))), np.empty(0), force=True)
+
+    def _record_raw_locked(self, x: np.ndarray, ts: np.ndarray, force: bool) -> None:
         if len(ts):
             self._raw_pending.append(np.column_stack([ts, x]))
             self._raw_n += len(ts)
@@ -360,6 +399,7 @@ class LslMonitor:
         self._phase = None  # only now: until the windows are collected, _prune keeps the whole phase
         result, rows = self._summarise(ph, t1, windows)
         self.phases.append((ph, t1, result))
+        self._flush_raw()  # the phase's samples reach the disk before its row
         self._write_phase(ph, t1, result, rows)
         return result
 
@@ -403,7 +443,7 @@ class LslMonitor:
         self.files.write("phases.csv", PHASES_HEADER, [[
             ph.turn if ph.turn is not None else "", ph.name, repr(ph.t0), repr(t1), fmt(result.engagement),
             fmt(result.index), f"{result.quality:.3f}", len(rows), f"{lost_s:.3f}", result.reason,
-            "" if ph.last_sample is None else repr(ph.last_sample)]])
+            "" if ph.last_sample is None else repr(ph.last_sample), repr(self._started)]])
 
     def close(self) -> None:
         """Stop the reader, record an open gap, close the inlet, the marker outlet, the simulator, files."""

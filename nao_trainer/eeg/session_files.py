@@ -86,5 +86,8 @@ class SessionFiles:
 EVENTS_HEADER = ["lsl_time", "event", "detail"]
 WINDOWS_HEADER = ["turn", "phase", "t_end", "index_raw", "index_smoothed", "engagement", "clean_fraction", "reason"]
 PHASES_HEADER = ["turn", "phase", "t_begin", "t_end", "engagement", "engagement_index", "eeg_quality",
-                 "n_windows", "lost_s", "reason", "last_sample"]
+                 "n_windows", "lost_s", "reason", "last_sample", "monitor_started"]
+#: One row per run of the engagement estimator (a monitor attaching a stream): its first sample and the
+#: monitor it belongs to (a resumed session appends a new monitor), so an offline replay restarts both alike.
+SEGMENTS_HEADER = ["first_sample", "monitor_started"]
 GAPS_HEADER = ["start", "end", "duration_s", "kind"]

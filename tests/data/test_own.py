@@ -257,3 +257,46 @@ def test_fuzzed_session_files_never_give_a_traceback(study, tmp_path, capsys):
             assert "Traceback" not in err and "unexpected" not in err, (case, args, err)
             if code == 2:
                 assert len([ln for ln in err.splitlines() if "error" in ln]) == 1, err
+
+
+def test_a_killed_and_resumed_session_replays_each_monitor_as_it_ran(tmp_path):
+    """`run --resume` appends a second monitor (fresh estimator and scale) to the same eeg/ files."""
+    import signal
+    import time
+
+    cfg = tmp_path / "study.yaml"
+    cfg.write_text(STUDY.replace("turns: 6", "turns: 8").replace("speed: 40", "speed: 15"))
+    out = tmp_path / "s"
+    env = dict(os.environ, QI_LOG_LEVEL="silent")
+    base = [sys.executable, "-m", "nao_trainer", "run", "--quiet", "--no-keys"]
+    proc = subprocess.Popen([*base, "--config", str(cfg), "--pseudonym", "R1", "--seed", "5", "--out", str(out)],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    folder = None
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and folder is None:
+            found = [p for p in out.glob("R1_*") if (p / "turns.csv").exists() and len(_rows(p / "turns.csv")) >= 3]
+            folder = found[0] if found else None
+            time.sleep(0.1)
+        assert folder is not None
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.kill()
+        proc.communicate(timeout=30)
+    log = folder / "eeg" / "xdf.log"
+    deadline = time.monotonic() + 20  # the first recorder finishes its file by itself
+    while time.monotonic() < deadline and "xdf: stopped" not in log.read_text():
+        time.sleep(0.2)
+    res = subprocess.run([*base, "--resume", str(folder)], env=env, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    phases, notes = own.replay_phases(folder)
+    monitors = {r["monitor_started"] for r in _rows(folder / "eeg" / "phases.csv")}
+    assert len(monitors) == 2 and len(_rows(folder / "eeg" / "segments.csv")) == 2 and notes == []
+    assert sum(ph.live_engagement is not None for ph in phases) >= 10
+    for ph in phases:
+        assert (ph.engagement is None) == (ph.live_engagement is None), ph
+        if ph.engagement is not None:
+            assert abs(ph.engagement - ph.live_engagement) <= 1e-9 and abs(ph.index - ph.live_index) <= 1e-9
+    assert (folder / "session.xdf").exists() and (folder / "session_2.xdf").exists()  # the first file kept
+    table, excluded = own.table_rows(own.read_session(folder))
+    assert sorted({r["turn"] for r in table}) == list(range(1, 9))

@@ -311,7 +311,7 @@ def _bare_monitor(now: list[float]) -> LslMonitor:
     m.files, m.normaliser = SessionFiles(None), EngagementNormaliser()
     m.windows, m.gaps, m.phases = [], [], []
     m.inlet, m.unavailable_reason, m._lost = SimpleNamespace(), "", False
-    m._phase, m._had_baseline = None, False
+    m._phase, m._had_baseline, m._started, m._raw_pending = None, False, 0.0, []
     m._cond, m._urgent = threading.Condition(), threading.Event()
     m._last_stamp = -np.inf
     return m
