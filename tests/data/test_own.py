@@ -192,6 +192,9 @@ def test_torn_row_missing_eeg_unknown_version_and_left_out_turns(study, tmp_path
     g = rows[3].split(",")
     g[hdr.index("length")] = "9"  # contradicts its state
     rows[3] = ",".join(g)
+    h = rows[5].split(",")
+    h[hdr.index("invalid")], h[hdr.index("notes")] = "True", "invalid (keys): participant distracted"
+    rows[5] = ",".join(h)  # marked invalid by the operator
     (p2 / "turns.csv").write_text("\n".join(rows) + "\n")
     third = _copy(study, tmp_path / "bad", "P3") / _session(study, "P3").name
     info = json.loads((third / "session.json").read_text())
@@ -203,14 +206,16 @@ def test_torn_row_missing_eeg_unknown_version_and_left_out_turns(study, tmp_path
     assert any(f"{third.name}: skipped: " in ln and "format_version 99 is unknown" in ln for ln in lines)
     assert any(f"{p1.name}: turns.csv line 7 torn" in ln for ln in lines)
     assert any(f"{p1.name}: no eeg/ folder" in ln for ln in lines)
-    assert any("2 turns left out of the table, kept in their turns.csv (interrupted: 1, invalid: 1)" in ln
+    assert any("3 turns left out of the table, kept in their turns.csv (interrupted: 1, invalid: 2)" in ln
                for ln in lines)
     assert any(f"{p2.name} turn 2: interrupted: robot lost during await_answer" in ln for ln in lines)
     assert any(f"{p2.name} turn 3: invalid: length 9 contradicts state" in ln for ln in lines)
+    assert any(f"{p2.name} turn 5: invalid: marked by the operator (invalid (keys): participant distracted)" in ln
+               for ln in lines)
     table = read_table(tmp_path / "t.csv")
-    assert (table["session"] == p1.name).sum() == 5 and (table["session"] == p2.name).sum() == 4
+    assert (table["session"] == p1.name).sum() == 5 and (table["session"] == p2.name).sum() == 3
     prov = json.loads((tmp_path / "t.csv.json").read_text())
-    assert len(prov["excluded_turns"]) == 2 and len(prov["skipped"]) == 1
+    assert len(prov["excluded_turns"]) == 3 and len(prov["skipped"]) == 1
     # the study table reads the same folders as far as they are valid
     code, _, err = _cli(["study", str(root), "--no-figure"], capsys)
     assert code == 0 and f"{third.name}: skipped:" in err and len(_rows(root / "study.csv")) == 2
