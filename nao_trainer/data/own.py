@@ -139,7 +139,10 @@ def _csv_rows(path: Path, required: tuple[str, ...], notes: list[str]) -> list[d
     if missing:
         raise DataError(f"{path}:1: missing columns {', '.join(missing)}")
     rows = []
-    records = list(csv.reader(io.StringIO(text)))[1:]
+    try:
+        records = list(csv.reader(io.StringIO(text)))[1:]
+    except csv.Error as exc:
+        raise DataError(f"{path}: not a readable CSV file ({exc})") from None
     complete = text.endswith("\n")  # every row is written whole, newline included: a missing one is a torn write
     for k, rec in enumerate(records, 2):
         last = k == len(records) + 1
@@ -176,7 +179,7 @@ def _int(v: str, what: str) -> int:
     try:
         return int(v)
     except ValueError:
-        raise ValueError(f"{what} {v!r} is not a whole number") from None
+        raise ValueError(f"invalid: {what} {v!r} is not a whole number") from None
 
 
 def _float(v: str) -> float:
