@@ -22,7 +22,7 @@ timing: {{speed: 50}}
 answers: {{input: simulated}}
 participant_model: {{success_by_level: {p}, engagement_by_level: {e}}}
 policy: {{kind: schedule, schedule: [L1, L2, L3, L4]}}
-eeg: {{mode: simulated, processing: {{window_s: 0.25, hop_s: 0.05}}}}
+eeg: {{mode: simulated, xdf: false, processing: {{window_s: 0.25, hop_s: 0.05}}}}  # session.xdf: tested elsewhere
 """
 GROUPS = {"strong": ([0.98, 0.95, 0.9, 0.85], [0.85, 0.85, 0.9, 0.9]),
           "weak": ([0.9, 0.45, 0.1, 0.02], [0.15, 0.15, 0.1, 0.1])}
@@ -55,6 +55,7 @@ def test_sessions_import_fit_train_and_play_a_trained_policy(tmp_path):
             assert proc.returncode == 0, err[-2000:]
     sessions = sorted(p.name for p in study.iterdir() if (p / "session.json").exists())
     assert len(sessions) == 8 and all((study / s / "session.json").exists() for s in sessions)
+    assert not any((study / s / "session.xdf").exists() for s in sessions)  # eeg.xdf: false is obeyed
 
     _cli("import", str(study), "--out", str(tmp_path / "turns.csv"))
     with open(tmp_path / "turns.csv", newline="") as fh:
