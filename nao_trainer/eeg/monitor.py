@@ -53,6 +53,8 @@ log = logging.getLogger(__name__)
 
 PHASES = ("baseline", "listening", "answer")
 _SIM_COUNTER = itertools.count(1)
+#: Longest wait at the session start for the session.xdf recorder to connect (about 1.5 s on an idle laptop).
+XDF_WAIT_S = 30.0
 
 
 # ----------------------------------------------------------------------------------------------
@@ -195,10 +197,15 @@ class LslMonitor:
         try:
             self.xdf = XdfRecorder.start(path, [self.inlet.source_id, self.markers.source_id],
                                          self.settings.lsl_scope, log_path=self.files.dir / "xdf.log",
-                                         ready=self.markers.has_consumers)
+                                         ready=self.markers.has_consumers, timeout_s=XDF_WAIT_S)
         except XdfUnavailable as exc:
             log.warning("%s", exc)
             self._event("xdf_unavailable", str(exc), publish=False)
+            return
+        if not self.xdf.ready:  # a loaded machine: the session does not wait longer; the file starts later
+            log.warning("session.xdf: the recorder is still connecting; events before it connects are not in the file")
+            self._event("xdf_late", f"{path.name}: recorder not connected after {XDF_WAIT_S:g} s; "
+                        "recording from when it connects", publish=False)
             return
         self._event("xdf_recording", f"{path.name}: {self.inlet.source_id} + {self.markers.source_id}", publish=False)
 

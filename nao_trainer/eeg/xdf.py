@@ -57,16 +57,20 @@ class XdfRecorder:
     process: subprocess.Popen
     source_ids: tuple[str, ...]
     flush_s: float = FLUSH_S
+    ready: bool = False  # the recorder was connected when start returned
 
     @classmethod
     def start(cls, path: Path, source_ids: list[str] | tuple[str, ...], scope: str = "machine",
               log_path: Path | None = None, ready=None, timeout_s: float = 10.0,
-              flush_s: float = FLUSH_S) -> "XdfRecorder":
+              flush_s: float = FLUSH_S, resolve_s: float = 30.0) -> "XdfRecorder":
         """Start recording the streams ``source_ids`` into ``path``.
 
         ``ready()``: returns True once the recorder is connected (e.g. ``MarkerOutlet.has_consumers``);
-        start returns when it does. Raises :class:`XdfUnavailable` (one line, with the fix) when the
-        engine is missing, a stream is not found or the recorder does not connect within ``timeout_s``.
+        start returns when it does, or after ``timeout_s`` with the recorder still starting (``ready``
+        False: a loaded machine; it keeps going and records from when it connects). The recorder
+        looks for the streams for ``resolve_s`` and ends if one is missing. Raises
+        :class:`XdfUnavailable` (one line, with the fix) when the engine is missing or the recorder
+        ended (no such stream, no engine, a bad file name).
         """
         from nao_trainer.eeg.lsl_scope import config_file
 
@@ -75,23 +79,20 @@ class XdfRecorder:
         path, ids = Path(path), tuple(source_ids)
         log_path = Path(log_path) if log_path is not None else path.with_suffix(".log")
         env = dict(os.environ, LSLAPICFG=config_file(scope), PYTHONUNBUFFERED="1")
-        cmd = [sys.executable, "-m", "nao_trainer.eeg.xdf", "--out", str(path), "--timeout", str(timeout_s),
+        cmd = [sys.executable, "-m", "nao_trainer.eeg.xdf", "--out", str(path), "--timeout", str(resolve_s),
                "--flush", str(flush_s), *ids]
         with open(log_path, "ab") as log:
             # own session: Ctrl-C in the terminal reaches the session, which then stops the recorder in order
             proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=log, stderr=subprocess.STDOUT, env=env,
                                     start_new_session=True, close_fds=True)
         rec = cls(path, log_path, proc, ids, flush_s)
-        deadline = time.monotonic() + timeout_s + 5.0
-        while True:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
             if proc.poll() is not None:
                 raise XdfUnavailable(f"session.xdf not recorded: {rec.log_tail() or f'recorder exited ({proc.returncode})'}")
             if rec._recording() and (ready is None or ready()):
+                rec.ready = True
                 break
-            if time.monotonic() > deadline:
-                rec.kill()
-                raise XdfUnavailable(f"session.xdf not recorded: the recorder did not connect within {timeout_s:g} s "
-                                     f"(see {log_path})")
             time.sleep(0.02)
         return rec
 

@@ -40,7 +40,8 @@ def outlets():
 def test_recording_holds_every_marker_and_the_eeg_with_lsl_times(tmp_path, outlets, capfd):
     eeg, markers = outlets
     rec = xdf.XdfRecorder.start(tmp_path / "session.xdf", [eeg.source_id, markers.source_id],
-                                log_path=tmp_path / "xdf.log", ready=markers.has_consumers)
+                                log_path=tmp_path / "xdf.log", ready=markers.has_consumers, timeout_s=60)
+    assert rec.ready
     pushed = []
     for k in range(6):
         pushed.append((f"turn_{k}_start", markers.push("turn_start", k)))
@@ -68,7 +69,8 @@ def test_recording_holds_every_marker_and_the_eeg_with_lsl_times(tmp_path, outle
 def test_a_killed_recorder_leaves_a_file_readable_up_to_what_was_written(tmp_path, outlets):
     eeg, markers = outlets
     rec = xdf.XdfRecorder.start(tmp_path / "s.xdf", [eeg.source_id, markers.source_id],
-                                log_path=tmp_path / "xdf.log", ready=markers.has_consumers)
+                                log_path=tmp_path / "xdf.log", ready=markers.has_consumers, timeout_s=60)
+    assert rec.ready
     early = [markers.push("turn_start", k) for k in range(3)]
     time.sleep(1.5)  # the engine writes in chunks
     markers.push("late_marker")
@@ -83,7 +85,7 @@ def test_a_killed_recorder_leaves_a_file_readable_up_to_what_was_written(tmp_pat
 
 def test_no_stream_or_no_engine_is_one_line(tmp_path, monkeypatch):
     with pytest.raises(xdf.XdfUnavailable, match=r"no LSL stream with source_id nobody-\S+ within 0.5 s"):
-        xdf.XdfRecorder.start(tmp_path / "x.xdf", [_uid("nobody")], timeout_s=0.5)
+        xdf.XdfRecorder.start(tmp_path / "x.xdf", [_uid("nobody")], timeout_s=10, resolve_s=0.5)
     monkeypatch.setattr(xdf, "available", lambda: False)
     with pytest.raises(xdf.XdfUnavailable, match=r"pip install 'nao-trainer\[xdf\]'"):
         xdf.XdfRecorder.start(tmp_path / "x.xdf", ["a"])
