@@ -123,7 +123,7 @@ class Session:
         self.monitor.mark("session_start")
         self.observer.notify("session", {"turns": self.n_turns, "policy": self.policy.name, "speed": self.clock.speed,
                                          "max_duration_s": self.max_duration_s, "eeg": self.monitor.records_eeg,
-                                         "robot": "connected", "completed": self.completed})
+                                         "robot": "connected", "completed": self.completed, "state": self.state})
         while self.state not in FINAL_STATES:
             try:
                 if self._resume is not None:
