@@ -177,10 +177,13 @@ class Session:
     def _log_transition(self, event: Any) -> None:
         reason, self._reason = self._reason, None
         turn = self.turn.number if self.turn else None
-        extra = {"reason": reason} if reason else {}
+        extra: dict[str, Any] = {"reason": reason} if reason else {}
+        dest = event.transition.dest
+        if dest is None:  # an internal transition (an operator command that does not change the state)
+            dest, extra["internal"] = self.state, True
         self.rec.event("transition", trigger=event.event.name, source=event.transition.source,
-                       dest=event.transition.dest, turn=turn, **extra)
-        self.observer.notify("state", {"state": event.transition.dest, "trigger": event.event.name, "turn": turn,
+                       dest=dest, turn=turn, **extra)
+        self.observer.notify("state", {"state": dest, "trigger": event.event.name, "turn": turn,
                                        "elapsed_s": round(self.elapsed_s(), 2), **extra})
 
     def elapsed_s(self) -> float:
@@ -466,6 +469,7 @@ class Session:
                 self._log_command(cmd, False, f"unknown action {name!r}; use {', '.join(mdp.ACTION_NAMES)}")
                 return None
             self._override = mdp.ACTION_NAMES.index(name)
+            self._reason = by
             self.trigger(trigger)
             self._log_command(cmd, True, f"next turn plays {name}")
             return None
@@ -479,10 +483,12 @@ class Session:
             note = str(cmd.args.get("note") or "").strip()
             self.turn.invalid = True
             self.turn.notes.append(f"invalid ({cmd.source})" + (f": {note}" if note else ""))
+            self._reason = by
             self.trigger(trigger)
             self._log_command(cmd, True, f"turn {self.turn.number} marked invalid")
             return None
         if cmd.kind == "note":
+            self._reason = by
             self.trigger(trigger)
             self._log_command(cmd, True, str(cmd.args.get("text", ""))[:500])
             return None

@@ -193,6 +193,9 @@ def test_notes_and_refused_commands_are_recorded_with_source_and_reason(tmp_path
     note, resume = commands(path)
     assert note["accepted"] and note["detail"] == "participant asked for water" and note["source"] == "console"
     assert not resume["accepted"] and resume["detail"] == "not possible in state greet"
+    moves = [e for e in read_events(path) if e["event"] == "transition"]
+    assert moves[0]["trigger"] == "add_note" and moves[0]["dest"] == "greet" and moves[0]["internal"] is True
+    assert moves[0]["reason"] == "note by operator (console)"
     with pytest.raises(ValueError, match="unknown command"):
         q.submit("dance")
 
