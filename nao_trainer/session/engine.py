@@ -411,18 +411,28 @@ class Session:
 
         Returns the trigger of a command that changes the state (stop wins over pause), else None.
         """
-        trigger = None
-        commands, self._held = self._held + self.commands.drain(), []
-        for cmd in commands:
-            if self.state in HOLD_STATES and cmd.kind in ("pause", "stop", "repeat"):
-                self._held.append(cmd)  # the answer is in: record the turn first
-                continue
-            t = self._apply(cmd)
-            if t is not None and trigger != "operator_stop":
-                trigger = t
+        if self.state == "operator_pause":
+            return None  # its handler says the pause line first, then takes the commands
+        trigger = self._apply_pending(hold=self.state in HOLD_STATES)
         if trigger is None and self.state == "select_action" and self._time_up():
             return self._end_for_time()
         return trigger
+
+    def _apply_pending(self, hold: bool = False) -> str | None:
+        """Apply the queued commands in order until one changes the state; the rest wait for the next point.
+
+        ``hold``: pause, stop and repeat wait too (the turn's answer is in: it is recorded first).
+        """
+        pending, self._held = self._held + self.commands.drain(), []
+        for i, cmd in enumerate(pending):
+            if hold and cmd.kind in ("pause", "stop", "repeat"):
+                self._held.append(cmd)
+                continue
+            trigger = self._apply(cmd)
+            if trigger is not None:
+                self._held += pending[i + 1:]
+                return trigger
+        return None
 
     def _end_for_time(self) -> str:
         self.status = "time limit"
@@ -516,15 +526,14 @@ class Session:
         self._say_progress("paused by the operator: resume with r (or the console), stop with s")
         self.stage.say("paused")
         while True:
-            for cmd in self.commands.drain():
-                trigger = self._apply(cmd)
-                if trigger is not None:
-                    if trigger != "operator_stop":
-                        self.monitor.mark("pause_end", self.turn.number if self.turn else None)
-                        self.observer.notify("pause", {"paused": False})
-                        self._say_progress("resumed by the operator")
-                        self.stage.say("resumed", behavior="greeting")
-                    return trigger
+            trigger = self._apply_pending()
+            if trigger is not None:
+                if trigger != "operator_stop":
+                    self.monitor.mark("pause_end", self.turn.number if self.turn else None)
+                    self.observer.notify("pause", {"paused": False})
+                    self._say_progress("resumed by the operator")
+                    self.stage.say("resumed", behavior="greeting")
+                return trigger
             if self._time_up():
                 return self._end_for_time()
             self.commands.wait(PAUSE_POLL_S)
