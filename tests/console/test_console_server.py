@@ -109,3 +109,26 @@ def test_another_address_prints_a_warning_and_the_link_never_reaches_the_files(t
     assert token not in "".join(p.read_text() for p in result.path.iterdir() if p.is_file())
     ev = next(e for e in read_events(result.path) if e["event"] == "console")
     assert ev["bind"] == "127.0.0.2" and "token" not in ev["url"]
+
+
+def test_ctrl_c_still_reaches_the_session_with_the_console_running(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", "--console", "--speed", "5", "--eeg", "off",
+                             "--out", str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, QI_LOG_LEVEL="silent"), stdin=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        for line in proc.stderr:
+            if line.startswith("console: ") or time.monotonic() > deadline:
+                break
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130 and "status: interrupted (exit 130)" in out
