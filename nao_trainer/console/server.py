@@ -1,8 +1,9 @@
 """The supervisor console: a web page served by the session process (Starlette + uvicorn in a thread).
 
-* ``ConsoleHub`` is the session's ``ports.SessionObserver``: ``notify`` keeps a snapshot of what the
-  page shows and hands each event to every connected viewer's queue (``loop.call_soon_threadsafe``:
-  a few microseconds, never blocking the session). A viewer that connects or reconnects gets the
+* ``ConsoleHub`` is the session's ``ports.SessionObserver``: ``notify`` updates a snapshot of what
+  the page shows and appends the event to a numbered log, under a lock, and returns (microseconds;
+  it never wakes the server thread). Each viewer's stream polls the log every ``POLL_S`` and sends
+  what is new, so the server's work comes in batches. A viewer that connects or reconnects gets the
   snapshot first, then live events, as Server-Sent Events.
 * Commands are POSTed as JSON and put on the session's ``ports.CommandQueue``, the same queue the
   terminal keys use; the session acts on them at defined points.
@@ -19,6 +20,7 @@ thread without taking the signal handlers, so Ctrl-C still reaches the session.
 from __future__ import annotations
 
 import asyncio
+import collections
 import hmac
 import json
 import secrets
@@ -36,18 +38,22 @@ STATIC_FILES = {"console.js": "text/javascript", "console.css": "text/css", "uPl
 COOKIE = "nao_console"
 HEADER = "x-console-token"
 TICK_S = 0.5  # how often viewers get elapsed time and the live EEG
+POLL_S = 0.1  # how often a viewer's stream looks for new events
 
 
 class ConsoleHub:
     """What the console knows of the session, and the viewers to tell (``ports.SessionObserver``)."""
 
     MAX_LOG = 200
+    MAX_EVENTS = 5000  # a viewer further behind than this gets a new snapshot
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._viewers: set[tuple[asyncio.AbstractEventLoop, asyncio.Queue]] = set()
+        self._events: collections.deque[tuple[int, str, dict]] = collections.deque(maxlen=self.MAX_EVENTS)
+        self._seq = 0
+        self._viewers = 0
         self._sources: dict[str, Callable[[], Any]] = {}
-        self._closed = False
+        self.closed = False
         self.state: dict[str, Any] = {"session": {}, "machine": {}, "turn": None, "presses": [], "rows": [],
                                       "commands": [], "paused": False, "robot": "connecting", "summary": None}
 
@@ -56,18 +62,15 @@ class ConsoleHub:
     def notify(self, kind: str, data: dict) -> None:
         with self._lock:
             self._update(kind, data)
-            viewers = tuple(self._viewers)
-        for loop, queue in viewers:
-            try:
-                loop.call_soon_threadsafe(_offer, queue, (kind, data))
-            except RuntimeError:  # that viewer's loop is gone
-                pass
+            self._seq += 1
+            self._events.append((self._seq, kind, data))
 
     def _update(self, kind: str, data: dict) -> None:
         st = self.state
         if kind == "session":
             st["session"] = dict(data)
             st["robot"] = data.get("robot", st["robot"])
+            st["machine"] = st["machine"] or {"state": data.get("state")}
         elif kind == "state":
             st["machine"] = dict(data)
         elif kind == "turn_start":
@@ -92,9 +95,20 @@ class ConsoleHub:
 
     # -- the server's side ---------------------------------------------------------------------
 
-    def snapshot(self) -> dict[str, Any]:
+    def snapshot(self) -> tuple[int, str]:
+        """(sequence number, the snapshot as JSON text): events after that number follow it."""
         with self._lock:
-            return json.loads(json.dumps(self.state, default=str))
+            return self._seq, json.dumps(self.state, default=str, separators=(",", ":"))
+
+    def since(self, seq: int) -> tuple[int, list[tuple[str, dict]] | None]:
+        """Events after ``seq`` (None when some were dropped: send a snapshot instead)."""
+        with self._lock:
+            if self._seq == seq:
+                return seq, []
+            if not self._events or self._events[0][0] > seq + 1:
+                return self._seq, None
+            start = seq + 1 - self._events[0][0]
+            return self._seq, [(k, d) for _, k, d in list(self._events)[start:]]
 
     def tick(self) -> dict[str, Any]:
         with self._lock:
@@ -107,36 +121,18 @@ class ConsoleHub:
                 out[name] = {"error": str(exc)}
         return out
 
-    def subscribe(self, loop: asyncio.AbstractEventLoop, queue: asyncio.Queue) -> None:
+    def viewer(self, delta: int) -> None:
         with self._lock:
-            self._viewers.add((loop, queue))
-
-    def unsubscribe(self, loop: asyncio.AbstractEventLoop, queue: asyncio.Queue) -> None:
-        with self._lock:
-            self._viewers.discard((loop, queue))
+            self._viewers += delta
 
     @property
     def viewers(self) -> int:
         with self._lock:
-            return len(self._viewers)
+            return self._viewers
 
     def close(self) -> None:
-        """Tell every viewer the stream ends (the session is over)."""
-        with self._lock:
-            self._closed = True
-            viewers = tuple(self._viewers)
-        for loop, queue in viewers:
-            try:
-                loop.call_soon_threadsafe(_offer, queue, ("_close", {}))
-            except RuntimeError:
-                pass
-
-
-def _offer(queue: asyncio.Queue, item: tuple[str, Any]) -> None:
-    try:
-        queue.put_nowait(item)
-    except asyncio.QueueFull:  # a viewer that stopped reading loses events; it gets a snapshot on reconnect
-        pass
+        """The session is over: viewers' streams send what is left and end."""
+        self.closed = True
 
 
 def _sse(kind: str, data: Any) -> str:
@@ -188,34 +184,35 @@ def make_app(hub: ConsoleHub, commands: CommandQueue, token: str, log: Callable[
     async def state(request: Request) -> Response:
         if not authorised(request):
             return forbidden(request)
-        return JSONResponse(json.loads(json.dumps({**hub.snapshot(), "tick": hub.tick()}, default=str)))
+        return JSONResponse(json.loads(json.dumps({**json.loads(hub.snapshot()[1]), "tick": hub.tick()}, default=str)))
 
     async def events(request: Request) -> Response:
         if not authorised(request):
             return forbidden(request)
-        loop = asyncio.get_running_loop()
-        queue: asyncio.Queue = asyncio.Queue(maxsize=2000)
-        hub.subscribe(loop, queue)
+        hub.viewer(+1)
 
         async def stream():
             try:
-                yield "retry: 1000\n\n" + _sse("snapshot", hub.snapshot())
+                seq, text = hub.snapshot()
+                yield f"retry: 1000\nevent: snapshot\ndata: {text}\n\n"
                 last_tick = 0.0
                 while True:
-                    try:
-                        kind, data = await asyncio.wait_for(queue.get(), timeout=TICK_S)
-                    except asyncio.TimeoutError:
-                        kind, data = "", None
-                    if kind == "_close":
+                    closing = hub.closed
+                    seq, new = hub.since(seq)
+                    if new is None:  # fell behind: start again from a snapshot
+                        seq, text = hub.snapshot()
+                        yield f"event: snapshot\ndata: {text}\n\n"
+                    elif new:
+                        yield "".join(_sse(kind, data) for kind, data in new)
+                    if closing:
                         yield _sse("closed", {})
                         return
-                    if kind:
-                        yield _sse(kind, data)
                     if time.monotonic() - last_tick >= TICK_S:
                         last_tick = time.monotonic()
                         yield _sse("tick", hub.tick())
+                    await asyncio.sleep(POLL_S)
             finally:
-                hub.unsubscribe(loop, queue)
+                hub.viewer(-1)
 
         return StreamingResponse(stream(), media_type="text/event-stream",
                                  headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
@@ -300,9 +297,11 @@ class Console:
             raise RuntimeError("the console's server did not start")
         return cls(hub, server, thread, bind, actual, token)
 
-    def stop(self, linger_s: float = 0.3) -> None:
+    def stop(self) -> None:
         """End the viewers' streams (after the final events reach them) and stop the server."""
-        time.sleep(linger_s if self.hub.viewers else 0)
         self.hub.close()
+        deadline = time.monotonic() + 3 * POLL_S + 1.0
+        while self.hub.viewers and time.monotonic() < deadline:
+            time.sleep(0.02)
         self._server.should_exit = True
         self._thread.join(timeout=5)
