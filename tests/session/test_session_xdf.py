@@ -101,6 +101,12 @@ def test_session_xdf_holds_the_eeg_and_every_turns_markers(tmp_path):
         if ev["event"] in ("turn_start", "turn_end"):
             assert abs(times[f"turn_{ev['turn']}_{ev['event'][5:]}"] - ev["mono"]) < 0.05, ev
     assert sorted(mk["time_stamps"]) == list(mk["time_stamps"])
+    # turns.csv's start times (wall clock, ms) are as far apart as the turns' start markers (LSL clock)
+    from datetime import datetime
+
+    wall = np.array([datetime.fromisoformat(r["start_time"]).timestamp() for r in turns])
+    lsl = np.array([times[f"turn_{r['turn']}_start"] for r in turns])
+    np.testing.assert_allclose(np.diff(wall), np.diff(lsl), atol=0.05)
 
 
 def test_a_killed_session_leaves_a_complete_readable_xdf(tmp_path):
