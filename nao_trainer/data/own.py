@@ -38,7 +38,7 @@ from nao_trainer.core import mdp, task
 from nao_trainer.core.eeg import Processing
 from nao_trainer.core.engagement import OnlineEngagement, QualityThresholds, WindowResult
 from nao_trainer.core.phase import EngagementNormaliser, summarise_phase
-from nao_trainer.data.engagement import SessionEngagement, TurnEngagement
+from nao_trainer.data.engagement import SessionEngagement, TurnEngagement, TurnSeries
 from nao_trainer.errors import DataError
 from nao_trainer.files import read_json, read_text
 
@@ -279,6 +279,7 @@ class ReplayedPhase:
     index: float | None
     quality: float
     reason: str
+    series: TurnSeries | None = None  # per window: seconds from the phase start, raw, smoothed, normalised E
 
 
 def _processing(stream: dict[str, Any], path: Path) -> Processing:
@@ -367,8 +368,12 @@ def replay_phases(session_dir: Path) -> tuple[list[ReplayedPhase], list[str]]:
         had_baseline = had_baseline or p["phase"] == "baseline"
         s = summarise_phase(windows[lo:hi], t0, t1, normaliser, baseline=p["phase"] == "baseline",
                             had_baseline=had_baseline, hop_s=proc.hop_s, min_quality=proc.min_quality)
+        inside = windows[lo:hi]
+        series = TurnSeries(np.array([w.t_end - t0 for w in inside]),
+                            np.array([np.nan if w.index_raw is None else w.index_raw for w in inside], dtype=float),
+                            s.smoothed, s.normalised)
         out.append(ReplayedPhase(turn, p["phase"], t0, t1, live_e, live_i, s.engagement, s.index,
-                                 round(s.quality, 4), s.reason))
+                                 round(s.quality, 4), s.reason, series))
     return out, notes
 
 
@@ -415,5 +420,6 @@ def own_session_engagement(session_dir: Path, answer: bool = False) -> SessionEn
             turns.append(TurnEngagement(n, None, None, 0.0, None, why or "no listening phase recorded", **extra))
         else:
             turns.append(TurnEngagement(n, lis.index, lis.engagement, lis.quality, None, lis.reason, **extra))
+    series = {n: ph.series for (n, kind), ph in last.items() if kind == "listening" and ph.series is not None}
     return SessionEngagement(sess.id, session_dir, None, "raw", "session baseline + running bounds (live rule)",
-                             turns, {}, answer)
+                             turns, series, answer)
