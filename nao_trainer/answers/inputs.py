@@ -58,6 +58,14 @@ class PressWindow:
             self._cond.notify_all()
             return True
 
+    def wait_for_press(self, n: int, timeout_s: float) -> float | None:
+        """Monotonic time of the window's ``n``-th press once it has arrived; None on timeout or closed window."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._opened_at is None or len(self._presses) >= n, timeout_s)
+            if self._opened_at is None or len(self._presses) < n:
+                return None
+            return self._opened_at + self._presses[n - 1].t
+
     def collect(self, n_expected: int, timeout_s: float) -> Answer:
         """Wait for ``n_expected`` presses (+ grace) or the timeout, then close the window."""
         with self._cond:
@@ -79,11 +87,13 @@ class PressWindow:
             presses = tuple(self._presses)
             self._opened_at = None
             self._presses = []
+            self._cond.notify_all()
         return Answer(presses=presses, timed_out=len(presses) < n_expected)
 
     def close(self) -> None:
         with self._cond:
             self._opened_at = None
+            self._cond.notify_all()
 
 
 class TactileAnswers:
