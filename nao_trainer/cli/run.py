@@ -16,8 +16,9 @@ def register(sub) -> None:
                     "Flags override the study configuration.",
     )
     p.add_argument("--config", metavar="FILE", help="study configuration (default: config/studies/demo.yaml)")
-    p.add_argument("--robot", metavar="mock|URL",
-                   help="'mock' (the stand-in, in-process), tcp://IP:9559 (NAOqi <= 2.8) or tcps://IP:9503 "
+    p.add_argument("--robot", metavar="mock|desktop|URL",
+                   help="'mock' (the stand-in, in-process), 'desktop' (the laptop speaks through espeak-ng; answer "
+                        "with --input keyboard), tcp://IP:9559 (NAOqi <= 2.8) or tcps://IP:9503 "
                         "(NAOqi 2.9; login from NAO_USER/NAO_PASSWORD)")
     p.add_argument("--input", choices=INPUTS, help="where answers come from")
     p.add_argument("--turns", type=int, metavar="N", help="number of turns")

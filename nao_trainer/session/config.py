@@ -27,6 +27,8 @@ DEMO_STUDY = PROJECT_ROOT / "config" / "studies" / "demo.yaml"
 
 INPUTS = ("simulated", "tactile", "keyboard")
 EEG_MODES = ("off", "simulated", "lsl")
+#: ``robot.url`` values that are not addresses: the in-process stand-in, the laptop itself.
+MOCK, DESKTOP = "mock", "desktop"
 LSL_SCOPES = ("machine", "link", "site", "organization", "global")
 
 
@@ -51,12 +53,12 @@ class Field:
 
 
 def _robot_url(value: str) -> str | None:
-    if value == "mock":
+    if value in (MOCK, DESKTOP):
         return None
     if "@" in value:
         return "must not contain credentials; set NAO_USER and NAO_PASSWORD in the environment instead"
     if not re.fullmatch(r"tcps?://[^/:@\s]+(:\d{1,5})?", value):
-        return "must be 'mock' or tcp://HOST:9559 (NAOqi <= 2.8) or tcps://HOST:9503 (NAOqi 2.9)"
+        return "must be 'mock', 'desktop' or tcp://HOST:9559 (NAOqi <= 2.8) or tcps://HOST:9503 (NAOqi 2.9)"
     return None
 
 

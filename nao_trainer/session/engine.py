@@ -37,7 +37,7 @@ from transitions import Machine
 
 from nao_trainer import __version__
 from nao_trainer.session.behaviors import Behaviors, load_behaviors
-from nao_trainer.session.config import PROJECT_ROOT, StudyConfig
+from nao_trainer.session.config import DESKTOP, PROJECT_ROOT, StudyConfig
 from nao_trainer.core import mdp, task
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.session.dialogue import Dialogue, load_dialogue
@@ -771,25 +771,30 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
             connect_url = standin.url
         else:
             connect_url = url
-        if progress:
-            print(f"connecting to the robot at {'the stand-in ' + connect_url if standin else redact_url(connect_url)} ...",
-                  file=progress, flush=True)
-        robot = NaoqiRobot.connect(connect_url, float(config.get("robot.connect_deadline_s")), None,
-                                   debounce_s=float(config.get("answers.debounce_s")) / speed)
+        if url == DESKTOP:
+            robot = _desktop_robot(input_kind, speed, progress)
+        else:
+            if progress:
+                print(f"connecting to the robot at {'the stand-in ' + connect_url if standin else redact_url(connect_url)} ...",
+                      file=progress, flush=True)
+            robot = NaoqiRobot.connect(connect_url, float(config.get("robot.connect_deadline_s")), None,
+                                       debounce_s=float(config.get("answers.debounce_s")) / speed)
         # Only now that the robot answered does anything get written.
         recorder = SessionRecorder(config.output_dir(), config.get("participant.pseudonym"))
         path = recorder.open({
             "nao_trainer": __version__, "versions": versions(), "seed": seed,
-            "robot": "stand-in (in-process)" if standin else redact_url(url),
+            "robot": "stand-in (in-process)" if standin else repr(robot) if url == DESKTOP else redact_url(url),
             "input": input_kind, "policy": config.get("policy.kind"),
             "user_model": simulator.name if simulator else None,
             "config": config.snapshot(), "argv": sys.argv[1:],
         })
         if progress:
             print(f"session folder: {path}", file=progress, flush=True)
+        if url == DESKTOP:
+            robot.record_audio_to(path / "audio")
         monitor = open_engagement_monitor(config, path, np.random.default_rng(eeg_ss))
         answers, buttons = _make_answers(config, robot, standin, connect_url, simulator, monitor,
-                                         np.random.default_rng(participant_ss))
+                                         np.random.default_rng(participant_ss), progress)
         policy_rng = np.random.default_rng(policy_ss)
         if getattr(policy, "learning", False) and getattr(policy, "state_path", "") is None:
             policy.state_path = path / "policy_state.json"
@@ -832,8 +837,22 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
     return SessionResult(recorder.path if recorder else None, status, code, session.rows if session else [], seed, error)
 
 
+def _desktop_robot(input_kind: str, speed: float, progress: TextIO | None) -> Robot:
+    """The laptop as the robot (``--robot desktop``); refuses head-button answers it cannot give."""
+    from nao_trainer.robot.desktop import DesktopRobot
+
+    if input_kind == "tactile":
+        raise ConfigError("--robot desktop has no head buttons: answer with --input keyboard (or simulated)")
+    robot = DesktopRobot.start(speed)
+    if progress:
+        where = "the sound device" if robot.player else "WAV files in the session folder's audio/ (no sound device)"
+        print(f"the laptop plays the robot: speech through espeak-ng, sound to {where}", file=progress, flush=True)
+    return robot
+
+
 def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, simulator: UserSimulator | None,
-                  monitor: EngagementMonitor, rng: np.random.Generator) -> tuple[AnswerSource, Any]:
+                  monitor: EngagementMonitor, rng: np.random.Generator,
+                  progress: TextIO | None = None) -> tuple[AnswerSource, Any]:
     from nao_trainer.answers.inputs import KeyboardAnswers, TactileAnswers
     from nao_trainer.answers.simulated import SimulatedParticipant, StandInButtons
 
@@ -843,11 +862,11 @@ def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, sim
     if kind == "tactile":
         return TactileAnswers(robot, debounce, grace), None
     if kind == "keyboard":  # key events do not bounce (the keyboard's firmware debounces)
-        return KeyboardAnswers(None, 0.0, grace), None
+        return KeyboardAnswers(None, 0.0, grace, echo=progress), None
     assert simulator is not None
     buttons = None
     press = standin.press if standin is not None else None
-    if press is None:
+    if press is None and url != DESKTOP:
         buttons = StandInButtons.probe(url)
         press = buttons
     if press is None:  # a real robot: hand the answers over directly
