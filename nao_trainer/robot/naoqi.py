@@ -381,6 +381,20 @@ class NaoqiRobot:
         self._call("ALTextToSpeech", "stopAll", timeout_s=self.timeouts.default_s)
         self._call("ALAudioPlayer", "stopAll", timeout_s=self.timeouts.default_s)
 
+    # -- what the robot offers (the pre-session check) ----------------------------------------------
+
+    def has_service(self, name: str) -> bool:
+        """Whether the robot offers the NAOqi service ``name`` (looked up once, then cached)."""
+        try:
+            self._service(name)
+        except MissingService:
+            return False
+        return True
+
+    def speech_volume(self) -> float:
+        """The text-to-speech volume, 0..1 (ALTextToSpeech.getVolume)."""
+        return float(self._call("ALTextToSpeech", "getVolume", timeout_s=self.timeouts.default_s))
+
     # -- head buttons ------------------------------------------------------------------------------
 
     def subscribe_buttons(self, callback: Callable[[str, float], None]) -> None:
