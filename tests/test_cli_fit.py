@@ -171,3 +171,11 @@ def test_a_refit_writes_identical_files_and_the_shipped_policies_still_load(fitt
             policy.close()
     shipped = artifacts.load_simulator("2", artifacts.DEFAULT_MODELS_DIR)
     assert artifacts.load_simulator("2", again).fingerprint() == shipped.fingerprint()
+
+
+def test_import_into_a_missing_folder_is_refused_and_creates_nothing(dataset_root, tmp_path, capsys):
+    target = tmp_path / "nonexistent" / "dir" / "t.csv"
+    assert main(["import", str(dataset_root), "--out", str(target), "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and f"the folder {target.parent} does not exist" in err
+    assert not (tmp_path / "nonexistent").exists()

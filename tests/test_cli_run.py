@@ -225,3 +225,11 @@ def test_an_output_folder_that_cannot_be_created_is_one_line_before_the_robot_co
     assert res.stderr.strip() == (f"nao-trainer run: error: session.output: cannot create the folder {blocker / 'sub'} "
                                   "(Not a directory); point session.output (or --out) at a folder you can write to")
     assert "connecting" not in res.stderr
+
+
+def test_bare_nao_trainer_prints_help_and_plays_nothing(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "nao_trainer"], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert res.returncode == 0 and res.stdout.startswith("usage: nao-trainer")
+    for command in ("run", "check", "fit", "train"):
+        assert f"    {command} " in res.stdout
+    assert not (tmp_path / "sessions").exists()  # no demo session was played
