@@ -558,7 +558,7 @@ class Session:
     # -- goodbye ---------------------------------------------------------------------------------
 
     def _do_goodbye(self) -> str:
-        self._say("goodbye", total=self.total, turns=self.completed)
+        self._say(self.dialogue.goodbye_event(self.total), behavior="goodbye", total=self.total, turns=self.completed)
         self._posture(self.behaviors.end_posture)
         self._leds(self.behaviors.leds_reset)
         self.monitor.mark("session_end")
