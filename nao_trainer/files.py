@@ -97,7 +97,7 @@ def _yaml_loader() -> Any:
                     return super().construct_object(node, deep)
                 except (yaml.YAMLError, _ValueError, RecursionError):
                     raise
-                except (ValueError, TypeError, OverflowError, ArithmeticError) as exc:
+                except (ValueError, TypeError, LookupError, ArithmeticError) as exc:
                     tag = str(node.tag).rsplit(":", 1)[-1]
                     value = node.value if isinstance(node.value, str) else None
                     reason = " ".join(str(exc).split()) or type(exc).__name__

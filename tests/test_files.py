@@ -38,6 +38,7 @@ def test_read_json_errors_name_the_file(tmp_path):
     ("a:\n  - {x: 1, x: 2}\n", r"y.yaml:2: key 'a\[0\].x' is given twice"),
     ("session: {seed: !!int notanumber}\n", r"y.yaml:1: !!int 'notanumber' cannot be read"),
     ("x: 1\ny: !!float abc\n", r"y.yaml:2: !!float 'abc' cannot be read"),
+    ("b: !!bool maybe\n", r"y.yaml:1: !!bool 'maybe' cannot be read"),
     ("t: !!timestamp 2020-13-45\n", r"y.yaml:1: !!timestamp '2020-13-45' cannot be read \(month must be in 1..12\)"),
     ("a: 1\nb: \x01x\n", r"y.yaml:2: control character U\+0001 is not allowed in YAML; remove it"),
     ("a: 1\nb: 'x\x07'\n", r"y.yaml:2: control character U\+0007"),
