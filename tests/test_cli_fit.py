@@ -177,5 +177,5 @@ def test_import_into_a_missing_folder_is_refused_and_creates_nothing(dataset_roo
     target = tmp_path / "nonexistent" / "dir" / "t.csv"
     assert main(["import", str(dataset_root), "--out", str(target), "-q"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and f"the folder {target.parent} does not exist" in err
+    assert err.count("\n") == 0 and f"the folder {target.parent.parent} does not exist" in err
     assert not (tmp_path / "nonexistent").exists()
