@@ -4,7 +4,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from nao_trainer.session.config import EEG_MODES
+from nao_trainer.eeg.settings import MODES as EEG_MODES
+from nao_trainer.session.config import INPUTS
 
 
 def register(sub) -> None:
@@ -20,7 +21,7 @@ def register(sub) -> None:
     p.add_argument("--config", metavar="FILE", help="study configuration (default: config/studies/demo.yaml)")
     p.add_argument("--robot", metavar="mock|desktop|URL", help="robot address (overrides robot.url)")
     p.add_argument("--eeg", choices=EEG_MODES, help="EEG mode (overrides eeg.mode)")
-    p.add_argument("--input", choices=("simulated", "tactile", "keyboard"), help="answer input (overrides answers.input)")
+    p.add_argument("--input", choices=INPUTS, help="answer input (overrides answers.input)")
     p.add_argument("--out", metavar="DIR", help="folder under which session folders are created (overrides session.output)")
     p.add_argument("--seconds", type=float, default=3.0, metavar="S", help="how long to judge electrode contact (default 3)")
     p.set_defaults(func=run)

@@ -26,6 +26,7 @@ from typing import Callable
 import numpy as np
 
 from nao_trainer.errors import ConfigError, RobotUnavailable
+from nao_trainer.ports import RobotCallFailed
 
 log = logging.getLogger(__name__)
 
@@ -149,7 +150,7 @@ class DesktopRobot:
             raise RobotUnavailable(f"{SPEECH_ENGINE} failed to speak ({exc}); {INSTALL_HINT}") from None
         if done.returncode != 0:
             why = done.stderr.decode("utf-8", "replace").strip().splitlines()
-            raise RuntimeError(f"{SPEECH_ENGINE} could not speak {text[:40]!r}: {why[0] if why else done.returncode}")
+            raise RobotCallFailed(f"{SPEECH_ENGINE} could not speak {text[:40]!r}: {why[0] if why else done.returncode}")
         self._output(path)
 
     def beep(self, frequency_hz: int, duration_s: float, gain: float = 0.5) -> None:
@@ -205,7 +206,7 @@ class DesktopRobot:
 
     def _next_path(self, kind: str) -> Path:
         if self._closed:
-            raise RuntimeError("the desktop robot is closed")
+            raise RobotCallFailed("the desktop robot is closed")
         with self._lock:
             self._count += 1
             folder = self.audio_dir if self.audio_dir is not None and self.player is None else self._tmp

@@ -77,18 +77,11 @@ class CheckPlan:
 
 
 def plan_from_config(config: Any) -> CheckPlan:
-    """The checks a study configuration calls for."""
-    mode = config.get("eeg.mode")
-    eeg = None
-    if mode != "off":
-        from nao_trainer.eeg.monitor import EEGSettings
-
-        eeg = EEGSettings.from_mapping(config["eeg"], mode)
-    return CheckPlan(robot_url=config.get("robot.url"),
-                     connect_deadline_s=float(config.get("robot.connect_deadline_s")),
-                     needs_buttons=config.get("answers.input") in ("tactile", "simulated"),
-                     eeg_mode=mode, eeg=eeg, output_dir=config.output_dir(),
-                     speed=float(config.get("timing.speed")))
+    """The checks a study configuration (``session.config.StudyConfig``) calls for."""
+    return CheckPlan(robot_url=config.robot.url, connect_deadline_s=float(config.robot.connect_deadline_s),
+                     needs_buttons=config.answers.input in ("tactile", "simulated"),
+                     eeg_mode=config.eeg.mode, eeg=config.eeg, output_dir=config.output_dir(),
+                     speed=float(config.timing.speed))
 
 
 def run_checks(plan: CheckPlan, report: Callable[[CheckResult], None] | None = None,
@@ -156,7 +149,7 @@ def check_robot(plan: CheckPlan) -> CheckResult:
 
 def _check_naoqi(url: str, plan: CheckPlan, label: str | None) -> CheckResult:
     from nao_trainer.errors import RobotUnavailable
-    from nao_trainer.ports import RobotConnectionLost
+    from nao_trainer.ports import RobotCallFailed, RobotConnectionLost
     from nao_trainer.robot.naoqi import NaoqiRobot, redact_url
 
     where = label or redact_url(url)
@@ -176,7 +169,7 @@ def _check_naoqi(url: str, plan: CheckPlan, label: str | None) -> CheckResult:
                                f"raise it to {MIN_SPEECH_VOLUME:.0%} or more (the robot's web page, or "
                                "ALTextToSpeech.setVolume)")
         return CheckResult("robot", True, f"{where}: {len(needed)} services the task needs, speech volume {volume:.0%}")
-    except (RobotConnectionLost, RobotUnavailable, RuntimeError) as exc:
+    except (RobotConnectionLost, RobotUnavailable, RobotCallFailed) as exc:
         return CheckResult("robot", False, f"{where}: {exc}", "check the robot and its network, then try again")
     finally:
         robot.close()

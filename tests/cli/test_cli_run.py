@@ -1,0 +1,243 @@
+"""`nao-trainer run` end to end, as users start it (a subprocess), against the stand-in over qi."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+from nao_trainer.session.record import read_events, read_turns
+
+
+def cli(*args: str, stdin=None, timeout: float = 120) -> subprocess.CompletedProcess:
+    env = dict(os.environ, QI_LOG_LEVEL="silent")
+    return subprocess.run([sys.executable, "-m", "nao_trainer", "run", *args], capture_output=True, text=True,
+                          env=env, timeout=timeout, stdin=stdin)
+
+
+def only_folder(out: Path) -> Path:
+    folders = list(out.iterdir())
+    assert len(folders) == 1, folders
+    return folders[0]
+
+
+def test_no_flags_plays_the_25_turn_demo(tmp_path):
+    out = tmp_path / "sessions"
+    t0 = time.monotonic()
+    res = cli("--out", str(out))  # exactly as `make demo` runs it
+    elapsed = time.monotonic() - t0
+    assert res.returncode == 0, res.stderr
+    folder = only_folder(out)
+    assert folder.name.startswith("demo_")
+    rows = read_turns(folder)
+    assert len(rows) == 25 and all(r["success"] in ("True", "False") for r in rows)
+    progress = [ln for ln in res.stderr.splitlines() if ln.startswith("turn ")]
+    assert len(progress) == 25 and " vs " in progress[0] and "total" in progress[0]
+    assert "level  played  success rate" in res.stdout and f"session folder: {folder}" in res.stdout
+    assert f"total score: {sum(int(r['score']) for r in rows)}" in res.stdout
+    info = json.loads((folder / "session.json").read_text())
+    assert info["status"] == "completed" and info["robot"] == "stand-in (in-process)"
+    assert elapsed < 60
+    # the demo shows the whole system: simulated Muse -> engagement per turn, a trained policy
+    with_engagement = [r for r in rows if r["engagement"] not in ("", None)]
+    assert len(with_engagement) >= 20, [r["notes"] for r in rows]
+    assert all(0.0 <= float(r["engagement"]) <= 1.0 for r in with_engagement)
+    assert " E 0." in res.stderr or " E 1." in res.stderr
+    assert info["policy"] == "usp:2" and info["user_model"] and (folder / "policy_state.json").exists()
+    assert (folder / "eeg" / "windows.csv").exists()
+
+
+def test_default_output_is_sessions_in_the_current_folder(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "nao_trainer", "run", "--turns", "2", "--speed", "50", "--quiet"],
+                         capture_output=True, text=True, cwd=tmp_path, env=dict(os.environ, QI_LOG_LEVEL="silent"),
+                         timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert len(read_turns(only_folder(tmp_path / "sessions"))) == 2
+    assert "turn " not in res.stderr.replace("turns completed", "")  # --quiet: no progress lines
+
+
+def test_invalid_config_starts_nothing(tmp_path):
+    study = tmp_path / "bad.yaml"
+    study.write_text("session:\n  turns: 25\ntiming:\n  sped: 3\n")
+    res = cli("--config", str(study), "--out", str(tmp_path / "out"))
+    assert res.returncode == 2
+    assert res.stderr.strip() == (f"nao-trainer run: error: {study}:4: unknown key 'timing.sped'; "
+                                  "did you mean 'timing.speed'?")
+    assert not (tmp_path / "out").exists()
+    res = cli("--turns", "0", "--out", str(tmp_path / "out"))
+    assert res.returncode == 2 and "'session.turns' must be >= 1" in res.stderr and not (tmp_path / "out").exists()
+
+
+def test_user_model_drives_the_simulated_participant(tmp_path):
+    res = cli("--user-model", "1", "--turns", "3", "--speed", "50", "--out", str(tmp_path), "--quiet")
+    assert res.returncode == 0, res.stderr
+    info = json.loads((only_folder(tmp_path) / "session.json").read_text())
+    assert info["user_model"] == "cluster-1" and info["config"]["values"]["participant_model"]["user_model"] == "1"
+    res = cli("--user-model", "9", "--out", str(tmp_path / "x"))
+    assert res.returncode != 0 and "unknown user model '9'" in res.stderr and not (tmp_path / "x").exists()
+
+
+def test_simulated_eeg_fills_the_engagement_columns(tmp_path):
+    res = cli("--eeg", "simulated", "--turns", "2", "--speed", "6", "--no-practice", "--out", str(tmp_path), "--quiet",
+              timeout=180)
+    assert res.returncode == 0, res.stderr
+    folder = only_folder(tmp_path)
+    rows = read_turns(folder)
+    assert len(rows) == 2
+    for r in rows:
+        assert r["engagement"] != "" or r["engagement_note"] != ""  # a value, or the reason there is none
+    assert any(r["engagement_index"] != "" for r in rows)
+    assert (folder / "eeg").is_dir()
+
+
+def test_keyboard_answers_end_to_end(tmp_path):
+    """A person typing: the right answer (after keys typed too early), a wrong one with an invalid key,
+    one key too many, and no answer at all."""
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", "--input", "keyboard", "--turns", "4",
+                             "--speed", "20", "--no-practice", "--out", str(out), "--seed", "4"],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, QI_LOG_LEVEL="silent"))
+
+    def typist():
+        answered, early = set(), set()
+        deadline = time.monotonic() + 90
+        while proc.poll() is None and time.monotonic() < deadline:
+            folders = list(out.glob("*")) if out.exists() else []
+            if folders and (folders[0] / "events.jsonl").exists():
+                try:
+                    events = read_events(folders[0])
+                except ValueError:  # caught the session mid-line: read again on the next pass
+                    time.sleep(0.02)
+                    continue
+                seqs = {e["turn"]: e["sequence"] for e in events if e["event"] == "turn_start"}
+                beeps = {e["turn"] for e in events if e["event"] == "beep"}
+                for turn, seq in seqs.items():
+                    if turn == 1 and turn not in early:
+                        proc.stdin.write("cc")  # while the robot speaks: must be discarded
+                        proc.stdin.flush()
+                        early.add(turn)
+                    if turn in beeps and turn not in answered:
+                        text = {1: seq.lower(), 2: "x" + seq[1:].lower(), 3: seq.lower() + "a", 4: ""}[turn]
+                        proc.stdin.write(text + "\n")
+                        proc.stdin.flush()
+                        answered.add(turn)
+            time.sleep(0.02)
+
+    t = threading.Thread(target=typist, daemon=True)
+    t.start()
+    proc.wait(timeout=120)
+    t.join(5)
+    err = proc.stderr.read()
+    for f in (proc.stdin, proc.stdout, proc.stderr):
+        f.close()
+    assert proc.returncode == 0, err
+    rows = read_turns(only_folder(out))
+    assert [r["success"] for r in rows] == ["True", "False", "False", "False"], [(r["sequence"], r["response"], r["notes"], r["completion_time"]) for r in rows]
+    assert rows[0]["response"] == rows[0]["sequence"]
+    assert rows[1]["response"].startswith("?") and "invalid key 'x'" in rows[1]["notes"]
+    assert float(rows[0]["reaction_time"]) > 0
+    assert rows[2]["response"] == rows[2]["sequence"] + "A" and "too many presses" in rows[2]["notes"]
+    assert rows[3]["response"] == "" and rows[3]["notes"] == "timeout: no answer" and rows[3]["reaction_time"] == ""
+
+
+def test_naoqi_29_credentials_come_from_the_environment_and_stay_out_of_files(tmp_path):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = {k: v for k, v in os.environ.items() if k not in ("NAO_USER", "NAO_PASSWORD")}
+    env["QI_LOG_LEVEL"] = "silent"
+    base = [sys.executable, "-m", "nao_trainer", "run", "--robot", f"tcps://127.0.0.1:{port}", "--out", str(tmp_path / "a")]
+    res = subprocess.run(base, capture_output=True, text=True, env=env, timeout=60)
+    assert res.returncode == 2 and "NAO_USER" in res.stderr and "NAO_PASSWORD" in res.stderr
+    secret = "pw-0f9e8d7c"
+    res = subprocess.run(base, capture_output=True, text=True, env=dict(env, NAO_USER="nao", NAO_PASSWORD=secret), timeout=60)
+    assert res.returncode == 3 and secret not in res.stderr + res.stdout
+    # a whole session with the variables set: the secret is in no file
+    res = subprocess.run([sys.executable, "-m", "nao_trainer", "run", "--turns", "2", "--speed", "50", "--out",
+                          str(tmp_path / "b"), "--quiet"], capture_output=True, text=True,
+                         env=dict(env, NAO_USER="nao", NAO_PASSWORD=secret), timeout=60)
+    assert res.returncode == 0, res.stderr
+    for f in only_folder(tmp_path / "b").rglob("*"):
+        if f.is_file():
+            assert secret not in f.read_text(errors="replace"), f
+
+
+def test_tactile_answers_from_any_naoqi_endpoint(tmp_path):
+    """`--robot tcp://HOST:PORT --input tactile`: a person pressing the head buttons of a separate robot process."""
+    import signal
+
+    from nao_trainer.robot.standin import StandInClient, spawn_standin
+
+    robot, url = spawn_standin(speed=20)
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", "--robot", url, "--input", "tactile",
+                             "--turns", "2", "--speed", "20", "--no-practice", "--out", str(out), "--seed", "8"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, QI_LOG_LEVEL="silent"))
+    hand = StandInClient.connect(url)
+    try:
+        answered: set[int] = set()
+        deadline = time.monotonic() + 60
+        while proc.poll() is None and time.monotonic() < deadline and len(answered) < 2:
+            folders = list(out.glob("*")) if out.exists() else []
+            if folders and (folders[0] / "events.jsonl").exists():
+                try:
+                    events = read_events(folders[0])
+                except ValueError:  # caught the session mid-line: read again on the next pass
+                    time.sleep(0.02)
+                    continue
+                seqs = {e["turn"]: e["sequence"] for e in events if e["event"] == "turn_start"}
+                for turn in {e["turn"] for e in events if e["event"] == "beep"} - answered:
+                    wrong = {"A": "B", "B": "C", "C": "A"}[seqs[turn][0]] + seqs[turn][1:]  # first letter wrong
+                    for letter in seqs[turn] if turn == 1 else wrong:
+                        hand.press(letter)
+                        time.sleep(0.03)
+                    answered.add(turn)
+            time.sleep(0.02)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        hand.close()
+        if proc.poll() is None:
+            proc.kill()
+        robot.send_signal(signal.SIGINT)
+        robot.wait(10)
+    assert proc.returncode == 0, err
+    rows = read_turns(only_folder(out))
+    assert rows[0]["success"] == "True" and rows[0]["response"] == rows[0]["sequence"]
+    assert rows[1]["success"] == "False" and len(rows[1]["response"]) == len(rows[1]["sequence"])
+
+
+def test_torn_policy_state_is_refused_before_the_robot_moves(tmp_path):
+    state = tmp_path / "p01_policy_state.json"
+    state.write_text('{"format": "nao-trainer/user-specific-policy", "format_ver')  # torn mid-write
+    study = tmp_path / "study.yaml"
+    study.write_text(f"policy:\n  kind: usp:1\n  state_path: {state}\n")
+    res = cli("--config", str(study), "--out", str(tmp_path / "out"), "--turns", "2", "--speed", "50")
+    assert res.returncode == 2, res.stderr
+    assert str(state) in res.stderr and "torn or corrupt" in res.stderr and "Traceback" not in res.stderr
+    assert not (tmp_path / "out").exists()  # nothing written, the robot never connected
+    assert state.read_text().endswith('"format_ver')  # never silently reset
+
+
+def test_an_output_folder_that_cannot_be_created_is_one_line_before_the_robot_connects(tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    res = cli("--out", str(blocker / "sub"), "--turns", "2", "--speed", "50", "--robot", "tcp://127.0.0.1:1")
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip() == (f"nao-trainer run: error: session.output: cannot create the folder {blocker / 'sub'} "
+                                  "(Not a directory); point session.output (or --out) at a folder you can write to")
+    assert "connecting" not in res.stderr
+
+
+def test_bare_nao_trainer_prints_help_and_plays_nothing(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "nao_trainer"], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert res.returncode == 0 and res.stdout.startswith("usage: nao-trainer")
+    for command in ("run", "check", "fit", "train"):
+        assert f"    {command} " in res.stdout
+    assert not (tmp_path / "sessions").exists()  # no demo session was played

@@ -1,0 +1,302 @@
+"""User-specific policy files and the live learning policy (`--policy usp:CLUSTER[:METHOD]`)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from nao_trainer.learn import artifacts
+
+from nao_trainer.learn import usp
+from nao_trainer.core import mdp
+from nao_trainer.core.qlearning import QConfig, QLearner
+from nao_trainer.core.simulation import UserSimulator
+from nao_trainer.errors import ConfigError, DataError
+from nao_trainer.ports import Transition
+from nao_trainer.learn.training import TrainingSpec, train_grid, write_outputs
+
+S0 = mdp.encode(*mdp.S0)
+
+
+def simulators():
+    return [
+        UserSimulator.from_level_rates("cluster-1", [0.95, 0.8, 0.35, 0.06], [0.3, 0.4, 0.5, 0.6]),
+        UserSimulator.from_level_rates("cluster-2", [0.99, 0.95, 0.65, 0.3], [0.6, 0.5, 0.4, 0.3]),
+    ]
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """A models folder and the policies trained on it (tiny grid)."""
+    models = tmp_path_factory.mktemp("models")
+    artifacts.save_models(models, simulators(), [{"id": 1}, {"id": 2}], {"k": 2})
+    policies = tmp_path_factory.mktemp("policies")
+    result = train_grid(simulators(), ["1", "2"], TrainingSpec(seeds=2, episodes=30, workers=1), progress=False)
+    write_outputs(result, policies, str(models), "test")
+    return models, policies
+
+
+def load(trained, spec="usp:1:qaug", learning=True, state_path=None):
+    models, policies = trained
+    return usp.load_policy(spec, learning, state_path, policies_dir=policies,
+                           models_dir=models)
+
+
+def random_learner(method="shaping") -> QLearner:
+    rng = np.random.default_rng(4)
+    return QLearner(method, QConfig(), rng.normal(size=(109, 6)), rng.random((109, 6)),
+                    rng.integers(0, 9, (109, 6)), rng.integers(0, 99, 109))
+
+
+def test_policy_file_round_trip(tmp_path):
+    ql = random_learner()
+    sim = simulators()[0]
+    path = tmp_path / "p.json"
+    usp.save_policy_file(path, usp.make_payload(ql, "1", sim, {"episodes": 5}))
+    payload = usp.read_policy_file(path)
+    back = usp.learner_from_payload(payload, path)
+    assert back.method == "shaping" and back.config == ql.config
+    for key in ("q", "h", "h_counts", "visits"):
+        assert np.array_equal(getattr(back, key), getattr(ql, key))
+    assert payload["simulator"]["fingerprint"] == sim.fingerprint()
+    assert payload["states"][S0] == "(5, 1, -2)" and payload["actions"][4] == "RF1"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp file left
+
+
+def _rewrite(path, edit):
+    doc = json.loads(path.read_text())
+    edit(doc)
+    path.write_text(json.dumps(doc))
+
+
+def test_torn_and_corrupt_files_are_detected(tmp_path):
+    path = tmp_path / "p.json"
+    usp.save_policy_file(path, usp.make_payload(random_learner(), "1", simulators()[0], {}))
+    text = path.read_text()
+    torn = tmp_path / "torn.json"
+    torn.write_text(text[: len(text) // 2])
+    with pytest.raises(DataError, match=r"torn.json:\d+: policy file is not valid JSON.*torn or corrupt"):
+        usp.read_policy_file(torn)
+    empty = tmp_path / "empty.json"
+    empty.write_text("")
+    with pytest.raises(DataError, match="not valid JSON"):
+        usp.read_policy_file(empty)
+    altered = tmp_path / "altered.json"
+    altered.write_text(text)
+    _rewrite(altered, lambda d: d["payload"]["q"][S0].__setitem__(2, 99.0))
+    with pytest.raises(DataError, match="altered.json: checksum mismatch"):
+        usp.read_policy_file(altered)
+    with pytest.raises(DataError, match="no such policy file.*nao-trainer train"):
+        usp.read_policy_file(tmp_path / "missing.json")
+
+
+def test_other_state_action_definition_is_refused(tmp_path):
+    payload = usp.make_payload(random_learner(), "1", simulators()[0], {})
+    payload["mdp_definition"] = payload["mdp_definition"].replace("PR in -4..4", "PR in -3..3")
+    usp.save_policy_file(tmp_path / "def.json", payload)  # valid checksum, other definition
+    with pytest.raises(DataError, match="another state/action definition.*nao-trainer train"):
+        usp.read_policy_file(tmp_path / "def.json")
+    payload = usp.make_payload(random_learner(), "1", simulators()[0], {})
+    payload["actions"] = ["L1", "L2", "L3", "L4", "RF2", "RF1"]
+    usp.save_policy_file(tmp_path / "act.json", payload)
+    with pytest.raises(DataError, match="actions"):
+        usp.read_policy_file(tmp_path / "act.json")
+
+
+def test_simulator_fingerprint_mismatch_is_refused(trained, tmp_path):
+    models, policies = trained
+    refit = tmp_path / "models"
+    changed = UserSimulator.from_level_rates("cluster-1", [0.9, 0.8, 0.35, 0.06], [0.3, 0.4, 0.5, 0.6])
+    artifacts.save_models(refit, [changed, simulators()[1]], [{"id": 1}, {"id": 2}], {"k": 2})
+    with pytest.raises(DataError, match=r"usp_1_qaug.json: trained on user model 'cluster-1'.*fingerprint.*retrain"):
+        usp.load_policy("usp:1:qaug", True, None, policies_dir=policies, models_dir=refit)
+    # Cluster 2 did not change: its policy still loads.
+    usp.load_policy("usp:2:qaug", False, None, policies_dir=policies, models_dir=refit)
+
+
+def test_spec_parsing_and_default_method(trained):
+    models, policies = trained
+    default = json.loads((policies / "manifest.json").read_text())["default_method"]["1"]
+    policy = load(trained, "usp:1", learning=False)
+    assert policy.learner.method == default and policy.name.startswith(f"usp:1:{default}")
+    with pytest.raises(ConfigError, match="unknown method 'sarsa'"):
+        load(trained, "usp:1:sarsa")
+    with pytest.raises(ConfigError, match="no policy for cluster '7'"):
+        load(trained, "usp:7")
+    with pytest.raises(ConfigError, match="needs a file"):  # checked when it saves (the path may come later)
+        load(trained, "usp:1:qaug", learning=True, state_path=None).save()
+
+
+def test_live_policy_learns_and_saves_after_every_observe(trained, tmp_path):
+    state = tmp_path / "learner.json"
+    policy = load(trained, "usp:2:shaping", state_path=state)
+    before = policy.learner.q.copy()
+    rng = np.random.default_rng(1)
+    a = policy.act(mdp.START, rng)
+    assert a in mdp.LEVEL_ACTIONS
+    s1 = int(mdp.NEXT_STATE[mdp.START, a, 0])
+    reference = QLearner("shaping", policy.learner.config, before.copy(), policy.learner.h.copy(),
+                         policy.learner.h_counts.copy(), policy.learner.visits.copy())
+    policy.observe(Transition(mdp.START, a, 2, 0.7, s1, False))
+    reference.update(mdp.START, a, 2, 0.7, s1, False)
+    saved = usp.read_policy_file(state)
+    assert saved["live"]["turns_learned"] == 1
+    assert np.array_equal(np.array(saved["q"]), reference.q)  # the same update as in training
+    assert not np.array_equal(reference.q, before)
+    a2 = policy.act(s1, rng)
+    s2 = int(mdp.NEXT_STATE[s1, a2, 1])
+    policy.observe(Transition(s1, a2, -1, None, s2, False))  # EEG dropped: plain reward, no H update
+    reference.update(s1, a2, -1, None, s2, False)
+    saved = usp.read_policy_file(state)
+    assert saved["live"] == {**saved["live"], "turns_learned": 2, "turns_without_engagement": 1}
+    assert np.array_equal(np.array(saved["q"]), reference.q)
+    assert np.array_equal(np.array(saved["h_counts"]), reference.h_counts)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["learner.json"]  # atomic: no temp files
+    policy.close()
+    # The next session with the same state file resumes from it.
+    resumed = load(trained, "usp:2:shaping", state_path=state)
+    assert np.array_equal(resumed.learner.q, reference.q)
+    assert resumed.payload["live"]["turns_learned"] == 2
+
+
+def test_state_file_of_another_policy_or_torn_is_not_silently_reset(trained, tmp_path):
+    state = tmp_path / "learner.json"
+    policy = load(trained, "usp:2:shaping", state_path=state)
+    policy.observe(Transition(mdp.START, 1, 2, 0.5, mdp.encode(5, 0, 0), False))
+    with pytest.raises(DataError, match="learner.json: holds the learning state of another policy"):
+        load(trained, "usp:1:shaping", state_path=state)
+    state.write_text(state.read_text()[:100])
+    with pytest.raises(DataError, match="learner.json:.*not valid JSON"):
+        load(trained, "usp:2:shaping", state_path=state)
+
+
+def test_frozen_policy_leaves_everything_unchanged(trained, tmp_path):
+    state = tmp_path / "learner.json"
+    policy = load(trained, "usp:1:qaug", learning=False, state_path=state)
+    q, h, visits = policy.learner.q.copy(), policy.learner.h.copy(), policy.learner.visits.copy()
+    rng = np.random.default_rng(2)
+    s = mdp.START
+    for t in range(25):
+        a = policy.act(s, rng)
+        assert mdp.ACTION_MASK[s, a]
+        s2 = int(mdp.NEXT_STATE[s, a, t % 2])
+        policy.observe(Transition(s, a, 1, 0.9, s2, t == 24))
+        s = s2
+    policy.close()
+    assert np.array_equal(policy.learner.q, q) and np.array_equal(policy.learner.h, h)
+    assert np.array_equal(policy.learner.visits, visits)
+    assert not state.exists()
+
+
+def test_unwritable_state_path_is_a_clear_error(trained, tmp_path):
+    (tmp_path / "a_file").write_text("x")
+    policy = load(trained, "usp:1:qaug", state_path=tmp_path / "a_file" / "state.json")
+    with pytest.raises(DataError, match="state.json: cannot save the policy's state"):
+        policy.observe(Transition(mdp.START, 0, 1, 0.5, mdp.encode(3, 0, 0), False))
+    nested = tmp_path / "new" / "folder" / "state.json"  # missing folders are created
+    load(trained, "usp:1:qaug", state_path=nested).observe(Transition(mdp.START, 0, 1, 0.5, mdp.encode(3, 0, 0), False))
+    assert nested.exists()
+
+
+def test_shipped_policies_match_the_shipped_user_models():
+    """The policies in sim/policies were trained on the models in sim/models (retrain after a refit)."""
+    if not (usp.DEFAULT_POLICIES_DIR / usp.MANIFEST).exists():
+        pytest.skip("no shipped policies")
+    manifest = usp.read_manifest(usp.DEFAULT_POLICIES_DIR)
+    for cluster in manifest["default_method"]:
+        policy = usp.load_policy(f"usp:{cluster}", False, None, policies_dir=usp.DEFAULT_POLICIES_DIR,
+                                 models_dir=artifacts.DEFAULT_MODELS_DIR)
+        assert abs(policy.probabilities(S0).sum() - 1) < 1e-9
+
+
+def _run_session(tmp_path, *extra):
+    import subprocess
+    import sys
+
+    out = tmp_path / "sessions"
+    cmd = [sys.executable, "-m", "nao_trainer", "run", "--user-model", "1", "--turns", "3", "--speed", "50",
+           "--out", str(out), "--quiet", "--no-practice", "--seed", "5", *extra]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    (folder,) = out.iterdir()
+    return folder
+
+
+def test_session_with_a_shipped_policy_keeps_learning(tmp_path):
+    """`nao-trainer run --policy usp:1:performance` plays a real (stand-in) session and learns from it."""
+    if not (usp.DEFAULT_POLICIES_DIR / usp.MANIFEST).exists():
+        pytest.skip("no shipped policies")
+    folder = _run_session(tmp_path, "--policy", "usp:1:performance")
+    state = usp.read_policy_file(folder / "policy_state.json")
+    shipped = usp.read_policy_file(usp.DEFAULT_POLICIES_DIR / usp.policy_filename("1", "performance"))
+    assert state["live"]["turns_learned"] == 3
+    assert np.array(state["visits"]).sum() == np.array(shipped["visits"]).sum() + 3
+    assert not np.array_equal(np.array(state["q"]), np.array(shipped["q"]))
+    frozen = _run_session(tmp_path / "frozen", "--policy", "usp:1:performance", "--no-learning")
+    assert not (frozen / "policy_state.json").exists()
+
+
+def test_a_crash_while_saving_leaves_the_previous_state_intact(trained, tmp_path, monkeypatch):
+    state = tmp_path / "learner.json"
+    policy = load(trained, "usp:1:shaping", state_path=state)
+    policy.observe(Transition(mdp.START, 1, 2, 0.5, mdp.encode(5, 0, 0), False))
+    before = state.read_bytes()
+
+    def crash(src, dst):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(usp.os, "replace", crash)
+    with pytest.raises(DataError, match="cannot save the policy's state"):
+        policy.observe(Transition(mdp.encode(5, 0, 0), 2, -1, 0.4, mdp.encode(7, 0, 2), False))
+    assert state.read_bytes() == before  # the last complete state, still valid
+    assert usp.read_policy_file(state)["live"]["turns_learned"] == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["learner.json"]
+
+
+def test_a_broken_policy_manifest_is_a_one_line_error(tmp_path):
+    (tmp_path / usp.MANIFEST).mkdir()
+    with pytest.raises(DataError, match=r"manifest.json: cannot read \(Is a directory\)"):
+        usp.read_manifest(tmp_path)
+    (tmp_path / usp.MANIFEST).rmdir()
+    (tmp_path / usp.MANIFEST).write_text(json.dumps({"format": usp.MANIFEST_FORMAT, "format_version": 1,
+                                                     "default_method": []}))
+    with pytest.raises(DataError, match="unknown version or shape"):
+        usp.read_manifest(tmp_path)
+
+
+def test_a_learning_policy_gets_its_state_path_when_it_first_saves(trained, tmp_path):
+    from nao_trainer.errors import ConfigError
+
+    policy = load(trained, "usp:1:shaping", state_path=None)  # loaded before the session folder exists
+    step = Transition(mdp.START, 1, 2, 0.5, mdp.encode(5, 0, 0), False)
+    with pytest.raises(ConfigError, match="policy.state_path: a learning policy needs a file"):
+        policy.observe(step)
+    policy.bind_state_dir(tmp_path)
+    policy.observe(step)
+    assert usp.read_policy_file(tmp_path / "policy_state.json")["live"]["turns_learned"] >= 1
+    configured = load(trained, "usp:1:shaping", state_path=tmp_path / "own.json")
+    configured.bind_state_dir(tmp_path / "elsewhere")  # a configured state file is kept
+    assert configured.state_path == tmp_path / "own.json"
+
+
+def test_a_resumed_policy_is_loaded_once_per_session(tmp_path):
+    """The policy is loaded (and its resume message printed) once, before the robot connects."""
+    import subprocess
+    import sys
+
+    if not (usp.DEFAULT_POLICIES_DIR / usp.MANIFEST).exists():
+        pytest.skip("no shipped policies")
+    state = tmp_path / "p_state.json"
+    study = tmp_path / "study.yaml"
+    study.write_text(f"policy:\n  kind: usp:1:performance\n  state_path: {state}\n")
+    cmd = [sys.executable, "-m", "nao_trainer", "run", "--config", str(study), "--user-model", "1", "--turns", "2",
+           "--speed", "50", "--out", str(tmp_path / "out"), "--quiet", "--no-practice", "--seed", "5"]
+    first = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert first.returncode == 0, first.stderr
+    assert "resuming" not in first.stderr
+    second = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert second.returncode == 0, second.stderr
+    resumed = [ln for ln in second.stderr.splitlines() if "resuming from" in ln]
+    assert resumed == [f"policy usp:1:performance: resuming from {state} (2 live turns learned)"], second.stderr
+    assert usp.read_policy_file(state)["live"]["turns_learned"] == 4
