@@ -70,12 +70,11 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, object]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from nao_trainer.session.config import load_config
-    from nao_trainer.session.wiring import RunOptions, run_session
-
     import sys
 
     from nao_trainer.errors import ConfigError
+    from nao_trainer.session.config import is_robot_address, load_config
+    from nao_trainer.session.wiring import RunOptions, run_session
 
     overrides = overrides_from_args(args)
     if args.console_port is not None and not 0 <= args.console_port <= 65535:
@@ -95,6 +94,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"resuming {resume.folder} after turn {resume.checkpoint['completed']} of {config.session.turns}",
               file=sys.stderr)
     else:
+        if args.config is None and args.robot is not None and is_robot_address(args.robot):
+            # The demo study is a simulation (sped up, simulated participant and Muse, pseudonym "demo"):
+            # a robot must never run with it by accident.
+            raise ConfigError(f"--robot {args.robot} needs --config FILE: without it the demo study would run "
+                              "(speed x25, simulated participant and EEG, pseudonym 'demo'); use --config "
+                              "config/studies/paper-2018.yaml or your own study file")
         config = load_config(args.config, overrides)
     result = run_session(config, options, resume=resume)
     print(result.summary())

@@ -154,7 +154,6 @@ def run_batch(n: int, folder: Path, seed: int = 2026) -> dict[str, list[tuple[st
     return results
 
 
-@pytest.mark.xfail(strict=True, reason="the config checks (NaN, huge numbers, paths, empty file) land with the typed config")
 def test_mutated_study_files_are_all_refused_in_one_line_with_exit_2(tmp_path):
     results = run_batch(N_SUITE, tmp_path)
     bad = {status: cases[:5] for status, cases in results.items() if status != "ok"}
