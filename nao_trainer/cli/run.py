@@ -28,6 +28,8 @@ def register(sub) -> None:
     p.add_argument("--out", metavar="DIR", help="folder under which the session folder is created")
     p.add_argument("--pseudonym", metavar="ID", help="participant pseudonym (names the session folder)")
     p.add_argument("--eeg", choices=EEG_MODES, help="EEG: off, a simulated Muse, or a Muse over LSL")
+    p.add_argument("--eeg-source-id", metavar="ID",
+                   help="use only the LSL stream with this source_id (one headband among several; eeg.source_id)")
     p.add_argument("--user-model", metavar="CLUSTER|FILE",
                    help="simulated participant from a fitted user model (cluster id or simulator JSON)")
     p.add_argument("--policy", metavar="SPEC", help="schedule | random | usp:CLUSTER[:METHOD]")
@@ -61,6 +63,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, object]:
         "session.output": str(Path(args.out).resolve()) if args.out else None,
         "participant.pseudonym": args.pseudonym,
         "eeg.mode": args.eeg,
+        "eeg.source_id": args.eeg_source_id,
         "policy.kind": args.policy,
         "participant_model.user_model": args.user_model,
         "policy.learning": False if args.no_learning else None,

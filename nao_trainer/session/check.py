@@ -16,7 +16,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from nao_trainer.errors import UserError
+from nao_trainer.errors import ConfigError, UserError
 
 #: Exit codes of failed required checks, by kind (as `nao-trainer run` would fail later).
 EXIT = {"robot": 3, "eeg": 4, "disk": 2}
@@ -155,7 +155,9 @@ def _check_naoqi(url: str, plan: CheckPlan, label: str | None) -> CheckResult:
     where = label or redact_url(url)
     try:
         robot = NaoqiRobot.connect(url, plan.connect_deadline_s)
-    except UserError as exc:  # unreachable, unresolvable, missing login: the message says how to fix it
+    except ConfigError:  # a malformed address or a missing login: an input error (exit 2), not the robot's
+        raise
+    except UserError as exc:  # unreachable, unresolvable: the message says how to fix it
         return CheckResult("robot", False, str(exc))
     try:
         needed = TASK_SERVICES + (("ALMemory",) if plan.needs_buttons else ())

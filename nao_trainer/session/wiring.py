@@ -145,6 +145,7 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
                          config.policy_state_file(), config.policy.guidance, options.fresh_policy)
     # Not closed on failure here: closing a learning policy saves it, and nothing is written before the robot answers.
     ensure_output_dir(config.output_dir())  # an unusable output folder is found before the robot moves
+    preflight(config, progress)  # robot, disk and a required EEG stream, before any session folder exists
 
     with _signals_as_interrupt():
         return _run_wired(config, progress, dialogue, behaviors, seed, simulator, policy, options, resume, console_bind)
@@ -160,6 +161,26 @@ def _console_bind(config: StudyConfig, options: RunOptions) -> str | None:
         raise ConfigError(f"console.bind {config.console.bind!r}: the console serves only this machine unless "
                           "--console-bind ADDRESS is given on the command line")
     return config.console.bind
+
+
+def preflight(config: StudyConfig, progress: TextIO | None) -> None:
+    """The pre-session check (``session.check``) at the start of a run: a failed required check stops it
+    with its own exit code before anything is written. EEG is judged here only when it is required (a
+    missing optional stream is reported by the monitor, which then keeps looking)."""
+    from nao_trainer.errors import EEGUnavailable
+    from nao_trainer.session.check import check_disk, check_eeg, check_robot, plan_from_config
+
+    plan = plan_from_config(config)
+    checks = [lambda: check_disk(plan.output_dir), lambda: check_robot(plan)]
+    if config.eeg.mode == "lsl" and config.eeg.required:
+        checks.append(lambda: check_eeg(plan, config.eeg.processing.window_s + 0.5))
+    errors = {"robot": RobotUnavailable, "eeg": EEGUnavailable, "disk": UserError}
+    for check in checks:
+        result = check()
+        if result.exit_code:
+            raise errors[result.kind](f"{result.detail}; {result.fix}" if result.fix else result.detail)
+        if progress:
+            print(f"check: {result.line()}", file=progress, flush=True)
 
 
 def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue, behaviors: Behaviors, seed: int,
@@ -231,6 +252,8 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
                           "and has the link can steer the session", file=progress, flush=True)
                 print(f"console: {console.link} (open it in a browser on this machine)", file=progress, flush=True)
         monitor = open_engagement_monitor(config, path, np.random.default_rng(eeg_ss))
+        if config.eeg.mode != "off" and progress:  # which headband this session listens to (events.jsonl too)
+            print(f"EEG ({config.eeg.mode}): {monitor.describe()}", file=progress, flush=True)
         participant_rng = np.random.default_rng(participant_ss)
         answers, buttons = _make_answers(config, robot, standin, connect_url, simulator, monitor, participant_rng,
                                          progress)

@@ -285,3 +285,53 @@ def test_relative_paths_resolve_against_the_current_folder_and_the_study_file(tm
     assert res.returncode == 2
     assert (f"bad.yaml:2: key 'session.dialogue': {study_dir / 'nowhere.yaml'} is not a file (relative paths resolve "
             f"against {study_dir}") in res.stderr
+
+
+def _study(tmp_path: Path, text: str) -> str:
+    path = tmp_path / "study.yaml"
+    path.write_text("study: {name: eeg-test}\n" + text)
+    return str(path)
+
+
+def test_the_chosen_eeg_stream_is_printed_recorded_and_can_be_pinned(tmp_path):
+    """Two streams called Muse on the machine: --eeg-source-id takes the one asked for, and says which."""
+    import uuid
+
+    import numpy as np
+
+    from nao_trainer.eeg.simulated_muse import SimulatedMuse
+
+    wanted, decoy = (f"MusePin-{uuid.uuid4().hex[:8]}" for _ in range(2))
+    streams = [SimulatedMuse.start(np.random.default_rng(i), source_id=sid) for i, sid in enumerate((decoy, wanted))]
+    try:
+        out = tmp_path / "out"
+        res = cli("--eeg", "lsl", "--eeg-source-id", wanted, "--turns", "2", "--speed", "50", "--out", str(out),
+                  "--config", _study(tmp_path, "eeg: {processing: {window_s: 0.5, hop_s: 0.1}}\n"))
+    finally:
+        for s in streams:
+            s.stop()
+    assert res.returncode == 0, res.stderr
+    line = next(ln for ln in res.stderr.splitlines() if ln.startswith("EEG (lsl): "))
+    assert f"stream 'Muse' (source_id '{wanted}', 256 Hz, channels TP9/AF7/AF8/TP10)" in line
+    folder = only_folder(out)
+    (event,) = [e for e in read_events(folder) if e["event"] == "session_start"]
+    assert wanted in event["eeg"] and decoy not in event["eeg"]
+    assert json.loads((folder / "eeg" / "stream.json").read_text())["source_id"] == wanted
+
+
+def test_a_missing_required_stream_stops_the_run_before_any_session_folder(tmp_path):
+    out = tmp_path / "out"
+    study = _study(tmp_path, "eeg: {mode: lsl, required: true, processing: {resolve_timeout_s: 1}}\n")
+    res = cli("--config", study, "--eeg-source-id", "MuseNotHere-0", "--turns", "1", "--speed", "50", "--out", str(out))
+    assert res.returncode == 4, res.stderr
+    assert "no EEG stream" in res.stderr and "source_id 'MuseNotHere-0'" in res.stderr and "Traceback" not in res.stderr
+    assert not out.exists() or not list(out.iterdir())  # refused before a session folder was made
+
+
+def test_summary_says_why_there_is_no_engagement_when_eeg_was_on(tmp_path):
+    study = _study(tmp_path, "eeg: {mode: lsl, required: false, processing: {resolve_timeout_s: 0.5}}\n")
+    res = cli("--config", study, "--eeg-source-id", "MuseNotHere-1", "--turns", "1", "--speed", "50",
+              "--out", str(tmp_path / "out"), "--no-practice")
+    assert res.returncode == 0, res.stderr
+    summary = next(ln for ln in res.stdout.splitlines() if "mean engagement" in ln)
+    assert "n/a (EEG on, no value in any turn: " in summary and "EEG off" not in summary

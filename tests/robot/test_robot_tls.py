@@ -10,6 +10,7 @@ import pytest
 
 from _tls_proxy import TlsProxy
 from nao_trainer.errors import ConfigError
+from nao_trainer.files import PROJECT_ROOT
 from nao_trainer.robot.naoqi import NaoqiRobot
 from nao_trainer.robot.standin import StandIn
 
@@ -61,7 +62,8 @@ def test_a_session_runs_over_tls_from_the_command_line(tls, tmp_path):
     standin, proxy = tls
     out = tmp_path / "out"
     env = dict(os.environ, NAO_USER=USER, NAO_PASSWORD=PASSWORD, QI_LOG_LEVEL="silent")
-    res = subprocess.run([sys.executable, "-m", "nao_trainer", "run", "--robot", proxy.url, "--turns", "2",
+    study = str(PROJECT_ROOT / "config" / "default.yaml")  # a robot address needs a study (never the demo)
+    res = subprocess.run([sys.executable, "-m", "nao_trainer", "run", "--config", study, "--robot", proxy.url, "--turns", "2",
                           "--speed", "50", "--eeg", "off", "--policy", "schedule", "--input", "simulated",
                           "--out", str(out), "--seed", "1"], capture_output=True, text=True, env=env, timeout=120)
     assert res.returncode == 0, res.stderr
