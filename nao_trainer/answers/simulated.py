@@ -19,7 +19,7 @@ import numpy as np
 from nao_trainer.answers.inputs import TactileAnswers
 from nao_trainer.core import task
 from nao_trainer.core.simulation import UserSimulator
-from nao_trainer.ports import (Answer, AnswerSource, EngagementMonitor, Intention, NullMonitor, Press, RobotConnectionLost,
+from nao_trainer.ports import (Answer, EngagementMonitor, Intention, NullMonitor, Press, RobotConnectionLost,
                                 TurnContext)
 
 #: Relative frequency of mistake kinds when a turn fails.

@@ -18,7 +18,6 @@ import shutil
 import subprocess
 import tempfile
 import threading
-import time
 import wave
 from pathlib import Path
 from typing import Callable

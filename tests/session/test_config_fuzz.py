@@ -17,7 +17,6 @@ import traceback
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 BASE = ROOT / "config" / "default.yaml"
