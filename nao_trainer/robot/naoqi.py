@@ -12,6 +12,7 @@ import atexit
 import logging
 import os
 import re
+import socket
 import threading
 import time
 import weakref
@@ -246,6 +247,7 @@ class NaoqiRobot:
             raise ConfigError(
                 f"robot address {qi_url} is NAOqi 2.9 (tcps): set {USER_ENV} and {PASSWORD_ENV} in the environment"
             )
+        _resolve_host(qi_url, deadline_s)
         session = _new_session(creds)
         _connect_session(session, qi_url, deadline_s)
         log.info("connected to the robot at %s", qi_url)
@@ -378,6 +380,20 @@ class NaoqiRobot:
         """
         self._call("ALTextToSpeech", "stopAll", timeout_s=self.timeouts.default_s)
         self._call("ALAudioPlayer", "stopAll", timeout_s=self.timeouts.default_s)
+
+    # -- what the robot offers (the pre-session check) ----------------------------------------------
+
+    def has_service(self, name: str) -> bool:
+        """Whether the robot offers the NAOqi service ``name`` (looked up once, then cached)."""
+        try:
+            self._service(name)
+        except MissingService:
+            return False
+        return True
+
+    def speech_volume(self) -> float:
+        """The text-to-speech volume, 0..1 (ALTextToSpeech.getVolume)."""
+        return float(self._call("ALTextToSpeech", "getVolume", timeout_s=self.timeouts.default_s))
 
     # -- head buttons ------------------------------------------------------------------------------
 
@@ -575,6 +591,39 @@ def _new_session(creds: Credentials | None) -> Any:
     if creds is not None:
         session.setClientAuthenticatorFactory(_AuthenticatorFactory(creds))
     return session
+
+
+def url_host(url: str) -> str:
+    """The host part of a normalised qi URL, without IPv6 brackets."""
+    m = _URL_RE.match(url)
+    return m.group("host").strip("[]") if m else url
+
+
+def _resolve_host(url: str, deadline_s: float) -> None:
+    """Raise RobotUnavailable when the URL's host name cannot be resolved.
+
+    libqi reports an unknown host in ways that read like a login failure; resolving first names
+    the real problem. ``getaddrinfo`` has no timeout of its own, so it runs in a thread bounded by
+    the connect deadline (a slow resolver then falls through to the connect, which has its own).
+    """
+    host = url_host(url)
+    outcome: list[BaseException | None] = []
+
+    def resolve() -> None:
+        try:
+            socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
+            outcome.append(None)
+        except (OSError, UnicodeError) as exc:
+            outcome.append(exc)
+
+    worker = threading.Thread(target=resolve, name="resolve-robot-host", daemon=True)
+    worker.start()
+    worker.join(deadline_s)
+    if outcome and isinstance(outcome[0], (socket.gaierror, UnicodeError)):
+        raise RobotUnavailable(
+            f"the robot's host name {host!r} cannot be resolved: check the spelling of --robot (or robot.url), "
+            "or use the robot's IP address (press its chest button to hear it)"
+        )
 
 
 def _connect_session(session: Any, url: str, deadline_s: float) -> None:
