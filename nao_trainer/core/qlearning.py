@@ -247,14 +247,19 @@ class QLearner:
     h: np.ndarray | None = None
     h_counts: np.ndarray | None = None
     visits: np.ndarray | None = None
+    process: str = "paper"  # the decision process (core.mdps): its states index the tables
 
     def __post_init__(self) -> None:
+        from nao_trainer.core import mdps
+
         check_method(self.method)
-        shape = (mdp.N_STATES, mdp.N_ACTIONS)
+        self._proc = mdps.get(self.process)
+        n_states = self._proc.n_states
+        shape = (n_states, mdp.N_ACTIONS)
         self.q = _table(self.q, shape, 0.0, float, "q")
         self.h = _table(self.h, shape, self.config.h_prior, float, "h")
         self.h_counts = _table(self.h_counts, shape, 0, np.int64, "h_counts")
-        self.visits = _table(self.visits, (mdp.N_STATES,), 0, np.int64, "visits")
+        self.visits = _table(self.visits, (n_states,), 0, np.int64, "visits")
         if np.any(self.h_counts < 0) or np.any(self.visits < 0):
             raise ValueError("h_counts and visits must be >= 0")
         # (next_state, max Q(next_state)) from the last update: the softmax shift of the next choice,
@@ -272,13 +277,13 @@ class QLearner:
 
     def probabilities(self, state: int) -> np.ndarray:
         """The current policy P(a | state) (zero for actions not allowed)."""
-        _check_state(state)
-        return policy_probabilities(self.values(state), mdp.ACTION_MASK[state], self.inverse_temperature(state))
+        self._check_state(state)
+        return policy_probabilities(self.values(state), self._proc.action_mask[state], self.inverse_temperature(state))
 
     def choose(self, state: int, u: float) -> int:
         """The action for uniform ``u`` in [0, 1) (inverse CDF over the allowed actions)."""
-        _check_state(state)
-        allowed = np.flatnonzero(mdp.ACTION_MASK[state])
+        self._check_state(state)
+        allowed = np.flatnonzero(self._proc.action_mask[state])
         column = self.values(state)[allowed][:, None]
         top = np.array([self._shift[1]]) if self._shift is not None and self._shift[0] == state else None
         k = choose_columns(column, np.array([self.inverse_temperature(state)]), np.array([u]), top)[0]
@@ -291,11 +296,12 @@ class QLearner:
     def update(self, state: int, action: int, score: float, engagement: float | None,
                next_state: int, done: bool) -> float:
         """Learn from one transition; returns the TD target used."""
-        _check_state(state)
-        if not mdp.ACTION_MASK[state, action]:
-            raise ValueError(f"action {mdp.ACTION_NAMES[action]} is not allowed in {mdp.state_label(state)}")
-        if not 0 <= next_state < mdp.N_TURN_STATES:
-            raise ValueError(f"next_state must be a turn state 0..107, got {next_state!r}")
+        self._check_state(state)
+        if not self._proc.action_mask[state, action]:
+            raise ValueError(f"action {mdp.ACTION_NAMES[action]} is not allowed in {self._proc.label(state)}")
+        if not 0 <= next_state < self._proc.n_states or next_state == self._proc.start:
+            raise ValueError(f"next_state must be a turn state 0..{self._proc.n_states - 1} other than "
+                             f"START, got {next_state!r}")
         reward = float(score)
         if engagement is not None:
             e = float(engagement)
@@ -317,6 +323,10 @@ class QLearner:
         self.visits[state] += 1
         return target
 
+    def _check_state(self, state: int) -> None:
+        if not 0 <= state < self._proc.n_states:
+            raise ValueError(f"state must be in 0..{self._proc.n_states - 1}, got {state!r}")
+
 
 def _table(value, shape, fill, dtype, name) -> np.ndarray:
     if value is None:
@@ -327,11 +337,6 @@ def _table(value, shape, fill, dtype, name) -> np.ndarray:
     if dtype is float and not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} has non-finite values")
     return arr
-
-
-def _check_state(state: int) -> None:
-    if not 0 <= state < mdp.N_STATES:
-        raise ValueError(f"state must be in 0..{mdp.N_STATES - 1}, got {state!r}")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -364,13 +369,23 @@ class BatchLearner:
     ``[..., 1]`` the outcome: success when ``u < p_success[s']``), so its result does not depend on
     the other agents in the batch nor on the block size.
 
-    All agents start every episode in ``START`` at the same step, which makes the start-state mask
-    a column slice. Per-agent tables are stored flat with the agent's offset added to the state
-    index so every step is a handful of ``np.take`` calls over the agents.
+    ``process``: the decision process (``core.mdps``: ``paper`` or ``informed``); the agents' tables
+    are over its observed states. ``engine``: ``numpy`` (all agents in lock-step, vectorised),
+    ``numba`` (``core.qkernel``, one agent at a time, compiled) or ``auto`` (numba when installed).
+    Both give the same tables for the same random numbers.
+
+    In the numpy loop all agents start every episode in ``START`` at the same step, which makes the
+    start-state mask a row slice. Per-agent tables are stored flat with the agent's offset added to
+    the state index so every step is a handful of ``np.take`` calls over the agents. The full state
+    of an agent is a *code* ``x = s * 2 + o`` (``core.mdps``), stored with a stride of 218 per agent.
     """
 
+    ENGINES = ("auto", "numpy", "numba")
+
     def __init__(self, p_success: np.ndarray, engagement: np.ndarray, methods: Sequence[str],
-                 config: QConfig = QConfig()) -> None:
+                 config: QConfig = QConfig(), process: str = "paper", engine: str = "numpy") -> None:
+        from nao_trainer.core import mdps
+
         p = np.asarray(p_success, dtype=float)
         e = np.asarray(engagement, dtype=float)
         n = len(methods)
@@ -378,11 +393,28 @@ class BatchLearner:
             raise ValueError(f"need p_success ({n}, 108) and engagement ({n}, 108, 2), got {p.shape} and {e.shape}")
         if not (np.all((p >= 0) & (p <= 1)) and np.all((e >= 0) & (e <= 1))):
             raise ValueError("p_success and engagement must lie in [0, 1]")
+        if engine not in self.ENGINES:
+            raise ValueError(f"engine must be one of {', '.join(self.ENGINES)}, got {engine!r}")
         self.methods = [check_method(m) for m in methods]
         self.config = config
+        self.process = mdps.get(process)
+        self.engine = engine
         self.n = n
         self._p = p
         self._e = e
+
+    def _local_tables(self) -> dict[str, np.ndarray]:
+        """Per-code tables shared by all agents (codes 0..217, see the class docstring)."""
+        from nao_trainer.core import mdps
+
+        C, A = 2 * mdp.N_STATES, mdp.N_ACTIONS
+        nt = np.zeros((C, A), dtype=np.int64)
+        nt[: mdps.N_FULL] = 2 * np.where(mdps.NEXT_TURN < 0, 0, mdps.NEXT_TURN)
+        obs = np.zeros(C, dtype=np.int64)
+        obs[: mdps.N_FULL] = self.process.obs
+        score = np.zeros(C)
+        score[: 2 * mdp.N_TURN_STATES] = mdp.SCORE.ravel()
+        return {"nt": nt, "obs": obs, "score": score}
 
     def run(self, episodes: int, turns: int, rngs: Sequence[np.random.Generator], block: int = 200,
             progress: Callable[[int, int], None] | None = None) -> BatchResult:
@@ -391,28 +423,48 @@ class BatchLearner:
             raise ValueError(f"need one generator per agent ({self.n}), got {len(rngs)}")
         if episodes < 1 or turns < 1 or block < 1:
             raise ValueError(f"episodes, turns and block must be >= 1, got {episodes}, {turns}, {block}")
+        engine = self.engine
+        if engine == "auto":
+            from nao_trainer.core import qkernel
+
+            engine = "numba" if qkernel.available() else "numpy"
+        if engine == "numba":
+            return self._run_compiled(episodes, turns, rngs, progress)
+        return self._run_numpy(episodes, turns, rngs, block, progress)
+
+    def _agent_arrays(self, turns: int) -> dict[str, np.ndarray]:
+        """Per-agent code tables (n, 218[, 6]) as the float operations of both engines use them."""
         cfg, n = self.config, self.n
-        S, A = mdp.N_STATES, mdp.N_ACTIONS
-        NS = n * S
-        agents = np.arange(n)
-        gbase = agents * S  # global state gs = agent * 109 + state
-        # Per-agent tables indexed by global state (START rows are never read for p / e).
-        p_g = np.zeros((n, S))
-        p_g[:, : mdp.N_TURN_STATES] = self._p
-        p_g = p_g.ravel()
+        S = mdp.N_STATES
+        loc = self._local_tables()
         e_g = np.zeros((n, S, 2))
         e_g[:, : mdp.N_TURN_STATES] = self._e
-        e_g = e_g.ravel()  # indexed by the global state-outcome code gso = gs * 2 + o
-        score = np.zeros((S, 2))
-        score[: mdp.N_TURN_STATES] = mdp.SCORE
-        score_g = np.tile(score.ravel(), n)
+        e_g = e_g.reshape(n, 2 * S)
+        p_g = np.zeros((n, S))
+        p_g[:, : mdp.N_TURN_STATES] = self._p
         beta1 = np.array([cfg.shaping_weight(m) for m in self.methods])
         beta2 = np.array([cfg.augment_weight(m) for m in self.methods])
-        reward_g = score_g + np.repeat(beta1, S * 2) * e_g  # r' = r + beta1 * e, same float ops as QLearner
-        # NEXT_STATE per agent as global states, indexed by gso * 6 + a.
-        nxt = np.where(mdp.NEXT_STATE < 0, 0, mdp.NEXT_STATE).transpose(0, 2, 1)  # (S, 2, A)
-        next_g = (nxt[None] + gbase[:, None, None, None]).ravel()
-        p_next = p_g[next_g]  # P(success) of the next turn, same index
+        reward = np.tile(loc["score"], (n, 1)) + beta1[:, None] * e_g  # r' = r + beta1 * e, as QLearner
+        p_next = p_g[:, loc["nt"] // 2]  # (n, 218, 6)
+        return {**loc, "e": e_g, "reward": reward, "p_next": p_next, "beta2": beta2}
+
+    def _run_numpy(self, episodes: int, turns: int, rngs: Sequence[np.random.Generator], block: int,
+                   progress: Callable[[int, int], None] | None) -> BatchResult:
+        cfg, n = self.config, self.n
+        S, A = self.process.n_states, mdp.N_ACTIONS
+        C = 2 * mdp.N_STATES  # codes per agent
+        NS = n * S
+        agents = np.arange(n)
+        gbase = agents * S  # global observed state gs = agent * S + state
+        arr = self._agent_arrays(turns)
+        cbase = agents * C  # global code gso = agent * C + code
+        e_g = arr["e"].ravel()
+        score_g = np.tile(arr["score"], n)
+        reward_g = arr["reward"].ravel()
+        beta2 = arr["beta2"]
+        next_g = (arr["nt"][None] + cbase[:, None, None]).ravel()  # indexed by gso * A + a
+        p_next = arr["p_next"].ravel()
+        obs_g = (arr["obs"][None] + gbase[:, None]).ravel()  # global observed state of a global code
         inv_tau = inverse_temperature(np.arange(episodes * turns + 1), cfg)
 
         # Action-major tables (A, n * S): a column per global state makes max/softmax over actions
@@ -425,8 +477,8 @@ class BatchLearner:
         q_flat, h_flat, qv_flat, c_flat = q.ravel(), h.ravel(), qv.ravel(), counts.ravel()
         ep_score = np.zeros((n, episodes))
         ep_eng = np.zeros((n, episodes))
-        start_gso = (gbase + mdp.START) * 2
-        start_gs = gbase + mdp.START
+        start_gso = cbase + 2 * mdp.START if self.process.name == "paper" else cbase + self.process.start
+        start_gs = gbase + self.process.start
         qv_start = qv[:_N_LEVEL_ACTIONS]
         alpha, gamma = cfg.alpha, cfg.gamma
         last = turns - 1
@@ -447,8 +499,8 @@ class BatchLearner:
                     ut = uk[t]
                     a = choose_columns(vals, inv_tau[vis], ut[0], top)
                     idx = gso * A + a
-                    gs2 = next_g[idx]
-                    gso2 = gs2 * 2 + (ut[1] < p_next[idx])
+                    gso2 = next_g[idx] + (ut[1] < p_next[idx])
+                    gs2 = obs_g[gso2]
                     codes[k, t] = gso2
                     target = reward_g[gso2]
                     if t != last:
@@ -478,3 +530,39 @@ class BatchLearner:
             q=as_agents(q), h=as_agents(h), h_counts=as_agents(counts).astype(np.int64),
             visits=visits.reshape(n, S), episode_score=ep_score, episode_engagement=ep_eng,
         )
+
+    def _run_compiled(self, episodes: int, turns: int, rngs: Sequence[np.random.Generator],
+                      progress: Callable[[int, int], None] | None) -> BatchResult:
+        from nao_trainer.core import qkernel
+
+        run_agent = qkernel.kernel()
+        cfg, n = self.config, self.n
+        S, A = self.process.n_states, mdp.N_ACTIONS
+        arr = self._agent_arrays(turns)
+        inv_tau = inverse_temperature(np.arange(episodes * turns + 1), cfg)
+        nt = arr["nt"].ravel()
+        start_code = 2 * mdp.START if self.process.name == "paper" else self.process.start
+        out_q = np.zeros((n, S, A))
+        out_h = np.zeros((n, S, A))
+        out_c = np.zeros((n, S, A), dtype=np.int64)
+        out_v = np.zeros((n, S), dtype=np.int64)
+        ep_score = np.zeros((n, episodes))
+        ep_eng = np.zeros((n, episodes))
+        codes = np.empty((episodes, turns), dtype=np.int64)
+        for i in range(n):
+            u = rngs[i].random((episodes, turns, 2))
+            q = np.zeros((A, S))
+            h = np.full((A, S), cfg.h_prior)
+            qv = q + arr["beta2"][i] * h
+            counts = np.zeros((A, S))
+            visits = np.zeros(S, dtype=np.int64)
+            run_agent(u, nt, arr["p_next"][i].ravel(), arr["obs"], arr["reward"][i], arr["e"][i], inv_tau,
+                      q, h, qv, counts, visits, float(arr["beta2"][i]), cfg.alpha, cfg.gamma,
+                      self.process.start, start_code, _N_LEVEL_ACTIONS, codes)
+            out_q[i], out_h[i], out_c[i], out_v[i] = q.T, h.T, counts.T.astype(np.int64), visits
+            ep_score[i] = arr["score"][codes].sum(axis=1)
+            ep_eng[i] = arr["e"][i][codes].mean(axis=1)
+            if progress is not None:
+                progress(episodes * (i + 1) // n, episodes)
+        return BatchResult(q=out_q, h=out_h, h_counts=out_c, visits=out_v, episode_score=ep_score,
+                           episode_engagement=ep_eng)
