@@ -14,7 +14,7 @@ from nao_trainer import __version__
 from nao_trainer.errors import Interrupted, UserError
 
 #: Subcommand modules, in the order ``--help`` lists them.
-COMMANDS = ("run", "mock_robot", "simulate_muse", "engagement", "import_data", "fit", "train")
+COMMANDS = ("run", "mock_robot", "simulate_muse", "engagement", "import_data", "fit", "train", "evaluate", "sweep")
 
 
 def build_parser() -> argparse.ArgumentParser:

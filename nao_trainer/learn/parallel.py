@@ -41,8 +41,9 @@ def check_backend(backend: str | None) -> str | None:
     return f"tcp://{address}"
 
 
-def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S):
+def connect(address: str, timeout_s: float | None = None):
     """A ``distributed.Client`` for ``address``; ClusterUnavailable within ``timeout_s`` otherwise."""
+    timeout_s = CONNECT_TIMEOUT_S if timeout_s is None else timeout_s
     try:
         from distributed import Client
     except ImportError:

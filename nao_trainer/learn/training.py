@@ -403,7 +403,7 @@ def write_outputs(result: GridResult, out_dir: Path, models_source: str, command
             policy_files[f"{cluster}:{method}"] = path.name
     summary = result.summary_json()
     summary["default_method"] = default_methods(result)
-    summary["spec"] = {"methods": list(result.spec.methods), "seeds": result.spec.seeds,
+    summary["spec"] = {"methods": list(result.spec.methods), "seeds": result.spec.seeds, "mdp": result.spec.process,
                        "episodes": result.spec.episodes, "turns": result.spec.turns, "seed": result.spec.seed,
                        "hyperparameters": result.spec.config.to_dict(), "models": models_source,
                        "command": command}

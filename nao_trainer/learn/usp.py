@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from nao_trainer import __version__
-from nao_trainer.core import mdp
+from nao_trainer.core import mdp, mdps
 from nao_trainer.core.qlearning import METHOD_TEXT, METHODS, QConfig, QLearner
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import ConfigError, DataError
@@ -83,8 +83,8 @@ def make_payload(learner: QLearner, cluster: str, simulator: UserSimulator,
         "method": learner.method,
         "method_text": METHOD_TEXT[learner.method],
         "hyperparameters": learner.config.to_dict(),
-        "mdp_definition": mdp.DEFINITION,
-        "states": [mdp.state_label(s) for s in range(mdp.N_STATES)],
+        "mdp_definition": mdps.get(learner.process).definition,
+        "states": mdps.get(learner.process).labels(),
         "actions": list(mdp.ACTION_NAMES),
         "q": learner.q.tolist(),
         "h": learner.h.tolist(),
@@ -102,10 +102,11 @@ def save_policy_file(path: Path, payload: dict[str, Any]) -> None:
                              "sha256": canonical_digest(payload), "payload": payload})
 
 
-def read_policy_file(path: Path) -> dict[str, Any]:
+def read_policy_file(path: Path, process: str = "paper") -> dict[str, Any]:
     """The verified payload of a policy file; DataError naming the file and the fix otherwise.
 
-    Checks, in order: readable JSON, format and version, checksum, state/action definition.
+    Checks, in order: readable JSON, format and version, checksum, state/action definition (the
+    policy must be made for the decision process ``process``, ``core.mdps``).
     """
     path = Path(path)
     text = read_text(path, DataError, "no such policy file", RETRAIN)
@@ -129,16 +130,27 @@ def read_policy_file(path: Path) -> dict[str, Any]:
         raise DataError(f"{path}: policy payload holds invalid numbers ({exc}); {RETRAIN}") from None
     if digest != doc["sha256"]:
         raise DataError(f"{path}: checksum mismatch (file altered, torn or corrupt); {RETRAIN}")
-    check_definition(payload, path)
+    check_definition(payload, path, process)
     return payload
 
 
-def check_definition(payload: dict[str, Any], path: Path) -> None:
+def policy_process(payload: dict[str, Any]) -> str | None:
+    """The decision process (``core.mdps`` name) a payload was made for, None if unknown."""
+    proc = mdps.by_definition(str(payload.get("mdp_definition")))
+    return None if proc is None else proc.name
+
+
+def check_definition(payload: dict[str, Any], path: Path, process: str = "paper") -> None:
     """Refuse a policy made for another state/action definition, naming what differs."""
-    if payload.get("mdp_definition") != mdp.DEFINITION:
+    proc = mdps.get(process)
+    made_for = policy_process(payload)
+    if made_for is not None and made_for != proc.name:
+        raise DataError(f"{path}: policy was made for the {made_for} MDP, not the {proc.name} MDP; "
+                        f"use --mdp {made_for} or retrain with `nao-trainer train --mdp {proc.name}`")
+    if payload.get("mdp_definition") != proc.definition:
         raise DataError(f"{path}: policy was trained for another state/action definition "
                         f"({payload.get('mdp_definition')!r}, this build: {mdp.DEFINITION!r}); {RETRAIN}")
-    states = [mdp.state_label(s) for s in range(mdp.N_STATES)]
+    states = proc.labels()
     if payload.get("states") != states:
         raise DataError(f"{path}: policy's state list differs from this build's {len(states)} states; {RETRAIN}")
     if payload.get("actions") != list(mdp.ACTION_NAMES):
@@ -152,7 +164,7 @@ def learner_from_payload(payload: dict[str, Any], path: Path) -> QLearner:
         config = QConfig.from_dict(payload["hyperparameters"])
         return QLearner(payload["method"], config, np.array(payload["q"], dtype=float),
                         np.array(payload["h"], dtype=float), np.array(payload["h_counts"], dtype=np.int64),
-                        np.array(payload["visits"], dtype=np.int64))
+                        np.array(payload["visits"], dtype=np.int64), policy_process(payload) or "paper")
     except KeyError as exc:
         raise DataError(f"{path}: policy file lacks field {exc.args[0]!r}; {RETRAIN}") from None
     except (TypeError, ValueError) as exc:

@@ -1,0 +1,147 @@
+"""`nao-trainer evaluate`: compare policies (baselines, oracle, trained learners) on simulated users."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import shlex
+import sys
+import time
+from pathlib import Path
+
+from nao_trainer.errors import ConfigError, DataError
+
+MDPS = ("paper", "informed")  # core.mdps.NAMES, repeated so that --help does not import numpy
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "evaluate", help="compare policies on simulated users: exact scores, regret vs the per-user optimum",
+        description="Evaluate baselines (fixed levels, staircases, random, best fixed level), the optimum and "
+                    "Q-learners (trained on each user's training simulator, frozen and still learning) on a "
+                    "user set. Writes DIR/evaluation.json, DIR/evaluation.csv and DIR/evaluation.png. "
+                    "See docs/evaluation.md.")
+    p.add_argument("--policies", default=None,
+                   help="comma-separated policies (default: all baselines, usp:METHOD and usp-learning:METHOD "
+                        "for every method, oracle); see docs/evaluation.md")
+    p.add_argument("--users", default="clusters",
+                   help="clusters | level-only | sessions | DATASET_ROOT (per-session users, leave-one-session-out)")
+    p.add_argument("--data", type=Path, default=None, help="dataset root or turn table for --users sessions")
+    p.add_argument("--models", type=Path, default=None,
+                   help="folder of fitted user models (default: $NAO_TRAINER_MODELS or sim/models)")
+    p.add_argument("--mdp", choices=MDPS, default="paper",
+                   help="decision process: paper (outcome of the last turn hidden) or informed (default paper)")
+    p.add_argument("--policy-files", type=Path, default=None, metavar="DIR",
+                   help="use the trained policy files in DIR (e.g. sim/policies) for usp policies on cluster users "
+                        "instead of training them here")
+    p.add_argument("--seeds", type=int, default=10, help="trained learners per (user, method) (default 10)")
+    p.add_argument("--episodes", type=int, default=10_000, help="training episodes per learner (default 10000)")
+    p.add_argument("--mc-episodes", type=int, default=1000,
+                   help="Monte Carlo episodes per (user, seed) for staircases and still-learning learners (default 1000)")
+    p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
+    p.add_argument("--workers", type=int, default=2, help="local worker processes (default 2)")
+    p.add_argument("--backend", default=None, help="local (default) or dask://HOST:PORT (a running dask scheduler)")
+    p.add_argument("--limit", type=int, default=None, help="only the first N sessions (a quick look)")
+    p.add_argument("--out", type=Path, default=Path("evaluation"), help="output folder (default ./evaluation)")
+    p.add_argument("--no-plots", action="store_true", help="skip the figure")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from nao_trainer.learn import comparison, users
+    from nao_trainer.learn.parallel import check_backend
+
+    policies = tuple(s.strip() for s in args.policies.split(",") if s.strip()) if args.policies else \
+        comparison.DEFAULT_POLICIES
+    if not policies:
+        raise ConfigError("--policies: give at least one policy")
+    spec = comparison.EvalSpec(policies=policies, process=args.mdp, seeds=args.seeds, episodes=args.episodes,
+                               mc_episodes=args.mc_episodes, seed=args.seed)
+    check_backend(args.backend)
+    if args.workers < 1 or (args.limit is not None and args.limit < 1):
+        raise ConfigError("--workers and --limit must be >= 1")
+    if not args.no_plots and importlib.util.find_spec("matplotlib") is None:
+        raise ConfigError("figures need matplotlib: pip install 'nao-trainer[plots]', or add --no-plots")
+    try:
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DataError(f"{args.out}: cannot create the output folder ({exc.strerror}); choose another --out") from None
+    t0 = time.perf_counter()
+    kind, user_list = users.load_users(args.users, args.models, args.data, args.workers, args.backend, args.seed,
+                                       args.limit)
+    given = None
+    if args.policy_files is not None:
+        if kind != "clusters" and kind != "level-only":
+            raise ConfigError("--policy-files applies to cluster users only (sessions are left out of training)")
+        given = comparison.policy_file_learners(user_list, args.policy_files, spec)
+    print(f"evaluate: {len(user_list)} {kind} users x {len(policies)} policies, {args.mdp} MDP", file=sys.stderr)
+    rows = comparison.run(user_list, spec, args.workers, args.backend, given)
+    summary = comparison.summarise(rows)
+    argv = getattr(args, "argv", None) or ["evaluate"]
+    report = {
+        "command": "nao-trainer " + " ".join(shlex.quote(a) for a in argv),
+        "users": kind, "n_users": len(user_list), "mdp": args.mdp,
+        "spec": {"policies": list(policies), "seeds": spec.seeds, "episodes": spec.episodes,
+                 "mc_episodes": spec.mc_episodes, "turns": spec.turns, "seed": spec.seed,
+                 "hyperparameters": spec.config.to_dict(),
+                 "policy_files": None if args.policy_files is None else str(args.policy_files)},
+        "summary": summary, "claims": comparison.claims(rows), "rows": rows,
+        "seconds": round(time.perf_counter() - t0, 2),
+    }
+    from nao_trainer.files import write_json_atomic, write_text_atomic
+
+    out = Path(args.out)
+    write_json_atomic(out / "evaluation.json", report)
+    write_text_atomic(out / "evaluation.csv", to_csv(summary))
+    paths = [out / "evaluation.json", out / "evaluation.csv"]
+    if not args.no_plots:
+        from nao_trainer.plots.evaluation import plot_evaluation
+
+        title = f"{kind} users ({len(user_list)}), {args.mdp} MDP: means and 95 % CIs over users and seeds"
+        paths.append(plot_evaluation(summary, title, out / "evaluation.png"))
+    if args.json:
+        print(json.dumps({k: v for k, v in report.items() if k != "rows"}))
+    else:
+        print(format_table(summary, report["claims"]))
+        for path in paths:
+            print(f"  {path}")
+    return 0
+
+
+def _ci(v, digits=2) -> str:
+    return "n/a" if v is None else f"[{v[0]:.{digits}f}, {v[1]:.{digits}f}]"
+
+
+def format_table(summary: list[dict], claims: list[dict]) -> str:
+    """The summary as aligned text; d best-fixed = paired score difference to the best fixed level."""
+    lines = [f"{'policy':<26} {'n':>4} {'score':>7} {'95% CI':>17} {'engage':>7} {'success':>7} "
+             f"{'regret':>7} {'95% CI':>17} {'d best-fixed':>13} {'95% CI':>17}"]
+    for s in summary:
+        ref = s.get("vs_reference")
+        d = "" if ref is None else f"{ref['score_diff']:+.2f}"
+        dci = "" if ref is None else _ci(ref["score_diff_ci"])
+        lines.append(f"{s['policy']:<26} {s['n']:>4} {s['score']:7.2f} {_ci(s['score_ci']):>17} {s['engagement']:7.3f} "
+                     f"{s['success']:7.3f} {s['regret']:7.2f} {_ci(s['regret_ci']):>17} {d:>13} {dci:>17}")
+    if claims:
+        lines.append("engagement feedback vs the performance-only learner (paired over users x seeds):")
+        for c in claims:
+            lines.append(f"  {c['a']:<22} - {c['b']:<26} score {c['score_diff']:+.2f} {_ci(c['score_diff_ci'])}  "
+                         f"engagement {c['engagement_diff']:+.4f} {_ci(c['engagement_diff_ci'], 4)}")
+    return "\n".join(lines)
+
+
+def to_csv(summary: list[dict]) -> str:
+    cols = ["policy", "n", "users", "score", "score_lo", "score_hi", "engagement", "engagement_lo", "engagement_hi",
+            "success", "regret", "regret_lo", "regret_hi", "d_best_fixed", "d_best_fixed_lo", "d_best_fixed_hi"]
+    lines = [",".join(cols)]
+    for s in summary:
+        ref = s.get("vs_reference") or {}
+
+        def lo_hi(ci):
+            return ("", "") if not ci else (f"{ci[0]:.6g}", f"{ci[1]:.6g}")
+
+        vals = [s["policy"], s["n"], s["users"], f"{s['score']:.6g}", *lo_hi(s["score_ci"]), f"{s['engagement']:.6g}",
+                *lo_hi(s["engagement_ci"]), f"{s['success']:.6g}", f"{s['regret']:.6g}", *lo_hi(s["regret_ci"]),
+                "" if not ref else f"{ref['score_diff']:.6g}", *lo_hi(ref.get("score_diff_ci"))]
+        lines.append(",".join(str(v) for v in vals))
+    return "\n".join(lines) + "\n"
