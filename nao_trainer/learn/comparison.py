@@ -121,9 +121,11 @@ def evaluate_user(user: User, spec: EvalSpec, given: dict[str, list[QLearner]] |
     rows = []
 
     def add(name: str, out: evaluation.Outcome, seed: int | None) -> None:
+        # Rounded to 1e-9 (far below any difference reported): keeps the JSON files small.
         rows.append({"user": user.name, "cluster": user.cluster, "policy": name, "seed": seed,
-                     "score": out.score, "engagement": out.engagement, "success": out.success,
-                     "regret": oracle.value - out.score, "visits": out.visits.tolist(), "samples": out.samples})
+                     "score": round(out.score, 9), "engagement": round(out.engagement, 9),
+                     "success": round(out.success, 9), "regret": round(oracle.value - out.score, 9),
+                     "visits": np.round(out.visits, 4).tolist(), "samples": out.samples})
 
     for name, kind, arg in parsed:
         if kind == "fixed":
