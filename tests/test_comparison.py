@@ -137,3 +137,15 @@ def test_leave_one_session_out_never_trains_on_the_user(dataset_root):
     np.testing.assert_array_equal(other.truth.p_success, user.truth.p_success)
     for lv in (1, 2, 3, 4):
         assert np.ptp(user.truth.p_success[mdp.LEVEL == lv]) == 0
+
+
+def test_evaluate_on_sessions_of_a_dataset_root(dataset_root, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    out = tmp_path / "ev"
+    rc = main(["evaluate", "--users", str(dataset_root), "--limit", "2", "--seeds", "1", "--episodes", "100",
+               "--policies", "fixed:2,best-fixed,usp:qaug,oracle", "--out", str(out), "--no-plots", "--json"])
+    assert rc == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["users"] == "sessions" and report["n_users"] == 2
+    by = {s["policy"]: s for s in report["summary"]}
+    assert by["oracle"]["score"] >= max(s["score"] for s in report["summary"]) - 1e-9
