@@ -7,6 +7,7 @@ session.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable, Protocol, runtime_checkable
 
 import numpy as np
@@ -25,6 +26,14 @@ BUTTON_LETTERS: dict[str, str] = {
 
 class RobotConnectionLost(Exception):
     """A call to the robot failed because the connection dropped; the session may reconnect."""
+
+
+class RobotCallFailed(Exception):
+    """The robot answered but refused a call (unknown posture, bad argument, service error).
+
+    Not a lost connection: reconnecting would not help. The session logs a refused optional call
+    (LEDs, posture) and ends with a robot error (exit 3) when a call the task needs is refused.
+    """
 
 
 @runtime_checkable
@@ -106,11 +115,23 @@ class Answer:
         return self.presses[-1].t if self.presses else None
 
 
+@dataclass(frozen=True)
+class Intention:
+    """What a simulated participant decided to answer (recorded as ``simulated_plan``)."""
+
+    success: bool
+    response: tuple[str, ...]
+    mistake: str
+
+
 class AnswerSource(Protocol):
     """Collects a participant's answer. Presses before ``open_window`` are discarded."""
 
     def prepare(self, context: TurnContext) -> None:
         """Called before the robot speaks the sequence (a simulated participant decides here)."""
+
+    def intended(self) -> Intention | None:
+        """After ``prepare``: what a simulated participant will answer; None for a person."""
 
     def open_window(self) -> None:
         """Called right after the beep: the answer window opens, time 0 for press times."""
@@ -123,6 +144,9 @@ class AnswerSource(Protocol):
 
     def abandon(self) -> None:
         """The turn was interrupted (robot lost): nothing of it may land in a later window. Often a no-op."""
+
+    def watch(self, callback: Callable[[Press], None]) -> None:
+        """Call ``callback(press)`` for every press of an answer window as it arrives (the console shows them)."""
 
     def close(self) -> None: ...
 
@@ -146,6 +170,10 @@ class PhaseEngagement:
 class EngagementMonitor(Protocol):
     """Marks session phases and returns per-phase engagement. ``NullMonitor`` when EEG is off."""
 
+    @property
+    def records_eeg(self) -> bool:
+        """Whether EEG is recorded at all (turns.csv leaves ``eeg_quality`` empty when not)."""
+
     def mark(self, event: str, turn: int | None = None) -> None:
         """Publish an event (session, turn, phase) on the LSL clock."""
 
@@ -158,11 +186,18 @@ class EngagementMonitor(Protocol):
     def set_target(self, engagement: float | None) -> None:
         """For a simulated Muse: the engagement its signal should show next (ignored otherwise)."""
 
+    def live(self) -> dict | None:
+        """The latest engagement index and per-channel contact quality (for a supervisor), None when EEG is off.
+
+        Called from another thread: must only read."""
+
     def close(self) -> None: ...
 
 
 class NullMonitor:
     """EEG off: no markers, no engagement."""
+
+    records_eeg = False
 
     def mark(self, event: str, turn: int | None = None) -> None:
         pass
@@ -175,6 +210,9 @@ class NullMonitor:
 
     def set_target(self, engagement: float | None) -> None:
         pass
+
+    def live(self) -> dict | None:
+        return None
 
     def close(self) -> None:
         pass
@@ -208,5 +246,100 @@ class Policy(Protocol):
     def observe(self, transition: Transition) -> None:
         """Called after every turn with the transition that produced it."""
 
+    def bind_state_dir(self, folder: Path) -> None:
+        """The session folder exists: a learning policy without a state file of its own saves there."""
+
     def close(self) -> None:
         """Persist whatever must survive the session."""
+
+    def probabilities(self, state: int) -> "np.ndarray | None":
+        """P(a | state) the policy would choose with now (shown to a supervisor), None if unknown."""
+
+    def guide(self, state: int, action: int) -> None:
+        """A supervisor chose ``action`` in ``state`` (an override); a policy may come to prefer it."""
+
+    def snapshot(self) -> dict | None:
+        """The learning state as JSON-ready data (checkpointed after every turn), None when stateless."""
+
+    def restore(self, data: dict | None) -> None:
+        """Go back to a ``snapshot`` (a resumed session continues as if never interrupted)."""
+
+
+
+# ----------------------------------------------------------------------------------------------
+# Operator commands and observers
+# ----------------------------------------------------------------------------------------------
+
+#: What an operator can ask of a running session (terminal keys and the console share them).
+COMMAND_KINDS: tuple[str, ...] = ("pause", "resume", "stop", "override", "repeat", "invalid", "note")
+
+
+@dataclass(frozen=True)
+class Command:
+    """One operator command: ``kind`` (``COMMAND_KINDS``), its arguments, who sent it and when (ISO UTC)."""
+
+    kind: str
+    args: dict = field(default_factory=dict)
+    source: str = "api"
+    at: str = ""
+    id: int = 0
+
+
+class CommandQueue:
+    """Thread-safe FIFO of operator commands; the session drains it at defined points only.
+
+    Producers (a key reader thread, the console's server thread) ``submit``; the session thread
+    ``drain``s between states and ``wait``s on it while paused. No command acts outside the session thread.
+    """
+
+    def __init__(self) -> None:
+        import threading
+
+        self._cond = threading.Condition()
+        self._items: list[Command] = []
+        self._next_id = 1
+
+    def submit(self, kind: str, args: dict | None = None, source: str = "api") -> Command:
+        """Queue a command; ValueError for an unknown kind (the caller reports it)."""
+        from datetime import datetime, timezone
+
+        if kind not in COMMAND_KINDS:
+            raise ValueError(f"unknown command {kind!r}; use one of {', '.join(COMMAND_KINDS)}")
+        with self._cond:
+            cmd = Command(kind, dict(args or {}), str(source),
+                          datetime.now(timezone.utc).isoformat(timespec="milliseconds"), self._next_id)
+            self._next_id += 1
+            self._items.append(cmd)
+            self._cond.notify_all()
+        return cmd
+
+    def drain(self) -> list[Command]:
+        """Every queued command, oldest first (the queue is then empty)."""
+        with self._cond:
+            items, self._items = self._items, []
+        return items
+
+    def wait(self, timeout_s: float) -> bool:
+        """Block until a command is queued or ``timeout_s`` passed; True when one is waiting."""
+        with self._cond:
+            if not self._items:
+                self._cond.wait(timeout_s)
+            return bool(self._items)
+
+    def __len__(self) -> int:
+        with self._cond:
+            return len(self._items)
+
+
+class SessionObserver(Protocol):
+    """Told what happens in a session as it happens (the console). ``notify`` must return at once."""
+
+    def notify(self, kind: str, data: dict) -> None:
+        """``kind``: session, state, turn_start, press, row, command, pause, summary (see docs/console.md)."""
+
+
+class NullObserver:
+    """Nobody watching."""
+
+    def notify(self, kind: str, data: dict) -> None:
+        pass

@@ -16,7 +16,7 @@ import threading
 import time
 from typing import Callable
 
-from nao_trainer.ports import Answer, Press, Robot, TurnContext
+from nao_trainer.ports import Answer, Intention, Press, Robot, TurnContext
 
 KEY_LETTERS: dict[str, str] = {"a": "A", "b": "B", "c": "C"}
 
@@ -34,6 +34,7 @@ class PressWindow:
         self._presses: list[Press] = []
         self._last: dict[str, float] = {}
         self.discarded = 0  # presses outside any window (before the beep, after collect)
+        self.listener: Callable[[Press], None] | None = None  # told of every accepted press
 
     def open(self) -> float:
         """Open the window now; press times count from here."""
@@ -54,15 +55,18 @@ class PressWindow:
             if last is not None and t - last < self.debounce_s:
                 return False  # a bounce of the same button
             self._last[key] = t
-            self._presses.append(Press(key=key, letter=letter, t=t - self._opened_at))
+            press = Press(key=key, letter=letter, t=t - self._opened_at)
+            self._presses.append(press)
             self._cond.notify_all()
-            return True
+        if self.listener is not None:
+            self.listener(press)
+        return True
 
     def collect(self, n_expected: int, timeout_s: float) -> Answer:
         """Wait for ``n_expected`` presses (+ grace) or the timeout, then close the window."""
         with self._cond:
             if self._opened_at is None:
-                raise RuntimeError("collect() before open_window()")
+                raise ValueError("collect() before open_window()")
             deadline = self._opened_at + timeout_s
             while True:
                 now = self._clock()
@@ -110,8 +114,14 @@ class TactileAnswers:
     def collect(self, n_expected: int, timeout_s: float) -> Answer:
         return self.window.collect(n_expected, timeout_s)
 
+    def intended(self) -> Intention | None:
+        return None  # a person's answer is not known in advance
+
     def abandon(self) -> None:
         pass  # presses outside an open window are discarded anyway
+
+    def watch(self, callback: Callable[[Press], None]) -> None:
+        self.window.listener = callback
 
     def close(self) -> None:
         self.window.close()
@@ -192,8 +202,14 @@ class KeyboardAnswers:
                     continue
                 self.window.add(key=ch, letter=KEY_LETTERS.get(ch.lower()), t=now)
 
+    def intended(self) -> Intention | None:
+        return None  # a person's answer is not known in advance
+
     def abandon(self) -> None:
         pass  # keys typed outside an open window are discarded anyway
+
+    def watch(self, callback: Callable[[Press], None]) -> None:
+        self.window.listener = callback
 
     def close(self) -> None:
         self._stop_reader()

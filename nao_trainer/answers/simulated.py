@@ -18,7 +18,8 @@ import numpy as np
 
 from nao_trainer.core import task
 from nao_trainer.core.simulation import UserSimulator
-from nao_trainer.ports import Answer, AnswerSource, EngagementMonitor, NullMonitor, Press, RobotConnectionLost, TurnContext
+from nao_trainer.ports import (Answer, AnswerSource, EngagementMonitor, Intention, NullMonitor, Press, RobotConnectionLost,
+                                TurnContext)
 
 #: Relative frequency of mistake kinds when a turn fails.
 MISTAKES: dict[str, float] = {"substitute": 0.6, "swap": 0.25, "omit": 0.15}
@@ -81,6 +82,13 @@ class SimulatedParticipant:
         self._presser: threading.Thread | None = None
         self._press_error: str | None = None  # a press that failed (robot gone): collect() reports it
         self._generation = 0
+        self._watch: Callable[[Press], None] | None = None
+
+    def watch(self, callback: Callable[[Press], None]) -> None:
+        """Presses go through ``inner`` when there is one (it reports them), else are reported at collect."""
+        if self.inner is not None:
+            self.inner.watch(callback)
+        self._watch = callback
 
     def prepare(self, context: TurnContext) -> None:
         """Decide the turn's outcome, response and timing; set the simulated Muse's target."""
@@ -91,6 +99,11 @@ class SimulatedParticipant:
         times = np.linspace(rt, max(ct, rt + self.min_gap_s * (n - 1)), n) if n else np.array([])
         self.plan = Plan(success, tuple(response), tuple(float(t) for t in times), mistake)
         self.monitor.set_target(self.simulator.engagement_of(context.state, success))
+
+    def intended(self) -> Intention | None:
+        """The plan of the prepared turn (recorded as ``simulated_plan``)."""
+        p = self.plan
+        return None if p is None else Intention(p.success, p.response, p.mistake)
 
     def open_window(self) -> None:
         self._opened = time.monotonic()
@@ -118,7 +131,7 @@ class SimulatedParticipant:
 
     def collect(self, n_expected: int, timeout_s: float) -> Answer:
         if self.plan is None:
-            raise RuntimeError("collect() before prepare()")
+            raise ValueError("collect() before prepare()")
         if self.inner is not None:
             answer = self.inner.collect(n_expected, timeout_s)
             if self._presser is not None:
@@ -134,6 +147,9 @@ class SimulatedParticipant:
         delay = self._opened + end - time.monotonic()
         if delay > 0:
             time.sleep(delay)
+        if self._watch is not None:
+            for p in presses:
+                self._watch(p)
         return Answer(presses=presses, timed_out=timed_out)
 
     def abandon(self) -> None:

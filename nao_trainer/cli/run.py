@@ -4,7 +4,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from nao_trainer.session.config import EEG_MODES, INPUTS
+from nao_trainer.eeg.settings import MODES as EEG_MODES
+from nao_trainer.session.config import INPUTS
 
 
 def register(sub) -> None:
@@ -33,6 +34,18 @@ def register(sub) -> None:
     p.add_argument("--no-practice", action="store_true", help="skip the practice round")
     p.add_argument("--quiet", action="store_true", help="no per-turn progress lines")
     p.add_argument("--plot", action="store_true", help="also draw session.png (levels, score, engagement) in the session folder")
+    p.add_argument("--max-duration", type=float, metavar="S",
+                   help="end the session cleanly between turns after S session seconds (session.max_duration_s)")
+    p.add_argument("--resume", metavar="SESSION_DIR",
+                   help="continue an interrupted session in its folder (its configuration, seed and learning state)")
+    p.add_argument("--fresh-policy", action="store_true",
+                   help="start a learning policy from the trained one, not from the participant's saved state "
+                        "(the old state is moved aside)")
+    p.add_argument("--no-keys", action="store_true", help="do not read operator keys (p pause, r resume, s stop) from the terminal")
+    p.add_argument("--console", action="store_true", help="serve the supervisor console (a web page; the link is printed)")
+    p.add_argument("--console-port", type=int, metavar="P", help="console port (default: console.port, 0 = a free port)")
+    p.add_argument("--console-bind", metavar="ADDRESS",
+                   help="listen on ADDRESS instead of 127.0.0.1 (prints a warning: others could steer the session)")
     p.set_defaults(func=run)
 
 
@@ -51,18 +64,41 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, object]:
         "participant_model.user_model": args.user_model,
         "policy.learning": False if args.no_learning else None,
         "session.practice": False if args.no_practice else None,
+        "session.max_duration_s": args.max_duration,
     }
 
 
 def run(args: argparse.Namespace) -> int:
     from nao_trainer.session.config import load_config
-    from nao_trainer.session.engine import RunOptions, run_session
+    from nao_trainer.session.wiring import RunOptions, run_session
 
-    config = load_config(args.config, overrides_from_args(args))
-    result = run_session(config, RunOptions(quiet=args.quiet))
+    import sys
+
+    from nao_trainer.errors import ConfigError
+
+    overrides = overrides_from_args(args)
+    if args.console_port is not None and not 0 <= args.console_port <= 65535:
+        raise ConfigError(f"--console-port {args.console_port}: a port is 0-65535 (0 = any free port)")
+    options = RunOptions(quiet=args.quiet, keys=not args.no_keys, console=args.console or args.console_port is not None,
+                         console_port=args.console_port, console_bind=args.console_bind,
+                         fresh_policy=args.fresh_policy)
+    resume = None
+    if args.resume:
+        from nao_trainer.session.wiring import prepare_resume
+
+        given = [k for k, v in overrides.items() if v is not None] + (["--config"] if args.config else []) \
+            + (["--fresh-policy"] if args.fresh_policy else [])
+        if given:
+            raise ConfigError(f"--resume continues a session with its own configuration; drop {', '.join(given)}")
+        config, resume = prepare_resume(Path(args.resume))
+        print(f"resuming {resume.folder} after turn {resume.checkpoint['completed']} of {config.session.turns}",
+              file=sys.stderr)
+    else:
+        config = load_config(args.config, overrides)
+    result = run_session(config, options, resume=resume)
     print(result.summary())
     if args.plot and result.path is not None and result.completed_rows:
-        from nao_trainer.session.record import plot_session
+        from nao_trainer.plots.session import plot_session
 
         print(f"plot: {plot_session(result.path)}")
     return result.exit_code

@@ -27,8 +27,6 @@ session of this participant), learning resumes from it.
 """
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 import sys
 from datetime import datetime, timezone
@@ -39,10 +37,10 @@ import numpy as np
 
 from nao_trainer import __version__
 from nao_trainer.core import mdp, mdps
-from nao_trainer.core.qlearning import METHOD_TEXT, METHODS, QConfig, QLearner
+from nao_trainer.core.qlearning import METHOD_TEXT, METHODS, QConfig, QLearner, policy_probabilities
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import ConfigError, DataError
-from nao_trainer.files import PROJECT_ROOT, read_json, read_text, write_json_atomic
+from nao_trainer.files import PROJECT_ROOT, JsonFormat, read_json, write_json_atomic
 from nao_trainer.ports import Transition
 
 FORMAT = "nao-trainer/user-specific-policy"
@@ -70,9 +68,10 @@ def policy_filename(cluster: str, method: str) -> str:
 # ----------------------------------------------------------------------------------------------
 
 
-def canonical_digest(payload: dict[str, Any]) -> str:
-    text = json.dumps(payload, sort_keys=True, separators=(",", ":"), allow_nan=False)
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+#: A policy file: a checksummed envelope of the payload (``make_payload``).
+POLICY_FILE = JsonFormat(FORMAT, FORMAT_VERSION, "user-specific policy", "policy", RETRAIN)
+#: A policy folder's manifest (flat, no checksum).
+MANIFEST_FILE = JsonFormat(MANIFEST_FORMAT, 1, "policy manifest", "policy manifest", RETRAIN)
 
 
 def make_payload(learner: QLearner, cluster: str, simulator: UserSimulator,
@@ -98,8 +97,7 @@ def make_payload(learner: QLearner, cluster: str, simulator: UserSimulator,
 
 def save_policy_file(path: Path, payload: dict[str, Any]) -> None:
     """Write a policy file (payload + checksum) atomically."""
-    write_json_atomic(path, {"format": FORMAT, "format_version": FORMAT_VERSION,
-                             "sha256": canonical_digest(payload), "payload": payload})
+    POLICY_FILE.write(path, payload)
 
 
 def read_policy_file(path: Path, process: str = "paper") -> dict[str, Any]:
@@ -109,27 +107,7 @@ def read_policy_file(path: Path, process: str = "paper") -> dict[str, Any]:
     policy must be made for the decision process ``process``, ``core.mdps``).
     """
     path = Path(path)
-    text = read_text(path, DataError, "no such policy file", RETRAIN)
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise DataError(f"{path}:{exc.lineno}: policy file is not valid JSON ({exc.msg}): torn or corrupt; "
-                        f"{RETRAIN}") from None
-    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
-        found = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
-        raise DataError(f"{path}: not a nao-trainer user-specific policy (format={found!r})")
-    if doc.get("format_version") != FORMAT_VERSION:
-        raise DataError(f"{path}: policy format version {doc.get('format_version')!r}, this nao-trainer reads "
-                        f"{FORMAT_VERSION}; {RETRAIN}")
-    payload = doc.get("payload")
-    if not isinstance(payload, dict) or not isinstance(doc.get("sha256"), str):
-        raise DataError(f"{path}: policy file lacks its payload or checksum: torn or corrupt; {RETRAIN}")
-    try:
-        digest = canonical_digest(payload)
-    except ValueError as exc:
-        raise DataError(f"{path}: policy payload holds invalid numbers ({exc}); {RETRAIN}") from None
-    if digest != doc["sha256"]:
-        raise DataError(f"{path}: checksum mismatch (file altered, torn or corrupt); {RETRAIN}")
+    payload = POLICY_FILE.read(path, DataError)
     check_definition(payload, path, process)
     return payload
 
@@ -184,7 +162,7 @@ def write_manifest(folder: Path, methods: dict[str, Any], default_method: dict[s
                    files: dict[str, str]) -> Path:
     """The index of a policy folder: which files exist and the default method per cluster."""
     path = Path(folder) / MANIFEST
-    write_json_atomic(path, {"format": MANIFEST_FORMAT, "format_version": 1,
+    write_json_atomic(path, {**MANIFEST_FILE.header(),
                              "clusters": {c: list(m) for c, m in methods.items()},
                              "default_method": default_method, "files": files})
     return path
@@ -193,9 +171,8 @@ def write_manifest(folder: Path, methods: dict[str, Any], default_method: dict[s
 def read_manifest(folder: Path) -> dict[str, Any]:
     path = Path(folder) / MANIFEST
     data = read_json(path, DataError, f"no trained policies here; create them with `nao-trainer train --out {folder}`")
-    if not isinstance(data, dict) or data.get("format") != MANIFEST_FORMAT:
-        raise DataError(f"{path}: not a nao-trainer policy manifest")
-    if data.get("format_version") != 1 or not isinstance(data.get("default_method", {}), dict):
+    MANIFEST_FILE.check(data, path, DataError)
+    if not isinstance(data.get("default_method", {}), dict):
         raise DataError(f"{path}: policy manifest of an unknown version or shape; {RETRAIN}")
     return data
 
@@ -215,27 +192,89 @@ class LivePolicy:
     without it, nothing changes and nothing is written.
     """
 
-    def __init__(self, learner: QLearner, payload: dict[str, Any], learning: bool, state_path: Path | None) -> None:
-        # A learning policy needs ``state_path`` only when it saves: the session may set it once its
-        # folder exists (the policy is loaded and checked before the robot connects).
+    def __init__(self, learner: QLearner, payload: dict[str, Any], learning: bool, state_path: Path | None,
+                 guidance: float = 0.0) -> None:
+        # A learning policy needs ``state_path`` only when it saves: without one, the session binds
+        # it to its folder once that exists (the policy is loaded and checked before the robot connects).
         self.learner = learner
         self.payload = payload
         self.learning = learning
         self.state_path = Path(state_path) if state_path is not None else None
         self.name = f"usp:{payload['cluster']}:{learner.method}" + ("" if learning else " (frozen)")
+        self.guidance = float(guidance)
+        #: How often the supervisor chose each action in each state (``guide``); kept with the state.
+        self.guided = np.zeros((mdp.N_STATES, mdp.N_ACTIONS), dtype=np.int64)
+        for key, n in (payload.get("live", {}).get("guided") or {}).items():
+            s, a = (int(x) for x in key.split(","))
+            self.guided[s, a] = int(n)
+        self.loaded_from: Path | None = None  # the state file learning resumed from (None: the trained policy)
         self._closed = False
 
+    def choice_values(self, state: int) -> np.ndarray:
+        """What ``act`` chooses on: the learner's values ``V(s, .)`` plus the guidance term.
+
+        ``G(s, a) = guidance * n(s, a) / n(s) * (max V(s, .) - min V(s, .) + 1)`` over the allowed
+        actions, where ``n(s, a)`` counts the supervisor's overrides toward ``a`` in ``s`` and
+        ``n(s)`` all of them in ``s``. Scaled by the spread of the values, so it means the same in
+        every state: with ``guidance >= 1``, an action the supervisor always chose in ``s`` is
+        preferred there by at least ``guidance`` value points. The Q tables themselves learn only
+        from outcomes (off-policy, in ``observe``).
+        """
+        values = self.learner.values(state)
+        n = self.guided[state]
+        total = n.sum()
+        if not (self.guidance and total):
+            return values
+        allowed = values[mdp.ACTION_MASK[state]]
+        spread = float(allowed.max() - allowed.min()) + 1.0
+        return values + self.guidance * (n / total) * spread
+
     def act(self, state: int, rng: np.random.Generator) -> int:
-        return self.learner.act(state, rng)
+        if not (self.guidance and self.guided[state].any()):
+            return self.learner.act(state, rng)
+        u = rng.random()  # one uniform, as the learner would draw: the random stream stays aligned
+        allowed = np.flatnonzero(mdp.ACTION_MASK[state])
+        cum = np.cumsum(self.probabilities(state)[allowed])
+        return int(allowed[min(int(np.searchsorted(cum, u * cum[-1], side="left")), len(allowed) - 1)])
 
     def probabilities(self, state: int) -> np.ndarray:
-        return self.learner.probabilities(state)
+        if not (self.guidance and self.guided[state].any()):
+            return self.learner.probabilities(state)
+        return policy_probabilities(self.choice_values(state), mdp.ACTION_MASK[state],
+                                    self.learner.inverse_temperature(state))
+
+    def guide(self, state: int, action: int) -> None:
+        """The supervisor overrode the policy with ``action`` in ``state``: remember it (the Q update
+        happens in ``observe``, off-policy, like any turn)."""
+        if not self.learning:
+            return
+        self.guided[state, action] += 1
+        self.payload["live"]["guided"] = {f"{s},{a}": int(self.guided[s, a]) for s, a in zip(*np.nonzero(self.guided))}
+
+    def snapshot(self) -> dict | None:
+        """The whole learning state (a session checkpoint carries it)."""
+        shift = self.learner._shift
+        return {"q": self.learner.q.tolist(), "h": self.learner.h.tolist(), "h_counts": self.learner.h_counts.tolist(),
+                "visits": self.learner.visits.tolist(), "live": dict(self.payload["live"]),
+                "guided": self.guided.tolist(), "shift": list(shift) if shift is not None else None}
+
+    def restore(self, data: dict | None) -> None:
+        if not data:
+            return
+        lr = self.learner
+        lr.q[:] = np.array(data["q"], dtype=float)
+        lr.h[:] = np.array(data["h"], dtype=float)
+        lr.h_counts[:] = np.array(data["h_counts"], dtype=np.int64)
+        lr.visits[:] = np.array(data["visits"], dtype=np.int64)
+        lr._shift = (int(data["shift"][0]), float(data["shift"][1])) if data.get("shift") else None
+        self.guided[:] = np.array(data["guided"], dtype=np.int64)
+        self.payload["live"] = dict(data["live"])
 
     def observe(self, transition: Transition) -> None:
         if not self.learning:
             return
         if self._closed:
-            raise RuntimeError("policy is closed")
+            raise ValueError("policy is closed: observe() after close()")
         t = transition
         self.learner.update(t.state, t.action, t.score, t.engagement, t.next_state, t.done)
         live = self.payload["live"]
@@ -243,6 +282,11 @@ class LivePolicy:
         live["turns_without_engagement"] += int(t.engagement is None)
         live["updated"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
         self.save()
+
+    def bind_state_dir(self, folder: Path) -> None:
+        """Without a configured state file, a learning policy saves into the session ``folder``."""
+        if self.learning and self.state_path is None:
+            self.state_path = Path(folder) / "policy_state.json"
 
     def save(self) -> None:
         """Write the learner's whole state (a valid policy file) atomically to ``state_path``."""
@@ -276,7 +320,8 @@ def parse_spec(spec: str) -> tuple[str, str | None]:
     return parts[1], method
 
 
-def load_policy(spec: str, learning: bool, state_path: Path | None, policies_dir: Path | None = None, models_dir: Path | None = None) -> LivePolicy:
+def load_policy(spec: str, learning: bool, state_path: Path | None, policies_dir: Path | None = None,
+                models_dir: Path | None = None, guidance: float = 0.0, fresh: bool = False) -> LivePolicy:
     """The trained policy ``usp:CLUSTER[:METHOD]`` for a live session (see the module docstring).
 
     METHOD defaults to the folder manifest's ``default_method`` for the cluster (the method whose
@@ -301,6 +346,12 @@ def load_policy(spec: str, learning: bool, state_path: Path | None, policies_dir
                         f"not {cluster!r} {method!r}; {RETRAIN}")
     check_simulator(payload, load_simulator(cluster, models_dir), path)
     source = path
+    if fresh and state_path is not None and Path(state_path).exists():
+        # --fresh-policy: start from the trained policy; the old state is kept beside, never deleted.
+        stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
+        aside = Path(state_path).with_name(f"{Path(state_path).name}.replaced-{stamp}")
+        os.replace(state_path, aside)
+        print(f"policy {spec}: starting fresh; the previous state was moved to {aside}", file=sys.stderr)
     if state_path is not None and Path(state_path).exists():
         saved = read_policy_file(Path(state_path))
         for key in ("cluster", "method", "simulator", "hyperparameters"):
@@ -310,8 +361,9 @@ def load_policy(spec: str, learning: bool, state_path: Path | None, policies_dir
                                 "from the trained policy")
         payload, source = saved, Path(state_path)
     learner = learner_from_payload(payload, source)
-    policy = LivePolicy(learner, payload, learning, state_path)
+    policy = LivePolicy(learner, payload, learning, state_path, guidance)
     if source != path:
+        policy.loaded_from = source
         print(f"policy {policy.name}: resuming from {source} ({payload['live']['turns_learned']} live turns learned)",
               file=sys.stderr)
     return policy

@@ -15,7 +15,32 @@ from nao_trainer.errors import ConfigError
 from nao_trainer.ports import Policy, Transition
 
 
-class FixedSchedule:
+class StatelessPolicy:
+    """Defaults of ``ports.Policy`` for a policy that does not learn: nothing to save, guide or restore."""
+
+    def observe(self, transition: Transition) -> None:
+        pass
+
+    def bind_state_dir(self, folder: Path) -> None:
+        pass  # nothing to save
+
+    def close(self) -> None:
+        pass
+
+    def probabilities(self, state: int) -> np.ndarray | None:
+        return None
+
+    def guide(self, state: int, action: int) -> None:
+        pass  # the override is played; nothing to learn
+
+    def snapshot(self) -> dict | None:
+        return None
+
+    def restore(self, data: dict | None) -> None:
+        pass
+
+
+class FixedSchedule(StatelessPolicy):
     """Plays a list of actions in order, cycling when the session is longer.
 
     A feedback action is replaced by the first level action of the schedule in ``START`` (where
@@ -46,11 +71,32 @@ class FixedSchedule:
     def observe(self, transition: Transition) -> None:
         pass
 
+    def bind_state_dir(self, folder: Path) -> None:
+        pass  # nothing to save
+
     def close(self) -> None:
         pass
 
+    def probabilities(self, state: int) -> np.ndarray | None:
+        return _one_hot(state, self.actions[self._i % len(self.actions)])
 
-class UniformRandom:
+    def guide(self, state: int, action: int) -> None:
+        pass  # the override is played; nothing to learn
+
+    def snapshot(self) -> dict | None:
+        return {"next": self._i}
+
+    def restore(self, data: dict | None) -> None:
+        self._i = int((data or {}).get("next", 0))
+
+
+def _one_hot(state: int, action: int) -> np.ndarray:
+    probs = np.zeros(mdp.N_ACTIONS)
+    probs[action if mdp.ACTION_MASK[state, action] else int(np.flatnonzero(mdp.ACTION_MASK[state])[0])] = 1.0
+    return probs
+
+
+class UniformRandom(StatelessPolicy):
     """Uniform over the allowed actions of the state, drawn with the session's generator.
 
     This is how the published data were explored: every action equally likely.
@@ -65,11 +111,27 @@ class UniformRandom:
     def observe(self, transition: Transition) -> None:
         pass
 
+    def bind_state_dir(self, folder: Path) -> None:
+        pass  # nothing to save
+
     def close(self) -> None:
         pass
 
+    def probabilities(self, state: int) -> np.ndarray | None:
+        return mdp.ACTION_MASK[state] / mdp.ACTION_MASK[state].sum()
 
-def make_policy(spec: str, schedule: Sequence[str], learning: bool, state_path: Path | None) -> Policy:
+    def guide(self, state: int, action: int) -> None:
+        pass  # the override is played; nothing to learn
+
+    def snapshot(self) -> dict | None:
+        return None
+
+    def restore(self, data: dict | None) -> None:
+        pass
+
+
+def make_policy(spec: str, schedule: Sequence[str], learning: bool, state_path: Path | None,
+                guidance: float = 0.0, fresh: bool = False) -> Policy:
     """The policy named by ``spec``: "schedule", "random" or "usp:CLUSTER[:METHOD]"."""
     if spec == "schedule":
         return FixedSchedule(schedule)
@@ -81,5 +143,5 @@ def make_policy(spec: str, schedule: Sequence[str], learning: bool, state_path: 
         except ImportError as exc:
             raise ConfigError(f"policy {spec!r}: learned policies are not available in this install ({exc}); "
                               "use --policy schedule or random") from None
-        return load_policy(spec, learning, state_path)
+        return load_policy(spec, learning, state_path, guidance=guidance, fresh=fresh)
     raise ConfigError(f"policy {spec!r}: use 'schedule', 'random' or 'usp:CLUSTER[:METHOD]'")

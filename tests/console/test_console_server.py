@@ -1,0 +1,134 @@
+"""The console's server over HTTP (no browser): several viewers, reconnection, commands, binding rules."""
+from __future__ import annotations
+
+import http.client
+import json
+
+import pytest
+
+from nao_trainer.console.server import COOKIE, Console, ConsoleHub
+from nao_trainer.errors import ConfigError
+from nao_trainer.ports import CommandQueue
+from nao_trainer.session.config import load_config
+from nao_trainer.session.wiring import RunOptions, _console_bind
+
+
+def read_events(console: Console, n: int) -> list[tuple[str, dict]]:
+    """Open /events, read ``n`` events (the snapshot first) and drop the connection."""
+    conn = http.client.HTTPConnection(console.host, console.port, timeout=10)
+    conn.request("GET", "/events", headers={"Cookie": f"{COOKIE}={console.token}"})
+    resp = conn.getresponse()
+    assert resp.status == 200 and resp.getheader("content-type").startswith("text/event-stream")
+    out, kind = [], None
+    while len(out) < n:
+        line = resp.readline().decode().rstrip("\n")
+        if line.startswith("event: "):
+            kind = line[7:]
+        elif line.startswith("data: ") and kind != "tick":
+            out.append((kind, json.loads(line[6:])))
+    conn.close()
+    return out
+
+
+@pytest.fixture()
+def console():
+    queue = CommandQueue()
+    c = Console.start(queue, "127.0.0.1", 0, hub=ConsoleHub())
+    c.queue = queue
+    yield c
+    c.stop()
+
+
+def test_viewers_get_a_snapshot_then_live_events_and_a_reconnect_gets_everything(console):
+    hub = console.hub
+    hub.notify("session", {"turns": 5, "state": "greet", "robot": "connected"})
+    hub.notify("row", {"turn": 1, "success": True, "score": 1, "total": 1})
+    first = read_events(console, 1)
+    assert first[0][0] == "snapshot" and first[0][1]["rows"][0]["turn"] == 1
+    # two viewers at once, both see a new row
+    import threading
+
+    got: dict[int, list] = {}
+    threads = [threading.Thread(target=lambda i=i: got.__setitem__(i, read_events(console, 2))) for i in range(2)]
+    for t in threads:
+        t.start()
+    import time
+
+    deadline = time.monotonic() + 5
+    while console.hub.viewers < 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    hub.notify("row", {"turn": 2, "success": False, "score": -1, "total": 0})
+    for t in threads:
+        t.join(10)
+    assert all(g[1] == ("row", {"turn": 2, "success": False, "score": -1, "total": 0}) for g in got.values())
+    # a dropped viewer that reconnects gets the whole state again
+    again = read_events(console, 1)[0][1]
+    assert [r["turn"] for r in again["rows"]] == [1, 2]
+
+
+def test_commands_are_queued_with_their_source_and_bad_ones_refused(console):
+    def post(body, ctype="application/json", token=console.token):
+        conn = http.client.HTTPConnection(console.host, console.port, timeout=10)
+        conn.request("POST", "/command", body=json.dumps(body), headers={"Content-Type": ctype, "x-console-token": token})
+        r = conn.getresponse()
+        return r.status, r.read()
+
+    assert post({"kind": "override", "args": {"action": "L3"}})[0] == 202
+    assert post({"kind": "dance"})[0] == 400
+    assert post({"kind": "pause"}, ctype="text/plain")[0] == 415  # a plain form cannot send commands
+    assert post({"kind": "pause"}, token="wrong")[0] == 403
+    cmds = console.queue.drain()
+    assert [(c.kind, c.args, c.source) for c in cmds] == [("override", {"action": "L3"}, "console")]
+
+
+def test_only_loopback_unless_asked_on_the_command_line():
+    cfg = load_config(None, {"console.enabled": True, "console.bind": "0.0.0.0"})
+    with pytest.raises(ConfigError, match="--console-bind"):
+        _console_bind(cfg, RunOptions())
+    assert _console_bind(cfg, RunOptions(console_bind="0.0.0.0")) == "0.0.0.0"
+    assert _console_bind(load_config(None, {}), RunOptions()) is None  # no console unless asked
+    assert _console_bind(load_config(None, {}), RunOptions(console=True)) == "127.0.0.1"
+
+
+def test_another_address_prints_a_warning_and_the_link_never_reaches_the_files(tmp_path):
+    import io
+
+    from nao_trainer.session.record import read_events
+    from nao_trainer.session.wiring import run_session
+
+    cfg = load_config(None, {"session.turns": 1, "timing.speed": 50.0, "eeg.mode": "off", "session.practice": False,
+                             "session.output": str(tmp_path)})
+    out = io.StringIO()
+    result = run_session(cfg, RunOptions(console=True, console_bind="127.0.0.2"), progress=out)
+    text = out.getvalue()
+    assert result.exit_code == 0
+    assert "warning: the console listens on 127.0.0.2" in text
+    link = next(ln.split()[1] for ln in text.splitlines() if ln.startswith("console: "))
+    assert link.startswith("http://127.0.0.2:") and "token=" in link
+    token = link.split("token=")[1]
+    assert token not in "".join(p.read_text() for p in result.path.iterdir() if p.is_file())
+    ev = next(e for e in read_events(result.path) if e["event"] == "console")
+    assert ev["bind"] == "127.0.0.2" and "token" not in ev["url"]
+
+
+def test_ctrl_c_still_reaches_the_session_with_the_console_running(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", "--console", "--speed", "5", "--eeg", "off",
+                             "--out", str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, QI_LOG_LEVEL="silent"), stdin=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        for line in proc.stderr:
+            if line.startswith("console: ") or time.monotonic() > deadline:
+                break
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130 and "status: interrupted (exit 130)" in out
