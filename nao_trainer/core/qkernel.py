@@ -1,4 +1,4 @@
-"""A compiled (numba) kernel for ``core.qlearning.BatchLearner``: the same maths, one agent at a time.
+"""A compiled (numba) kernel for ``core.batch.BatchLearner``: the same maths, one agent at a time.
 
 Pure: no I/O. numba is imported lazily (``available()`` says whether it is installed); without it
 ``BatchLearner`` runs its numpy loop. The kernel runs one agent's whole training from that agent's

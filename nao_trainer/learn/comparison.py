@@ -28,7 +28,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from nao_trainer.core import baselines, evaluation, mdps
-from nao_trainer.core.qlearning import METHODS, BatchLearner, QConfig, QLearner
+from nao_trainer.core.batch import BatchLearner
+from nao_trainer.core.qlearning import METHODS, QConfig, QLearner
 from nao_trainer.errors import ConfigError
 from nao_trainer.learn.users import User
 

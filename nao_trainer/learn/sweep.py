@@ -20,7 +20,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from nao_trainer.core import baselines, evaluation
-from nao_trainer.core.qlearning import METHODS, BatchLearner, QConfig
+from nao_trainer.core.batch import BatchLearner
+from nao_trainer.core.qlearning import METHODS, QConfig
 from nao_trainer.errors import ConfigError
 from nao_trainer.learn.users import User
 

@@ -1,6 +1,6 @@
 """Training user-specific policies on simulated users (paper section 5.2, Figures 7 and 8).
 
-``train_grid`` trains one Q-learner per (cluster, method, seed) with ``core.qlearning.BatchLearner``,
+``train_grid`` trains one Q-learner per (cluster, method, seed) with ``core.batch.BatchLearner``,
 split over worker processes, and summarises the runs; ``write_outputs`` writes the figures, CSV
 tables, ``results.json`` and one policy file per (cluster, method) (format: ``nao_trainer.learn.usp``).
 
@@ -33,7 +33,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from nao_trainer.core import mdp
-from nao_trainer.core.qlearning import METHODS, BatchLearner, QConfig, QLearner, expected_scores
+from nao_trainer.core.batch import BatchLearner
+from nao_trainer.core.qlearning import METHODS, QConfig, QLearner, expected_scores
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.files import write_json_atomic, write_text_atomic
 

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from nao_trainer.core import mdp, mdps
-from nao_trainer.core.qlearning import METHODS, BatchLearner, QConfig, QLearner
+from nao_trainer.core.batch import BatchLearner
+from nao_trainer.core.qlearning import METHODS, QConfig, QLearner
 from nao_trainer.core.simulation import UserSimulator
 
 pytest.importorskip("numba")
