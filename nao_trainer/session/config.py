@@ -21,6 +21,7 @@ from typing import Any, Callable, Mapping
 
 from nao_trainer.eeg.settings import EEGSettings
 from nao_trainer.errors import ConfigError
+from nao_trainer.robot.address import parse_url, redact_url
 from nao_trainer.files import PROJECT_ROOT, read_yaml
 
 #: Repository root (parent of the package). Relative paths in configs resolve against it, so
@@ -61,14 +62,8 @@ class Field:
 def _robot_url(value: str) -> str | None:
     if value in (MOCK, DESKTOP):
         return None
-    if "@" in value:
-        return "must not contain credentials; set NAO_USER and NAO_PASSWORD in the environment instead"
-    m = re.fullmatch(r"tcps?://[^/:@\s]+(:(\d{1,5}))?", value)
-    if not m:
-        return "must be 'mock', 'desktop', tcp://HOST:9559 (NAOqi <= 2.8) or tcps://HOST:9503 (NAOqi 2.9)"
-    if m.group(2) and not 1 <= int(m.group(2)) <= 65535:
-        return f"has port {int(m.group(2))}, out of range 1..65535 (NAOqi listens on 9559, or 9503 for tcps)"
-    return None
+    problem = parse_url(value)[1]  # the robot client's own rule: the two never disagree
+    return f"{problem} (got {redact_url(value)!r})" if problem else None  # never echo a password
 
 
 def is_robot_address(url: str) -> bool:

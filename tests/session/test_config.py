@@ -195,3 +195,16 @@ def test_a_repeated_section_is_refused_instead_of_dropping_settings(tmp_path):
 def test_a_robot_port_out_of_range_is_refused_at_load(tmp_path, url, words):
     with pytest.raises(ConfigError, match=rf"study.yaml:2: key 'robot.url' has {words}"):
         load_config(study(tmp_path, f"robot:\n  url: {url}\n"))
+
+
+@pytest.mark.parametrize("url", ["10.0.0.5", "tcp://nao.local", "tcps://[fe80::1]:9503", "[::1]:9559"])
+def test_the_config_accepts_every_address_the_robot_client_accepts(tmp_path, url):
+    from nao_trainer.robot.address import normalize_url
+    normalize_url(url)  # the client takes it ...
+    assert load_config(study(tmp_path, f"robot:\n  url: '{url}'\n")).robot.url == url  # ... and so does the config
+
+
+def test_a_password_in_the_robot_address_is_not_echoed(tmp_path):
+    with pytest.raises(ConfigError) as err:
+        load_config(study(tmp_path, "robot:\n  url: tcps://nao:s3cret@10.0.0.2:9503\n"))
+    assert "s3cret" not in str(err.value) and "NAO_PASSWORD" in str(err.value)
