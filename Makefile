@@ -11,7 +11,7 @@ export LSLAPICFG ?= $(abspath $(if $(wildcard $(SHARED)/lsl_api.cfg),$(SHARED)/l
 export QI_LOG_LEVEL := silent
 export NAO_TRAINER_SHARED ?= $(abspath $(SHARED))
 
-.PHONY: demo test bench figures clean
+.PHONY: demo test bench figures clean os-packages
 $(VENV)/.installed: setup.py
 	@test -n "$(PYTHON)" || { echo "error: needs Python 3.10-3.12 (qi has no wheels for others)"; exit 1; }
 	$(PYTHON) -m venv $(VENV)
@@ -22,7 +22,14 @@ $(VENV)/.installed: setup.py
 demo: $(VENV)/.installed
 	$(BIN)/nao-trainer run
 
-test: $(VENV)/.installed
+# espeak-ng (the speech of `--robot desktop`, an OS package): installed where we may, a hint otherwise.
+os-packages:
+	@command -v espeak-ng >/dev/null 2>&1 || { \
+	  if command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq espeak-ng; \
+	  elif command -v apt-get >/dev/null 2>&1 && sudo -n true 2>/dev/null; then sudo apt-get update -qq && sudo apt-get install -y -qq espeak-ng; \
+	  else echo "note: espeak-ng is missing (--robot desktop and its tests need it): sudo apt-get install espeak-ng"; fi; }
+
+test: $(VENV)/.installed os-packages
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile
 
 bench: $(VENV)/.installed

@@ -24,7 +24,8 @@ def read_text(path: str | os.PathLike, error: type[UserError], missing: str = "f
     except FileNotFoundError:
         raise error(f"{path}: {missing}{tail}") from None
     except UnicodeDecodeError as exc:
-        raise error(f"{path}: not a text file ({exc.reason} at byte {exc.start}){tail}") from None
+        line = exc.object[: exc.start].count(b"\n") + 1
+        raise error(f"{path}:{line}: not a text file ({exc.reason} at byte {exc.start}; UTF-8 expected){tail}") from None
     except OSError as exc:
         raise error(f"{path}: cannot read ({exc.strerror}){tail}") from None
 
@@ -42,31 +43,95 @@ def read_json(path: str | os.PathLike, error: type[UserError], missing: str = "f
 def read_yaml(path: str | os.PathLike, missing: str = "file not found", fix: str = "") -> tuple[Any, dict[str, int], str]:
     """Parse a YAML file; returns (data, dotted key -> line number, text) so validation can say where.
 
-    Unreadable files and syntax errors raise ``ConfigError`` with file and line.
+    Unreadable files, syntax errors, characters YAML forbids, values a tag cannot convert
+    (``!!int notanumber``) and keys given twice raise ``ConfigError`` with file and line, in one line.
     """
     import yaml
 
     text = read_text(path, ConfigError, missing, fix)
+    loader = None
     try:
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
-        data = yaml.safe_load(text)
+        loader = _yaml_loader()(text)
+        node = loader.get_single_node()
+        lines: dict[str, int] = {}
+        _collect_lines(node, "", lines, path)
+        data = loader.construct_document(node) if node is not None else None
+    except yaml.reader.ReaderError as exc:  # a control character or similar: no mark, a position
+        line = text[: exc.position].count("\n") + 1 if isinstance(exc.position, int) else "?"
+        char = f"U+{exc.character:04X}" if isinstance(exc.character, int) else repr(exc.character)
+        raise ConfigError(f"{path}:{line}: control character {char} is not allowed in YAML; remove it") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"{path}:{mark.line + 1}" if mark else str(path)
-        raise ConfigError(f"{where}: not valid YAML ({getattr(exc, 'problem', None) or exc}); fix the syntax") from None
-    lines: dict[str, int] = {}
-    _collect_lines(node, "", lines)
+        problem = " ".join(str(getattr(exc, "problem", None) or exc).split())
+        raise ConfigError(f"{where}: not valid YAML ({problem}); fix the syntax") from None
+    except _ValueError as exc:
+        raise ConfigError(f"{path}:{exc.line}: {exc.tag or 'value'} {exc.value!r} cannot be read ({exc.reason}); "
+                          "fix the value or remove the tag") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: nested too deeply to be a configuration; fix the file") from None
+    finally:
+        if loader is not None:
+            loader.dispose()
     return data, lines, text
 
 
-def _collect_lines(node: Any, prefix: str, out: dict[str, int]) -> None:
+class _ValueError(Exception):
+    """A YAML tag could not convert its value (PyYAML raises a bare ValueError without a line)."""
+
+    def __init__(self, line: int, tag: str, value: Any, reason: str) -> None:
+        super().__init__(reason)
+        self.line, self.tag, self.value, self.reason = line, tag, value, reason
+
+
+_LOADER: Any = None
+
+
+def _yaml_loader() -> Any:
+    """PyYAML's SafeLoader, made to report a value its tag cannot convert with the node's line."""
+    global _LOADER
+    if _LOADER is None:
+        import yaml
+
+        class Loader(yaml.SafeLoader):
+            def construct_object(self, node: Any, deep: bool = False) -> Any:
+                try:
+                    return super().construct_object(node, deep)
+                except (yaml.YAMLError, _ValueError, RecursionError):
+                    raise
+                except (ValueError, TypeError, LookupError, ArithmeticError) as exc:
+                    tag = str(node.tag).rsplit(":", 1)[-1]
+                    value = node.value if isinstance(node.value, str) else None
+                    reason = " ".join(str(exc).split()) or type(exc).__name__
+                    raise _ValueError(node.start_mark.line + 1, f"!!{tag}", value, reason) from None
+
+        _LOADER = Loader
+    return _LOADER
+
+
+def _collect_lines(node: Any, prefix: str, out: dict[str, int] | None, path: Any) -> None:
+    """Record each dotted key's line (``out``); refuse a key given twice in one mapping (YAML keeps the last).
+
+    Mappings inside lists are checked for repeated keys too, without recording lines.
+    """
     import yaml
 
     if isinstance(node, yaml.MappingNode):
+        seen: dict[str, int] = {}
         for key_node, value_node in node.value:
-            key = f"{prefix}.{key_node.value}" if prefix else str(key_node.value)
-            out[key] = key_node.start_mark.line + 1
-            _collect_lines(value_node, key, out)
+            name = str(key_node.value)
+            key = f"{prefix}.{name}" if prefix else name
+            line = key_node.start_mark.line + 1
+            if isinstance(key_node, yaml.ScalarNode) and name in seen and key_node.tag != "tag:yaml.org,2002:merge":
+                raise ConfigError(f"{path}:{line}: key {key!r} is given twice (first on line {seen[name]}); "
+                                  "keep one (YAML would silently use the last)")
+            seen[name] = line
+            if out is not None:
+                out[key] = line
+            _collect_lines(value_node, key, out, path)
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            _collect_lines(item, f"{prefix}[{i}]", None, path)
 
 
 #: A JSON list holding only numbers (one table row): written on one line so a file stays readable.

@@ -191,6 +191,9 @@ class EngagementMonitor(Protocol):
 
         Called from another thread: must only read."""
 
+    def describe(self) -> str:
+        """One line on the EEG source in use (stream name, source_id, rate, channels), or why there is none."""
+
     def close(self) -> None: ...
 
 
@@ -213,6 +216,9 @@ class NullMonitor:
 
     def live(self) -> dict | None:
         return None
+
+    def describe(self) -> str:
+        return "EEG off"
 
     def close(self) -> None:
         pass

@@ -31,6 +31,47 @@ def test_read_json_errors_name_the_file(tmp_path):
         read_json(torn, DataError)
 
 
+@pytest.mark.parametrize("text, message", [
+    ("session:\n  seed: 1\neeg:\n  required: true\nsession:\n  turns: 3\n",
+     r"y.yaml:5: key 'session' is given twice \(first on line 1\)"),
+    ("a:\n  b: 1\n  b: 2\n", r"y.yaml:3: key 'a.b' is given twice \(first on line 2\)"),
+    ("a:\n  - {x: 1, x: 2}\n", r"y.yaml:2: key 'a\[0\].x' is given twice"),
+    ("session: {seed: !!int notanumber}\n", r"y.yaml:1: !!int 'notanumber' cannot be read"),
+    ("x: 1\ny: !!float abc\n", r"y.yaml:2: !!float 'abc' cannot be read"),
+    ("b: !!bool maybe\n", r"y.yaml:1: !!bool 'maybe' cannot be read"),
+    ("t: !!timestamp 2020-13-45\n", r"y.yaml:1: !!timestamp '2020-13-45' cannot be read \(month must be in 1..12\)"),
+    ("a: 1\nb: \x01x\n", r"y.yaml:2: control character U\+0001 is not allowed in YAML; remove it"),
+    ("a: 1\nb: 'x\x07'\n", r"y.yaml:2: control character U\+0007"),
+    ("a: 1\n\n\x00", r"y.yaml:3: control character U\+0000"),
+    ("a: [1,\n  2\n", r"y.yaml:3: not valid YAML"),
+    ("a: " + "[" * 5000 + "]" * 5000 + "\n", r"y.yaml: nested too deeply"),
+])
+def test_read_yaml_refuses_bad_files_in_one_line_with_file_and_line(tmp_path, text, message):
+    from nao_trainer.errors import ConfigError
+    from nao_trainer.files import read_yaml
+
+    path = tmp_path / "y.yaml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError, match=message) as info:
+        read_yaml(path)
+    assert "\n" not in str(info.value)
+
+
+def test_read_yaml_keeps_merge_keys_and_records_lines(tmp_path):
+    from nao_trainer.files import read_yaml
+
+    path = tmp_path / "ok.yaml"
+    path.write_text("base: &b {x: 1}\nother:\n  <<: *b\n  y: 2\nlist: [1, {c: 2}]\n")
+    data, lines, _ = read_yaml(path)
+    assert data == {"base": {"x": 1}, "other": {"x": 1, "y": 2}, "list": [1, {"c": 2}]}
+    assert lines["other.y"] == 4 and lines["list"] == 5
+    (tmp_path / "bin.yaml").write_bytes(b"a: 1\nb: \xff\n")
+    from nao_trainer.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"bin.yaml:2: not a text file"):
+        read_yaml(tmp_path / "bin.yaml")
+
+
 def test_json_format_envelope_round_trip_and_refusals(tmp_path):
     from nao_trainer.files import JsonFormat, canonical_sha256
 

@@ -14,7 +14,7 @@ import select
 import sys
 import threading
 import time
-from typing import Callable
+from typing import Callable, TextIO
 
 from nao_trainer.ports import Answer, Intention, Press, Robot, TurnContext
 
@@ -62,6 +62,14 @@ class PressWindow:
             self.listener(press)
         return True
 
+    def wait_for_press(self, n: int, timeout_s: float) -> float | None:
+        """Monotonic time of the window's ``n``-th press once it has arrived; None on timeout or closed window."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._opened_at is None or len(self._presses) >= n, timeout_s)
+            if self._opened_at is None or len(self._presses) < n:
+                return None
+            return self._opened_at + self._presses[n - 1].t
+
     def collect(self, n_expected: int, timeout_s: float) -> Answer:
         """Wait for ``n_expected`` presses (+ grace) or the timeout, then close the window."""
         with self._cond:
@@ -83,11 +91,13 @@ class PressWindow:
             presses = tuple(self._presses)
             self._opened_at = None
             self._presses = []
+            self._cond.notify_all()
         return Answer(presses=presses, timed_out=len(presses) < n_expected)
 
     def close(self) -> None:
         with self._cond:
             self._opened_at = None
+            self._cond.notify_all()
 
 
 class TactileAnswers:
@@ -140,9 +150,12 @@ class KeyboardAnswers:
     invalid press (the answer is then wrong, and the key is recorded).
     """
 
-    def __init__(self, fd: int | None = None, debounce_s: float = 0.0, grace_s: float = 0.4) -> None:
+    def __init__(self, fd: int | None = None, debounce_s: float = 0.0, grace_s: float = 0.4,
+                 echo: TextIO | None = None) -> None:
         self.fd = sys.stdin.fileno() if fd is None else fd
         self.window = PressWindow(debounce_s, grace_s)
+        self.echo = echo  # the participant's terminal: a prompt at the beep, the keys, the practice result
+        self._context: TurnContext | None = None
         self._saved = None
         self._eof = False
         self._stop = threading.Event()
@@ -171,21 +184,45 @@ class KeyboardAnswers:
             pass
 
     def prepare(self, context: TurnContext) -> None:
-        pass
+        self._context = context
 
     def open_window(self) -> None:
         """Discard what was typed while the robot spoke, then read keys as they come."""
         self._drain()
         self.window.open()
+        if self._context is not None:
+            practice = " (practice)" if self._context.turn == 0 else ""
+            self._show(f"your answer{practice}, {self._context.length} letters (a/b/c): ")
         self._stop = threading.Event()
         self._reader = threading.Thread(target=self._pump, args=(self._stop,), name="keyboard-answers", daemon=True)
         self._reader.start()
 
     def collect(self, n_expected: int, timeout_s: float) -> Answer:
         try:
-            return self.window.collect(n_expected, timeout_s)
+            answer = self.window.collect(n_expected, timeout_s)
         finally:
             self._stop_reader()
+        context, self._context = self._context, None
+        self._show(self._verdict(answer, context) + "\n")
+        return answer
+
+    @staticmethod
+    def _verdict(answer: Answer, context: TurnContext | None) -> str:
+        """The end of the prompt line: the practice result, or just how the window ended."""
+        end = " - time is up" if answer.timed_out else ""
+        if context is None or context.turn != 0:
+            return end
+        if not answer.timed_out and tuple(answer.response) == tuple(context.sequence):
+            return f"{end}  practice: correct"
+        return f"{end}  practice: the sequence was {' '.join(context.sequence)}"
+
+    def _show(self, text: str) -> None:
+        if self.echo is not None:
+            try:
+                self.echo.write(text)
+                self.echo.flush()
+            except (OSError, ValueError):  # the terminal went away: answers still count
+                self.echo = None
 
     def _stop_reader(self) -> None:
         if self._reader is not None:
@@ -200,7 +237,8 @@ class KeyboardAnswers:
             for ch in text:
                 if ch in " \r\n\t":
                     continue
-                self.window.add(key=ch, letter=KEY_LETTERS.get(ch.lower()), t=now)
+                if self.window.add(key=ch, letter=KEY_LETTERS.get(ch.lower()), t=now):
+                    self._show(ch.upper() if ch.lower() in KEY_LETTERS else ch if ch.isprintable() else "?")
 
     def intended(self) -> Intention | None:
         return None  # a person's answer is not known in advance

@@ -16,9 +16,10 @@ from typing import Callable
 
 import numpy as np
 
+from nao_trainer.answers.inputs import TactileAnswers
 from nao_trainer.core import task
 from nao_trainer.core.simulation import UserSimulator
-from nao_trainer.ports import (Answer, AnswerSource, EngagementMonitor, Intention, NullMonitor, Press, RobotConnectionLost,
+from nao_trainer.ports import (Answer, EngagementMonitor, Intention, NullMonitor, Press, RobotConnectionLost,
                                 TurnContext)
 
 #: Relative frequency of mistake kinds when a turn fails.
@@ -61,13 +62,18 @@ class SimulatedParticipant:
 
     ``press`` delivers one letter to the robot's head buttons and ``inner`` (a ``TactileAnswers``)
     collects them; with ``press=None`` the answer is returned directly. ``speed`` divides every
-    waiting time; ``min_gap_s`` (session seconds) keeps presses of a fast simulated hand apart
-    from the debounce interval.
+    waiting time; ``min_gap_s`` (session seconds, above the debounce interval) keeps presses of a
+    fast simulated hand apart. The gap is kept where the debounce applies, at the receiving end:
+    each press waits until the previous one has arrived, plus the gap, so a late press (a slow
+    qi call, a busy core) never pulls the next one under the debounce interval.
     """
+
+    #: Longest wait for a press to arrive before the next one goes anyway (real seconds).
+    ARRIVAL_TIMEOUT_S = 0.5
 
     def __init__(self, simulator: UserSimulator, rng: np.random.Generator, speed: float = 1.0,
                  monitor: EngagementMonitor | None = None, press: Callable[[str], object] | None = None,
-                 inner: AnswerSource | None = None, min_gap_s: float = 0.2) -> None:
+                 inner: TactileAnswers | None = None, min_gap_s: float = 0.2) -> None:
         if (press is None) != (inner is None):
             raise ValueError("press and inner go together: presses need an answer source that receives them")
         self.simulator = simulator
@@ -116,9 +122,14 @@ class SimulatedParticipant:
             self._presser.start()
 
     def _press_all(self, plan: Plan, opened: float, generation: int) -> None:
-        assert self.press is not None
-        for letter, t in zip(plan.response, plan.times):
-            delay = opened + t / self.speed - time.monotonic()
+        assert self.press is not None and self.inner is not None
+        gap = self.min_gap_s / self.speed
+        arrived: float | None = None  # when the previous press reached the answer window
+        for i, (letter, t) in enumerate(zip(plan.response, plan.times)):
+            due = opened + t / self.speed
+            if arrived is not None:
+                due = max(due, arrived + gap)
+            delay = due - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
             if generation != self._generation:
@@ -128,6 +139,8 @@ class SimulatedParticipant:
             except Exception as exc:  # noqa: BLE001 - robot gone: the session sees it on its next call
                 self._press_error = str(exc)
                 return
+            if i + 1 < len(plan.response):
+                arrived = self.inner.window.wait_for_press(i + 1, self.ARRIVAL_TIMEOUT_S) or time.monotonic()
 
     def collect(self, n_expected: int, timeout_s: float) -> Answer:
         if self.plan is None:

@@ -14,7 +14,8 @@ from nao_trainer import __version__
 from nao_trainer.errors import Interrupted, UserError
 
 #: Subcommand modules, in the order ``--help`` lists them.
-COMMANDS = ("run", "mock_robot", "simulate_muse", "engagement", "import_data", "fit", "train", "evaluate", "sweep")
+COMMANDS = ("run", "check", "mock_robot", "simulate_muse", "engagement", "import_data", "fit", "train", "evaluate",
+            "sweep")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -33,8 +34,9 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv:
-        argv = ["run"]  # no command: the demo study
+    if not argv:  # no command: say what there is (the demo is `nao-trainer run`)
+        parser.print_help()
+        return 0
     args = parser.parse_args(argv)
     args.argv = argv  # what was parsed (recorded by commands that log their command line), not sys.argv
     if not getattr(args, "func", None):

@@ -27,7 +27,12 @@ def register(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nao_trainer.data.dataset import cache_dir, import_dataset, write_table
+    from nao_trainer.errors import ConfigError
 
+    folder = args.out.resolve().parent
+    if not folder.is_dir() and not folder.parent.is_dir():  # the output's own folder is made, never a whole tree
+        raise ConfigError(f"--out {args.out}: the folder {folder.parent} does not exist (a typo?); create it first "
+                          "or choose another")
     cache = None if args.no_cache else (args.cache or cache_dir(args.root, args.compat, beside=args.out))
     progress = None if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     result = import_dataset(args.root, compat=args.compat, cache_dir=cache, progress=progress)

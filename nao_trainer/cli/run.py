@@ -17,8 +17,9 @@ def register(sub) -> None:
                     "Flags override the study configuration.",
     )
     p.add_argument("--config", metavar="FILE", help="study configuration (default: config/studies/demo.yaml)")
-    p.add_argument("--robot", metavar="mock|URL",
-                   help="'mock' (the stand-in, in-process), tcp://IP:9559 (NAOqi <= 2.8) or tcps://IP:9503 "
+    p.add_argument("--robot", metavar="mock|desktop|URL",
+                   help="'mock' (the stand-in, in-process), 'desktop' (the laptop speaks through espeak-ng; answer "
+                        "with --input keyboard), tcp://IP:9559 (NAOqi <= 2.8) or tcps://IP:9503 "
                         "(NAOqi 2.9; login from NAO_USER/NAO_PASSWORD)")
     p.add_argument("--input", choices=INPUTS, help="where answers come from")
     p.add_argument("--turns", type=int, metavar="N", help="number of turns")
@@ -27,6 +28,8 @@ def register(sub) -> None:
     p.add_argument("--out", metavar="DIR", help="folder under which the session folder is created")
     p.add_argument("--pseudonym", metavar="ID", help="participant pseudonym (names the session folder)")
     p.add_argument("--eeg", choices=EEG_MODES, help="EEG: off, a simulated Muse, or a Muse over LSL")
+    p.add_argument("--eeg-source-id", metavar="ID",
+                   help="use only the LSL stream with this source_id (one headband among several; eeg.source_id)")
     p.add_argument("--user-model", metavar="CLUSTER|FILE",
                    help="simulated participant from a fitted user model (cluster id or simulator JSON)")
     p.add_argument("--policy", metavar="SPEC", help="schedule | random | usp:CLUSTER[:METHOD]")
@@ -60,6 +63,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, object]:
         "session.output": str(Path(args.out).resolve()) if args.out else None,
         "participant.pseudonym": args.pseudonym,
         "eeg.mode": args.eeg,
+        "eeg.source_id": args.eeg_source_id,
         "policy.kind": args.policy,
         "participant_model.user_model": args.user_model,
         "policy.learning": False if args.no_learning else None,
@@ -69,12 +73,11 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, object]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from nao_trainer.session.config import load_config
-    from nao_trainer.session.wiring import RunOptions, run_session
-
     import sys
 
     from nao_trainer.errors import ConfigError
+    from nao_trainer.session.config import is_robot_address, load_config
+    from nao_trainer.session.wiring import RunOptions, run_session
 
     overrides = overrides_from_args(args)
     if args.console_port is not None and not 0 <= args.console_port <= 65535:
@@ -94,6 +97,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"resuming {resume.folder} after turn {resume.checkpoint['completed']} of {config.session.turns}",
               file=sys.stderr)
     else:
+        if args.config is None and args.robot is not None and is_robot_address(args.robot):
+            # The demo study is a simulation (sped up, simulated participant and Muse, pseudonym "demo"):
+            # a robot must never run with it by accident.
+            raise ConfigError(f"--robot {args.robot} needs --config FILE: without it the demo study would run "
+                              "(speed x25, simulated participant and EEG, pseudonym 'demo'); use --config "
+                              "config/studies/paper-2018.yaml or your own study file")
         config = load_config(args.config, overrides)
     result = run_session(config, options, resume=resume)
     print(result.summary())

@@ -49,16 +49,22 @@ def run(args) -> int:
         raise ConfigError(f"--{exc}") from None
     if not args.no_plots and importlib.util.find_spec("matplotlib") is None:  # fail before a long run
         raise ConfigError("figures need matplotlib: pip install 'nao-trainer[plots]', or add --no-plots")
+    created = not Path(args.out).exists()
     try:  # before a long run: the output folder must be usable
         Path(args.out).mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise DataError(f"{args.out}: cannot create the output folder ({exc.strerror}); choose another --out") from None
-    models_dir = Path(args.models) if args.models else artifacts.default_models_dir()
-    clusters = artifacts.available_models(models_dir)
-    if not clusters:
-        raise DataError(f"{models_dir / artifacts.MANIFEST}: lists no clusters; refit with `nao-trainer fit`")
-    simulators = [artifacts.load_simulator(c, models_dir) for c in clusters]
-    result = train_grid(simulators, clusters, spec, progress=True)
+    try:
+        models_dir = Path(args.models) if args.models else artifacts.default_models_dir()
+        clusters = artifacts.available_models(models_dir)
+        if not clusters:
+            raise DataError(f"{models_dir / artifacts.MANIFEST}: lists no clusters; refit with `nao-trainer fit`")
+        simulators = [artifacts.load_simulator(c, models_dir) for c in clusters]
+        result = train_grid(simulators, clusters, spec, progress=True)
+    except BaseException:  # interrupted or failed before writing: leave no empty folder behind
+        if created:
+            _remove_if_empty(Path(args.out))
+        raise
     print(f"train: {result.turns / 1e6:.1f} M turns in {result.seconds:.1f} s "
           f"({result.turns / max(result.seconds, 1e-9) / 1e6:.2f} M turns/s); writing {args.out}", file=sys.stderr)
     argv = getattr(args, "argv", None) or ["train"]  # cli.main stores the arguments it parsed
@@ -78,6 +84,13 @@ def run(args) -> int:
         for key, path in paths.items():
             print(f"  {key}: {path}")
     return 0
+
+
+def _remove_if_empty(folder: Path) -> None:
+    try:
+        folder.rmdir()  # only ever removes an empty folder
+    except OSError:
+        pass
 
 
 def print_table(rows: list[dict]) -> None:

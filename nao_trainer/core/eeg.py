@@ -76,5 +76,10 @@ class Processing:
                     raise ConfigError(f"eeg.processing.{key}: must be an integer, got {value!r}")
             elif isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise ConfigError(f"eeg.processing.{key}: must be a number, got {value!r}")
+            if isinstance(value, int) and not isinstance(value, bool) and abs(value) > 10**12:
+                raise ConfigError(f"eeg.processing.{key}: must be a number of sensible size, got one with "
+                                  f"{len(str(abs(value)))} digits")
+            if isinstance(value, float) and value != value:  # NaN fails every range check silently
+                raise ConfigError(f"eeg.processing.{key}: must be a finite number, got {value!r}")
             values[key] = float(value) if isinstance(default, float) else value
         return cls(**values)

@@ -26,6 +26,19 @@ TIME_QUANTILES = np.linspace(0.0, 1.0, 21)
 FORMAT_VERSION = 1
 #: The simulator file's header (checked by ``from_dict``; pure: files.JsonFormat only compares dicts here).
 SIMULATOR_FILE = JsonFormat("nao-trainer/user-simulator", FORMAT_VERSION, "user simulator", "simulator")
+#: Significant digits of the table values that enter the fingerprint. A refit on another machine
+#: (or with another BLAS thread count) differs in the last bits only; 9 digits ignore that noise
+#: while any real change of a model (a refit on other data, an edit) still changes the fingerprint.
+FINGERPRINT_DIGITS = 9
+#: Values closer to zero than this count as zero in the fingerprint (noise has no relative scale there).
+_FINGERPRINT_ZERO = 1e-12
+
+
+def fingerprint_text(values: np.ndarray) -> str:
+    """The values as text rounded to ``FINGERPRINT_DIGITS`` significant digits (near-zeros as 0)."""
+    v = np.asarray(values, dtype=float).ravel()
+    v = np.where(np.abs(v) < _FINGERPRINT_ZERO, 0.0, v)
+    return ",".join(np.char.mod(f"%.{FINGERPRINT_DIGITS}g", v).tolist())
 
 
 @dataclass(frozen=True, eq=False)
@@ -82,10 +95,14 @@ class UserSimulator:
     # -- identity and serialisation -------------------------------------------------------------
 
     def fingerprint(self) -> str:
-        """SHA-256 of the tables: policies record it so they are never used with another user."""
+        """SHA-256 of the tables rounded to ``FINGERPRINT_DIGITS`` significant digits.
+
+        Policies record it so they are never used with another user model; the rounding keeps a
+        refit that differs only by float noise from invalidating every trained policy.
+        """
         h = hashlib.sha256(mdp.DEFINITION.encode())
         for table in (self.p_success, self.engagement, self.reaction_quantiles, self.completion_quantiles):
-            h.update(np.ascontiguousarray(table, dtype="<f8").tobytes())
+            h.update(b"|" + fingerprint_text(table).encode())
         return h.hexdigest()
 
     def to_dict(self) -> dict[str, Any]:

@@ -131,6 +131,14 @@ class LslMonitor:
         """True while a stream is attached and delivering."""
         return self.inlet is not None and not self._lost
 
+    def describe(self) -> str:
+        """The stream in use (``ports.EngagementMonitor``), or why there is none yet."""
+        inlet = self.inlet
+        if inlet is None:
+            return "no stream yet; the session keeps looking for one and uses it from then on"
+        return (f"stream {inlet.name!r} (source_id {inlet.source_id!r}, {inlet.fs:g} Hz, channels "
+                f"{'/'.join(inlet.scalp_labels)})")
+
     @property
     def status(self) -> str:
         if self.inlet is None:
@@ -411,7 +419,7 @@ class LslMonitor:
 
 def _no_stream_message(query: StreamQuery, settings: EEGSettings) -> str:
     what = (f"no EEG stream ({query.describe()}) found by LSL in scope {settings.lsl_scope!r} within "
-            f"{settings.processing.resolve_timeout_s:g} s (eeg.stream_type / eeg.stream_name in the study config)")
+            f"{settings.processing.resolve_timeout_s:g} s (eeg.stream_type / eeg.stream_name / eeg.source_id in the study config, or --eeg-source-id)")
     if settings.required:
         return (f"{what}; start the headband bridge (`muselsl stream --lsltime`) or `nao-trainer simulate-muse` "
                 "and try again, or run with --eeg off")

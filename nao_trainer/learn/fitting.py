@@ -427,7 +427,19 @@ PAPER_CLUSTERS = {1: 1, 2: 3, 3: 2}
 
 def fit_dataset(turns: Turns, options: FitOptions | None = None, metadata: dict[str, Any] | None = None,
                 progress: Callable[[str], None] | None = None) -> FitResult:
-    """User models, K-means clusters and one simulator per cluster from a turn table."""
+    """User models, K-means clusters and one simulator per cluster from a turn table.
+
+    Runs with one BLAS/OpenMP thread: K-means and the regressions then sum in one fixed order, so
+    a refit on the same machine writes identical files whatever the core count.
+    """
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1):
+        return _fit_dataset(turns, options, metadata, progress)
+
+
+def _fit_dataset(turns: Turns, options: FitOptions | None, metadata: dict[str, Any] | None,
+                 progress: Callable[[str], None] | None) -> FitResult:
     options = options or FitOptions()
     metadata = dict(metadata or {})
     say = progress or (lambda _msg: None)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import difflib
 import hashlib
+import math
 import os
 import re
 import string
@@ -20,6 +21,7 @@ from typing import Any, Callable, Mapping
 
 from nao_trainer.eeg.settings import EEGSettings
 from nao_trainer.errors import ConfigError
+from nao_trainer.robot.address import parse_url, redact_url
 from nao_trainer.files import PROJECT_ROOT, read_yaml
 
 #: Repository root (parent of the package). Relative paths in configs resolve against it, so
@@ -28,6 +30,13 @@ DEFAULT_CONFIG = PROJECT_ROOT / "config" / "default.yaml"
 DEMO_STUDY = PROJECT_ROOT / "config" / "studies" / "demo.yaml"
 
 INPUTS = ("simulated", "tactile", "keyboard")
+#: ``robot.url`` values that are not addresses: the in-process stand-in, the laptop itself.
+MOCK, DESKTOP = "mock", "desktop"
+#: Paths read from the project (resolved against the folder of the file that sets them) and paths
+#: written to (resolved against the current folder, like ``--out``).
+INPUT_PATHS = ("session.dialogue", "session.behaviors")
+#: No setting needs an integer this large; beyond it a number is a typo (and may not fit a float).
+MAX_INT = 10**12
 
 
 # ----------------------------------------------------------------------------------------------
@@ -51,13 +60,15 @@ class Field:
 
 
 def _robot_url(value: str) -> str | None:
-    if value == "mock":
+    if value in (MOCK, DESKTOP):
         return None
-    if "@" in value:
-        return "must not contain credentials; set NAO_USER and NAO_PASSWORD in the environment instead"
-    if not re.fullmatch(r"tcps?://[^/:@\s]+(:\d{1,5})?", value):
-        return "must be 'mock' or tcp://HOST:9559 (NAOqi <= 2.8) or tcps://HOST:9503 (NAOqi 2.9)"
-    return None
+    problem = parse_url(value)[1]  # the robot client's own rule: the two never disagree
+    return f"{problem} (got {redact_url(value)!r})" if problem else None  # never echo a password
+
+
+def is_robot_address(url: str) -> bool:
+    """True for a NAOqi address (a robot, or a stand-in started elsewhere), False for mock/desktop."""
+    return url not in (MOCK, DESKTOP)
 
 
 def _policy_spec(value: str) -> str | None:
@@ -205,11 +216,12 @@ class SessionSection:
 
     @property
     def dialogue_path(self) -> Path:
-        return _project_file(self.dialogue)
+        """Absolute: resolved at load against the folder of the file that set it."""
+        return Path(self.dialogue)
 
     @property
     def behaviors_path(self) -> Path:
-        return _project_file(self.behaviors)
+        return Path(self.behaviors)
 
     @property
     def output_dir(self) -> Path:
@@ -284,12 +296,6 @@ assert all(tuple(SCHEMA[name]) == tuple(f.name for f in fields(cls)) for name, c
     "config SECTIONS and SCHEMA disagree"
 
 
-def _project_file(value: str) -> Path:
-    """A project file (dialogue, behaviors) resolved against the project root when relative."""
-    p = Path(os.path.expanduser(value))
-    return p if p.is_absolute() else PROJECT_ROOT / p
-
-
 def _frozen(value: Any) -> Any:
     return tuple(value) if isinstance(value, list) else value
 
@@ -356,8 +362,11 @@ class _Loc:
 
 
 def _read_yaml(path: Path) -> tuple[Any, dict[str, _Loc], str]:
-    """Parse ``path``; returns (data, dotted-key -> location, text)."""
-    data, lines, text = read_yaml(path, fix=f"check the path (relative paths resolve against {PROJECT_ROOT})")
+    """Parse ``path`` (absolute, so messages show where it was looked for); returns (data, locations, text)."""
+    data, lines, text = read_yaml(path, fix="check the path")
+    if data is None:
+        raise ConfigError(f"{path}: the file is empty (or only comments); a study file sets at least study.name "
+                          "(see config/studies/demo.yaml)")
     return data, {key: _Loc(str(path), line) for key, line in lines.items()}, text
 
 
@@ -378,6 +387,9 @@ def _merge(base: dict, over: Mapping, schema: dict, prefix: str, locs: dict[str,
             base.setdefault(key, {})
             _merge(base[key], value if value is not None else {}, spec, dotted, locs, file)
         else:
+            problem = _check(value, spec)  # every file's own values, even those a flag overrides later
+            if problem:
+                raise ConfigError(f"{where}: key '{dotted}' {problem}")
             base[key] = value
             locs[f"@{dotted}"] = where  # where the value in force came from
 
@@ -413,11 +425,36 @@ def _validate(values: dict, schema: dict, prefix: str, locs: dict[str, _Loc]) ->
             values[key] = float(values[key])
 
 
+def _number_problem(value: Any) -> str | None:
+    """NaN and infinity pass every range check (all comparisons are False), huge integers overflow floats."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return f"must be a finite number, got {value!r}"
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > MAX_INT:
+        return f"must be a number of sensible size, got one with {len(str(abs(value)))} digits"
+    return None
+
+
+def _text_problem(value: str) -> str | None:
+    """Control characters (NUL...) and lone surrogates cannot be file names or spoken text."""
+    bad = next((c for c in value if ord(c) < 0x20 or ord(c) == 0x7F or 0xD800 <= ord(c) <= 0xDFFF), None)
+    if bad is not None:
+        return f"must not contain control characters or invalid Unicode (found U+{ord(bad):04X})"
+    return None
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
 def _check(value: Any, spec: Field) -> str | None:
     if value is None:
         return None if spec.nullable else f"needs a value ({_type_name(spec.kind)}), got nothing"
     if not _is_kind(value, spec.kind):
-        return f"must be {_type_name(spec.kind)}, got {value!r}"
+        return f"must be {_type_name(spec.kind)}, got {_short(value)}"
+    problem = _number_problem(value) or (_text_problem(value) if isinstance(value, str) else None)
+    if problem:
+        return problem
     if spec.choices is not None and value not in spec.choices:
         return f"must be one of {', '.join(map(str, spec.choices))}, got {value!r}"
     if spec.min is not None and value < spec.min:
@@ -429,11 +466,14 @@ def _check(value: Any, spec: Field) -> str | None:
             return f"must have {spec.length} values, got {len(value)}"
         for item in value:
             if spec.item is not None and not _is_kind(item, spec.item):
-                return f"values must each be {_type_name(spec.item)}, got {item!r}"
+                return f"values must each be {_type_name(spec.item)}, got {_short(item)}"
+            problem = _number_problem(item) or (_text_problem(item) if isinstance(item, str) else None)
+            if problem:
+                return f"values: {problem}"
     if spec.check is not None:
         problem = spec.check(value)
         if problem:
-            return f"{problem} (got {value!r})" if "got" not in problem else problem
+            return f"{problem} (got {_short(value)})" if "got" not in problem else problem
     return None
 
 
@@ -451,8 +491,8 @@ def load_config(study: str | Path | None = None, overrides: Mapping[str, Any] | 
 
     Raises ``ConfigError`` naming file, line and key for the first problem found.
     """
-    default_path = Path(default) if default else DEFAULT_CONFIG
-    study_path = Path(study) if study is not None else DEMO_STUDY
+    default_path = Path(os.path.abspath(default)) if default else DEFAULT_CONFIG
+    study_path = Path(os.path.abspath(os.path.expanduser(study))) if study is not None else DEMO_STUDY
     values: dict[str, Any] = {}
     locs: dict[str, _Loc] = {}
     digest = hashlib.sha256()
@@ -470,10 +510,15 @@ def load_config(study: str | Path | None = None, overrides: Mapping[str, Any] | 
         section, _, key = dotted.partition(".")
         if section not in SCHEMA or key not in SCHEMA[section]:
             raise ConfigError(f"command line: unknown configuration key '{dotted}'")
+        problem = _check(value, SCHEMA[section][key])
+        if problem:
+            raise ConfigError(f"{flag_loc}: key '{dotted}' {problem}")
         _set_dotted(values, dotted, value)
         locs[f"@{dotted}"] = flag_loc
         digest.update(f"{dotted}={value!r}".encode())
     _validate(values, SCHEMA, "", locs)
+    _resolve_input_paths(values, locs)
+    _check_combination(values, locs)
 
     def where(dotted: str) -> _Loc:
         return locs.get(f"@{dotted}") or locs.get(dotted) or locs.get("@eeg.processing") or _Loc("configuration", None)
@@ -484,3 +529,31 @@ def load_config(study: str | Path | None = None, overrides: Mapping[str, Any] | 
         raise ConfigError(f"{locs.get('@robot.backoff_max_s')}: key 'robot.backoff_max_s' must be >= robot.backoff_initial_s")
     return StudyConfig.build(values, tuple(sources), digest.hexdigest(), eeg,
                              {k: v for k, v in (overrides or {}).items() if v is not None})
+
+
+def _resolve_input_paths(values: dict, locs: dict[str, _Loc]) -> None:
+    """Dialogue and behaviors files: relative paths resolve against the folder of the file that set them
+    (the current folder for a flag); must exist. Replaced by the absolute path (what session.json shows)."""
+    for dotted in INPUT_PATHS:
+        section, key = dotted.split(".")
+        where = locs.get(f"@{dotted}", _Loc(str(DEFAULT_CONFIG), None))
+        given = Path(os.path.expanduser(values[section][key]))
+        base = Path(where.file).parent if Path(where.file).is_file() else Path.cwd()
+        path = Path(os.path.abspath(given if given.is_absolute() else base / given))
+        if not path.is_file():
+            rule = "" if given.is_absolute() else f" (relative paths resolve against {base}, the folder of the file that sets them)"
+            raise ConfigError(f"{where}: key '{dotted}': {path} is not a file{rule}; fix the path")
+        values[section][key] = str(path)
+
+
+def _check_combination(values: dict, locs: dict[str, _Loc]) -> None:
+    """Settings that are each valid but must not go together."""
+    if values["robot"]["url"] == DESKTOP and values["answers"]["input"] == "tactile":
+        where = locs.get("@answers.input", _Loc("configuration", None))
+        raise ConfigError(f"{where}: key 'answers.input' is 'tactile', but --robot desktop has no head buttons: "
+                          "answer with --input keyboard (or simulated)")
+    if values["eeg"]["mode"] == "simulated" and values["answers"]["input"] != "simulated":
+        where = locs.get("@eeg.mode", _Loc("configuration", None))
+        raise ConfigError(f"{where}: key 'eeg.mode' is 'simulated', but a person answers "
+                          f"(answers.input: {values['answers']['input']}): a simulated Muse would record made-up "
+                          "engagement for them; use eeg.mode 'lsl' (a real Muse) or 'off' (--eeg off)")

@@ -31,6 +31,8 @@ EVENTS: dict[str, frozenset[str]] = {
     "paused": frozenset(),
     "resumed": frozenset(),
     "goodbye": frozenset({"total", "turns"}),
+    # The goodbye when the total is zero or negative: "you scored -2 points" is not said to a participant.
+    "goodbye_no_points": frozenset({"turns"}),
 }
 
 #: Values of the kind the session passes, used to trial-format every variant at load.
@@ -50,6 +52,11 @@ class Dialogue:
         options = self.variants[event]
         text = options[int(rng.integers(len(options)))] if len(options) > 1 else options[0]
         return text.format(**fields)
+
+    @staticmethod
+    def goodbye_event(total: int) -> str:
+        """The closing event: with the score when it is positive, without a number otherwise."""
+        return "goodbye" if total > 0 else "goodbye_no_points"
 
     def feedback(self, kind: int, success: bool, rng: np.random.Generator, **fields: Any) -> str:
         """The feedback utterance of an RF action: ``kind`` 1 encouraging / 2 challenging, on the last outcome."""

@@ -117,7 +117,8 @@ class Session:
     def run(self) -> int:
         """Play the session to ``done`` or ``aborted``; returns the exit code."""
         self._t0 = self.clock.now()
-        self.rec.event("session_start", turns=self.n_turns, policy=self.policy.name, max_duration_s=self.max_duration_s)
+        self.rec.event("session_start", turns=self.n_turns, policy=self.policy.name, max_duration_s=self.max_duration_s,
+                       eeg=self.monitor.describe())
         if self._policy_state:
             self.rec.event("policy_state", **self._policy_state)
         self.monitor.mark("session_start")
@@ -233,6 +234,9 @@ class Session:
             self._begin_phase("answer", turn)
         # The window opened at the beep; the timeout counts from there (sources measure from open_window).
         answer = self.answers.collect(length, self.clock.wall(self.cfg.timing.response_timeout_s(length)))
+        self.rec.event("answer", turn=turn, timed_out=answer.timed_out,  # each press, seconds from the beep
+                       presses=[{"key": p.key, "letter": p.letter, "t": round(self.clock.session(p.t), 3)}
+                                for p in answer.presses])
         if not self.robot.is_connected():  # an answer window does not talk to the robot: ask
             raise RobotConnectionLost("the robot dropped during the answer window")
         return answer
@@ -257,8 +261,8 @@ class Session:
         length = task.LENGTHS[0]
         context = TurnContext(0, mdp.encode(length, 0, 0), length, task.generate_sequence(self.rng, length))
         self.answers.prepare(context)
-        self.stage.announce(1, length, look=False)
-        self.stage.letters(context.sequence)
+        self.stage.announce(1, length, look=False, turn=0)
+        self.stage.letters(context.sequence, turn=0)
         answer = self._collect(0, length, self._beep(0))
         ok = not answer.timed_out and task.is_correct(context.sequence, answer.response)
         self.rec.event("practice", sequence="".join(context.sequence), response="".join(answer.response), success=ok)
@@ -271,7 +275,8 @@ class Session:
         """The replayed turn after a loss, else the policy's choice in the current MDP state."""
         if self.replay is not None:
             turn, self.replay = self.replay, None
-            return Turn(turn.number, turn.previous_state, turn.action, turn.state, notes=["replay of interrupted turn"])
+            return Turn(turn.number, turn.previous_state, turn.action, turn.state, notes=["replay of interrupted turn"],
+                        replay=True)
         notes: list[str] = []
         action = self._take_override()
         if action is not None:
@@ -332,12 +337,12 @@ class Session:
     def _do_announce(self) -> str:
         assert self.turn is not None
         st = self.turn.turn_state
-        self.stage.announce(st.level, st.length)
+        self.stage.announce(st.level, st.length, turn=self.turn.number)
         return "speak"
 
     def _do_speak_sequence(self) -> str:
         assert self.turn is not None
-        self.stage.letters(self.turn.sequence)
+        self.stage.letters(self.turn.sequence, turn=self.turn.number)
         return "sound_beep"
 
     def _do_beep(self) -> str:

@@ -101,20 +101,23 @@ class Stage:
         self.rec.event("say", what=what, text=text, **data)
         return text
 
-    def announce(self, level: int, length: int, look: bool = True) -> None:
+    def announce(self, level: int, length: int, look: bool = True, turn: int | None = None) -> None:
         """"Level N", plainly (no gestures), after the configured pause."""
         self.clock.wait(self.timing.pause_before_level_s)
         if look:
             self.look("level")
-        self.robot.say(self.dialogue.say("level", self.rng, level=level, length=length), False, "disabled")
+        text = self.dialogue.say("level", self.rng, level=level, length=length)
+        self.robot.say(text, False, "disabled")
+        self.rec.event("say", what="level", text=text, turn=turn)
 
-    def letters(self, sequence: tuple[str, ...]) -> None:
+    def letters(self, sequence: tuple[str, ...], turn: int | None = None) -> None:
         """Each letter as its own utterance, separated by the configured gap."""
         self.look("sequence")
         for i, letter in enumerate(sequence):
             if i:
                 self.clock.wait(self.timing.letter_gap_s)
             self.robot.say(letter, False, "disabled")
+            self.rec.event("say", what="letter", text=letter, turn=turn, index=i + 1)
 
     def beep(self, turn: int) -> float:
         """Beep (the answer window must be open already); returns the onset on the monotonic clock."""
@@ -125,7 +128,8 @@ class Stage:
         return onset
 
     def goodbye(self, total: int, turns: int) -> None:
-        self.say("goodbye", total=total, turns=turns)
+        """The closing words (without a number when the total is zero or negative), end posture, LEDs off."""
+        self.say(self.dialogue.goodbye_event(total), behavior="goodbye", total=total, turns=turns)
         self.posture(self.behaviors.end_posture)
         self.leds(self.behaviors.leds_reset)
 

@@ -27,6 +27,7 @@ class Turn:
     notes: list[str] = field(default_factory=list)
     recorded: bool = False
     invalid: bool = False  # the operator marked it invalid: recorded, not learned from
+    replay: bool = False  # the second go of a turn interrupted by a robot loss (same number, state, action)
 
     @property
     def turn_state(self) -> mdp.State:
@@ -68,6 +69,7 @@ class Turn:
             else ("" if self.success is None else "no listening phase"),
             "notes": "; ".join(self.notes),
             "invalid": True if self.invalid else None,
+            "replay": True if self.replay else None,
         }
 
 
@@ -106,6 +108,15 @@ class SessionResult:
         values = [r["engagement"] for r in self.completed_rows if r["engagement"] is not None]
         return float(np.mean(values)) if values else None
 
+    def _no_engagement(self) -> str:
+        """Why there is no mean engagement: EEG off, or the reason the turns give (EEG on, no value)."""
+        notes = [r.get("engagement_note") or "no value" for r in self.completed_rows]
+        if not notes:
+            return "n/a (no completed turn)"
+        if set(notes) == {"EEG off"}:
+            return "n/a (EEG off)"
+        return f"n/a (EEG on, no value in any turn: {_most_common(notes).split('; ')[0]})"
+
     def summary(self) -> str:
         """A plain-text summary table for the terminal."""
         lines = ["", "level  played  success rate"]
@@ -114,12 +125,16 @@ class SessionResult:
         eng = self.mean_engagement
         lines += [
             f"turns completed: {len(self.completed_rows)}   total score: {self.total_score}   "
-            f"mean engagement: {'n/a (EEG off)' if eng is None else f'{eng:.2f}'}",
+            f"mean engagement: {self._no_engagement() if eng is None else f'{eng:.2f}'}",
             f"status: {self.status} (exit {self.exit_code})" + (f": {self.error}" if self.error else ""),
             *([self.summary_extra] if self.summary_extra else []),
             f"session folder: {self.path if self.path else '(none written)'}",
         ]
         return "\n".join(lines)
+
+
+def _most_common(values: list[str]) -> str:
+    return max(sorted(set(values)), key=values.count)
 
 
 def progress_line(row: dict[str, Any], n_turns: int, total: int) -> str:

@@ -25,7 +25,7 @@ from nao_trainer.files import read_json, write_text_atomic
 from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, Policy, Robot,
                                RobotConnectionLost, SessionObserver)
 from nao_trainer.session.behaviors import Behaviors, load_behaviors
-from nao_trainer.session.config import StudyConfig, load_config
+from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig, load_config
 from nao_trainer.session.dialogue import Dialogue, load_dialogue
 from nao_trainer.session.engine import EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session, who_stopped
 from nao_trainer.session.record import CHECKPOINT, CHECKPOINT_FORMAT, SessionRecorder, ensure_output_dir, read_turns, versions
@@ -145,6 +145,7 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
                          config.policy_state_file(), config.policy.guidance, options.fresh_policy)
     # Not closed on failure here: closing a learning policy saves it, and nothing is written before the robot answers.
     ensure_output_dir(config.output_dir())  # an unusable output folder is found before the robot moves
+    preflight(config, progress)  # robot, disk and a required EEG stream, before any session folder exists
 
     with _signals_as_interrupt():
         return _run_wired(config, progress, dialogue, behaviors, seed, simulator, policy, options, resume, console_bind)
@@ -160,6 +161,26 @@ def _console_bind(config: StudyConfig, options: RunOptions) -> str | None:
         raise ConfigError(f"console.bind {config.console.bind!r}: the console serves only this machine unless "
                           "--console-bind ADDRESS is given on the command line")
     return config.console.bind
+
+
+def preflight(config: StudyConfig, progress: TextIO | None) -> None:
+    """The pre-session check (``session.check``) at the start of a run: a failed required check stops it
+    with its own exit code before anything is written. EEG is judged here only when it is required (a
+    missing optional stream is reported by the monitor, which then keeps looking)."""
+    from nao_trainer.errors import EEGUnavailable
+    from nao_trainer.session.check import check_disk, check_eeg, check_robot, plan_from_config
+
+    plan = plan_from_config(config)
+    checks = [lambda: check_disk(plan.output_dir), lambda: check_robot(plan)]
+    if config.eeg.mode == "lsl" and config.eeg.required:
+        checks.append(lambda: check_eeg(plan, config.eeg.processing.window_s + 0.5))
+    errors = {"robot": RobotUnavailable, "eeg": EEGUnavailable, "disk": UserError}
+    for check in checks:
+        result = check()
+        if result.exit_code:
+            raise errors[result.kind](f"{result.detail}; {result.fix}" if result.fix else result.detail)
+        if progress:
+            print(f"check: {result.line()}", file=progress, flush=True)
 
 
 def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue, behaviors: Behaviors, seed: int,
@@ -179,24 +200,27 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
     commands = options.commands or CommandQueue()
     result: SessionResult | None = None
     try:
-        if url == "mock":
+        if url == MOCK:
             from nao_trainer.robot.standin import StandIn
 
             standin = StandIn.start("tcp://127.0.0.1:0", speed=speed)
             connect_url = standin.url
         else:
             connect_url = url
-        if progress:
-            print(f"connecting to the robot at {'the stand-in ' + connect_url if standin else redact_url(connect_url)} ...",
-                  file=progress, flush=True)
-        robot = NaoqiRobot.connect(connect_url, config.robot.connect_deadline_s, None,
-                                   debounce_s=config.answers.debounce_s / speed)
+        if url == DESKTOP:
+            robot = _desktop_robot(input_kind, speed, progress)
+        else:
+            if progress:
+                print(f"connecting to the robot at {'the stand-in ' + connect_url if standin else redact_url(connect_url)} ...",
+                      file=progress, flush=True)
+            robot = NaoqiRobot.connect(connect_url, config.robot.connect_deadline_s, None,
+                                       debounce_s=config.answers.debounce_s / speed)
         # Only now that the robot answered does anything get written.
         recorder = SessionRecorder(config.output_dir(), config.participant.pseudonym)
         if resume is None:
             path = recorder.open({
                 "nao_trainer": __version__, "versions": versions(), "seed": seed,
-                "robot": "stand-in (in-process)" if standin else redact_url(url),
+                "robot": "stand-in (in-process)" if standin else repr(robot) if url == DESKTOP else redact_url(url),
                 "input": input_kind, "policy": config.policy.kind,
                 "user_model": simulator.name if simulator else None,
                 "config": config.snapshot(), "argv": sys.argv[1:],
@@ -207,6 +231,8 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
         if progress:
             print(f"session folder: {path}" + (f" (resumed after turn {resume.checkpoint['completed']})" if resume else ""),
                   file=progress, flush=True)
+        if url == DESKTOP:
+            robot.record_audio_to(path / "audio")
         policy_state = _policy_state(policy, config, options.fresh_policy, progress)
         observer = options.observer
         if console_bind is not None:
@@ -226,8 +252,11 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
                           "and has the link can steer the session", file=progress, flush=True)
                 print(f"console: {console.link} (open it in a browser on this machine)", file=progress, flush=True)
         monitor = open_engagement_monitor(config, path, np.random.default_rng(eeg_ss))
+        if config.eeg.mode != "off" and progress:  # which headband this session listens to (events.jsonl too)
+            print(f"EEG ({config.eeg.mode}): {monitor.describe()}", file=progress, flush=True)
         participant_rng = np.random.default_rng(participant_ss)
-        answers, buttons = _make_answers(config, robot, standin, connect_url, simulator, monitor, participant_rng)
+        answers, buttons = _make_answers(config, robot, standin, connect_url, simulator, monitor, participant_rng,
+                                         progress)
         policy_rng = np.random.default_rng(policy_ss)
         policy.bind_state_dir(path)
         policy_to_close = policy
@@ -379,8 +408,22 @@ def _typed_row(row: dict[str, str]) -> dict[str, Any]:
     return out
 
 
+def _desktop_robot(input_kind: str, speed: float, progress: TextIO | None) -> Robot:
+    """The laptop as the robot (``--robot desktop``); refuses head-button answers it cannot give."""
+    from nao_trainer.robot.desktop import DesktopRobot
+
+    if input_kind == "tactile":
+        raise ConfigError("--robot desktop has no head buttons: answer with --input keyboard (or simulated)")
+    robot = DesktopRobot.start(speed)
+    if progress:
+        where = "the sound device" if robot.player else "WAV files in the session folder's audio/ (no sound device)"
+        print(f"the laptop plays the robot: speech through espeak-ng, sound to {where}", file=progress, flush=True)
+    return robot
+
+
 def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, simulator: UserSimulator | None,
-                  monitor: EngagementMonitor, rng: np.random.Generator) -> tuple[AnswerSource, Any]:
+                  monitor: EngagementMonitor, rng: np.random.Generator,
+                  progress: TextIO | None = None) -> tuple[AnswerSource, Any]:
     from nao_trainer.answers.inputs import KeyboardAnswers, TactileAnswers
     from nao_trainer.answers.simulated import SimulatedParticipant, StandInButtons
 
@@ -390,11 +433,11 @@ def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, sim
     if kind == "tactile":
         return TactileAnswers(robot, debounce, grace), None
     if kind == "keyboard":  # key events do not bounce (the keyboard's firmware debounces)
-        return KeyboardAnswers(None, 0.0, grace), None
+        return KeyboardAnswers(None, 0.0, grace, echo=progress), None
     assert simulator is not None
     buttons = None
     press = standin.press if standin is not None else None
-    if press is None:
+    if press is None and url != DESKTOP:
         buttons = StandInButtons.probe(url)
         press = buttons
     if press is None:  # a real robot: hand the answers over directly

@@ -193,3 +193,46 @@ def test_a_failed_simulated_press_is_a_lost_robot_when_collecting():
     with pytest.raises(RobotConnectionLost, match="a head-button press failed during the answer window: Socket is not"):
         p.collect(3, timeout_s=0.3)
     p.close()
+
+
+@pytest.mark.parametrize("speed", [25, 50])
+def test_simulated_presses_stay_a_debounce_apart_and_none_is_lost(speed):
+    """A late press (a slow qi call, a busy core) must not pull the next one under the debounce interval.
+
+    The debounce is the session's (0.08 s / speed); the presser's own delays are made visible by a
+    finger that sometimes lingers after pressing, as a loaded laptop does.
+    """
+    from nao_trainer.robot.naoqi import NaoqiRobot
+    from nao_trainer.robot.standin import StandIn
+
+    debounce = 0.08 / speed
+    standin = StandIn.start(speed=speed)
+    robot = NaoqiRobot.connect(standin.url, 5.0, debounce_s=debounce)
+    tactile = TactileAnswers(robot, debounce_s=debounce, grace_s=0.02)
+    jitter = np.random.default_rng(speed)
+
+    def lingering_press(letter):
+        standin.press(letter)
+        if jitter.random() < 0.5:
+            time.sleep(float(jitter.uniform(0.0, 0.025)))
+
+    fast = UserSimulator.from_level_rates("fast", (1.0, 1.0, 1.0, 1.0), reaction_s=(0.05, 0.1),
+                                          seconds_per_letter=(0.0, 0.0))
+    p = SimulatedParticipant(fast, np.random.default_rng(7), speed=speed, press=lingering_press, inner=tactile,
+                             min_gap_s=0.32)
+    lost = 0
+    try:
+        for seed in range(24):
+            length = (3, 5, 7, 9)[seed % 4]
+            seq = tuple(np.random.default_rng(seed).choice(list("AB"), length).tolist())
+            p.prepare(TurnContext(seed, mdp.encode(length, 0, 0), length, seq))
+            p.open_window()
+            ans = p.collect(length, timeout_s=3.0)
+            lost += len(seq) - len(ans.presses)
+            same_key = [b.t - a.t for a, b in zip(ans.presses, ans.presses[1:])]
+            assert all(gap >= debounce for gap in same_key), same_key
+        assert lost == 0
+    finally:
+        p.close()
+        robot.close()
+        standin.stop()

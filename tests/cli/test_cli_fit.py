@@ -151,3 +151,31 @@ def test_fit_from_a_table_follows_its_provenance_sidecar(dataset_root, tmp_path_
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(sidecar) in err and "compat none" in err
     assert not (tmp_path / "n").exists()
+
+
+def test_a_refit_writes_identical_files_and_the_shipped_policies_still_load(fitted, dataset_root, tmp_path_factory,
+                                                                           tmp_path, monkeypatch):
+    """Refitting as documented must not invalidate the shipped policies (issue: `make demo` exited 2)."""
+    from nao_trainer.learn import usp
+
+    _, out, _, _ = fitted
+    again = tmp_path / "refit"
+    assert main(["fit", str(dataset_root), "--out", str(again), "--compat", "authors2018", "--no-figures",
+                 "--cache", str(shared_cache(tmp_path_factory, "authors2018"))]) == 0
+    for name in ("manifest.json", "cluster_1.json", "cluster_2.json", "cluster_3.json"):
+        assert (again / name).read_bytes() == (out / name).read_bytes(), name
+    monkeypatch.setenv(artifacts.MODELS_ENV, str(again))
+    for cluster in ("1", "2", "3"):
+        for method in usp.METHODS:
+            policy = usp.load_policy(f"usp:{cluster}:{method}", learning=False, state_path=None)
+            policy.close()
+    shipped = artifacts.load_simulator("2", artifacts.DEFAULT_MODELS_DIR)
+    assert artifacts.load_simulator("2", again).fingerprint() == shipped.fingerprint()
+
+
+def test_import_into_a_missing_folder_is_refused_and_creates_nothing(dataset_root, tmp_path, capsys):
+    target = tmp_path / "nonexistent" / "dir" / "t.csv"
+    assert main(["import", str(dataset_root), "--out", str(target), "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and f"the folder {target.parent.parent} does not exist" in err
+    assert not (tmp_path / "nonexistent").exists()

@@ -147,3 +147,24 @@ def test_unwritable_output_is_a_one_line_user_error(fit, tmp_path):
     blocker.write_text("x")
     with pytest.raises(UserError, match="cannot write the user models .*choose another --out"):
         artifacts.save_models(blocker / "models", [fit.clusters[0].simulator], [fit.clusters[0].summary()], {})
+
+
+def test_fingerprint_ignores_float_noise_but_not_a_real_change():
+    sim = UserSimulator.from_level_rates("x", [0.9, 0.7, 0.4, 0.1], [0.3, 0.4, 0.5, 0.6])
+
+    def variant(p_success=None, engagement=None):
+        return UserSimulator("x", sim.p_success if p_success is None else p_success,
+                             sim.engagement if engagement is None else engagement,
+                             sim.reaction_quantiles, sim.completion_quantiles)
+
+    noisy = variant(p_success=sim.p_success * (1 + 3e-15), engagement=np.nextafter(sim.engagement, 1.0))
+    assert not np.array_equal(noisy.p_success, sim.p_success)
+    assert noisy.fingerprint() == sim.fingerprint()
+    changed = sim.p_success.copy()
+    changed[5] += 1e-6
+    assert variant(p_success=changed).fingerprint() != sim.fingerprint()
+    near_zero = sim.engagement.copy()
+    near_zero[0] = [0.0, 0.0]
+    tiny = near_zero.copy()
+    tiny[0] = [1e-17, 3e-16]
+    assert variant(engagement=near_zero).fingerprint() == variant(engagement=tiny).fingerprint()

@@ -229,3 +229,25 @@ def test_learning_curves_are_gzip_level_6(small_run, tmp_path):
     write_curves_csv(small_run, path)
     assert path.read_bytes()[8] == 0  # gzip XFL: 2 = level 9 (the old default), 4 = level 1, 0 = others
     assert gzip.decompress(path.read_bytes()).startswith(b"cluster,method,episode,")
+
+
+def test_an_interrupted_or_failed_train_leaves_no_empty_folder(models_dir, tmp_path, capsys):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    assert main(["train", "--models", str(tmp_path / "nowhere"), "--out", str(tmp_path / "new")]) == 2
+    assert not (tmp_path / "new").exists()
+    out = tmp_path / "interrupted"
+    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "train", "--models", str(models_dir), "--seeds", "4",
+                             "--episodes", "1000000", "--workers", "1", "--out", str(out), "--no-plots"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not out.exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    time.sleep(0.5)  # into the training loop
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and not out.exists()

@@ -202,3 +202,15 @@ def test_frozen_robot_cannot_freeze_calls_reconnect_or_close():
         robot.close()
         proc.send_signal(signal.SIGCONT)
         _stop(proc)
+
+
+def test_mistyped_host_says_the_name_cannot_be_resolved_not_login(monkeypatch):
+    # .invalid never resolves (RFC 6761); credentials set so a login path would be taken if reached.
+    monkeypatch.setenv("NAO_USER", "nao")
+    monkeypatch.setenv("NAO_PASSWORD", "secret")
+    for url in ("tcp://nao-typo.invalid", "tcps://nao-typo.invalid:9503"):
+        with pytest.raises(RobotUnavailable) as info:
+            NaoqiRobot.connect(url, deadline_s=5.0)
+        text = str(info.value)
+        assert "'nao-typo.invalid' cannot be resolved" in text and "--robot" in text
+        assert "authentication" not in text and "secret" not in text and "\n" not in text

@@ -1,6 +1,7 @@
 """Study configuration: defaults, overrides, and one-line errors naming file, line and key."""
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -130,3 +131,80 @@ def test_sections_are_frozen_dataclasses_matching_the_schema():
         cfg.eeg.processing.window_s = 2.0
     assert cfg.policy.schedule == tuple(cfg.values["policy"]["schedule"])
     assert cfg.snapshot()["values"]["session"]["turns"] == cfg.session.turns
+
+
+def _float_settings() -> list[str]:
+    return [f"{section}.{key}" for section, keys in SCHEMA.items() for key, spec in keys.items()
+            if isinstance(spec.kind, tuple) and float in spec.kind]
+
+
+@pytest.mark.parametrize("value", [".nan", ".inf", "-.inf"])
+def test_nan_and_infinity_are_refused_for_every_float_setting(tmp_path, value):
+    keys = _float_settings()
+    assert len(keys) >= 14
+    for dotted in keys:
+        section, key = dotted.split(".")
+        path = study(tmp_path, f"study: {{name: x}}\n{section}:\n  {key}: {value}\n")
+        with pytest.raises(ConfigError, match=rf"study.yaml:3: key '{dotted}' must be a finite number"):
+            load_config(path)
+
+
+@pytest.mark.parametrize("text, line, key", [
+    ("eeg:\n  processing:\n    hop_s: " + "9" * 400 + "\n", 3, "eeg.processing.hop_s"),
+    ("eeg:\n  processing: {window_s: " + "9" * 400 + "}\n", 2, "eeg.processing.window_s"),
+    ("session:\n  seed: " + "9" * 400 + "\n", 2, "session.seed"),
+    ("participant_model:\n  success_by_level: [0.5, 0.5, " + "9" * 400 + ", 0.5]\n", 2, "participant_model.success_by_level"),
+])
+def test_huge_integers_are_refused_not_overflowed(tmp_path, text, line, key):
+    with pytest.raises(ConfigError, match=rf"study.yaml:{line}: .*{key}.*sensible size, got one with 400 digits"):
+        load_config(study(tmp_path, text))
+
+
+@pytest.mark.parametrize("key", ["session.dialogue", "session.behaviors", "session.output", "policy.state_path"])
+@pytest.mark.parametrize("value, code", [('"a\\0b"', "U+0000"), ('"\\ud800"', "U+D800"), ('"x\\udfffy"', "U+DFFF")])
+def test_nul_and_lone_surrogates_in_paths_are_refused(tmp_path, key, value, code):
+    section, name = key.split(".")
+    path = study(tmp_path, f"{section}:\n  {name}: {value}\n")
+    with pytest.raises(ConfigError, match=rf"study.yaml:2: key '{key}' must not contain control characters or "
+                                          rf"invalid Unicode \(found {re.escape(code)}\)"):
+        load_config(path)
+
+
+@pytest.mark.parametrize("text", ["", "\n", "# a comment only\n", "---\n"])
+def test_an_empty_study_file_is_refused(tmp_path, text):
+    with pytest.raises(ConfigError, match=r"study.yaml: the file is empty"):
+        load_config(study(tmp_path, text))
+
+
+def test_file_values_are_validated_even_when_a_flag_overrides_them(tmp_path):
+    path = study(tmp_path, 'session:\n  turns: "five"\n')
+    with pytest.raises(ConfigError, match=r"study.yaml:2: key 'session.turns' must be an integer, got 'five'"):
+        load_config(path, {"session.turns": 3})
+    with pytest.raises(ConfigError, match=r"command line \(timing.speed\): key 'timing.speed' must be a finite number"):
+        load_config(None, {"timing.speed": float("nan")})
+
+
+def test_a_repeated_section_is_refused_instead_of_dropping_settings(tmp_path):
+    path = study(tmp_path, "eeg:\n  mode: lsl\n  required: true\nsession:\n  turns: 3\neeg:\n  mode: lsl\n")
+    with pytest.raises(ConfigError, match=r"study.yaml:6: key 'eeg' is given twice \(first on line 1\)"):
+        load_config(path)
+
+
+@pytest.mark.parametrize("url, words", [("tcp://10.0.0.5:99999", "port 99999, out of range 1..65535"),
+                                        ("tcp://10.0.0.5:0", "port 0, out of range")])
+def test_a_robot_port_out_of_range_is_refused_at_load(tmp_path, url, words):
+    with pytest.raises(ConfigError, match=rf"study.yaml:2: key 'robot.url' has {words}"):
+        load_config(study(tmp_path, f"robot:\n  url: {url}\n"))
+
+
+@pytest.mark.parametrize("url", ["10.0.0.5", "tcp://nao.local", "tcps://[fe80::1]:9503", "[::1]:9559"])
+def test_the_config_accepts_every_address_the_robot_client_accepts(tmp_path, url):
+    from nao_trainer.robot.address import normalize_url
+    normalize_url(url)  # the client takes it ...
+    assert load_config(study(tmp_path, f"robot:\n  url: '{url}'\n")).robot.url == url  # ... and so does the config
+
+
+def test_a_password_in_the_robot_address_is_not_echoed(tmp_path):
+    with pytest.raises(ConfigError) as err:
+        load_config(study(tmp_path, "robot:\n  url: tcps://nao:s3cret@10.0.0.2:9503\n"))
+    assert "s3cret" not in str(err.value) and "NAO_PASSWORD" in str(err.value)

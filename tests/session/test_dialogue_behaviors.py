@@ -122,3 +122,13 @@ def test_postures_that_are_not_a_mapping_are_refused(tmp_path, value):
     line = next(i for i, ln in enumerate(p.read_text().splitlines(), 1) if ln.startswith("postures:"))
     with pytest.raises(ConfigError, match=rf"b.yaml:{line}: key 'postures' must be a mapping"):
         beh.load_behaviors(p)
+
+
+def test_goodbye_never_says_a_negative_or_zero_total():
+    d = dia.load_dialogue(EN)
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        assert "5 points" in d.say(d.goodbye_event(5), rng, total=5, turns=25)
+        for total in (0, -2):
+            text = d.say(d.goodbye_event(total), rng, total=total, turns=25)
+            assert str(total) not in text and "points" not in text and "Goodbye" in text

@@ -119,6 +119,7 @@ def test_a_lost_robot_is_reconnected_and_the_turn_replayed(tmp_path):
     assert rows[1]["success"] == "" and "robot lost during beep" in rows[1]["notes"]
     assert rows[2]["notes"] == "replay of interrupted turn" and rows[2]["action"] == rows[1]["action"]
     assert rows[2]["state"] == rows[1]["state"] and rows[2]["sequence"] != ""
+    assert [r["replay"] for r in rows] == ["", "", "True", ""]  # the replay says so in a column
     assert robot.reconnect_attempts == 2 and answers.abandoned == 1
     assert sleeps == [0.25, 0.5]  # exponential backoff in wall seconds (not scaled by the speed)
     events = [e["event"] for e in read_events(path)]
@@ -165,3 +166,22 @@ def test_the_clock_scales_every_wait_by_the_speed(tmp_path):
     row = read_turns(path)[0]
     assert float(row["reaction_time"]) == pytest.approx(0.1 * speed)  # recorded in session seconds
     assert float(row["completion_time"]) == pytest.approx(0.3 * speed)
+
+
+def test_events_hold_every_utterance_and_each_press_with_its_time(tmp_path):
+    """The level announcements and the letters are in events.jsonl too, and every press with its time."""
+    robot, answers = FakeRobot(), ScriptedAnswers(wrong={2})
+    s, rec, path, _ = make_session(tmp_path, robot, answers, turns=2, practice=True, speed=4.0)
+    assert finish(s, rec) == EXIT_OK
+    events = read_events(path)
+    assert [e["text"] for e in events if e["event"] == "say"] == robot.said()  # all of them, in order
+    letters = [e for e in events if e["event"] == "say" and e["what"] == "letter"]
+    rows = read_turns(path)
+    assert "".join(e["text"] for e in letters if e["turn"] == 1) == rows[0]["sequence"]
+    answers_logged = {e["turn"]: e for e in events if e["event"] == "answer"}
+    assert sorted(answers_logged) == [0, 1, 2]  # the practice too
+    for row in rows:
+        logged = answers_logged[int(row["turn"])]
+        assert "".join(p["letter"] for p in logged["presses"]) == row["response"]
+        assert [p["t"] for p in logged["presses"]] == [round(0.1 * 4 * (i + 1), 3) for i in range(len(row["response"]))]
+        assert logged["presses"][0]["t"] == float(row["reaction_time"])

@@ -236,3 +236,16 @@ def test_after_a_reconnection_the_buttons_are_subscribed_once(tmp_path):
         rec.close("completed", 0)
         robot.close()
         standin.stop()
+
+
+def test_a_session_with_a_negative_total_says_goodbye_without_the_number(tmp_path):
+    study = tmp_path / "never-right.yaml"
+    study.write_text("participant_model: {user_model: null, success_by_level: [0, 0, 0, 0]}\n")
+    cfg = load_config(study, {"session.turns": 3, "timing.speed": 50.0, "session.output": str(tmp_path),
+                              "session.seed": 11, "session.practice": False})
+    result = run_session(cfg)
+    assert result.status == "completed" and result.total_score < 0
+    goodbye = [e for e in read_events(result.path) if e["event"] == "say" and e["what"].startswith("goodbye")]
+    assert [e["what"] for e in goodbye] == ["goodbye_no_points"]
+    assert str(result.total_score) not in goodbye[0]["text"] and "points" not in goodbye[0]["text"]
+    assert goodbye[0]["text"] in spoken(transcript(result.path))

@@ -71,7 +71,8 @@ def stop(proc: subprocess.Popen) -> None:
 def test_unreachable_robot_fails_fast_and_writes_nothing(tmp_path):
     out = tmp_path / "out"
     t0 = time.monotonic()
-    proc = run_cli("--robot", f"tcp://127.0.0.1:{free_port()}", "--out", str(out))
+    proc = run_cli("--config", str(Path(__file__).resolve().parents[2] / "config" / "default.yaml"),
+                   "--robot", f"tcp://127.0.0.1:{free_port()}", "--out", str(out))
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 3
     assert time.monotonic() - t0 < 15

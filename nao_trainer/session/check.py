@@ -1,0 +1,275 @@
+"""The pre-session check (`nao-trainer check`, and the start of `nao-trainer run`).
+
+Before a participant sits down: is the robot there with the services the task needs and an
+audible voice, does the EEG headband stream with its electrodes on the skin (judged over a few
+seconds with the same quality rules as the session's monitor), is there room on the disk. Each
+check gives one ``CheckResult``: OK or FAIL, what was found and, when it failed, how to fix it.
+A failed *required* check carries the exit code of its kind (3 robot, 4 EEG, 2 disk).
+"""
+from __future__ import annotations
+
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from nao_trainer.errors import ConfigError, UserError
+
+#: Exit codes of failed required checks, by kind (as `nao-trainer run` would fail later).
+EXIT = {"robot": 3, "eeg": 4, "disk": 2}
+#: Services every session calls; ALMemory is added for head-button answers.
+TASK_SERVICES = ("ALTextToSpeech", "ALAnimatedSpeech", "ALAudioPlayer", "ALLeds", "ALRobotPosture", "ALMotion")
+#: Below this text-to-speech volume (0..1) a participant may not hear the letters.
+MIN_SPEECH_VOLUME = 0.3
+#: Free space a session needs with room to spare (raw EEG is ~15 MB an hour; logs are small).
+MIN_FREE_MB = 200
+#: How long the EEG check listens (seconds; at least one analysis window plus a second).
+EEG_LISTEN_S = 3.0
+
+#: What to do about a channel the quality rules reject, by reason (core.engagement.window_quality).
+CHANNEL_FIXES = {
+    "flat": "the electrode is off the skin: moisten it and press the headband on",
+    "saturated": "the amplifier sits at its rail: re-seat the headband and check that electrode",
+    "implausible amplitude": "movement or a loose electrode: tighten the headband and ask the participant to sit still",
+    "non-finite": "the bridge sends invalid samples: restart it",
+}
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    """One check: its kind ("robot", "eeg", "disk"), the outcome, what was found and the fix."""
+
+    kind: str
+    ok: bool
+    detail: str
+    fix: str = ""
+    required: bool = True
+
+    @property
+    def exit_code(self) -> int:
+        """Non-zero for a failed required check."""
+        return 0 if self.ok or not self.required else EXIT[self.kind]
+
+    def line(self) -> str:
+        """``OK   robot  ...`` or ``FAIL eeg    ...; fix: ...`` (one line)."""
+        text = f"{'OK' if self.ok else 'FAIL':<4} {self.kind:<5}  {self.detail}"
+        if not self.ok and self.fix:
+            text += f"; fix: {self.fix}"
+        if not self.ok and not self.required:
+            text += " (not required: the session runs without it)"
+        return " ".join(text.split("\n"))
+
+
+@dataclass(frozen=True)
+class CheckPlan:
+    """What to check, taken from a study configuration (``plan_from_config``)."""
+
+    robot_url: str
+    connect_deadline_s: float
+    needs_buttons: bool
+    eeg_mode: str
+    eeg: Any  # eeg.settings.EEGSettings, or None when EEG is off
+    output_dir: Path
+    speed: float = 1.0
+
+
+def plan_from_config(config: Any) -> CheckPlan:
+    """The checks a study configuration (``session.config.StudyConfig``) calls for."""
+    return CheckPlan(robot_url=config.robot.url, connect_deadline_s=float(config.robot.connect_deadline_s),
+                     needs_buttons=config.answers.input in ("tactile", "simulated"),
+                     eeg_mode=config.eeg.mode, eeg=config.eeg, output_dir=config.output_dir(),
+                     speed=float(config.timing.speed))
+
+
+def run_checks(plan: CheckPlan, report: Callable[[CheckResult], None] | None = None,
+               eeg_listen_s: float = EEG_LISTEN_S) -> list[CheckResult]:
+    """Run every check of ``plan`` (disk, robot, EEG); ``report`` sees each result as it comes."""
+    results = []
+    for check in (lambda: check_disk(plan.output_dir), lambda: check_robot(plan),
+                  lambda: check_eeg(plan, eeg_listen_s)):
+        result = check()
+        results.append(result)
+        if report is not None:
+            report(result)
+    return results
+
+
+def exit_code(results: list[CheckResult]) -> int:
+    """The exit code of the first failed required check, 0 when all required checks passed."""
+    return next((r.exit_code for r in results if r.exit_code), 0)
+
+
+# ------------------------------------------------------------------------------------------------
+# Disk
+# ------------------------------------------------------------------------------------------------
+
+
+def check_disk(output_dir: Path, min_free_mb: float = MIN_FREE_MB) -> CheckResult:
+    """Free space where the session folders go (the nearest existing parent when not created yet)."""
+    folder = Path(output_dir)
+    probe = folder
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    try:
+        free_mb = shutil.disk_usage(probe).free / 1e6
+    except OSError as exc:
+        return CheckResult("disk", False, f"{folder}: cannot read the free space ({exc.strerror})",
+                           "choose another output folder (--out)")
+    if free_mb < min_free_mb:
+        return CheckResult("disk", False, f"{folder}: {free_mb:.0f} MB free, a session needs {min_free_mb:.0f} MB",
+                           "free some space or choose another output folder (--out)")
+    return CheckResult("disk", True, f"{folder}: {free_mb / 1000:.1f} GB free")
+
+
+# ------------------------------------------------------------------------------------------------
+# Robot
+# ------------------------------------------------------------------------------------------------
+
+
+def check_robot(plan: CheckPlan) -> CheckResult:
+    """The robot answers, offers the task's services and speaks loud enough."""
+    if plan.robot_url == "desktop":
+        return _check_desktop()
+    standin = None
+    url = plan.robot_url
+    try:
+        if url == "mock":
+            from nao_trainer.robot.standin import StandIn
+
+            standin = StandIn.start("tcp://127.0.0.1:0", speed=max(plan.speed, 1.0))
+            url = standin.url
+        return _check_naoqi(url, plan, "the stand-in (in-process)" if standin else None)
+    finally:
+        if standin is not None:
+            standin.stop()
+
+
+def _check_naoqi(url: str, plan: CheckPlan, label: str | None) -> CheckResult:
+    from nao_trainer.errors import RobotUnavailable
+    from nao_trainer.ports import RobotCallFailed, RobotConnectionLost
+    from nao_trainer.robot.naoqi import NaoqiRobot, redact_url
+
+    where = label or redact_url(url)
+    try:
+        robot = NaoqiRobot.connect(url, plan.connect_deadline_s)
+    except ConfigError:  # a malformed address or a missing login: an input error (exit 2), not the robot's
+        raise
+    except UserError as exc:  # unreachable, unresolvable: the message says how to fix it
+        return CheckResult("robot", False, str(exc))
+    try:
+        needed = TASK_SERVICES + (("ALMemory",) if plan.needs_buttons else ())
+        missing = [name for name in needed if not robot.has_service(name)]
+        if missing:
+            return CheckResult("robot", False, f"{where}: no {', '.join(missing)} service",
+                               "check the robot's NAOqi version (2.8 or 2.9) and that it has finished booting")
+        volume = robot.speech_volume()
+        if volume < MIN_SPEECH_VOLUME:
+            return CheckResult("robot", False, f"{where}: speech volume {volume:.0%} is too low to hear the letters",
+                               f"raise it to {MIN_SPEECH_VOLUME:.0%} or more (the robot's web page, or "
+                               "ALTextToSpeech.setVolume)")
+        return CheckResult("robot", True, f"{where}: {len(needed)} services the task needs, speech volume {volume:.0%}")
+    except (RobotConnectionLost, RobotUnavailable, RobotCallFailed) as exc:
+        return CheckResult("robot", False, f"{where}: {exc}", "check the robot and its network, then try again")
+    finally:
+        robot.close()
+
+
+def _check_desktop() -> CheckResult:
+    from nao_trainer.robot.desktop import DesktopRobot
+
+    try:
+        robot = DesktopRobot.start()
+    except UserError as exc:
+        return CheckResult("robot", False, str(exc))
+    try:
+        where = "the sound device" if robot.player else "WAV files in the session folder (no sound device)"
+        return CheckResult("robot", True, f"desktop: espeak-ng speaks, audio goes to {where}")
+    finally:
+        robot.close()
+
+
+# ------------------------------------------------------------------------------------------------
+# EEG
+# ------------------------------------------------------------------------------------------------
+
+
+def check_eeg(plan: CheckPlan, listen_s: float = EEG_LISTEN_S) -> CheckResult:
+    """The EEG stream is there and each scalp channel is clean most of the time over ``listen_s``."""
+    if plan.eeg_mode == "off":
+        return CheckResult("eeg", True, "EEG off (eeg.mode: off)", required=False)
+    if plan.eeg_mode == "simulated":
+        return CheckResult("eeg", True, "a simulated Muse is started with the session (no electrodes to check)",
+                           required=False)
+    from nao_trainer.eeg.inlet import EEGInlet, StreamQuery, resolve_eeg
+
+    settings = plan.eeg
+    required = bool(settings.required)
+    query = StreamQuery(settings.stream_type, settings.stream_name, settings.source_id)
+    info = resolve_eeg(query, settings.processing.resolve_timeout_s, settings.lsl_scope)
+    if info is None:
+        return CheckResult("eeg", False, f"no EEG stream ({query.describe()}) found by LSL in scope "
+                           f"{settings.lsl_scope!r} within {settings.processing.resolve_timeout_s:g} s",
+                           "start the headband bridge (`muselsl stream --lsltime`) and check eeg.stream_name / "
+                           "eeg.source_id", required)
+    try:
+        inlet = EEGInlet.open(info, settings.lsl_scope)
+    except Exception as exc:  # noqa: BLE001 - irregular rate, vanished: report, do not crash the check
+        return CheckResult("eeg", False, f"EEG stream {info.name()!r} (source_id {info.source_id()!r}) cannot be "
+                           f"used: {exc}", "check the headband bridge", required)
+    try:
+        found = (f"stream {inlet.name!r} (source_id {inlet.source_id!r}, {inlet.fs:g} Hz, "
+                 f"{len(inlet.scalp_labels)} scalp channels)")
+        x = _listen(inlet, max(listen_s, settings.processing.window_s + 1.0))
+    finally:
+        inlet.close()
+    if len(x) < inlet.fs * settings.processing.window_s:
+        return CheckResult("eeg", False, f"{found} sent {len(x)} samples in {listen_s:g} s",
+                           "the headband is paired but not streaming: restart the bridge", required)
+    return _contact_result(found, x, inlet.fs, inlet.scalp_labels, settings.processing, required)
+
+
+def _listen(inlet: Any, seconds: float) -> np.ndarray:
+    chunks = []
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        x, _ = inlet.pull(min(0.2, max(0.01, deadline - time.monotonic())))
+        if len(x):
+            chunks.append(x)
+    return np.concatenate(chunks) if chunks else np.empty((0, len(inlet.scalp_index)))
+
+
+def channel_quality(x: np.ndarray, fs: float, window_s: float, hop_s: float) -> tuple[np.ndarray, list[str]]:
+    """Per channel: the fraction of analysis windows the monitor's rules call clean, and the commonest reason."""
+    from nao_trainer.core.engagement import window_quality
+
+    n = int(round(window_s * fs))
+    hop = max(1, int(round(hop_s * fs)))
+    starts = range(0, max(1, len(x) - n + 1), hop)
+    clean = np.zeros(x.shape[1])
+    reasons: list[dict[str, int]] = [{} for _ in range(x.shape[1])]
+    for start in starts:
+        ok, why = window_quality(x[start:start + n], fs)
+        clean += ok
+        for c, reason in enumerate(why):
+            if reason:
+                reasons[c][reason] = reasons[c].get(reason, 0) + 1
+    worst = [max(r, key=r.get) if r else "" for r in reasons]
+    return clean / len(starts), worst
+
+
+def _contact_result(found: str, x: np.ndarray, fs: float, labels: tuple[str, ...], processing: Any,
+                    required: bool) -> CheckResult:
+    fraction, worst = channel_quality(x, fs, processing.window_s, processing.hop_s)
+    good = fraction >= processing.min_quality
+    parts = [f"{label} {f:.0%}" + ("" if ok else f" ({why})") for label, f, ok, why in zip(labels, fraction, good, worst)]
+    detail = f"{found}: contact {', '.join(parts)}"
+    if good.sum() >= processing.min_clean_channels and good.all():
+        return CheckResult("eeg", True, detail, required=required)
+    fixes = "; ".join(f"{label}: {CHANNEL_FIXES.get(why, why)}" for label, ok, why in zip(labels, good, worst) if not ok)
+    if good.sum() >= processing.min_clean_channels:  # usable, but say which electrode to fix
+        return CheckResult("eeg", True, f"{detail}; {fixes}", required=required)
+    return CheckResult("eeg", False, f"{detail}: fewer than {processing.min_clean_channels} clean channels",
+                       fixes, required)

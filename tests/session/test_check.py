@@ -1,0 +1,115 @@
+"""`nao-trainer check`: the robot (a stand-in process over qi), a real LSL EEG stream pinned by source_id, the disk."""
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import uuid
+
+import numpy as np
+import pytest
+
+from nao_trainer.eeg.simulated_muse import SimulatedMuse
+from nao_trainer.robot.naoqi import NaoqiRobot
+from nao_trainer.robot.standin import spawn_standin
+from nao_trainer.session.check import CheckResult, check_disk, exit_code
+
+
+def check(*args: str, cwd=None) -> subprocess.CompletedProcess:
+    env = dict(os.environ, QI_LOG_LEVEL="silent")
+    return subprocess.run([sys.executable, "-m", "nao_trainer", "check", *args], capture_output=True, text=True,
+                          env=env, timeout=120, cwd=cwd)
+
+
+@pytest.fixture(scope="module")
+def standin():
+    proc, url = spawn_standin(speed=50)
+    yield url
+    proc.send_signal(signal.SIGINT)
+    proc.wait(10)
+
+
+def study(tmp_path, eeg: str) -> str:
+    path = tmp_path / "study.yaml"
+    path.write_text(f"study: {{name: check}}\nanswers: {{input: tactile}}\neeg: {eeg}\n")
+    return str(path)
+
+
+def test_a_ready_robot_passes_and_a_quiet_one_fails_with_the_fix(standin, tmp_path):
+    cfg = study(tmp_path, "{mode: \"off\"}")
+    res = check("--config", cfg, "--robot", standin, "--out", str(tmp_path / "s"))
+    lines = res.stdout.strip().splitlines()
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert [ln.split()[:2] for ln in lines] == [["OK", "disk"], ["OK", "robot"], ["OK", "eeg"]]
+    assert "7 services the task needs, speech volume 100%" in lines[1]  # ALMemory too: tactile answers
+    robot = NaoqiRobot.connect(standin, 5.0)
+    try:
+        robot._call("ALTextToSpeech", "setVolume", 0.1, timeout_s=5.0)
+        res = check("--config", cfg, "--robot", standin, "--out", str(tmp_path / "s"))
+    finally:
+        robot._call("ALTextToSpeech", "setVolume", 1.0, timeout_s=5.0)
+        robot.close()
+    assert res.returncode == 3
+    line = res.stdout.strip().splitlines()[1]
+    assert line.startswith("FAIL robot") and "speech volume 10% is too low" in line and "fix: raise it" in line
+
+
+def test_an_unreachable_robot_fails_with_exit_3_and_no_traceback(tmp_path):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    res = check("--config", study(tmp_path, "{mode: \"off\"}"), "--robot", f"tcp://127.0.0.1:{port}",
+                "--out", str(tmp_path / "s"))
+    assert res.returncode == 3 and "Traceback" not in res.stderr
+    line = res.stdout.strip().splitlines()[1]
+    assert line.startswith("FAIL robot") and "connection refused" in line and "\n" not in line
+
+
+def _uid() -> str:
+    return f"MuseCheck-{uuid.uuid4().hex[:10]}"
+
+
+def test_eeg_contact_is_judged_per_channel_on_a_real_lsl_stream(standin, tmp_path):
+    sid = _uid()
+    muse = SimulatedMuse.start(np.random.default_rng(1), source_id=sid)
+    try:
+        muse.set_fault(1, "flat")  # AF7 off the skin
+        eeg = f"{{mode: lsl, source_id: {sid}, required: true, processing: {{window_s: 0.5, hop_s: 0.25}}}}"
+        res = check("--config", study(tmp_path, eeg), "--robot", standin, "--out", str(tmp_path / "s"),
+                    "--seconds", "1.5")
+        assert res.returncode == 0, res.stdout + res.stderr
+        line = res.stdout.strip().splitlines()[2]
+        assert line.startswith("OK   eeg") and f"source_id {sid!r}" in line and "256 Hz" in line
+        assert "AF7 0% (flat)" in line and "TP9 100%" in line and "AF7: the electrode is off the skin" in line
+        for ch in (0, 2):
+            muse.set_fault(ch, "saturated")
+        res = check("--config", study(tmp_path, eeg), "--robot", standin, "--out", str(tmp_path / "s"),
+                    "--seconds", "1.5")
+        assert res.returncode == 4, res.stdout
+        line = res.stdout.strip().splitlines()[2]
+        assert line.startswith("FAIL eeg") and "fewer than 2 clean channels" in line and "fix: TP9:" in line
+        res = check("--config", study(tmp_path, eeg.replace("required: true", "required: false")), "--robot", standin,
+                    "--out", str(tmp_path / "s"), "--seconds", "1.5")
+        assert res.returncode == 0 and "(not required: the session runs without it)" in res.stdout
+    finally:
+        muse.stop()
+
+
+def test_a_missing_required_stream_fails_with_exit_4(standin, tmp_path):
+    eeg = f"{{mode: lsl, source_id: {_uid()}, required: true, processing: {{resolve_timeout_s: 1}}}}"
+    res = check("--config", study(tmp_path, eeg), "--robot", standin, "--out", str(tmp_path / "s"))
+    assert res.returncode == 4
+    line = res.stdout.strip().splitlines()[2]
+    assert line.startswith("FAIL eeg  ") and "no EEG stream" in line and "fix: start the headband bridge" in line
+
+
+def test_disk_space_and_exit_codes(tmp_path):
+    ok = check_disk(tmp_path / "not" / "yet")
+    assert ok.ok and "GB free" in ok.line()
+    full = check_disk(tmp_path, min_free_mb=1e12)
+    assert not full.ok and full.exit_code == 2 and "fix: free some space" in full.line()
+    optional = CheckResult("eeg", False, "no stream", "start it", required=False)
+    assert exit_code([ok, optional]) == 0
+    assert exit_code([ok, optional, CheckResult("robot", False, "gone"), full]) == 3
