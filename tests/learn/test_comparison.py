@@ -149,3 +149,15 @@ def test_evaluate_on_sessions_of_a_dataset_root(dataset_root, tmp_path, monkeypa
     assert report["users"] == "sessions" and report["n_users"] == 2
     by = {s["policy"]: s for s in report["summary"]}
     assert by["oracle"]["score"] >= max(s["score"] for s in report["summary"]) - 1e-9
+
+
+def test_shipped_tested_effect_models_load_and_record_their_tests():
+    from nao_trainer.files import PROJECT_ROOT
+
+    folder = PROJECT_ROOT / "sim" / "models-tested"
+    for user in users.cluster_user_set(folder):
+        effects_ = user.truth.metadata["effects"]
+        assert set(effects_["success"]) == {"feedback", "previous"}
+        for test in (*effects_["success"].values(), *effects_["engagement"].values()):
+            assert test["kept"] == (test["p"] < 0.05 / (2 if test in effects_["success"].values() else 3))
+        assert not effects_["success"]["feedback"]["kept"]  # the published data shows no feedback effect
