@@ -20,7 +20,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from nao_trainer.core import engagement as core  # noqa: E402
-from nao_trainer.eeg import offline  # noqa: E402
+from nao_trainer.core import phase  # noqa: E402
+from nao_trainer.data import engagement as offline  # noqa: E402
 
 
 def _extract(tmp: Path) -> tuple[Path, Path]:
@@ -77,7 +78,7 @@ def bench_online() -> None:
 
     # latency: a 10 s listening phase streamed in chunks; at its end, push the last chunk and aggregate
     est = core.OnlineEngagement(fs, ch)
-    norm = core.EngagementNormaliser().fit_baseline(rng.normal(0.5, 0.1, 240))
+    norm = phase.EngagementNormaliser().fit_baseline(rng.normal(0.5, 0.1, 240))
     phase_n = int(10 * fs)
     lat = []
     windows: list[core.WindowResult] = []
@@ -87,7 +88,7 @@ def bench_online() -> None:
             windows += est.push(x[i : i + chunk], ts[i : i + chunk])
         t0 = time.perf_counter()
         windows += est.push(x[b - chunk : b], ts[b - chunk : b])
-        agg = core.aggregate_phase(windows, ts[a], ts[b - 1], 0.25, norm, 0.5)
+        agg = phase.aggregate_phase(windows, ts[a], ts[b - 1], 0.25, norm, 0.5)
         norm.extend([w.index_smoothed for w in windows if w.t_end > ts[a] and w.usable])
         lat.append(time.perf_counter() - t0)
         windows = windows[-8:]

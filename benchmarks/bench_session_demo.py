@@ -15,7 +15,7 @@ import time
 os.environ.setdefault("QI_LOG_LEVEL", "silent")
 
 from nao_trainer.session.config import load_config  # noqa: E402
-from nao_trainer.session.engine import RunOptions, run_session  # noqa: E402
+from nao_trainer.session.wiring import RunOptions, run_session  # noqa: E402
 
 
 def main() -> int:
@@ -31,7 +31,7 @@ def main() -> int:
         wall = time.perf_counter() - t0
         cpu1 = resource.getrusage(resource.RUSAGE_SELF)
     cpu = (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)
-    print(f"demo session: {args.turns} turns at speed {config.get('timing.speed'):g}, status {result.status}")
+    print(f"demo session: {args.turns} turns at speed {config.timing.speed:g}, status {result.status}")
     verdict = "" if args.turns != 25 else (" OK" if wall < 60 else " MISSED")
     print(f"  wall time          {wall:7.2f} s   (target < 60 s for 25 turns){verdict}")
     print(f"  per turn           {wall / args.turns:7.3f} s")

@@ -1,9 +1,11 @@
 """Reading and writing the project's files: one-line errors on reads, never half a file on writes."""
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -107,3 +109,76 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+# ----------------------------------------------------------------------------------------------
+# Versioned JSON files
+# ----------------------------------------------------------------------------------------------
+
+
+def canonical_sha256(payload: Any) -> str:
+    """SHA-256 of ``payload`` as canonical JSON (sorted keys, no spaces); ValueError for NaN/infinity."""
+    text = json.dumps(payload, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+@dataclass(frozen=True)
+class JsonFormat:
+    """A versioned JSON file format: ``{"format": name, "format_version": version, ...}``.
+
+    Flat files spread :meth:`header` into their fields and :meth:`check` it on reading.
+    Checksummed files are envelopes ``{"format", "format_version", "sha256", "payload"}``
+    (:meth:`write` / :meth:`read`): a torn or edited file is refused, never half-used.
+    ``title`` names the kind in "not a nao-trainer <title>"; ``noun`` starts the other messages
+    ("<noun> format version 2, ..."); ``fix`` ends them.
+    """
+
+    name: str
+    version: int
+    title: str
+    noun: str
+    fix: str = ""
+
+    def header(self) -> dict[str, Any]:
+        return {"format": self.name, "format_version": self.version}
+
+    def _tail(self) -> str:
+        return f"; {self.fix}" if self.fix else ""
+
+    def check(self, doc: Any, source: Any, error: type[Exception] = UserError) -> dict[str, Any]:
+        """``doc`` itself when it is a dict of this format and version; ``error`` naming ``source`` otherwise."""
+        if not isinstance(doc, dict) or doc.get("format") != self.name:
+            found = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
+            raise error(f"{source}: not a nao-trainer {self.title} (format={found!r})")
+        if doc.get("format_version") != self.version:
+            raise error(f"{source}: {self.noun} format version {doc.get('format_version')!r}, this nao-trainer "
+                        f"reads {self.version}{self._tail()}")
+        return doc
+
+    def write(self, path: str | os.PathLike, payload: dict[str, Any]) -> None:
+        """Write ``payload`` in a checksummed envelope, atomically."""
+        write_json_atomic(path, {**self.header(), "sha256": canonical_sha256(payload), "payload": payload})
+
+    def read(self, path: str | os.PathLike, error: type[UserError]) -> dict[str, Any]:
+        """The verified payload of an envelope file; ``error`` naming the file and ``fix`` otherwise.
+
+        Checks, in order: readable JSON, format and version, payload and checksum present, checksum.
+        """
+        path = Path(path)
+        text = read_text(path, error, f"no such {self.noun} file", self.fix)
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise error(f"{path}:{exc.lineno}: {self.noun} file is not valid JSON ({exc.msg}): torn or corrupt"
+                        f"{self._tail()}") from None
+        self.check(doc, path, error)
+        payload = doc.get("payload")
+        if not isinstance(payload, dict) or not isinstance(doc.get("sha256"), str):
+            raise error(f"{path}: {self.noun} file lacks its payload or checksum: torn or corrupt{self._tail()}")
+        try:
+            digest = canonical_sha256(payload)
+        except ValueError as exc:
+            raise error(f"{path}: {self.noun} payload holds invalid numbers ({exc}){self._tail()}") from None
+        if digest != doc["sha256"]:
+            raise error(f"{path}: checksum mismatch (file altered, torn or corrupt){self._tail()}")
+        return payload

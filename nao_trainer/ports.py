@@ -7,6 +7,7 @@ session.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable, Protocol, runtime_checkable
 
 import numpy as np
@@ -25,6 +26,14 @@ BUTTON_LETTERS: dict[str, str] = {
 
 class RobotConnectionLost(Exception):
     """A call to the robot failed because the connection dropped; the session may reconnect."""
+
+
+class RobotCallFailed(Exception):
+    """The robot answered but refused a call (unknown posture, bad argument, service error).
+
+    Not a lost connection: reconnecting would not help. The session logs a refused optional call
+    (LEDs, posture) and ends with a robot error (exit 3) when a call the task needs is refused.
+    """
 
 
 @runtime_checkable
@@ -106,11 +115,23 @@ class Answer:
         return self.presses[-1].t if self.presses else None
 
 
+@dataclass(frozen=True)
+class Intention:
+    """What a simulated participant decided to answer (recorded as ``simulated_plan``)."""
+
+    success: bool
+    response: tuple[str, ...]
+    mistake: str
+
+
 class AnswerSource(Protocol):
     """Collects a participant's answer. Presses before ``open_window`` are discarded."""
 
     def prepare(self, context: TurnContext) -> None:
         """Called before the robot speaks the sequence (a simulated participant decides here)."""
+
+    def intended(self) -> Intention | None:
+        """After ``prepare``: what a simulated participant will answer; None for a person."""
 
     def open_window(self) -> None:
         """Called right after the beep: the answer window opens, time 0 for press times."""
@@ -146,6 +167,10 @@ class PhaseEngagement:
 class EngagementMonitor(Protocol):
     """Marks session phases and returns per-phase engagement. ``NullMonitor`` when EEG is off."""
 
+    @property
+    def records_eeg(self) -> bool:
+        """Whether EEG is recorded at all (turns.csv leaves ``eeg_quality`` empty when not)."""
+
     def mark(self, event: str, turn: int | None = None) -> None:
         """Publish an event (session, turn, phase) on the LSL clock."""
 
@@ -163,6 +188,8 @@ class EngagementMonitor(Protocol):
 
 class NullMonitor:
     """EEG off: no markers, no engagement."""
+
+    records_eeg = False
 
     def mark(self, event: str, turn: int | None = None) -> None:
         pass
@@ -207,6 +234,9 @@ class Policy(Protocol):
 
     def observe(self, transition: Transition) -> None:
         """Called after every turn with the transition that produced it."""
+
+    def bind_state_dir(self, folder: Path) -> None:
+        """The session folder exists: a learning policy without a state file of its own saves there."""
 
     def close(self) -> None:
         """Persist whatever must survive the session."""

@@ -29,3 +29,24 @@ def test_read_json_errors_name_the_file(tmp_path):
     torn.write_text('{"a": [1,\n 2')
     with pytest.raises(DataError, match=r"t.json:2: not valid JSON .*torn or corrupt"):
         read_json(torn, DataError)
+
+
+def test_json_format_envelope_round_trip_and_refusals(tmp_path):
+    from nao_trainer.files import JsonFormat, canonical_sha256
+
+    fmt = JsonFormat("nao-trainer/thing", 2, "thing file", "thing", "make it again")
+    path = tmp_path / "thing.json"
+    fmt.write(path, {"b": [1.5, 2], "a": "x"})
+    doc = json.loads(path.read_text())
+    assert list(doc) == ["format", "format_version", "sha256", "payload"]
+    assert doc["sha256"] == canonical_sha256({"a": "x", "b": [1.5, 2]})
+    assert fmt.read(path, DataError) == {"b": [1.5, 2], "a": "x"}
+    path.write_text(path.read_text().replace('"x"', '"y"'))
+    with pytest.raises(DataError, match=r"thing.json: checksum mismatch .*; make it again$"):
+        fmt.read(path, DataError)
+    with pytest.raises(ValueError, match=r"^src: thing format version 1, this nao-trainer reads 2; make it again$"):
+        fmt.check({"format": "nao-trainer/thing", "format_version": 1}, "src", ValueError)
+    with pytest.raises(DataError, match=r"src: not a nao-trainer thing file \(format='other'\)"):
+        fmt.check({"format": "other"}, "src", DataError)
+    with pytest.raises(DataError, match=r"no such thing file; make it again"):
+        fmt.read(tmp_path / "missing.json", DataError)

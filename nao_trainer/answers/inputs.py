@@ -16,7 +16,7 @@ import threading
 import time
 from typing import Callable
 
-from nao_trainer.ports import Answer, Press, Robot, TurnContext
+from nao_trainer.ports import Answer, Intention, Press, Robot, TurnContext
 
 KEY_LETTERS: dict[str, str] = {"a": "A", "b": "B", "c": "C"}
 
@@ -62,7 +62,7 @@ class PressWindow:
         """Wait for ``n_expected`` presses (+ grace) or the timeout, then close the window."""
         with self._cond:
             if self._opened_at is None:
-                raise RuntimeError("collect() before open_window()")
+                raise ValueError("collect() before open_window()")
             deadline = self._opened_at + timeout_s
             while True:
                 now = self._clock()
@@ -109,6 +109,9 @@ class TactileAnswers:
 
     def collect(self, n_expected: int, timeout_s: float) -> Answer:
         return self.window.collect(n_expected, timeout_s)
+
+    def intended(self) -> Intention | None:
+        return None  # a person's answer is not known in advance
 
     def abandon(self) -> None:
         pass  # presses outside an open window are discarded anyway
@@ -191,6 +194,9 @@ class KeyboardAnswers:
                 if ch in " \r\n\t":
                     continue
                 self.window.add(key=ch, letter=KEY_LETTERS.get(ch.lower()), t=now)
+
+    def intended(self) -> Intention | None:
+        return None  # a person's answer is not known in advance
 
     def abandon(self) -> None:
         pass  # keys typed outside an open window are discarded anyway

@@ -18,7 +18,8 @@ import numpy as np
 
 from nao_trainer.core import task
 from nao_trainer.core.simulation import UserSimulator
-from nao_trainer.ports import Answer, AnswerSource, EngagementMonitor, NullMonitor, Press, RobotConnectionLost, TurnContext
+from nao_trainer.ports import (Answer, AnswerSource, EngagementMonitor, Intention, NullMonitor, Press, RobotConnectionLost,
+                                TurnContext)
 
 #: Relative frequency of mistake kinds when a turn fails.
 MISTAKES: dict[str, float] = {"substitute": 0.6, "swap": 0.25, "omit": 0.15}
@@ -92,6 +93,11 @@ class SimulatedParticipant:
         self.plan = Plan(success, tuple(response), tuple(float(t) for t in times), mistake)
         self.monitor.set_target(self.simulator.engagement_of(context.state, success))
 
+    def intended(self) -> Intention | None:
+        """The plan of the prepared turn (recorded as ``simulated_plan``)."""
+        p = self.plan
+        return None if p is None else Intention(p.success, p.response, p.mistake)
+
     def open_window(self) -> None:
         self._opened = time.monotonic()
         self._generation += 1
@@ -118,7 +124,7 @@ class SimulatedParticipant:
 
     def collect(self, n_expected: int, timeout_s: float) -> Answer:
         if self.plan is None:
-            raise RuntimeError("collect() before prepare()")
+            raise ValueError("collect() before prepare()")
         if self.inner is not None:
             answer = self.inner.collect(n_expected, timeout_s)
             if self._presser is not None:

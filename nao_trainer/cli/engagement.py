@@ -36,7 +36,7 @@ def register(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from nao_trainer.errors import ConfigError, DataError
     from nao_trainer.data.published import find_sessions, is_session_dir
-    from nao_trainer.data.engagement import OfflineSettings, check_options, plot_session, session_engagement_many, to_csv, to_json
+    from nao_trainer.data.engagement import OfflineSettings, check_options, session_engagement_many, to_csv, to_json
     from nao_trainer.files import write_text_atomic
 
     # every option checked before the (long) computation
@@ -82,6 +82,8 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.flush()
     if args.plot:
         try:
+            from nao_trainer.plots.engagement import plot_session
+
             saved = plot_session(results[0], args.plot)
         except OSError as exc:
             raise DataError(f"{args.plot}: cannot write ({exc.strerror}); give another --plot path") from None

@@ -33,16 +33,21 @@ def register(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nao_trainer.errors import ConfigError
-    from nao_trainer.learn.fitting import fit_and_save
+    from nao_trainer.learn.fit_source import fit_and_save
 
     if args.k < 1:
         raise ConfigError(f"--k must be a positive number of clusters, got {args.k}")
     if not args.no_figures and importlib.util.find_spec("matplotlib") is None:  # fail before the import and fit
         raise ConfigError("figures need matplotlib: pip install 'nao-trainer[plots]', or add --no-figures")
     say = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
-    report = fit_and_save(args.source, args.out, compat=args.compat, k=args.k, seed=args.seed,
-                          figures=not args.no_figures, cache=None if args.no_cache else (args.cache or "default"),
-                          progress=say)
+    fitted = fit_and_save(args.source, args.out, compat=args.compat, k=args.k, seed=args.seed,
+                          cache=None if args.no_cache else (args.cache or "default"), progress=say)
+    report = fitted.report
+    if not args.no_figures:
+        from nao_trainer.plots.usermodels import draw_fit
+
+        report["figures"] = [str(p) for p in draw_fit(fitted, args.out)]
+        say(f"figures: {', '.join(report['figures'])}")
     if args.json:
         print(json.dumps(report, indent=1))
     else:

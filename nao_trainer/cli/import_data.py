@@ -26,9 +26,9 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from nao_trainer.data.dataset import default_cache_dir, import_dataset, write_table
+    from nao_trainer.data.dataset import cache_dir, import_dataset, write_table
 
-    cache = None if args.no_cache else (args.cache or default_cache_dir(args.out))
+    cache = None if args.no_cache else (args.cache or cache_dir(args.root, args.compat, beside=args.out))
     progress = None if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     result = import_dataset(args.root, compat=args.compat, cache_dir=cache, progress=progress)
     for problem in result.problems:

@@ -4,7 +4,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from nao_trainer.session.config import EEG_MODES, INPUTS
+from nao_trainer.eeg.settings import MODES as EEG_MODES
+from nao_trainer.session.config import INPUTS
 
 
 def register(sub) -> None:
@@ -56,13 +57,13 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, object]:
 
 def run(args: argparse.Namespace) -> int:
     from nao_trainer.session.config import load_config
-    from nao_trainer.session.engine import RunOptions, run_session
+    from nao_trainer.session.wiring import RunOptions, run_session
 
     config = load_config(args.config, overrides_from_args(args))
     result = run_session(config, RunOptions(quiet=args.quiet))
     print(result.summary())
     if args.plot and result.path is not None and result.completed_rows:
-        from nao_trainer.session.record import plot_session
+        from nao_trainer.plots.session import plot_session
 
         print(f"plot: {plot_session(result.path)}")
     return result.exit_code

@@ -64,7 +64,11 @@ def run(args) -> int:
     argv = getattr(args, "argv", None) or ["train"]  # cli.main stores the arguments it parsed
     command = "nao-trainer " + " ".join(shlex.quote(a) for a in argv)
     try:
-        paths = write_outputs(result, args.out, str(models_dir), command, plots=not args.no_plots)
+        paths = write_outputs(result, args.out, str(models_dir), command)
+        if not args.no_plots:
+            from nao_trainer.plots.learning import write_figures
+
+            paths.update(write_figures(result, args.out))
     except OSError as exc:
         raise DataError(f"{args.out}: cannot write outputs ({exc.strerror}); choose a writable --out") from None
     if args.json:

@@ -1,4 +1,4 @@
-"""Engagement maths: band powers, the engagement index, smoothing, signal quality, normalisation.
+"""Engagement maths: band powers, the engagement index, smoothing, signal quality, analysis windows.
 
 Pure: numpy only, no I/O, no clocks. The live monitor (``nao_trainer.eeg``) and the offline reader of
 the published data (``nao_trainer.data.engagement``) both build on these functions, so a session and a
@@ -9,13 +9,13 @@ Definitions (see ``docs/engagement.md``)
       (half-open intervals ``[lo, hi)`` on the frequency bins).
     * Engagement index (Pope et al. 1995; Tsiakas et al. 2018): ``E = beta / (alpha + theta)``.
     * Smoothing: the exponentially weighted moving average ``s_t = a * s_(t-1) + (1 - a) * y_t``.
-    * Per-participant normalisation to [0, 1]: see :class:`EngagementNormaliser`.
+    * Per-participant normalisation to [0, 1] and per-phase values: ``nao_trainer.core.phase``.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import lru_cache
-from typing import Iterable, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -380,141 +380,3 @@ class OnlineEngagement:
             return WindowResult(t_end, None, None, frac, "no band power")
         s = self.smoother.update(e)
         return WindowResult(t_end, e, s, frac)
-
-
-# ----------------------------------------------------------------------------------------------
-# Normalisation
-# ----------------------------------------------------------------------------------------------
-
-
-@dataclass
-class EngagementNormaliser:
-    """Per-participant scaling of the engagement index to [0, 1].
-
-    Rule: the bounds are the ``lo_q``-th and ``hi_q``-th percentiles (default 5th/95th) of every value
-    seen so far - the baseline (greeting and instructions, :meth:`fit_baseline`) plus each value passed
-    to :meth:`update` - and ``normalised = clip((v - lo) / (hi - lo), 0, 1)``. Percentiles rather than
-    min/max keep one artefact from squashing the whole scale. With fewer than ``min_values`` values
-    or ``hi - lo < min_span`` there is no scale yet and the result is NaN, never an invented number.
-    """
-
-    lo_q: float = 5.0
-    hi_q: float = 95.0
-    min_values: int = 5
-    min_span: float = 1e-9
-    history: list[float] = field(default_factory=list, repr=False, init=False)
-    baseline_n_: int = field(default=0, init=False)
-    lo_: float = field(default=float("nan"), init=False)
-    hi_: float = field(default=float("nan"), init=False)
-
-    def __post_init__(self) -> None:
-        if not 0 <= self.lo_q < self.hi_q <= 100:
-            raise ValueError(f"need 0 <= lo_q < hi_q <= 100, got {self.lo_q}, {self.hi_q}")
-        if self.min_values < 2:
-            raise ValueError(f"min_values must be >= 2, got {self.min_values}")
-
-    def _refresh(self) -> None:
-        if len(self.history) >= self.min_values:
-            lo, hi = np.percentile(np.asarray(self.history), [self.lo_q, self.hi_q])
-            self.lo_, self.hi_ = float(lo), float(hi)
-
-    def fit_baseline(self, values: Iterable[float]) -> "EngagementNormaliser":
-        """Start the bounds from baseline values (non-finite ones are ignored). Returns self."""
-        v = np.asarray(list(values), dtype=float)
-        v = v[np.isfinite(v)]
-        self.history = [float(x) for x in v]
-        self.baseline_n_ = len(self.history)
-        self.lo_, self.hi_ = float("nan"), float("nan")
-        self._refresh()
-        return self
-
-    def update(self, value: float) -> float:
-        """Add a value to the running bounds and return it normalised with the updated bounds."""
-        value = float(value)
-        if np.isfinite(value):
-            self.history.append(value)
-            self._refresh()
-        return float(self.normalise(np.array([value]))[0])
-
-    def extend(self, values: Iterable[float]) -> np.ndarray:
-        """Add a batch of values (e.g. one phase) to the running bounds, then return them normalised.
-
-        Same rule as calling :meth:`update` for each, but the bounds are refreshed once, after the batch.
-        """
-        v = np.asarray(list(values) if not isinstance(values, np.ndarray) else values, dtype=float)
-        self.history.extend(float(x) for x in v[np.isfinite(v)])
-        self._refresh()
-        return self.normalise(v)
-
-    @property
-    def ready(self) -> bool:
-        return bool(np.isfinite(self.lo_) and self.hi_ - self.lo_ >= self.min_span)
-
-    def normalise(self, values: np.ndarray) -> np.ndarray:
-        """Scale with the current bounds (does not update them); NaN when not ready or v is NaN."""
-        v = np.asarray(values, dtype=float)
-        if not self.ready:
-            return np.full(v.shape, np.nan)
-        return np.clip((v - self.lo_) / (self.hi_ - self.lo_), 0.0, 1.0)
-
-
-def minmax_scale(values: np.ndarray) -> np.ndarray:
-    """Min-max scale over all finite values (the authors' session-wide normalisation); NaN stays NaN."""
-    v = np.asarray(values, dtype=float)
-    lo, hi = np.nanmin(v), np.nanmax(v)
-    if not hi > lo:
-        return np.full(v.shape, np.nan)
-    return (v - lo) / (hi - lo)
-
-
-# ----------------------------------------------------------------------------------------------
-# Per-phase aggregation
-# ----------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class PhaseAggregate:
-    """A phase's engagement: means over its usable windows, the clean fraction, or why it is empty."""
-
-    index: float | None  # mean raw E of the usable windows
-    smoothed: float | None  # mean smoothed E of the usable windows
-    engagement: float | None  # mean normalised smoothed E (when a normaliser was given)
-    quality: float  # clean fraction of the phase, 0..1
-    n_windows: int
-    reason: str = ""
-
-
-def aggregate_phase(
-    windows: Sequence[WindowResult],
-    t0: float,
-    t1: float,
-    hop_s: float,
-    normaliser: EngagementNormaliser | None = None,
-    min_quality: float = 0.5,
-) -> PhaseAggregate:
-    """Aggregate the windows ending in ``(t0, t1]`` into one phase value.
-
-    ``quality`` = sum of the windows' clean fractions (0 for unusable windows) divided by the number of
-    windows the phase should have had (``(t1 - t0) / hop_s``, at least the number present), so lost
-    samples lower it too. Below ``min_quality`` the phase is empty, with the reason.
-    """
-    if t1 < t0:
-        raise ValueError(f"phase ends before it starts: t0={t0}, t1={t1}")
-    inside = [w for w in windows if t0 < w.t_end <= t1]
-    usable = [w for w in inside if w.usable]
-    expected = max(len(inside), int(np.floor((t1 - t0) / hop_s + 1e-9)), 1)
-    quality = float(sum(w.clean_fraction for w in usable) / expected)
-    if not usable:
-        why = inside[-1].reason if inside else "no EEG windows in the phase"
-        return PhaseAggregate(None, None, None, quality, len(inside), f"no clean signal: {why}")
-    if quality < min_quality:
-        return PhaseAggregate(
-            None, None, None, quality, len(inside), f"only {quality:.0%} clean signal (needs {min_quality:.0%})"
-        )
-    raw = np.array([w.index_raw for w in usable], dtype=float)
-    smooth = np.array([w.index_smoothed for w in usable], dtype=float)
-    eng = None
-    if normaliser is not None:
-        norm = normaliser.normalise(smooth)
-        eng = float(np.mean(norm)) if np.isfinite(norm).all() else None
-    return PhaseAggregate(float(raw.mean()), float(smooth.mean()), eng, quality, len(inside))

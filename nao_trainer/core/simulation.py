@@ -19,10 +19,13 @@ from typing import Any
 import numpy as np
 
 from nao_trainer.core import mdp
+from nao_trainer.files import JsonFormat
 
 #: Probability levels of the stored time quantiles (0, 0.05, ..., 1).
 TIME_QUANTILES = np.linspace(0.0, 1.0, 21)
 FORMAT_VERSION = 1
+#: The simulator file's header (checked by ``from_dict``; pure: files.JsonFormat only compares dicts here).
+SIMULATOR_FILE = JsonFormat("nao-trainer/user-simulator", FORMAT_VERSION, "user simulator", "simulator")
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,8 +91,7 @@ class UserSimulator:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (floats round-trip exactly through ``json``)."""
         return {
-            "format": "nao-trainer/user-simulator",
-            "format_version": FORMAT_VERSION,
+            **SIMULATOR_FILE.header(),
             "name": self.name,
             "mdp_definition": mdp.DEFINITION,
             "state_encoding": "p_success[i] and engagement[i] are for core.mdp.decode(i) = (L, RF, PR)",
@@ -105,10 +107,7 @@ class UserSimulator:
     @classmethod
     def from_dict(cls, data: dict[str, Any], source: str = "simulator") -> "UserSimulator":
         """Rebuild from ``to_dict`` output; ValueError naming ``source`` on any mismatch."""
-        if data.get("format") != "nao-trainer/user-simulator":
-            raise ValueError(f"{source}: not a nao-trainer user simulator (format={data.get('format')!r})")
-        if data.get("format_version") != FORMAT_VERSION:
-            raise ValueError(f"{source}: simulator format version {data.get('format_version')!r}, expected {FORMAT_VERSION}")
+        SIMULATOR_FILE.check(data, source, ValueError)
         if data.get("mdp_definition") != mdp.DEFINITION:
             raise ValueError(f"{source}: made for another state/action definition; refit it with `nao-trainer fit`")
         try:

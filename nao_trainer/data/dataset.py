@@ -211,7 +211,7 @@ def _check_turns(log: list[published.LogRow], states: list[published.StateRow]) 
 
 
 def _engagement(session_dir: Path, n: int, compat: str | None) -> list[tuple[float, float, float, float, str]]:
-    """Per turn: (engagement_index, engagement, quality, contact, note) from ``eeg.offline``."""
+    """Per turn: (engagement_index, engagement, quality, contact, note) from ``data.engagement``."""
     from nao_trainer.data.engagement import session_engagement
 
     nan = float("nan")
@@ -261,7 +261,7 @@ def import_session(session_dir: Path, compat: str | None = None) -> list[dict[st
 
 def engagement_definition() -> str:
     """What the cached engagement columns depend on besides the files: the package version and the
-    offline engagement settings (``eeg.offline.OfflineSettings``). A change invalidates the cache."""
+    offline engagement settings (``data.engagement.OfflineSettings``). A change invalidates the cache."""
     import nao_trainer
     from nao_trainer.data import engagement as offline
 
@@ -382,7 +382,16 @@ def _write_cache(path: Path, key: str, rows: list[dict[str, Any]]) -> None:
         print(f"nao-trainer: warning: cannot write import cache {path}: {exc.strerror}", file=sys.stderr)
 
 
-def default_cache_dir(out: Path) -> Path:
-    """The cache beside an output file: ``<out>.cache/``."""
-    out = Path(out)
-    return out.with_name(out.name + ".cache")
+def cache_dir(root: Path, compat: str | None, beside: Path | None = None) -> Path:
+    """The one rule for the import cache folder of ``root``.
+
+    Beside a table being written (``nao-trainer import --out FILE``): ``FILE.cache/``, so the cache
+    travels with the table. Otherwise (``nao-trainer fit DATASET``) per user:
+    ``$XDG_CACHE_HOME/nao-trainer/import/<sha256 of the root path, 16 hex>-<compat or default>``.
+    """
+    if beside is not None:
+        beside = Path(beside)
+        return beside.with_name(beside.name + ".cache")
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "nao-trainer" / "import"
+    digest = hashlib.sha256(str(Path(root).resolve()).encode()).hexdigest()[:16]
+    return base / f"{digest}-{compat or 'default'}"

@@ -15,7 +15,7 @@ Two definitions:
     the correct EWMA ``s_t = a s_(t-1) + (1-a) E_t`` restarted per turn over the usable samples.
     *raw source* (recordings with only raw ``eeg`` lines, or ``source="raw"``): the online estimator
     (:class:`nao_trainer.core.engagement.OnlineEngagement`) on the raw EEG at ``fs`` Hz, samples stamped
-    ``i / fs``, with the live monitor's processing defaults (``eeg.monitor.Processing``: EWMA a = 0.75 per
+    ``i / fs``, with the live monitor's processing defaults (``core.eeg.Processing``: EWMA a = 0.75 per
     0.25 s window). ``engagement_index`` = mean raw E of the usable samples/windows, ``engagement`` = mean of
     their smoothed E normalised per participant (:class:`EngagementNormaliser`): baseline = the
     ``intro`` recording (greeting and instructions) when present, then bounds widened turn by turn;
@@ -35,9 +35,10 @@ from typing import Callable, Sequence
 import numpy as np
 
 from nao_trainer.core import engagement as core
+from nao_trainer.core import phase
 from nao_trainer.errors import DataError
-from nao_trainer.data.published import CHANNELS, RAW_RATE_HZ, Recording, find_sessions, read_recording, read_state_eeg, session_id
-from nao_trainer.eeg.monitor import Processing
+from nao_trainer.core.eeg import CHANNELS, RAW_RATE_HZ, Processing
+from nao_trainer.data.published import Recording, find_sessions, read_recording, read_state_eeg, session_id
 
 COMPAT_MODES: tuple[str, ...] = ("authors2018",)
 SOURCES: tuple[str, ...] = ("bands", "raw")
@@ -56,7 +57,7 @@ _LIVE = Processing()
 class OfflineSettings:
     """Knobs of the project's own offline definition (ignored by ``compat="authors2018"``).
 
-    The raw-EEG defaults are the live monitor's (:class:`nao_trainer.eeg.monitor.Processing`).
+    The raw-EEG defaults are the live monitor's (:class:`nao_trainer.core.eeg.Processing`).
     """
 
     a: float = 0.9  # EWMA factor per 10 Hz band sample (time constant 0.1 s / (1 - a) = 1 s)
@@ -248,7 +249,7 @@ def _from_raw(rec: Recording, settings: OfflineSettings) -> _Phase:
     ph.t = np.array([w.t_end for w in windows])
     ph.raw = np.array([np.nan if w.index_raw is None else w.index_raw for w in windows])
     ph.smoothed = np.array([np.nan if w.index_smoothed is None else w.index_smoothed for w in windows])
-    agg = core.aggregate_phase(windows, ph.t[0] - settings.hop_s, ph.t[-1], settings.hop_s, None, settings.min_quality)
+    agg = phase.aggregate_phase(windows, ph.t[0] - settings.hop_s, ph.t[-1], settings.hop_s, None, settings.min_quality)
     ph.quality, ph.reason = agg.quality, agg.reason
     return ph
 
@@ -361,7 +362,7 @@ def _normalise_authors(phases: list[_Phase]) -> tuple[str, list[np.ndarray | Non
     values = [p.smoothed for p in phases if p.usable]
     if not values:
         return label, [None] * len(phases)
-    scaled = core.minmax_scale(np.concatenate(values))
+    scaled = phase.minmax_scale(np.concatenate(values))
     if np.isnan(scaled).all():  # a flat session: no scale
         return label, [None] * len(phases)
     parts = iter(np.split(scaled, np.cumsum([len(v) for v in values])[:-1]))
@@ -388,7 +389,7 @@ def _normalise_own(
     settings: OfflineSettings,
 ) -> tuple[str, list[np.ndarray | None], list[np.ndarray | None] | None]:
     """The project's rule: intro baseline plus running bounds in recording order; else the session itself."""
-    normaliser = core.EngagementNormaliser()
+    normaliser = phase.EngagementNormaliser()
     why = ""
     try:
         base = _baseline_values(session_dir, src, settings)
@@ -506,32 +507,3 @@ def to_json(results: Sequence[SessionEngagement], as_list: bool | None = None) -
     data = [r.as_dict() for r in results]
     as_list = len(data) != 1 if as_list is None else as_list
     return json.dumps(data if as_list else data[0], indent=2, allow_nan=False) + "\n"
-
-
-def plot_session(result: SessionEngagement, path: Path) -> Path:
-    """Save a figure: per-turn engagement (bars) and the per-sample series of every turn (line)."""
-    from nao_trainer.plots import pyplot
-
-    plt = pyplot()
-
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(10, 6), constrained_layout=True)
-    turns = [t.turn for t in result.turns]
-    eng = [np.nan if t.engagement is None else t.engagement for t in result.turns]
-    ax1.bar(turns, eng, color=["tab:blue" if np.isfinite(e) else "lightgrey" for e in eng])
-    for t in result.turns:
-        if t.engagement is None:
-            ax1.text(t.turn, 0.02, "x", ha="center", color="tab:red")
-    ax1.set(xlabel="turn", ylabel="engagement (normalised)", ylim=(0, 1),
-            title=f"{result.session}: listening-phase engagement "
-            f"({result.compat or 'project definition'}, {result.source})")
-    offset = 0.0
-    for turn, s in sorted(result.series.items()):
-        if len(s.t):
-            ax2.plot(offset + s.t, s.normalised, lw=0.8, color="tab:blue")
-            ax2.axvline(offset, color="lightgrey", lw=0.5)
-            offset += float(s.t[-1]) + 1.0
-    ax2.set(xlabel="listening time, turns concatenated (s)", ylabel="normalised E", ylim=(-0.02, 1.02))
-    path = Path(path)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path

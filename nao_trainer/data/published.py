@@ -23,10 +23,6 @@ import numpy as np
 from nao_trainer.errors import DataError
 from nao_trainer.files import read_text
 
-#: Scalp channel order of every 4-value line (and of a Muse's LSL stream, before ``Right AUX``).
-CHANNELS: tuple[str, ...] = ("TP9", "AF7", "AF8", "TP10")
-#: Nominal rate of the raw ``eeg`` lines (Muse 2016 via the Muse SDK; dataset README), Hz.
-RAW_RATE_HZ = 220.0
 
 #: Values per line for the Muse message prefixes of the published recordings. ``c`` (concentration)
 #: has one value; the band files pad it to four (``c v 0 0 0``): only the first is kept.

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from nao_trainer.errors import EEGUnavailable
-from nao_trainer.data.published import CHANNELS
+from nao_trainer.core.eeg import CHANNELS
 from nao_trainer.eeg.lsl_scope import configure_lsl
 
 log = logging.getLogger(__name__)

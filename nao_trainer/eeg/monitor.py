@@ -24,214 +24,31 @@ closed. Files in ``<session>/eeg/``: ``stream.json``, ``events.csv``, ``windows.
 """
 from __future__ import annotations
 
-import csv
 import itertools
 import os
 import logging
 import threading
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
-from nao_trainer.core.engagement import (EngagementNormaliser, OnlineEngagement, QualityThresholds, WindowResult,
-                               aggregate_phase)
-from nao_trainer.errors import ConfigError, EEGUnavailable
-from nao_trainer.files import write_json_atomic
+from nao_trainer.core.engagement import OnlineEngagement, QualityThresholds, WindowResult
+from nao_trainer.core.phase import EngagementNormaliser, summarise_phase
+from nao_trainer.errors import EEGUnavailable
 from nao_trainer.ports import EngagementMonitor, NullMonitor, PhaseEngagement
 from nao_trainer.eeg.inlet import EEGInlet, StreamQuery, resolve_eeg
-from nao_trainer.eeg.lsl_scope import SCOPES, configure_lsl
+from nao_trainer.eeg.lsl_scope import configure_lsl
+from nao_trainer.eeg.settings import EEGSettings
 from nao_trainer.eeg.markers import MarkerOutlet, event_name, marker_source_id
+from nao_trainer.eeg.session_files import (EVENTS_HEADER, GAPS_HEADER, PHASES_HEADER, WINDOWS_HEADER, SessionFiles,
+                                          fmt)
 
 log = logging.getLogger(__name__)
 
-MODES = ("off", "simulated", "lsl")
 PHASES = ("baseline", "listening", "answer")
 _SIM_COUNTER = itertools.count(1)
-
-
-# ----------------------------------------------------------------------------------------------
-# Configuration
-# ----------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Processing:
-    """Engagement processing options (``eeg.processing`` in a study config).
-
-    window_s / hop_s: analysis window and step (2 s windows every 0.25 s: 1 Hz Welch resolution,
-    four values a second). ewma_a: smoothing factor a of ``s_t = a s_(t-1) + (1-a) y_t``; 0.75 at
-    4 windows/s gives a time constant hop/(1-a) = 1 s, the authors' 0.9 at their 10 Hz band rate.
-    resolve_timeout_s: how long to look for the stream at start. loss_timeout_s: silence after
-    which the stream counts as lost. min_quality: clean fraction a phase needs for a value.
-    min_clean_channels: clean scalp channels a window needs. gap_tolerance_s: a jump in sample
-    stamps larger than this restarts the windows. end_wait_s: longest wait at a phase end for
-    samples still in flight. poll_s: how often the reader drains the inlet between phase ends (a
-    phase end drains it at once; 0.2 s keeps the reader well under 1 % of a core). record_raw: save the scalp samples to ``eeg/raw.csv``.
-    """
-
-    window_s: float = 2.0
-    hop_s: float = 0.25
-    ewma_a: float = 0.75
-    resolve_timeout_s: float = 5.0
-    loss_timeout_s: float = 1.0
-    min_quality: float = 0.5
-    min_clean_channels: int = 2
-    gap_tolerance_s: float = 0.1
-    end_wait_s: float = 0.04
-    poll_s: float = 0.2
-    record_raw: bool = True
-
-    def __post_init__(self) -> None:
-        rules = {
-            "window_s": (0.25, 30.0), "hop_s": (0.01, 30.0), "ewma_a": (0.0, 0.999),
-            "resolve_timeout_s": (0.0, 120.0), "loss_timeout_s": (0.1, 60.0), "min_quality": (0.0, 1.0),
-            "min_clean_channels": (1, 4), "gap_tolerance_s": (0.0, 10.0), "end_wait_s": (0.0, 1.0), "poll_s": (0.005, 1.0),
-        }
-        for key, (lo, hi) in rules.items():
-            value = getattr(self, key)
-            if not lo <= value <= hi:
-                raise ConfigError(f"eeg.processing.{key}: {value!r} is out of range; use a value in [{lo}, {hi}]")
-        if self.hop_s > self.window_s:
-            raise ConfigError(f"eeg.processing.hop_s: {self.hop_s} exceeds window_s {self.window_s}; "
-                              "use a hop no longer than the window")
-
-    @classmethod
-    def from_mapping(cls, data: Mapping[str, Any] | None) -> "Processing":
-        """Validate ``eeg.processing``; unknown keys and wrong types raise ``ConfigError`` naming the key."""
-        data = dict(data or {})
-        known = {f.name: f for f in fields(cls)}
-        values: dict[str, Any] = {}
-        for key, value in data.items():
-            if key not in known:
-                raise ConfigError(f"eeg.processing.{key}: unknown key; known keys are {', '.join(known)}")
-            default = known[key].default
-            if isinstance(default, bool):
-                if not isinstance(value, bool):
-                    raise ConfigError(f"eeg.processing.{key}: must be true or false, got {value!r}")
-            elif isinstance(default, int):
-                if isinstance(value, bool) or not isinstance(value, int):
-                    raise ConfigError(f"eeg.processing.{key}: must be an integer, got {value!r}")
-            elif isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ConfigError(f"eeg.processing.{key}: must be a number, got {value!r}")
-            values[key] = float(value) if isinstance(default, float) else value
-        return cls(**values)
-
-
-@dataclass(frozen=True)
-class EEGSettings:
-    """The ``eeg`` section of a study config, validated."""
-
-    mode: str = "simulated"
-    required: bool = False
-    stream_type: str = "EEG"
-    stream_name: str | None = None
-    source_id: str | None = None
-    lsl_scope: str = "machine"
-    processing: Processing = field(default_factory=Processing)
-
-    @classmethod
-    def from_mapping(cls, data: Mapping[str, Any] | None, mode: str | None = None) -> "EEGSettings":
-        data = dict(data or {})
-        known = {f.name for f in fields(cls)}
-        for key in data:
-            if key not in known:
-                raise ConfigError(f"eeg.{key}: unknown key; known keys are {', '.join(sorted(known))}")
-        mode = mode or data.get("mode", "simulated")
-        if mode not in MODES:
-            raise ConfigError(f"eeg.mode: {mode!r} is not one of {', '.join(MODES)}")
-        scope = data.get("lsl_scope", "machine")
-        if scope not in SCOPES:
-            raise ConfigError(f"eeg.lsl_scope: {scope!r} is not one of {', '.join(SCOPES)}")
-        for key in ("stream_type", "stream_name", "source_id"):
-            value = data.get(key)
-            if value is not None and (not isinstance(value, str) or not value.strip() or "'" in value):
-                raise ConfigError(f"eeg.{key}: must be a non-empty text without quotes, got {value!r}")
-        if not isinstance(data.get("required", False), bool):
-            raise ConfigError(f"eeg.required: must be true or false, got {data['required']!r}")
-        return cls(mode=mode, required=data.get("required", False), stream_type=data.get("stream_type") or "EEG",
-                   stream_name=data.get("stream_name"), source_id=data.get("source_id"), lsl_scope=scope,
-                   processing=Processing.from_mapping(data.get("processing")))
-
-
-# ----------------------------------------------------------------------------------------------
-# Session files
-# ----------------------------------------------------------------------------------------------
-
-
-class _CsvLog:
-    """An append-only CSV file that is flushed after every write (nothing lost on a crash)."""
-
-    def __init__(self, path: Path, header: list[str]) -> None:
-        self.path = path
-        new = not path.exists()
-        self._fh = open(path, "a", newline="", encoding="utf-8")
-        self._w = csv.writer(self._fh)
-        if new:
-            self._w.writerow(header)
-            self._fh.flush()
-
-    def write(self, rows: list[list[Any]], flush: bool = True) -> None:
-        self._w.writerows(rows)
-        if flush:
-            self._fh.flush()
-
-    def raw_file(self):
-        return self._fh
-
-    def close(self) -> None:
-        if not self._fh.closed:
-            self._fh.flush()
-            self._fh.close()
-
-
-def _fmt(v: float | None, digits: int = 6) -> str:
-    return "" if v is None or not np.isfinite(v) else f"{v:.{digits}g}"
-
-
-class _SessionFiles:
-    """The monitor's files in ``<session>/eeg/`` (no files when there is no session folder)."""
-
-    def __init__(self, session_dir: Path | None) -> None:
-        self.dir = None if session_dir is None else Path(session_dir) / "eeg"
-        self._logs: dict[str, _CsvLog] = {}
-        self.closed = False
-        self.lock = threading.Lock()  # the reader thread and the session both write
-        if self.dir is not None:
-            self.dir.mkdir(parents=True, exist_ok=True)
-
-    def log(self, name: str, header: list[str]) -> _CsvLog | None:
-        if self.dir is None or self.closed:  # after close(): nothing more is written
-            return None
-        with self.lock:
-            if name not in self._logs:
-                self._logs[name] = _CsvLog(self.dir / name, header)
-            return self._logs[name]
-
-    def write(self, name: str, header: list[str], rows: list[list[Any]], flush: bool = True) -> None:
-        log_ = self.log(name, header)
-        if log_ is not None:
-            with self.lock:
-                if not self.closed:
-                    log_.write(rows, flush)
-
-    def write_json(self, name: str, data: dict) -> None:
-        if self.dir is not None:
-            write_json_atomic(self.dir / name, data)
-
-    def close(self) -> None:
-        with self.lock:
-            self.closed = True
-            for log_ in self._logs.values():
-                log_.close()
-
-
-EVENTS_HEADER = ["lsl_time", "event", "detail"]
-WINDOWS_HEADER = ["turn", "phase", "t_end", "index_raw", "index_smoothed", "engagement", "clean_fraction", "reason"]
-PHASES_HEADER = ["turn", "phase", "t_begin", "t_end", "engagement", "engagement_index", "eeg_quality",
-                 "n_windows", "lost_s", "reason"]
-GAPS_HEADER = ["start", "end", "duration_s", "kind"]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -271,7 +88,7 @@ class LslMonitor:
         self.settings = settings
         self.proc = settings.processing
         self.query = query
-        self.files = _SessionFiles(session_dir)
+        self.files = SessionFiles(session_dir)
         self.markers = markers
         self.simulator = simulator
         self.inlet: EEGInlet | None = None
@@ -303,6 +120,11 @@ class LslMonitor:
         self._thread.start()
 
     # -- state --------------------------------------------------------------------------------
+
+    @property
+    def records_eeg(self) -> bool:
+        """Always: this monitor records EEG (``ports.EngagementMonitor``), even while the stream is away."""
+        return True
 
     @property
     def available(self) -> bool:
@@ -523,44 +345,22 @@ class LslMonitor:
     def _summarise(self, ph: _Phase, t1: float, windows: list[WindowResult]):
         now = self._clock()
         lost_s = sum(g.overlap(ph.t0, t1, now) for g in self.gaps)
-        smooth = np.array([w.index_smoothed if w.usable else np.nan for w in windows], dtype=float)
-        finite = smooth[np.isfinite(smooth)]
-        if ph.name == "baseline":
-            self.normaliser.fit_baseline(finite)
-            self._had_baseline = True
-        else:  # running bounds: every phase's windows join the scale's history
-            self.normaliser.extend(finite)
-        agg = aggregate_phase(windows, ph.t0, t1, self.proc.hop_s, None, self.proc.min_quality)
-        norm = self.normaliser.normalise(smooth)  # once, for the phase value and the window rows
-        if agg.index is not None:
-            usable = norm[np.array([w.usable for w in windows], dtype=bool)]
-            if np.isfinite(usable).all():  # as aggregate_phase computes it from a normaliser
-                agg = replace(agg, engagement=float(np.mean(usable)))
-        reason = agg.reason
-        if self.inlet is None:
-            reason = f"EEG unavailable: {self.unavailable_reason or 'no stream'}"
-        elif agg.index is None and lost_s > 0:
-            reason = f"stream lost for {lost_s:.1f} s of the phase ({reason})"
-        elif agg.engagement is None and agg.index is not None:
-            why = (f"baseline too short: {self.normaliser.baseline_n_} usable windows" if self._had_baseline
-                   else "no baseline phase")
-            reason = (f"no normalisation scale yet ({len(self.normaliser.history)} windows seen, "
-                      f"{self.normaliser.min_values} needed; {why})"
-                      if self.normaliser.baseline_n_ < self.normaliser.min_values else "normalisation scale is flat")
-        engagement = agg.engagement if agg.index is not None else None
-        result = PhaseEngagement(engagement, agg.index, round(agg.quality, 4), reason if engagement is None else "",
-                                 series=smooth)
-        rows = [[ph.turn if ph.turn is not None else "", ph.name, f"{w.t_end:.6f}", _fmt(w.index_raw),
-                 _fmt(w.index_smoothed), _fmt(float(n)), f"{w.clean_fraction:.3f}", w.reason]
-                for w, n in zip(windows, norm)]
+        self._had_baseline = self._had_baseline or ph.name == "baseline"
+        s = summarise_phase(windows, ph.t0, t1, self.normaliser, baseline=ph.name == "baseline",
+                            had_baseline=self._had_baseline, hop_s=self.proc.hop_s, min_quality=self.proc.min_quality,
+                            lost_s=lost_s, unavailable=self.unavailable_reason if self.inlet is None else None)
+        result = PhaseEngagement(s.engagement, s.index, round(s.quality, 4), s.reason, series=s.smoothed)
+        rows = [[ph.turn if ph.turn is not None else "", ph.name, f"{w.t_end:.6f}", fmt(w.index_raw),
+                 fmt(w.index_smoothed), fmt(float(n)), f"{w.clean_fraction:.3f}", w.reason]
+                for w, n in zip(windows, s.normalised)]
         return result, (rows, lost_s)
 
     def _write_phase(self, ph: _Phase, t1: float, result: PhaseEngagement, rows_lost) -> None:
         rows, lost_s = rows_lost
         self.files.write("windows.csv", WINDOWS_HEADER, rows)
         self.files.write("phases.csv", PHASES_HEADER, [[
-            ph.turn if ph.turn is not None else "", ph.name, f"{ph.t0:.6f}", f"{t1:.6f}", _fmt(result.engagement),
-            _fmt(result.index), f"{result.quality:.3f}", len(rows), f"{lost_s:.3f}", result.reason]])
+            ph.turn if ph.turn is not None else "", ph.name, f"{ph.t0:.6f}", f"{t1:.6f}", fmt(result.engagement),
+            fmt(result.index), f"{result.quality:.3f}", len(rows), f"{lost_s:.3f}", result.reason]])
 
     def close(self) -> None:
         """Stop the reader, record an open gap, close the inlet, the marker outlet, the simulator, files."""

@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from nao_trainer.errors import DataError
-from nao_trainer.data.published import CHANNELS, RAW_RATE_HZ, read_recording
+from nao_trainer.core.eeg import CHANNELS, RAW_RATE_HZ
+from nao_trainer.data.published import read_recording
 from nao_trainer.eeg.lsl_scope import configure_lsl
 
 MUSE_LABELS = CHANNELS + ("Right AUX",)

@@ -21,11 +21,13 @@ from typing import Any
 from nao_trainer.core.simulation import FORMAT_VERSION as SIMULATOR_FORMAT_VERSION
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import DataError, UserError
-from nao_trainer.files import PROJECT_ROOT, read_json, write_json_atomic
+from nao_trainer.files import PROJECT_ROOT, JsonFormat, read_json, write_json_atomic
 
 MANIFEST = "manifest.json"
 MANIFEST_FORMAT = "nao-trainer/user-models"
 MANIFEST_VERSION = 1
+MANIFEST_FILE = JsonFormat(MANIFEST_FORMAT, MANIFEST_VERSION, "user-model manifest", "manifest",
+                           "refit with `nao-trainer fit`")
 #: Where the project's default user models ship (fitted from the published data).
 DEFAULT_MODELS_DIR = PROJECT_ROOT / "sim" / "models"
 MODELS_ENV = "NAO_TRAINER_MODELS"
@@ -72,8 +74,7 @@ def save_models(out_dir: Path, simulators: list[UserSimulator], clusters: list[d
         where = exc.filename or out
         raise UserError(f"{where}: cannot write the user models ({exc.strerror}); choose another --out") from None
     manifest = {
-        "format": MANIFEST_FORMAT,
-        "format_version": MANIFEST_VERSION,
+        **MANIFEST_FILE.header(),
         "simulator_format_version": SIMULATOR_FORMAT_VERSION,
         **info,
         "library_versions": library_versions(),
@@ -97,14 +98,7 @@ def load_manifest(models_dir: Path | None = None) -> dict[str, Any]:
     path = folder / MANIFEST
     if not path.exists():
         raise DataError(f"{path}: no user models here; create them with `nao-trainer fit DATASET_ROOT --out {folder}`")
-    data = _read_json(path)
-    if not isinstance(data, dict) or data.get("format") != MANIFEST_FORMAT:
-        found = data.get("format") if isinstance(data, dict) else type(data).__name__
-        raise DataError(f"{path}: not a nao-trainer user-model manifest (format={found!r})")
-    if data.get("format_version") != MANIFEST_VERSION:
-        raise DataError(f"{path}: manifest format version {data.get('format_version')!r}, this nao-trainer reads "
-                        f"{MANIFEST_VERSION}; refit with `nao-trainer fit`")
-    return data
+    return MANIFEST_FILE.check(_read_json(path), path, DataError)
 
 
 def available_models(models_dir: Path | None = None) -> list[str]:

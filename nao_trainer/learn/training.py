@@ -376,9 +376,11 @@ def default_methods(result: GridResult) -> dict[str, str]:
     return out
 
 
-def write_outputs(result: GridResult, out_dir: Path, models_source: str, command: str,
-                  plots: bool = True) -> dict[str, Path]:
-    """Write curves, S0 probabilities, figures, results.json, policies and their manifest to ``out_dir``."""
+def write_outputs(result: GridResult, out_dir: Path, models_source: str, command: str) -> dict[str, Path]:
+    """Write curves, S0 probabilities, results.json, policies and their manifest to ``out_dir``.
+
+    The figures are the command's business: ``plots.learning.write_figures(result, out_dir)``.
+    """
     from nao_trainer.learn import usp
 
     out = Path(out_dir)
@@ -413,9 +415,4 @@ def write_outputs(result: GridResult, out_dir: Path, models_source: str, command
     write_json_atomic(paths["results"], summary)
     usp.write_manifest(out, {cl: result.spec.methods for cl in result.clusters}, summary["default_method"],
                        policy_files)
-    if plots:
-        from nao_trainer.plots.learning import plot_learning_curves, plot_s0_policies
-
-        paths["figure7"] = plot_learning_curves(result, out / FIGURE7)
-        paths["figure8"] = plot_s0_policies(result, out / FIGURE8)
     return paths

@@ -27,8 +27,6 @@ session of this participant), learning resumes from it.
 """
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 import sys
 from datetime import datetime, timezone
@@ -42,7 +40,7 @@ from nao_trainer.core import mdp, mdps
 from nao_trainer.core.qlearning import METHOD_TEXT, METHODS, QConfig, QLearner
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import ConfigError, DataError
-from nao_trainer.files import PROJECT_ROOT, read_json, read_text, write_json_atomic
+from nao_trainer.files import PROJECT_ROOT, JsonFormat, read_json, write_json_atomic
 from nao_trainer.ports import Transition
 
 FORMAT = "nao-trainer/user-specific-policy"
@@ -70,9 +68,10 @@ def policy_filename(cluster: str, method: str) -> str:
 # ----------------------------------------------------------------------------------------------
 
 
-def canonical_digest(payload: dict[str, Any]) -> str:
-    text = json.dumps(payload, sort_keys=True, separators=(",", ":"), allow_nan=False)
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+#: A policy file: a checksummed envelope of the payload (``make_payload``).
+POLICY_FILE = JsonFormat(FORMAT, FORMAT_VERSION, "user-specific policy", "policy", RETRAIN)
+#: A policy folder's manifest (flat, no checksum).
+MANIFEST_FILE = JsonFormat(MANIFEST_FORMAT, 1, "policy manifest", "policy manifest", RETRAIN)
 
 
 def make_payload(learner: QLearner, cluster: str, simulator: UserSimulator,
@@ -98,8 +97,7 @@ def make_payload(learner: QLearner, cluster: str, simulator: UserSimulator,
 
 def save_policy_file(path: Path, payload: dict[str, Any]) -> None:
     """Write a policy file (payload + checksum) atomically."""
-    write_json_atomic(path, {"format": FORMAT, "format_version": FORMAT_VERSION,
-                             "sha256": canonical_digest(payload), "payload": payload})
+    POLICY_FILE.write(path, payload)
 
 
 def read_policy_file(path: Path, process: str = "paper") -> dict[str, Any]:
@@ -109,27 +107,7 @@ def read_policy_file(path: Path, process: str = "paper") -> dict[str, Any]:
     policy must be made for the decision process ``process``, ``core.mdps``).
     """
     path = Path(path)
-    text = read_text(path, DataError, "no such policy file", RETRAIN)
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise DataError(f"{path}:{exc.lineno}: policy file is not valid JSON ({exc.msg}): torn or corrupt; "
-                        f"{RETRAIN}") from None
-    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
-        found = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
-        raise DataError(f"{path}: not a nao-trainer user-specific policy (format={found!r})")
-    if doc.get("format_version") != FORMAT_VERSION:
-        raise DataError(f"{path}: policy format version {doc.get('format_version')!r}, this nao-trainer reads "
-                        f"{FORMAT_VERSION}; {RETRAIN}")
-    payload = doc.get("payload")
-    if not isinstance(payload, dict) or not isinstance(doc.get("sha256"), str):
-        raise DataError(f"{path}: policy file lacks its payload or checksum: torn or corrupt; {RETRAIN}")
-    try:
-        digest = canonical_digest(payload)
-    except ValueError as exc:
-        raise DataError(f"{path}: policy payload holds invalid numbers ({exc}); {RETRAIN}") from None
-    if digest != doc["sha256"]:
-        raise DataError(f"{path}: checksum mismatch (file altered, torn or corrupt); {RETRAIN}")
+    payload = POLICY_FILE.read(path, DataError)
     check_definition(payload, path, process)
     return payload
 
@@ -184,7 +162,7 @@ def write_manifest(folder: Path, methods: dict[str, Any], default_method: dict[s
                    files: dict[str, str]) -> Path:
     """The index of a policy folder: which files exist and the default method per cluster."""
     path = Path(folder) / MANIFEST
-    write_json_atomic(path, {"format": MANIFEST_FORMAT, "format_version": 1,
+    write_json_atomic(path, {**MANIFEST_FILE.header(),
                              "clusters": {c: list(m) for c, m in methods.items()},
                              "default_method": default_method, "files": files})
     return path
@@ -193,9 +171,8 @@ def write_manifest(folder: Path, methods: dict[str, Any], default_method: dict[s
 def read_manifest(folder: Path) -> dict[str, Any]:
     path = Path(folder) / MANIFEST
     data = read_json(path, DataError, f"no trained policies here; create them with `nao-trainer train --out {folder}`")
-    if not isinstance(data, dict) or data.get("format") != MANIFEST_FORMAT:
-        raise DataError(f"{path}: not a nao-trainer policy manifest")
-    if data.get("format_version") != 1 or not isinstance(data.get("default_method", {}), dict):
+    MANIFEST_FILE.check(data, path, DataError)
+    if not isinstance(data.get("default_method", {}), dict):
         raise DataError(f"{path}: policy manifest of an unknown version or shape; {RETRAIN}")
     return data
 
@@ -216,8 +193,8 @@ class LivePolicy:
     """
 
     def __init__(self, learner: QLearner, payload: dict[str, Any], learning: bool, state_path: Path | None) -> None:
-        # A learning policy needs ``state_path`` only when it saves: the session may set it once its
-        # folder exists (the policy is loaded and checked before the robot connects).
+        # A learning policy needs ``state_path`` only when it saves: without one, the session binds
+        # it to its folder once that exists (the policy is loaded and checked before the robot connects).
         self.learner = learner
         self.payload = payload
         self.learning = learning
@@ -235,7 +212,7 @@ class LivePolicy:
         if not self.learning:
             return
         if self._closed:
-            raise RuntimeError("policy is closed")
+            raise ValueError("policy is closed: observe() after close()")
         t = transition
         self.learner.update(t.state, t.action, t.score, t.engagement, t.next_state, t.done)
         live = self.payload["live"]
@@ -243,6 +220,11 @@ class LivePolicy:
         live["turns_without_engagement"] += int(t.engagement is None)
         live["updated"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
         self.save()
+
+    def bind_state_dir(self, folder: Path) -> None:
+        """Without a configured state file, a learning policy saves into the session ``folder``."""
+        if self.learning and self.state_path is None:
+            self.state_path = Path(folder) / "policy_state.json"
 
     def save(self) -> None:
         """Write the learner's whole state (a valid policy file) atomically to ``state_path``."""

@@ -99,3 +99,11 @@ def plot_s0_policies(result: "GridResult", path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)
+
+
+def write_figures(result: "GridResult", out_dir: Path) -> dict[str, Path]:
+    """Figures 7 and 8 of a training run, next to the files of ``training.write_outputs``."""
+    from nao_trainer.learn.training import FIGURE7, FIGURE8
+
+    out = Path(out_dir)
+    return {"figure7": plot_learning_curves(result, out / FIGURE7), "figure8": plot_s0_policies(result, out / FIGURE8)}

@@ -22,7 +22,7 @@ os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise; mu
 import qi  # noqa: E402
 
 from nao_trainer.errors import ConfigError, RobotUnavailable  # noqa: E402
-from nao_trainer.ports import BUTTON_LETTERS, RobotConnectionLost  # noqa: E402
+from nao_trainer.ports import BUTTON_LETTERS, RobotCallFailed, RobotConnectionLost  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -473,7 +473,7 @@ class NaoqiRobot:
         timeout_s = self.timeouts.default_s if timeout_s is None else timeout_s
         try:
             proxy = self._remote(self._session, "service", name, timeout_s=timeout_s, what=f"service {name}")
-        except RuntimeError as exc:
+        except RobotCallFailed as exc:
             if "cannot find service" in str(exc).lower():
                 raise MissingService(
                     f"the robot at {self.url} offers no {name} service; check its NAOqi version "
@@ -532,17 +532,17 @@ class NaoqiRobot:
         except RuntimeError as exc:
             raise self._translate(exc, what) from None
 
-    def _translate(self, exc: RuntimeError, what: str) -> Exception:
+    def _translate(self, exc: RuntimeError, what: str) -> RobotConnectionLost | RobotCallFailed:
         # Remote Python errors arrive with a traceback ("At: ..."): keep the first line.
         lines = [ln.strip() for ln in str(exc).strip().splitlines() if ln.strip()]
         message = lines[0] if lines else type(exc).__name__
         if is_connection_lost(message) or not self.is_connected():
             return RobotConnectionLost(f"{what}: lost the robot at {self.url} ({message})")
-        return RuntimeError(f"{what} failed on the robot at {self.url}: {message}")
+        return RobotCallFailed(f"{what} failed on the robot at {self.url}: {message}")
 
     def _check_open(self) -> None:
         if self._closed:
-            raise RuntimeError(f"the connection to the robot at {self.url} is closed")
+            raise RobotCallFailed(f"the connection to the robot at {self.url} is closed")
 
 
 #: Robots not yet closed; closed at interpreter exit as a safety net (live signal subscriptions

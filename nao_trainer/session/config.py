@@ -13,10 +13,11 @@ import difflib
 import hashlib
 import os
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
+from nao_trainer.eeg.settings import EEGSettings
 from nao_trainer.errors import ConfigError
 from nao_trainer.files import PROJECT_ROOT, read_yaml
 
@@ -26,8 +27,6 @@ DEFAULT_CONFIG = PROJECT_ROOT / "config" / "default.yaml"
 DEMO_STUDY = PROJECT_ROOT / "config" / "studies" / "demo.yaml"
 
 INPUTS = ("simulated", "tactile", "keyboard")
-EEG_MODES = ("off", "simulated", "lsl")
-LSL_SCOPES = ("machine", "link", "site", "organization", "global")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -79,13 +78,6 @@ def _schedule(value: list) -> str | None:
     return None
 
 
-def _lsl_property(value: str) -> str | None:
-    # The EEG inlet resolves streams with an XPath predicate in single quotes (eeg/inlet.py refuses a quote).
-    if "'" in value:
-        return "must not contain a quote ('): LSL stream properties are matched inside quotes; remove it"
-    return None
-
-
 SCHEMA: dict[str, Any] = {
     "study": {"name": Field(str), "description": Field(str, nullable=True)},
     "participant": {"pseudonym": Field(str, check=lambda v: None if re.fullmatch(r"[A-Za-z0-9_-]{1,40}", v)
@@ -134,13 +126,15 @@ SCHEMA: dict[str, Any] = {
         "learning": Field(bool),
         "state_path": Field(str, nullable=True),
     },
+    # Types only: the modes, scopes, stream properties and processing keys are judged by the one
+    # validator of the section, eeg.settings.EEGSettings (called by load_config with file:line).
     "eeg": {
-        "mode": Field(str, choices=EEG_MODES),
+        "mode": Field(str),
         "required": Field(bool),
-        "stream_type": Field(str, check=_lsl_property),
-        "stream_name": Field(str, nullable=True, check=_lsl_property),
-        "source_id": Field(str, nullable=True, check=_lsl_property),
-        "lsl_scope": Field(str, choices=LSL_SCOPES),
+        "stream_type": Field(str),
+        "stream_name": Field(str, nullable=True),
+        "source_id": Field(str, nullable=True),
+        "lsl_scope": Field(str),
         "processing": Field(dict, free=True),
     },
 }
@@ -152,35 +146,149 @@ SCHEMA: dict[str, Any] = {
 
 
 @dataclass(frozen=True)
+class StudySection:
+    name: str
+    description: str | None
+
+
+@dataclass(frozen=True)
+class ParticipantSection:
+    pseudonym: str
+
+
+@dataclass(frozen=True)
+class RobotSection:
+    url: str
+    connect_deadline_s: float
+    max_reconnect_s: float
+    backoff_initial_s: float
+    backoff_max_s: float
+    posture_speed: float
+
+
+@dataclass(frozen=True)
+class SessionSection:
+    turns: int
+    practice: bool
+    seed: int | None
+    language: str
+    dialogue: str
+    behaviors: str
+    output: str
+
+    @property
+    def dialogue_path(self) -> Path:
+        return _project_file(self.dialogue)
+
+    @property
+    def behaviors_path(self) -> Path:
+        return _project_file(self.behaviors)
+
+    @property
+    def output_dir(self) -> Path:
+        """``session.output`` resolved against the current folder when relative (``./sessions/``)."""
+        return Path(os.path.expanduser(self.output)).resolve()
+
+
+@dataclass(frozen=True)
+class TimingSection:
+    """Durations in session seconds; ``speed`` divides them all (see ``session.stage.Clock``)."""
+
+    speed: float
+    pause_before_level_s: float
+    letter_gap_s: float
+    beep_hz: int
+    beep_s: float
+    beep_gain: float
+    response_timeout_base_s: float
+    response_timeout_per_letter_s: float
+    grace_s: float
+    listening_tail_s: float
+
+    def response_timeout_s(self, length: int) -> float:
+        """Answer window in session seconds: base + per-letter x length (10 s + 2.5 s x L by default)."""
+        return float(self.response_timeout_base_s + self.response_timeout_per_letter_s * length)
+
+
+@dataclass(frozen=True)
+class AnswersSection:
+    input: str
+    debounce_s: float
+
+
+@dataclass(frozen=True)
+class ParticipantModelSection:
+    success_by_level: tuple[float, ...]
+    engagement_by_level: tuple[float, ...]
+    user_model: str | None
+
+
+@dataclass(frozen=True)
+class PolicySection:
+    kind: str
+    schedule: tuple[str, ...]
+    learning: bool
+    state_path: str | None
+
+    @property
+    def state_file(self) -> Path | None:
+        """``state_path`` resolved (a learning policy's state across sessions), or None."""
+        return Path(self.state_path).expanduser().resolve() if self.state_path else None
+
+
+#: The dataclass of each schema section (keys = field names, checked at import below).
+SECTIONS: dict[str, type] = {
+    "study": StudySection, "participant": ParticipantSection, "robot": RobotSection, "session": SessionSection,
+    "timing": TimingSection, "answers": AnswersSection, "participant_model": ParticipantModelSection,
+    "policy": PolicySection, "eeg": EEGSettings,
+}
+assert all(tuple(SCHEMA[name]) == tuple(f.name for f in fields(cls)) for name, cls in SECTIONS.items()), \
+    "config SECTIONS and SCHEMA disagree"
+
+
+def _project_file(value: str) -> Path:
+    """A project file (dialogue, behaviors) resolved against the project root when relative."""
+    p = Path(os.path.expanduser(value))
+    return p if p.is_absolute() else PROJECT_ROOT / p
+
+
+def _frozen(value: Any) -> Any:
+    return tuple(value) if isinstance(value, list) else value
+
+
+@dataclass(frozen=True)
 class StudyConfig:
-    """A validated study configuration. ``values`` is the merged nested dict (JSON-ready)."""
+    """A validated study configuration: one frozen dataclass per section.
+
+    ``values`` is the merged nested dict (JSON-ready), kept for ``session.json``.
+    """
 
     values: dict[str, Any]
     sources: tuple[str, ...]  # files that were merged, in order
     text_sha256: str  # sha256 over the texts of those files and the overrides
+    study: StudySection
+    participant: ParticipantSection
+    robot: RobotSection
+    session: SessionSection
+    timing: TimingSection
+    answers: AnswersSection
+    participant_model: ParticipantModelSection
+    policy: PolicySection
+    eeg: EEGSettings  # what the EEG monitor takes
 
-    def get(self, dotted: str) -> Any:
-        node: Any = self.values
-        for part in dotted.split("."):
-            node = node[part]
-        return node
-
-    def __getitem__(self, section: str) -> dict[str, Any]:
-        return self.values[section]
-
-    def path(self, dotted: str) -> Path:
-        """A project file (dialogue, behaviors) resolved against the project root when relative."""
-        p = Path(os.path.expanduser(str(self.get(dotted))))
-        return p if p.is_absolute() else PROJECT_ROOT / p
+    @classmethod
+    def build(cls, values: dict[str, Any], sources: tuple[str, ...], text_sha256: str,
+              eeg: EEGSettings) -> "StudyConfig":
+        """Typed sections from validated ``values`` (``eeg`` validated by its own settings class)."""
+        sections = {name: section(**{k: _frozen(v) for k, v in values[name].items()})
+                    for name, section in SECTIONS.items() if name != "eeg"}
+        return cls(values=values, sources=sources, text_sha256=text_sha256, eeg=eeg, **sections)
 
     def output_dir(self) -> Path:
-        """``session.output`` resolved against the current folder when relative (``./sessions/``)."""
-        return Path(os.path.expanduser(str(self.get("session.output")))).resolve()
+        return self.session.output_dir
 
     def response_timeout_s(self, length: int) -> float:
-        """Answer window in session seconds: base + per-letter x length (10 s + 2.5 s x L by default)."""
-        t = self.values["timing"]
-        return float(t["response_timeout_base_s"] + t["response_timeout_per_letter_s"] * length)
+        return self.timing.response_timeout_s(length)
 
     def snapshot(self) -> dict[str, Any]:
         """What session.json stores: the merged values (never holds credentials)."""
@@ -283,22 +391,6 @@ def _check(value: Any, spec: Field) -> str | None:
     return None
 
 
-def _validate_eeg_processing(processing: dict, locs: dict[str, _Loc]) -> None:
-    """``eeg.processing`` keys belong to the EEG monitor: let it judge them now, not mid-session."""
-    if not processing:
-        return
-    try:
-        from nao_trainer.eeg.monitor import Processing
-    except ImportError:  # EEG support not installed: the session refuses eeg modes other than off
-        return
-    try:
-        Processing.from_mapping(processing)
-    except ConfigError as exc:
-        key = str(exc).split(":", 1)[0]
-        where = locs.get(key, locs.get("@eeg.processing", _Loc("configuration", None)))
-        raise ConfigError(f"{where}: {exc}") from None
-
-
 def _set_dotted(values: dict, dotted: str, value: Any) -> None:
     *parents, last = dotted.split(".")
     node = values
@@ -336,8 +428,12 @@ def load_config(study: str | Path | None = None, overrides: Mapping[str, Any] | 
         locs[f"@{dotted}"] = flag_loc
         digest.update(f"{dotted}={value!r}".encode())
     _validate(values, SCHEMA, "", locs)
-    _validate_eeg_processing(values["eeg"]["processing"], locs)
+
+    def where(dotted: str) -> _Loc:
+        return locs.get(f"@{dotted}") or locs.get(dotted) or locs.get("@eeg.processing") or _Loc("configuration", None)
+
+    eeg = EEGSettings.from_mapping(values["eeg"], where=where)
     t = values["robot"]
     if t["backoff_max_s"] < t["backoff_initial_s"]:
         raise ConfigError(f"{locs.get('@robot.backoff_max_s')}: key 'robot.backoff_max_s' must be >= robot.backoff_initial_s")
-    return StudyConfig(values=values, sources=tuple(sources), text_sha256=digest.hexdigest())
+    return StudyConfig.build(values, tuple(sources), digest.hexdigest(), eeg)

@@ -46,6 +46,9 @@ class FixedSchedule:
     def observe(self, transition: Transition) -> None:
         pass
 
+    def bind_state_dir(self, folder: Path) -> None:
+        pass  # nothing to save
+
     def close(self) -> None:
         pass
 
@@ -64,6 +67,9 @@ class UniformRandom:
 
     def observe(self, transition: Transition) -> None:
         pass
+
+    def bind_state_dir(self, folder: Path) -> None:
+        pass  # nothing to save
 
     def close(self) -> None:
         pass

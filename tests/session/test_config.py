@@ -8,7 +8,7 @@ import pytest
 from nao_trainer.session.config import DEFAULT_CONFIG, SCHEMA, load_config
 from nao_trainer.errors import ConfigError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def study(tmp_path: Path, text: str) -> Path:
@@ -19,12 +19,12 @@ def study(tmp_path: Path, text: str) -> Path:
 
 def test_shipped_studies_load_and_override_defaults():
     demo = load_config()
-    assert demo.get("participant.pseudonym") == "demo" and demo.get("session.turns") == 25
-    assert demo.get("timing.speed") > 1 and demo.get("robot.url") == "mock"
+    assert demo.participant.pseudonym == "demo" and demo.session.turns == 25
+    assert demo.timing.speed > 1 and demo.robot.url == "mock"
     assert demo.response_timeout_s(3) == pytest.approx(10 + 2.5 * 3)
     paper = load_config(ROOT / "config" / "studies" / "paper-2018.yaml")
-    assert paper.get("answers.input") == "tactile" and paper.get("eeg.mode") == "lsl"
-    assert paper.get("timing.speed") == 1.0 and paper.get("session.turns") == 25
+    assert paper.answers.input == "tactile" and paper.eeg.mode == "lsl"
+    assert paper.timing.speed == 1.0 and paper.session.turns == 25
     assert demo.text_sha256 != paper.text_sha256 and len(demo.sources) == 2
 
 
@@ -84,7 +84,8 @@ def test_bad_values_name_file_line_key(tmp_path, text, line, key, words):
 
 def test_eeg_processing_is_checked_by_the_monitor_at_load(tmp_path):
     cfg = load_config(study(tmp_path, "eeg:\n  processing:\n    ewma_a: 0.9\n    window_s: 1.0\n"))
-    assert cfg.get("eeg.processing") == {"ewma_a": 0.9, "window_s": 1.0}
+    assert cfg.values["eeg"]["processing"] == {"ewma_a": 0.9, "window_s": 1.0}
+    assert cfg.eeg.processing.ewma_a == 0.9 and cfg.eeg.processing.window_s == 1.0  # typed, for the monitor
     path = study(tmp_path, "eeg:\n  mode: simulated\n  processing:\n    window_s: 1.0\n    ewma: 0.1\n")
     with pytest.raises(ConfigError, match=rf"{path}:5: eeg.processing.ewma: unknown key"):
         load_config(path)
@@ -102,8 +103,8 @@ def test_missing_file_is_a_user_error(tmp_path):
 
 def test_overrides_win_and_are_validated(tmp_path):
     cfg = load_config(None, {"session.turns": 3, "timing.speed": 40, "robot.url": None})
-    assert cfg.get("session.turns") == 3 and cfg.get("timing.speed") == 40.0
-    assert cfg.get("robot.url") == "mock"  # None = flag not given
+    assert cfg.session.turns == 3 and cfg.timing.speed == 40.0 and isinstance(cfg.timing.speed, float)
+    assert cfg.robot.url == "mock"  # None = flag not given
     with pytest.raises(ConfigError, match=r"command line \(session.turns\): key 'session.turns' must be >= 1"):
         load_config(None, {"session.turns": -2})
     assert load_config(None, {"session.turns": 3}).text_sha256 != load_config(None, {"session.turns": 4}).text_sha256
@@ -112,4 +113,20 @@ def test_overrides_win_and_are_validated(tmp_path):
 def test_relative_output_resolves_against_current_folder(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert load_config().output_dir() == tmp_path / "sessions"
-    assert load_config().path("session.dialogue") == ROOT / "dialogue" / "en.yaml"
+    assert load_config().session.dialogue_path == ROOT / "dialogue" / "en.yaml"
+
+
+def test_sections_are_frozen_dataclasses_matching_the_schema():
+    import dataclasses
+
+    cfg = load_config()
+    for name, keys in SCHEMA.items():
+        section = getattr(cfg, name)
+        assert dataclasses.is_dataclass(section)
+        assert [f.name for f in dataclasses.fields(section)] == list(keys)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.timing.speed = 1.0
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.eeg.processing.window_s = 2.0
+    assert cfg.policy.schedule == tuple(cfg.values["policy"]["schedule"])
+    assert cfg.snapshot()["values"]["session"]["turns"] == cfg.session.turns

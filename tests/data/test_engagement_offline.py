@@ -258,7 +258,7 @@ def test_cli_checks_options_and_output_folders_before_computing(dataset_root, tm
 
 def test_raw_source_uses_the_live_monitors_processing(tmp_path):
     from nao_trainer.core import engagement as core
-    from nao_trainer.eeg.monitor import Processing
+    from nao_trainer.core.eeg import CHANNELS, Processing
     from nao_trainer.eeg.simulated_muse import MuseSignal
 
     live, s = Processing(), offline.OfflineSettings()
@@ -270,7 +270,7 @@ def test_raw_source_uses_the_live_monitors_processing(tmp_path):
     path.write_text("".join("eeg " + " ".join(f"{v:.3f}" for v in row) + "\n" for row in x))
     ph = offline._from_raw(pub.read_recording(path, prefixes=("eeg", "h")), s)
     est = core.OnlineEngagement(220.0, 4, live.window_s, live.hop_s, live.ewma_a, core.QualityThresholds(),
-                                live.min_clean_channels, channel_names=pub.CHANNELS)
+                                live.min_clean_channels, channel_names=CHANNELS)
     rec = pub.read_recording(path, prefixes=("eeg",))["eeg"]
     want = [w.index_smoothed for w in est.push(rec, np.arange(len(rec)) / 220.0)]
     np.testing.assert_allclose(ph.smoothed, np.array(want, dtype=float))

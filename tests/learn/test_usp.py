@@ -33,7 +33,7 @@ def trained(tmp_path_factory):
     artifacts.save_models(models, simulators(), [{"id": 1}, {"id": 2}], {"k": 2})
     policies = tmp_path_factory.mktemp("policies")
     result = train_grid(simulators(), ["1", "2"], TrainingSpec(seeds=2, episodes=30, workers=1), progress=False)
-    write_outputs(result, policies, str(models), "test", plots=False)
+    write_outputs(result, policies, str(models), "test")
     return models, policies
 
 
@@ -272,9 +272,12 @@ def test_a_learning_policy_gets_its_state_path_when_it_first_saves(trained, tmp_
     step = Transition(mdp.START, 1, 2, 0.5, mdp.encode(5, 0, 0), False)
     with pytest.raises(ConfigError, match="policy.state_path: a learning policy needs a file"):
         policy.observe(step)
-    policy.state_path = tmp_path / "later.json"
+    policy.bind_state_dir(tmp_path)
     policy.observe(step)
-    assert usp.read_policy_file(tmp_path / "later.json")["live"]["turns_learned"] >= 1
+    assert usp.read_policy_file(tmp_path / "policy_state.json")["live"]["turns_learned"] >= 1
+    configured = load(trained, "usp:1:shaping", state_path=tmp_path / "own.json")
+    configured.bind_state_dir(tmp_path / "elsewhere")  # a configured state file is kept
+    assert configured.state_path == tmp_path / "own.json"
 
 
 def test_a_resumed_policy_is_loaded_once_per_session(tmp_path):

@@ -10,7 +10,7 @@ from nao_trainer.session import behaviors as beh
 from nao_trainer.session import dialogue as dia
 from nao_trainer.errors import ConfigError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EN = ROOT / "dialogue" / "en.yaml"
 
 

@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from nao_trainer.core import engagement as eng
+from nao_trainer.core import phase
 
 FS = 256.0
 
@@ -163,7 +164,7 @@ def test_online_gap_restarts_and_is_reported():
 
 
 def test_normaliser_rule():
-    n = eng.EngagementNormaliser()
+    n = phase.EngagementNormaliser()
     assert np.isnan(n.update(0.5))  # no scale yet: no invented number
     n.fit_baseline(np.linspace(0.0, 1.0, 101))
     assert n.lo_ == pytest.approx(0.05) and n.hi_ == pytest.approx(0.95)
@@ -172,18 +173,37 @@ def test_normaliser_rule():
         n.update(3.0)  # running bounds widen with what is seen
     assert n.hi_ == pytest.approx(3.0)
     with pytest.raises(ValueError, match="lo_q"):
-        eng.EngagementNormaliser(lo_q=90, hi_q=10)
+        phase.EngagementNormaliser(lo_q=90, hi_q=10)
 
 
 def test_aggregate_phase_quality_and_reason():
     ws = [eng.WindowResult(0.25 * i, 1.0 + i, 1.0 + i, 1.0) for i in range(1, 9)]
-    agg = eng.aggregate_phase(ws, 0.0, 2.0, 0.25)
+    agg = phase.aggregate_phase(ws, 0.0, 2.0, 0.25)
     assert agg.index == pytest.approx(np.mean(np.arange(2, 10))) and agg.quality == 1.0
     half = [w if i % 2 else eng.WindowResult(w.t_end, None, None, 0.25, "x") for i, w in enumerate(ws)]
-    agg = eng.aggregate_phase(half, 0.0, 2.0, 0.25, min_quality=0.6)
+    agg = phase.aggregate_phase(half, 0.0, 2.0, 0.25, min_quality=0.6)
     assert agg.index is None and agg.quality == 0.5 and "50% clean" in agg.reason
-    empty = eng.aggregate_phase([], 0.0, 2.0, 0.25)
+    empty = phase.aggregate_phase([], 0.0, 2.0, 0.25)
     assert empty.index is None and empty.quality == 0.0 and "no EEG windows" in empty.reason
+
+
+def test_summarise_phase_normalises_with_the_baseline_and_says_why_not():
+    def windows(t0, values):
+        return [eng.WindowResult(t0 + 0.25 * (i + 1), v, v, 1.0) for i, v in enumerate(values)]
+
+    args = dict(hop_s=0.25, min_quality=0.5)
+    n = phase.EngagementNormaliser()
+    first = phase.summarise_phase(windows(0.0, [1.0, 2.0]), 0.0, 0.5, n, baseline=False, had_baseline=False, **args)
+    assert first.engagement is None and first.index == 1.5 and "no baseline phase" in first.reason
+    base = phase.summarise_phase(windows(1.0, np.linspace(1.0, 3.0, 8)), 1.0, 3.0, n, baseline=True,
+                                 had_baseline=True, **args)
+    assert n.baseline_n_ == 8 and base.engagement == pytest.approx(float(np.mean(base.normalised)))
+    listen = phase.summarise_phase(windows(3.0, [3.0, 3.0]), 3.0, 3.5, n, baseline=False, had_baseline=True, **args)
+    assert listen.engagement == 1.0 and listen.reason == "" and len(n.history) == 10
+    lost = phase.summarise_phase([], 4.0, 5.0, n, baseline=False, had_baseline=True, lost_s=1.0, **args)
+    assert lost.engagement is None and lost.reason.startswith("stream lost for 1.0 s of the phase (no clean signal")
+    gone = phase.summarise_phase([], 5.0, 6.0, n, baseline=False, had_baseline=True, unavailable="", **args)
+    assert gone.reason == "EEG unavailable: no stream"
 
 
 def test_input_validation_names_the_bad_value():

@@ -12,7 +12,9 @@ import pytest
 from nao_trainer.eeg.inlet import StreamQuery
 from nao_trainer.eeg.lsl_scope import configure_lsl
 from nao_trainer.eeg.markers import MarkerOutlet, event_name, marker_source_id
-from nao_trainer.eeg.monitor import EEGSettings, LslMonitor, Processing, open_monitor
+from nao_trainer.core.eeg import Processing
+from nao_trainer.eeg.monitor import LslMonitor, open_monitor
+from nao_trainer.eeg.settings import EEGSettings
 from nao_trainer.eeg.simulated_muse import SimulatedMuse
 from nao_trainer.errors import ConfigError, EEGUnavailable
 from nao_trainer.ports import NullMonitor
@@ -299,14 +301,14 @@ def _bare_monitor(now: list[float]) -> LslMonitor:
     import threading
     from types import SimpleNamespace
 
-    from nao_trainer.core.engagement import EngagementNormaliser
-    from nao_trainer.eeg.monitor import _SessionFiles
+    from nao_trainer.core.phase import EngagementNormaliser
+    from nao_trainer.eeg.session_files import SessionFiles
 
     m = LslMonitor.__new__(LslMonitor)
     m._clock = lambda: now[0]
     m.settings = EEGSettings()
     m.proc = m.settings.processing
-    m.files, m.normaliser = _SessionFiles(None), EngagementNormaliser()
+    m.files, m.normaliser = SessionFiles(None), EngagementNormaliser()
     m.windows, m.gaps, m.phases = [], [], []
     m.inlet, m.unavailable_reason, m._lost = SimpleNamespace(), "", False
     m._phase, m._had_baseline = None, False
@@ -340,7 +342,7 @@ def test_end_phase_keeps_early_windows_of_a_long_phase_while_the_reader_prunes()
 
 
 def test_no_scale_reason_says_baseline_too_short_and_phase_value_matches_core():
-    from nao_trainer.core.engagement import aggregate_phase
+    from nao_trainer.core.phase import aggregate_phase
 
     rng = np.random.default_rng(1)
     now = [0.0]

@@ -9,7 +9,7 @@ import pytest
 import qi
 
 from nao_trainer.errors import ConfigError
-from nao_trainer.ports import Robot, RobotConnectionLost
+from nao_trainer.ports import Robot, RobotCallFailed, RobotConnectionLost
 from nao_trainer.robot.naoqi import (
     CallTimeouts,
     Credentials,
@@ -129,7 +129,7 @@ def test_bad_arguments_are_rejected_before_reaching_the_robot(standin, robot, ca
 
 
 def test_robot_side_error_propagates_with_context_in_one_line(robot):
-    with pytest.raises(RuntimeError) as info:
+    with pytest.raises(RobotCallFailed) as info:
         robot.go_to_posture("Moonwalk", 0.5)
     text = str(info.value)
     assert "ALRobotPosture.goToPosture failed on the robot at tcp://127.0.0.1:" in text
@@ -367,5 +367,5 @@ def test_close_is_idempotent_and_final(standin):
     robot.close()
     robot.close()
     assert not robot.is_connected()
-    with pytest.raises(RuntimeError, match="is closed"):
+    with pytest.raises(RobotCallFailed, match="is closed"):
         robot.say("hi")

@@ -79,8 +79,8 @@ def test_mean_ci_is_a_t_interval():
 def test_same_seed_identical_other_seed_different(small_run, tmp_path):
     again = train_grid(simulators(), ["1", "2"], TrainingSpec(**SMALL), progress=False)
     assert np.array_equal(small_run.q, again.q) and np.array_equal(small_run.episode_score, again.episode_score)
-    write_outputs(small_run, tmp_path / "a", "m", "c", plots=False)
-    write_outputs(again, tmp_path / "b", "m", "c", plots=False)
+    write_outputs(small_run, tmp_path / "a", "m", "c")
+    write_outputs(again, tmp_path / "b", "m", "c")
     files = sorted(p.name for p in (tmp_path / "a").iterdir())
     assert len(files) == 2 * 3 + 4
     for name in files:
@@ -106,7 +106,10 @@ def test_spec_validation():
 
 
 def test_write_outputs(small_run, tmp_path):
-    paths = write_outputs(small_run, tmp_path, "test-models", "nao-trainer train (test)", plots=True)
+    from nao_trainer.plots.learning import write_figures
+
+    paths = write_outputs(small_run, tmp_path, "test-models", "nao-trainer train (test)")
+    paths.update(write_figures(small_run, tmp_path))
     for key in ("curves", "s0", "results", "figure7", "figure8"):
         assert paths[key].exists() and paths[key].stat().st_size > 0
     assert paths["figure7"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -8,6 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from nao_trainer.session import engine as sess
+from nao_trainer.session import machine
+from nao_trainer.session.wiring import run_session
 from nao_trainer.session.behaviors import load_behaviors
 from nao_trainer.session.config import PROJECT_ROOT, load_config
 from nao_trainer.core import mdp, task
@@ -34,7 +36,7 @@ def spoken(entries):
 
 def test_demo_session_flow_and_record(tmp_path):
     out = io.StringIO()
-    result = sess.run_session(config(tmp_path), progress=out)
+    result = run_session(config(tmp_path), progress=out)
     assert result.status == "completed" and result.exit_code == 0
     rows = read_turns(result.path)
     assert [int(r["turn"]) for r in rows] == list(range(1, 7))
@@ -83,7 +85,7 @@ def test_demo_session_flow_and_record(tmp_path):
 def test_feedback_actions_say_feedback_on_the_last_outcome_then_same_length(tmp_path):
     cfg = config(tmp_path, policy__kind="schedule", policy__schedule=["L2", "RF1", "RF2", "L1"], session__turns=4,
                  session__practice=False)
-    result = sess.run_session(cfg, progress=None)
+    result = run_session(cfg, progress=None)
     rows = read_turns(result.path)
     assert [r["action"] for r in rows] == ["L2", "RF1", "RF2", "L1"]
     assert [int(r["length"]) for r in rows] == [5, 5, 5, 3]
@@ -100,9 +102,9 @@ def test_feedback_actions_say_feedback_on_the_last_outcome_then_same_length(tmp_
 
 def test_same_seed_same_session(tmp_path):
     quick = {"session__turns": 4, "session__practice": False}
-    a = sess.run_session(config(tmp_path / "a", **quick), progress=None)
-    b = sess.run_session(config(tmp_path / "b", **quick), progress=None)
-    c = sess.run_session(config(tmp_path / "c", session__seed=12, **quick), progress=None)
+    a = run_session(config(tmp_path / "a", **quick), progress=None)
+    b = run_session(config(tmp_path / "b", **quick), progress=None)
+    c = run_session(config(tmp_path / "c", session__seed=12, **quick), progress=None)
     # what the seed decides: actions, sequences and the simulated participant's intended answers
     # (delivered presses go through qi and the clock, so they are compared in the flow test instead)
     def key(res):
@@ -143,7 +145,7 @@ def test_policy_gets_every_transition(tmp_path):
     policy = RecordingPolicy()
     try:
         s = sess.Session(cfg, robot, SimulatedParticipant(sim, np.random.default_rng(0), 50), policy, rec,
-                         load_dialogue(cfg.path("session.dialogue")), load_behaviors(cfg.path("session.behaviors")),
+                         load_dialogue(cfg.session.dialogue_path), load_behaviors(cfg.session.behaviors_path),
                          np.random.default_rng(1), np.random.default_rng(2), progress=None)
         assert s.run() == 0 and s.state == "done"
     finally:
@@ -170,10 +172,10 @@ def test_fixed_schedule_and_uniform_random_policies():
 
 
 def test_state_diagram_in_docs_is_up_to_date():
-    assert sess.DIAGRAM_PATH.read_text() == sess.diagram_markdown(), \
-        "docs/session-states.md is stale: run python -c 'from nao_trainer.session.engine import export_diagram; export_diagram()'"
-    text = sess.diagram_markdown()
-    for state in sess.STATES:
+    assert machine.DIAGRAM_PATH.read_text() == machine.diagram_markdown(), \
+        "docs/session-states.md is stale: run python -c 'from nao_trainer.session.machine import export_diagram; export_diagram()'"
+    text = machine.diagram_markdown()
+    for state in machine.STATES:
         assert f'state "{state}"' in text
     assert "paused --> select_action: resume_turn" in text
 
@@ -185,7 +187,7 @@ def test_a_refused_posture_is_logged_and_the_session_goes_on(tmp_path):
     from nao_trainer.robot.standin import StandIn
 
     cfg = config(tmp_path, session__turns=2, session__practice=False)
-    behaviors = dataclasses.replace(load_behaviors(cfg.path("session.behaviors")), start_posture="Kneel")
+    behaviors = dataclasses.replace(load_behaviors(cfg.session.behaviors_path), start_posture="Kneel")
     standin = StandIn.start(speed=50)
     robot = NaoqiRobot.connect(standin.url, 5.0)
     rec = SessionRecorder(tmp_path, "R")
@@ -193,7 +195,7 @@ def test_a_refused_posture_is_logged_and_the_session_goes_on(tmp_path):
     try:
         s = sess.Session(cfg, robot, SimulatedParticipant(UserSimulator.from_level_rates("x", [1, 1, 1, 1]),
                                                           np.random.default_rng(0), 50),
-                         UniformRandom(), rec, load_dialogue(cfg.path("session.dialogue")), behaviors,
+                         UniformRandom(), rec, load_dialogue(cfg.session.dialogue_path), behaviors,
                          np.random.default_rng(1), np.random.default_rng(2), progress=None)
         assert s.run() == 0
     finally:
@@ -220,8 +222,8 @@ def test_after_a_reconnection_the_buttons_are_subscribed_once(tmp_path):
     subscribe = robot.subscribe_buttons
     robot.subscribe_buttons = lambda callback: (subscribed.append(callback), subscribe(callback))[1]
     try:
-        s = sess.Session(cfg, robot, tactile, UniformRandom(), rec, load_dialogue(cfg.path("session.dialogue")),
-                         load_behaviors(cfg.path("session.behaviors")), np.random.default_rng(1),
+        s = sess.Session(cfg, robot, tactile, UniformRandom(), rec, load_dialogue(cfg.session.dialogue_path),
+                         load_behaviors(cfg.session.behaviors_path), np.random.default_rng(1),
                          np.random.default_rng(2), progress=None)
         assert s._reconnect()
         assert len(subscribed) == 1  # NaoqiRobot.reconnect re-subscribes; nobody else does it again

@@ -89,9 +89,9 @@ def test_fit_on_too_few_sessions_says_so(dataset_root, tmp_path, capsys):
 
 
 def test_figure_4_gets_the_per_sample_engagement_signal(dataset_root):
-    from nao_trainer.learn.fitting import _engagement_signals
+    from nao_trainer.learn.fit_source import engagement_signals
 
-    signal_of = _engagement_signals(dataset_root, "authors2018")
+    signal_of = engagement_signals(dataset_root, "authors2018")
     series = signal_of("user_1/session_4")
     assert sorted(series) == list(range(1, 26))
     assert all(len(v) > 10 and 0 <= v.min() and v.max() <= 1 for v in series.values())

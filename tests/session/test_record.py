@@ -57,7 +57,7 @@ def test_a_killed_writer_leaves_every_completed_turn(tmp_path):
 
 
 def test_session_plot(tmp_path):
-    from nao_trainer.session.record import plot_session
+    from nao_trainer.plots.session import plot_session
 
     rec = SessionRecorder(tmp_path, "PL")
     path = rec.open({})

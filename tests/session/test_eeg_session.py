@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nao_trainer.session import engine as sess
+from nao_trainer.session import wiring as sess
 from nao_trainer.session.config import load_config
 from nao_trainer.eeg.lsl_scope import configure_lsl
 from nao_trainer.eeg.simulated_muse import SimulatedMuse

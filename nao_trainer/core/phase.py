@@ -1,0 +1,209 @@
+"""From analysis windows to one value per phase: per-participant normalisation, phase aggregation, summary.
+
+Pure (no I/O, no clock): the live monitor (``eeg/monitor.py``) and the offline pipeline
+(``data/engagement.py``) both call these, so a phase is summarised the same way in both.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from nao_trainer.core.engagement import WindowResult
+
+
+# ----------------------------------------------------------------------------------------------
+# Normalisation
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class EngagementNormaliser:
+    """Per-participant scaling of the engagement index to [0, 1].
+
+    Rule: the bounds are the ``lo_q``-th and ``hi_q``-th percentiles (default 5th/95th) of every value
+    seen so far - the baseline (greeting and instructions, :meth:`fit_baseline`) plus each value passed
+    to :meth:`update` - and ``normalised = clip((v - lo) / (hi - lo), 0, 1)``. Percentiles rather than
+    min/max keep one artefact from squashing the whole scale. With fewer than ``min_values`` values
+    or ``hi - lo < min_span`` there is no scale yet and the result is NaN, never an invented number.
+    """
+
+    lo_q: float = 5.0
+    hi_q: float = 95.0
+    min_values: int = 5
+    min_span: float = 1e-9
+    history: list[float] = field(default_factory=list, repr=False, init=False)
+    baseline_n_: int = field(default=0, init=False)
+    lo_: float = field(default=float("nan"), init=False)
+    hi_: float = field(default=float("nan"), init=False)
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.lo_q < self.hi_q <= 100:
+            raise ValueError(f"need 0 <= lo_q < hi_q <= 100, got {self.lo_q}, {self.hi_q}")
+        if self.min_values < 2:
+            raise ValueError(f"min_values must be >= 2, got {self.min_values}")
+
+    def _refresh(self) -> None:
+        if len(self.history) >= self.min_values:
+            lo, hi = np.percentile(np.asarray(self.history), [self.lo_q, self.hi_q])
+            self.lo_, self.hi_ = float(lo), float(hi)
+
+    def fit_baseline(self, values: Iterable[float]) -> "EngagementNormaliser":
+        """Start the bounds from baseline values (non-finite ones are ignored). Returns self."""
+        v = np.asarray(list(values), dtype=float)
+        v = v[np.isfinite(v)]
+        self.history = [float(x) for x in v]
+        self.baseline_n_ = len(self.history)
+        self.lo_, self.hi_ = float("nan"), float("nan")
+        self._refresh()
+        return self
+
+    def update(self, value: float) -> float:
+        """Add a value to the running bounds and return it normalised with the updated bounds."""
+        value = float(value)
+        if np.isfinite(value):
+            self.history.append(value)
+            self._refresh()
+        return float(self.normalise(np.array([value]))[0])
+
+    def extend(self, values: Iterable[float]) -> np.ndarray:
+        """Add a batch of values (e.g. one phase) to the running bounds, then return them normalised.
+
+        Same rule as calling :meth:`update` for each, but the bounds are refreshed once, after the batch.
+        """
+        v = np.asarray(list(values) if not isinstance(values, np.ndarray) else values, dtype=float)
+        self.history.extend(float(x) for x in v[np.isfinite(v)])
+        self._refresh()
+        return self.normalise(v)
+
+    @property
+    def ready(self) -> bool:
+        return bool(np.isfinite(self.lo_) and self.hi_ - self.lo_ >= self.min_span)
+
+    def normalise(self, values: np.ndarray) -> np.ndarray:
+        """Scale with the current bounds (does not update them); NaN when not ready or v is NaN."""
+        v = np.asarray(values, dtype=float)
+        if not self.ready:
+            return np.full(v.shape, np.nan)
+        return np.clip((v - self.lo_) / (self.hi_ - self.lo_), 0.0, 1.0)
+
+
+def minmax_scale(values: np.ndarray) -> np.ndarray:
+    """Min-max scale over all finite values (the authors' session-wide normalisation); NaN stays NaN."""
+    v = np.asarray(values, dtype=float)
+    lo, hi = np.nanmin(v), np.nanmax(v)
+    if not hi > lo:
+        return np.full(v.shape, np.nan)
+    return (v - lo) / (hi - lo)
+
+
+# ----------------------------------------------------------------------------------------------
+# Per-phase aggregation
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PhaseAggregate:
+    """A phase's engagement: means over its usable windows, the clean fraction, or why it is empty."""
+
+    index: float | None  # mean raw E of the usable windows
+    smoothed: float | None  # mean smoothed E of the usable windows
+    engagement: float | None  # mean normalised smoothed E (when a normaliser was given)
+    quality: float  # clean fraction of the phase, 0..1
+    n_windows: int
+    reason: str = ""
+
+
+def aggregate_phase(
+    windows: Sequence[WindowResult],
+    t0: float,
+    t1: float,
+    hop_s: float,
+    normaliser: EngagementNormaliser | None = None,
+    min_quality: float = 0.5,
+) -> PhaseAggregate:
+    """Aggregate the windows ending in ``(t0, t1]`` into one phase value.
+
+    ``quality`` = sum of the windows' clean fractions (0 for unusable windows) divided by the number of
+    windows the phase should have had (``(t1 - t0) / hop_s``, at least the number present), so lost
+    samples lower it too. Below ``min_quality`` the phase is empty, with the reason.
+    """
+    if t1 < t0:
+        raise ValueError(f"phase ends before it starts: t0={t0}, t1={t1}")
+    inside = [w for w in windows if t0 < w.t_end <= t1]
+    usable = [w for w in inside if w.usable]
+    expected = max(len(inside), int(np.floor((t1 - t0) / hop_s + 1e-9)), 1)
+    quality = float(sum(w.clean_fraction for w in usable) / expected)
+    if not usable:
+        why = inside[-1].reason if inside else "no EEG windows in the phase"
+        return PhaseAggregate(None, None, None, quality, len(inside), f"no clean signal: {why}")
+    if quality < min_quality:
+        return PhaseAggregate(
+            None, None, None, quality, len(inside), f"only {quality:.0%} clean signal (needs {min_quality:.0%})"
+        )
+    raw = np.array([w.index_raw for w in usable], dtype=float)
+    smooth = np.array([w.index_smoothed for w in usable], dtype=float)
+    eng = None
+    if normaliser is not None:
+        norm = normaliser.normalise(smooth)
+        eng = float(np.mean(norm)) if np.isfinite(norm).all() else None
+    return PhaseAggregate(float(raw.mean()), float(smooth.mean()), eng, quality, len(inside))
+
+
+
+# ----------------------------------------------------------------------------------------------
+# Summary of a live phase
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PhaseSummary:
+    """A phase's engagement (normalised), raw index and clean fraction, or why there is no value.
+
+    ``smoothed`` and ``normalised`` hold one value per window of the phase (NaN for unusable ones).
+    """
+
+    engagement: float | None
+    index: float | None
+    quality: float
+    reason: str
+    smoothed: np.ndarray
+    normalised: np.ndarray
+
+
+def summarise_phase(windows: Sequence[WindowResult], t0: float, t1: float, normaliser: EngagementNormaliser,
+                    baseline: bool, had_baseline: bool, hop_s: float, min_quality: float,
+                    lost_s: float = 0.0, unavailable: str | None = None) -> PhaseSummary:
+    """Summarise the windows of one phase and update ``normaliser`` with them.
+
+    A baseline phase starts the normaliser's bounds; any other phase joins their running history.
+    The phase value is the mean normalised smoothed E of its usable windows, normalised once with
+    the updated bounds. ``had_baseline``: a baseline phase was summarised (this one included);
+    ``lost_s``: seconds of the phase without stream; ``unavailable``: why there is no stream at all.
+    """
+    smooth = np.array([w.index_smoothed if w.usable else np.nan for w in windows], dtype=float)
+    finite = smooth[np.isfinite(smooth)]
+    if baseline:
+        normaliser.fit_baseline(finite)
+    else:  # running bounds: every phase's windows join the scale's history
+        normaliser.extend(finite)
+    agg = aggregate_phase(windows, t0, t1, hop_s, None, min_quality)
+    norm = normaliser.normalise(smooth)  # once, for the phase value and the window rows
+    engagement = None
+    if agg.index is not None:
+        usable = norm[np.array([w.usable for w in windows], dtype=bool)]
+        if np.isfinite(usable).all():  # as aggregate_phase computes it from a normaliser
+            engagement = float(np.mean(usable))
+    reason = agg.reason
+    if unavailable is not None:
+        reason = f"EEG unavailable: {unavailable or 'no stream'}"
+    elif agg.index is None and lost_s > 0:
+        reason = f"stream lost for {lost_s:.1f} s of the phase ({reason})"
+    elif engagement is None and agg.index is not None:
+        why = (f"baseline too short: {normaliser.baseline_n_} usable windows" if had_baseline
+               else "no baseline phase")
+        reason = (f"no normalisation scale yet ({len(normaliser.history)} windows seen, "
+                  f"{normaliser.min_values} needed; {why})"
+                  if normaliser.baseline_n_ < normaliser.min_values else "normalisation scale is flat")
+    return PhaseSummary(engagement, agg.index, agg.quality, "" if engagement is not None else reason, smooth, norm)

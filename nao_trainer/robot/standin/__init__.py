@@ -1,0 +1,35 @@
+"""A NAO stand-in served over a real ``qi`` session, for development, CI and offline studies.
+
+The stand-in offers the NAOqi services the project uses, under NAOqi's names and signatures, so
+the client (``nao_trainer.robot.naoqi.NaoqiRobot``) talks to it exactly as it talks to a NAO:
+
+* ``ALTextToSpeech``  say(text) / say(text, language), setLanguage, getLanguage, setParameter,
+  getParameter, setVolume, getVolume, stopAll (cuts the speech in progress short)
+* ``ALAnimatedSpeech`` say(text) / say(text, configuration)
+* ``ALAudioPlayer``   playSine(frequency, gain, pan, duration), stopAll
+* ``ALLeds``          fadeRGB(name, rgb, secs) / fadeRGB(name, r, g, b, secs), reset, on, off
+* ``ALRobotPosture``  goToPosture(name, speed) -> bool, getPosture, getPostureList
+* ``ALMotion``        wakeUp, rest, robotIsWakeUp
+* ``ALMemory``        subscriber(key) (object with ``.signal``), raiseEvent, insertData, getData
+* ``NaoTrainerStandIn`` (control, not NAOqi) press(button or letter), transcript(), clear(),
+  set_speed(x), speed()
+
+Speech and motion take time (``SECONDS_PER_CHARACTER`` per character, a beep its duration,
+divided by the speed factor) so sessions keep realistic timing that tests can speed up. Every
+call is recorded in a transcript: in memory and, when a path is given, appended to a JSON-lines
+file flushed per line: ``{"t": s_since_start, "service": ..., "method": ..., "args": [...]}``.
+
+Modules: ``recorder`` (speed factor and transcript), ``services`` (the NAOqi services),
+``server`` (:class:`StandIn`, ``serve``, ``spawn_standin``), ``client`` (:class:`StandInClient`).
+"""
+from __future__ import annotations
+
+from nao_trainer.robot.standin.client import StandInClient
+from nao_trainer.robot.standin.recorder import Recorder
+from nao_trainer.robot.standin.server import READY_PREFIX, StandIn, check_listen_url, serve, spawn_standin
+from nao_trainer.robot.standin.services import (BODY_LANGUAGE_MODES, POSTURE_SECONDS, POSTURES, PRESS_HOLD_S,
+                                                SECONDS_PER_CHARACTER, button_key)
+
+__all__ = ["BODY_LANGUAGE_MODES", "POSTURES", "POSTURE_SECONDS", "PRESS_HOLD_S", "READY_PREFIX",
+           "SECONDS_PER_CHARACTER", "Recorder", "StandIn", "StandInClient", "button_key", "check_listen_url",
+           "serve", "spawn_standin"]

@@ -1,0 +1,389 @@
+"""The NAOqi services of the stand-in (qi objects): speech, sound, LEDs, posture, motion, memory, control.
+
+Each service records its calls in the stand-in's :class:`~nao_trainer.robot.standin.recorder.Recorder`
+and takes robot time (scaled by the speed factor) where a NAO would.
+"""
+from __future__ import annotations
+
+import os
+import re
+import threading
+from typing import Any
+
+os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise; must precede `import qi`
+import qi  # noqa: E402
+
+from nao_trainer.errors import ConfigError  # noqa: E402
+from nao_trainer.ports import BUTTON_LETTERS  # noqa: E402
+from nao_trainer.robot.standin.recorder import Channel, Recorder, check_speed  # noqa: E402
+
+#: Speaking time per character at speed 1.0 (a NAO speaks roughly 12-15 characters a second).
+SECONDS_PER_CHARACTER = 0.06
+#: Time a posture change takes at speed 1.0 and posture speed 1.0.
+POSTURE_SECONDS = 1.5
+#: Postures ALRobotPosture knows on a NAO.
+POSTURES = ("Stand", "StandInit", "StandZero", "Crouch", "Sit", "SitRelax", "LyingBelly", "LyingBack")
+#: ALAnimatedSpeech body language modes.
+BODY_LANGUAGE_MODES = ("disabled", "random", "contextual")
+#: How long a simulated finger stays on a head button (seconds, at speed 1.0).
+PRESS_HOLD_S = 0.05
+
+_LETTER_BUTTONS = {letter: key for key, letter in BUTTON_LETTERS.items()}
+
+
+
+@qi.multiThreaded()
+class _TextToSpeech:
+    """ALTextToSpeech: ``say`` blocks for a time proportional to the text."""
+
+    def __init__(self, rec: Recorder, speech: Channel) -> None:
+        self._rec = rec
+        self._speech = speech
+        self._lock = threading.Lock()
+        self._language = "English"
+        self._params: dict[str, float] = {"speed": 100.0, "pitchShift": 1.0, "volume": 1.0}
+        self._volume = 1.0
+
+    @qi.bind(qi.Void, qi.AnyArguments)
+    def say(self, *args: Any) -> None:
+        """``say(text)`` or ``say(text, language)`` (both NAOqi overloads)."""
+        if len(args) not in (1, 2) or not all(isinstance(a, str) for a in args):
+            raise RuntimeError("ALTextToSpeech::say expects (text) or (text, language)")
+        self._rec.record("ALTextToSpeech", "say", list(args))
+        self._speech.run(SECONDS_PER_CHARACTER * len(args[0]))
+
+    @qi.bind(qi.Void, [qi.String])
+    def setLanguage(self, language: str) -> None:
+        self._rec.record("ALTextToSpeech", "setLanguage", [language])
+        with self._lock:
+            self._language = language
+
+    @qi.bind(qi.String, [])
+    def getLanguage(self) -> str:
+        with self._lock:
+            return self._language
+
+    @qi.bind(qi.List(qi.String), [])
+    def getAvailableLanguages(self) -> list[str]:
+        return ["English", "French", "Greek"]
+
+    @qi.bind(qi.Void, [qi.String, qi.Float])
+    def setParameter(self, name: str, value: float) -> None:
+        self._rec.record("ALTextToSpeech", "setParameter", [name, value])
+        with self._lock:
+            self._params[name] = float(value)
+
+    @qi.bind(qi.Float, [qi.String])
+    def getParameter(self, name: str) -> float:
+        with self._lock:
+            if name not in self._params:
+                raise RuntimeError(f"ALTextToSpeech::getParameter: unknown parameter {name!r}")
+            return self._params[name]
+
+    @qi.bind(qi.Void, [qi.Float])
+    def setVolume(self, volume: float) -> None:
+        self._rec.record("ALTextToSpeech", "setVolume", [volume])
+        with self._lock:
+            self._volume = float(volume)
+
+    @qi.bind(qi.Float, [])
+    def getVolume(self) -> float:
+        with self._lock:
+            return self._volume
+
+    @qi.bind(qi.Void, [])
+    def stopAll(self) -> None:
+        """Interrupt the speech in progress (animated speech too, as on a NAO)."""
+        self._rec.record("ALTextToSpeech", "stopAll", [])
+        self._speech.interrupt()
+
+
+@qi.multiThreaded()
+class _AnimatedSpeech:
+    """ALAnimatedSpeech: ``say(text)`` and ``say(text, configuration)`` (a NAOqi overload)."""
+
+    def __init__(self, rec: Recorder, speech: Channel) -> None:
+        self._rec = rec
+        self._speech = speech
+
+    @qi.bind(qi.Void, qi.AnyArguments)
+    def say(self, *args: Any) -> None:
+        if len(args) not in (1, 2) or not isinstance(args[0], str):
+            raise RuntimeError("ALAnimatedSpeech::say expects (text) or (text, configuration)")
+        if len(args) == 2:
+            config = args[1]
+            if not isinstance(config, dict):
+                raise RuntimeError("ALAnimatedSpeech::say: configuration must be a map, e.g. {'bodyLanguageMode': 'contextual'}")
+            mode = config.get("bodyLanguageMode", "contextual")
+            if mode not in BODY_LANGUAGE_MODES:
+                raise RuntimeError(
+                    f"ALAnimatedSpeech::say: bodyLanguageMode must be one of {', '.join(BODY_LANGUAGE_MODES)}, got {mode!r}"
+                )
+        self._rec.record("ALAnimatedSpeech", "say", list(args))
+        self._speech.run(SECONDS_PER_CHARACTER * len(_strip_annotations(args[0])))
+
+
+def _strip_annotations(text: str) -> str:
+    """Animated speech tags like ``^start(animations/...)`` or ``\\pau=300\\`` are not spoken."""
+    return re.sub(r"\^\w+\([^)]*\)|\\\w+=\w+\\", "", text)
+
+
+@qi.multiThreaded()
+class _AudioPlayer:
+    """ALAudioPlayer: ``playSine`` blocks for the beep's duration."""
+
+    def __init__(self, rec: Recorder) -> None:
+        self._rec = rec
+        self._sound = Channel(rec)
+
+    @qi.bind(qi.Void, [qi.Int32, qi.Int32, qi.Int32, qi.Float])
+    def playSine(self, frequency: int, gain: int, pan: int, duration: float) -> None:
+        if not 0 <= gain <= 100:
+            raise RuntimeError(f"ALAudioPlayer::playSine: gain must be 0..100 percent, got {gain}")
+        if not -1 <= pan <= 1:
+            raise RuntimeError(f"ALAudioPlayer::playSine: pan must be -1, 0 or 1, got {pan}")
+        self._rec.record("ALAudioPlayer", "playSine", [frequency, gain, pan, duration])
+        self._sound.run(duration)
+
+    @qi.bind(qi.Void, [])
+    def stopAll(self) -> None:
+        self._rec.record("ALAudioPlayer", "stopAll", [])
+        self._sound.interrupt()
+
+
+@qi.multiThreaded()
+class _Leds:
+    """ALLeds: ``fadeRGB(name, 0xRRGGBB, secs)`` and ``fadeRGB(name, r, g, b, secs)`` block for ``secs``."""
+
+    def __init__(self, rec: Recorder) -> None:
+        self._rec = rec
+
+    @qi.bind(qi.Void, qi.AnyArguments)
+    def fadeRGB(self, *args: Any) -> None:
+        if len(args) == 3:
+            name, rgb, secs = args
+            if not isinstance(rgb, int) or not 0 <= rgb <= 0xFFFFFF:
+                raise RuntimeError(f"ALLeds::fadeRGB: rgb must be an int 0xRRGGBB, got {rgb!r}")
+        elif len(args) == 5:
+            name, *colour, secs = args
+            if not all(isinstance(c, (int, float)) and 0.0 <= c <= 1.0 for c in colour):
+                raise RuntimeError(f"ALLeds::fadeRGB: r, g, b must be floats in 0..1, got {colour!r}")
+        else:
+            raise RuntimeError("ALLeds::fadeRGB expects (name, rgb, secs) or (name, r, g, b, secs)")
+        if not isinstance(name, str):
+            raise RuntimeError(f"ALLeds::fadeRGB: LED name must be a string, got {name!r}")
+        self._rec.record("ALLeds", "fadeRGB", list(args))
+        self._rec.wait(float(secs))
+
+    @qi.bind(qi.Void, [qi.String])
+    def reset(self, name: str) -> None:
+        self._rec.record("ALLeds", "reset", [name])
+
+    @qi.bind(qi.Void, [qi.String])
+    def on(self, name: str) -> None:
+        self._rec.record("ALLeds", "on", [name])
+
+    @qi.bind(qi.Void, [qi.String])
+    def off(self, name: str) -> None:
+        self._rec.record("ALLeds", "off", [name])
+
+
+@qi.multiThreaded()
+class _RobotPosture:
+    """ALRobotPosture: ``goToPosture`` takes time inversely proportional to the speed argument."""
+
+    def __init__(self, rec: Recorder) -> None:
+        self._rec = rec
+        self._lock = threading.Lock()
+        self._posture = "Crouch"
+
+    @qi.bind(qi.Bool, [qi.String, qi.Float])
+    def goToPosture(self, name: str, speed: float) -> bool:
+        self._rec.record("ALRobotPosture", "goToPosture", [name, speed])
+        if name not in POSTURES:
+            raise RuntimeError(f"ALRobotPosture::goToPosture: unknown posture {name!r} (known: {', '.join(POSTURES)})")
+        if not 0.0 < speed <= 1.0:
+            raise RuntimeError(f"ALRobotPosture::goToPosture: speed must be in (0, 1], got {speed}")
+        self._rec.wait(POSTURE_SECONDS / speed)
+        with self._lock:
+            self._posture = name
+        return True
+
+    @qi.bind(qi.String, [])
+    def getPosture(self) -> str:
+        with self._lock:
+            return self._posture
+
+    @qi.bind(qi.List(qi.String), [])
+    def getPostureList(self) -> list[str]:
+        return list(POSTURES)
+
+    def _set(self, name: str) -> None:
+        with self._lock:
+            self._posture = name
+
+
+@qi.multiThreaded()
+class _Motion:
+    """ALMotion (subset): ``wakeUp`` stiffens and stands, ``rest`` crouches and relaxes."""
+
+    def __init__(self, rec: Recorder, posture: _RobotPosture) -> None:
+        self._rec = rec
+        self._posture = posture
+        self._awake = False
+        self._lock = threading.Lock()
+
+    @qi.bind(qi.Void, [])
+    def wakeUp(self) -> None:
+        self._rec.record("ALMotion", "wakeUp", [])
+        self._rec.wait(POSTURE_SECONDS)
+        self._posture._set("Stand")
+        with self._lock:
+            self._awake = True
+
+    @qi.bind(qi.Void, [])
+    def rest(self) -> None:
+        self._rec.record("ALMotion", "rest", [])
+        self._rec.wait(POSTURE_SECONDS)
+        self._posture._set("Crouch")
+        with self._lock:
+            self._awake = False
+
+    @qi.bind(qi.Bool, [])
+    def robotIsWakeUp(self) -> bool:
+        with self._lock:
+            return self._awake
+
+
+class _MemorySubscriber:
+    """What ``ALMemory.subscriber(key)`` returns: an object whose ``signal`` fires on each new value."""
+
+    def __init__(self) -> None:
+        self.signal = qi.Signal("m")
+
+
+@qi.multiThreaded()
+class Memory:
+    """ALMemory (subset): key-value data and events; subscribers of a key get every raised value."""
+
+    def __init__(self, rec: Recorder) -> None:
+        self._rec = rec
+        self._lock = threading.Lock()
+        self._data: dict[str, Any] = {key: 0.0 for key in BUTTON_LETTERS}
+        self._subscribers: dict[str, list[_MemorySubscriber]] = {}
+
+    @qi.bind(qi.Object, [qi.String])
+    def subscriber(self, key: str) -> _MemorySubscriber:
+        self._rec.record("ALMemory", "subscriber", [key])
+        sub = _MemorySubscriber()
+        with self._lock:
+            self._subscribers.setdefault(key, []).append(sub)
+        return sub
+
+    @qi.bind(qi.Void, [qi.String, qi.Dynamic])
+    def raiseEvent(self, key: str, value: Any) -> None:
+        self._rec.record("ALMemory", "raiseEvent", [key, value])
+        self._emit(key, value)
+
+    @qi.bind(qi.Void, [qi.String, qi.Dynamic])
+    def insertData(self, key: str, value: Any) -> None:
+        self._rec.record("ALMemory", "insertData", [key, value])
+        self._emit(key, value)
+
+    @qi.bind(qi.Dynamic, [qi.String])
+    def getData(self, key: str) -> Any:
+        with self._lock:
+            if key not in self._data:
+                raise RuntimeError(f"ALMemory::getData: there is no data for key {key!r}")
+            return self._data[key]
+
+    @qi.bind(qi.List(qi.String), [])
+    def getDataListName(self) -> list[str]:
+        with self._lock:
+            return sorted(self._data)
+
+    def _emit(self, key: str, value: Any) -> None:
+        # Like NAOqi, inserting a value also notifies the key's subscribers.
+        with self._lock:
+            self._data[key] = value
+            subscribers = list(self._subscribers.get(key, ()))
+        for sub in subscribers:
+            sub.signal(value)
+
+    def _forget_subscribers(self) -> None:
+        with self._lock:
+            self._subscribers.clear()
+
+
+def button_key(button: str) -> str:
+    """The ALMemory key of a head button given as a letter (A/B/C), a key or a short name (front/middle/rear)."""
+    text = button.strip()
+    if text.upper() in _LETTER_BUTTONS:
+        return _LETTER_BUTTONS[text.upper()]
+    for key in BUTTON_LETTERS:
+        if text.lower() in (key.lower(), key.lower().removesuffix("tactiltouched")):
+            return key
+    raise ValueError(
+        f"unknown head button {button!r}: use a letter ({', '.join(_LETTER_BUTTONS)}), "
+        f"a key ({', '.join(BUTTON_LETTERS)}) or front/middle/rear"
+    )
+
+
+@qi.multiThreaded()
+class Control:
+    """NaoTrainerStandIn: what tests and simulated participants use to act on the stand-in."""
+
+    def __init__(self, rec: Recorder, memory: Memory) -> None:
+        self._rec = rec
+        self._memory = memory
+
+    @qi.bind(qi.String, [qi.String])
+    def press(self, button: str) -> str:
+        """Touch then release a head button; returns the ALMemory key pressed."""
+        try:
+            key = button_key(button)
+        except ValueError as exc:
+            raise RuntimeError(str(exc)) from None
+        self._rec.record("NaoTrainerStandIn", "press", [key])
+        self._memory._emit(key, 1.0)
+        self._rec.wait(PRESS_HOLD_S)
+        self._memory._emit(key, 0.0)
+        return key
+
+    @qi.bind(qi.List(qi.Map(qi.String, qi.Dynamic)), [])
+    def transcript(self) -> list[dict[str, Any]]:
+        return self._rec.snapshot()
+
+    @qi.bind(qi.Void, [])
+    def clear(self) -> None:
+        self._rec.clear()
+
+    @qi.bind(qi.Void, [qi.Float])
+    def set_speed(self, speed: float) -> None:
+        try:
+            self._rec.speed = check_speed(speed)
+        except ConfigError as exc:
+            raise RuntimeError(str(exc)) from None
+
+    @qi.bind(qi.Float, [])
+    def speed(self) -> float:
+        return self._rec.speed
+
+
+def build_services(rec: Recorder) -> tuple[dict[str, Any], Memory, Control]:
+    """One stand-in's services by the names a NAO offers them under (+ the control service)."""
+    memory = Memory(rec)
+    posture = _RobotPosture(rec)
+    control = Control(rec, memory)
+    speech = Channel(rec)  # say and animated say share one voice: stopAll cuts both
+    services = {
+        "ALTextToSpeech": _TextToSpeech(rec, speech),
+        "ALAnimatedSpeech": _AnimatedSpeech(rec, speech),
+        "ALAudioPlayer": _AudioPlayer(rec),
+        "ALLeds": _Leds(rec),
+        "ALRobotPosture": posture,
+        "ALMotion": _Motion(rec, posture),
+        "ALMemory": memory,
+        "NaoTrainerStandIn": control,
+    }
+    return services, memory, control

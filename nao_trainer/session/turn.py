@@ -1,0 +1,131 @@
+"""A turn in flight and what a session returns: ``Turn`` builds its own row of turns.csv."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nao_trainer.core import mdp, task
+from nao_trainer.ports import Answer, PhaseEngagement
+
+@dataclass
+class Turn:
+    """A turn in flight (or just played)."""
+
+    number: int
+    previous_state: int  # the MDP state the action was chosen in (START for the first turn)
+    action: int
+    state: int  # this turn's state (L, RF, PR)
+    sequence: tuple[str, ...] = ()
+    start_time: str = ""
+    answer: Answer | None = None
+    listening: PhaseEngagement | None = None
+    answering: PhaseEngagement | None = None
+    success: bool | None = None
+    notes: list[str] = field(default_factory=list)
+    recorded: bool = False
+
+    @property
+    def turn_state(self) -> mdp.State:
+        return mdp.decode(self.state)
+
+    def judge(self) -> None:
+        """Score the answer against the sequence (equation (1) needs only success) and note why it failed."""
+        answer, n = self.answer, len(self.sequence)
+        assert answer is not None
+        invalid = [p.key for p in answer.presses if p.letter is None]
+        if not answer.presses:
+            self.notes.append("timeout: no answer")
+        elif answer.timed_out:
+            self.notes.append(f"timeout: {len(answer.presses)} of {n} presses")
+        elif len(answer.presses) > n:
+            self.notes.append(f"too many presses: {len(answer.presses)} of {n}")
+        self.notes += [f"invalid key {k!r}" for k in invalid]
+        self.success = (not answer.timed_out and len(answer.presses) == n and not invalid
+                        and task.is_correct(self.sequence, answer.response))
+
+    def row(self, score: int | None, signed: int | None, speed: float, eeg_on: bool) -> dict[str, Any]:
+        """This turn's line of turns.csv. Times measured on the wall clock are reported in session
+        seconds (x ``speed``); ``eeg_quality`` stays empty when EEG is off."""
+        st = self.turn_state
+        a, lis, ans = self.answer, self.listening, self.answering
+        return {
+            "turn": self.number, "start_time": self.start_time, "state": self.state, "length": st.length,
+            "level": st.level, "feedback": st.feedback, "previous_score": st.previous,
+            "action": mdp.ACTION_NAMES[self.action], "sequence": "".join(self.sequence),
+            "response": "".join(a.response) if a else "", "success": self.success, "score": score,
+            "signed_score": signed,
+            "reaction_time": round(a.reaction_time * speed, 3) if a and a.reaction_time is not None else None,
+            "completion_time": round(a.completion_time * speed, 3) if a and a.completion_time is not None else None,
+            "engagement": _round(lis.engagement if lis else None),
+            "engagement_index": _round(lis.index if lis else None),
+            "eeg_quality": _round(lis.quality if lis else None) if eeg_on else None,
+            "answer_engagement": _round(ans.engagement if ans else None),
+            "engagement_note": (lis.reason if lis.engagement is None else "") if lis
+            else ("" if self.success is None else "no listening phase"),
+            "notes": "; ".join(self.notes),
+        }
+
+
+@dataclass
+class SessionResult:
+    """What a finished (or ended) session returns to the caller."""
+
+    path: Path | None
+    status: str  # completed | robot lost | interrupted | error
+    exit_code: int
+    rows: list[dict[str, Any]]
+    seed: int
+    error: str = ""
+
+    @property
+    def completed_rows(self) -> list[dict[str, Any]]:
+        return [r for r in self.rows if r["success"] in (True, False)]
+
+    @property
+    def total_score(self) -> int:
+        return int(sum(r["score"] for r in self.completed_rows))
+
+    def level_table(self) -> list[tuple[int, int, float | None]]:
+        """(level, turns played, success rate) per level."""
+        out = []
+        for level in task.LEVELS:
+            rows = [r for r in self.completed_rows if r["level"] == level]
+            rate = sum(bool(r["success"]) for r in rows) / len(rows) if rows else None
+            out.append((level, len(rows), rate))
+        return out
+
+    @property
+    def mean_engagement(self) -> float | None:
+        values = [r["engagement"] for r in self.completed_rows if r["engagement"] is not None]
+        return float(np.mean(values)) if values else None
+
+    def summary(self) -> str:
+        """A plain-text summary table for the terminal."""
+        lines = ["", "level  played  success rate"]
+        for level, n, rate in self.level_table():
+            lines.append(f"  {level}    {n:5d}    {'-' if rate is None else f'{rate:6.0%}'}")
+        eng = self.mean_engagement
+        lines += [
+            f"turns completed: {len(self.completed_rows)}   total score: {self.total_score}   "
+            f"mean engagement: {'n/a (EEG off)' if eng is None else f'{eng:.2f}'}",
+            f"status: {self.status} (exit {self.exit_code})" + (f": {self.error}" if self.error else ""),
+            f"session folder: {self.path if self.path else '(none written)'}",
+        ]
+        return "\n".join(lines)
+
+
+def progress_line(row: dict[str, Any], n_turns: int, total: int) -> str:
+    """One terminal line per recorded turn."""
+    fb = {0: "   ", 1: "enc", 2: "chl"}[row["feedback"]]
+    eng = "-" if row["engagement"] is None else f"{row['engagement']:.2f}"
+    mark = "ok " if row["success"] else "err"
+    return (f"turn {row['turn']:3d}/{n_turns}  L{row['level']} {fb}  {row['sequence']:>9} vs "
+            f"{row['response']:<9} {mark} {row['score']:+d}  total {total:4d}  E {eng}"
+            + (f"  ({row['notes']})" if row["notes"] else ""))
+
+
+def _round(x: float | None, nd: int = 4) -> float | None:
+    return None if x is None else round(float(x), nd)

@@ -1,0 +1,136 @@
+"""The package's import graph: no cycle between modules, and every import points down the layers.
+
+Every module is parsed (ast), so imports inside functions (the lazy ones) count too. A module
+may import its own layer and the layers below it; ``nao_trainer.x.y`` belongs to the layer of
+``x`` (a folder or a top-level module).
+"""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import nao_trainer
+
+PACKAGE = Path(nao_trainer.__file__).parent
+
+#: Low to high. A module may import from its own layer and from the layers before it.
+LAYERS: tuple[tuple[str, ...], ...] = (
+    ("__init__", "errors", "files", "ports"),
+    ("core",),
+    ("data",),
+    ("robot", "eeg", "answers"),
+    ("learn",),
+    ("session",),
+    ("plots",),
+    ("cli", "__main__"),
+)
+RANK = {name: rank for rank, names in enumerate(LAYERS) for name in names}
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    if parts[-1] == "__init__" and len(parts) > 1:
+        parts.pop()
+    return ".".join(parts)
+
+
+def modules() -> dict[str, Path]:
+    return {module_name(p): p for p in sorted(PACKAGE.rglob("*.py"))}
+
+
+def imports_of(name: str, path: Path, known: set[str]) -> set[str]:
+    """The package modules ``name`` imports (``from a import b`` counts ``a.b`` when it is a module)."""
+    found: set[str] = set()
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(anchor + ([base] if base else []))
+            targets = [f"{base}.{alias.name}" if f"{base}.{alias.name}" in known else base for alias in node.names]
+        else:
+            continue
+        for target in targets:
+            while target and target not in known:  # `import nao_trainer.a.b` of a name inside a module
+                target = target.rpartition(".")[0]
+            if target and target != name and target.startswith("nao_trainer"):
+                found.add(target)
+    return found
+
+
+def graph() -> dict[str, set[str]]:
+    mods = modules()
+    return {name: imports_of(name, path, set(mods)) for name, path in mods.items()}
+
+
+def layer_of(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "__init__"
+
+
+def test_every_module_has_a_layer():
+    missing = sorted({layer_of(m) for m in modules()} - set(RANK))
+    assert not missing, f"add these to LAYERS in tests/test_layers.py: {missing}"
+
+
+def test_imports_point_down():
+    upward = sorted(f"{src} -> {dst} ({layer_of(src)} imports {layer_of(dst)})"
+                    for src, targets in graph().items() for dst in targets
+                    if RANK[layer_of(dst)] > RANK[layer_of(src)])
+    assert not upward, "imports from a lower layer to a higher one:\n" + "\n".join(upward)
+
+
+def find_cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    cycles: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in edges.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                cycles.append(sorted(component))
+
+    for v in sorted(edges):
+        if v not in index:
+            visit(v)
+    return sorted(cycles)
+
+
+def test_find_cycles_finds_a_circle_and_nothing_else():
+    assert find_cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert find_cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_no_import_cycle():
+    edges = graph()
+    # a package's __init__ re-exporting its own modules is not a circle through them
+    edges = {src: {dst for dst in targets if not (src.startswith(dst + ".") and modules_is_package(dst))}
+             for src, targets in edges.items()}
+    cycles = find_cycles(edges)
+    assert not cycles, "import cycles:\n" + "\n".join(" <-> ".join(c) for c in cycles)
+
+
+def modules_is_package(name: str) -> bool:
+    return (PACKAGE.parent / Path(*name.split(".")) / "__init__.py").exists()
