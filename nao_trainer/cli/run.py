@@ -29,7 +29,11 @@ def register(sub) -> None:
     p.add_argument("--eeg", choices=EEG_MODES, help="EEG: off, a simulated Muse, or a Muse over LSL")
     p.add_argument("--user-model", metavar="CLUSTER|FILE",
                    help="simulated participant from a fitted user model (cluster id or simulator JSON)")
-    p.add_argument("--policy", metavar="SPEC", help="schedule | random | usp:CLUSTER[:METHOD]")
+    p.add_argument("--policy", metavar="SPEC",
+                   help="schedule | random | usp:CLUSTER[:METHOD] | personalised (assess, match the user models, "
+                        "choose by posterior expected value, keep learning; docs/personalisation.md)")
+    p.add_argument("--fresh", action="store_true",
+                   help="personalised: set the participant's saved state aside (kept, renamed) and start from the prior")
     p.add_argument("--no-learning", action="store_true", help="a learning policy does not update during the session")
     p.add_argument("--no-practice", action="store_true", help="skip the practice round")
     p.add_argument("--quiet", action="store_true", help="no per-turn progress lines")
@@ -52,6 +56,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, object]:
         "participant_model.user_model": args.user_model,
         "policy.learning": False if args.no_learning else None,
         "session.practice": False if args.no_practice else None,
+        "policy.fresh": True if args.fresh else None,
     }
 
 

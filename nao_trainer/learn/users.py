@@ -171,7 +171,7 @@ def session_user_set(source: Path, compat: str | None = None, k: int = 3, n_init
 def read_turns(source: Path, compat: str | None):
     """The turn table of a dataset root (imported through the cache) or of a turn-table CSV."""
     from nao_trainer.data import dataset
-    from nao_trainer.learn.fitting import table_provenance, user_cache_dir
+    from nao_trainer.learn.fit_source import table_provenance
 
     if not source.exists():
         raise ConfigError(f"{source}: no such dataset root or turn table; give --users clusters|level-only|sessions "
@@ -179,7 +179,7 @@ def read_turns(source: Path, compat: str | None):
     if source.is_file():
         table_provenance(source, compat)
         return dataset.read_table(source)
-    return dataset.import_dataset(source, compat=compat, cache_dir=user_cache_dir(source, compat)).table
+    return dataset.import_dataset(source, compat=compat, cache_dir=dataset.cache_dir(source, compat)).table
 
 
 def load_users(which: str, models_dir: Path | None = None, data: Path | None = None, workers: int = 2,

@@ -60,9 +60,9 @@ def _robot_url(value: str) -> str | None:
 
 
 def _policy_spec(value: str) -> str | None:
-    if value in ("schedule", "random") or re.fullmatch(r"usp:[^:\s]+(:[A-Za-z0-9_-]+)?", value):
+    if value in ("schedule", "random", "personalised") or re.fullmatch(r"usp:[^:\s]+(:[A-Za-z0-9_-]+)?", value):
         return None
-    return "must be 'schedule', 'random' or 'usp:CLUSTER[:METHOD]'"
+    return "must be 'schedule', 'random', 'personalised' or 'usp:CLUSTER[:METHOD]'"
 
 
 def _schedule(value: list) -> str | None:
@@ -125,6 +125,12 @@ SCHEMA: dict[str, Any] = {
         "schedule": Field(list, item=str, check=_schedule),
         "learning": Field(bool),
         "state_path": Field(str, nullable=True),
+        # personalised (learn.personalised, docs/personalisation.md)
+        "assessment": Field(list, item=int, check=lambda v: None if len(v) <= 12 and all(1 <= x <= 4 for x in v)
+                            else "levels 1..4, at most 12 turns"),
+        "kappa": Field((int, float), min=0.01),
+        "margin": Field((int, float), min=0),
+        "fresh": Field(bool),
     },
     # Types only: the modes, scopes, stream properties and processing keys are judged by the one
     # validator of the section, eeg.settings.EEGSettings (called by load_config with file:line).
@@ -229,6 +235,10 @@ class PolicySection:
     schedule: tuple[str, ...]
     learning: bool
     state_path: str | None
+    assessment: tuple[int, ...]
+    kappa: float
+    margin: float
+    fresh: bool
 
     @property
     def state_file(self) -> Path | None:

@@ -206,8 +206,10 @@ class Session:
         """The replayed turn after a loss, else the policy's choice in the current MDP state."""
         if self.replay is not None:
             turn, self.replay = self.replay, None
-            return Turn(turn.number, turn.previous_state, turn.action, turn.state, notes=["replay of interrupted turn"])
+            return Turn(turn.number, turn.previous_state, turn.action, turn.state, notes=["replay of interrupted turn"],
+                        phase=turn.phase)
         action = int(self.policy.act(self.mdp_state, self.policy_rng))
+        phase = str(self.policy.status().get("phase", ""))
         if not (0 <= action < mdp.N_ACTIONS and mdp.ACTION_MASK[self.mdp_state, action]):
             raise ValueError(f"policy {self.policy.name} chose action {action!r}, "
                              f"not allowed in state {mdp.state_label(self.mdp_state)}")
@@ -215,7 +217,7 @@ class Session:
             state = int(mdp.NEXT_STATE[mdp.START, action, 0])
         else:
             state = mdp.next_state(self.mdp_state, action, bool(self.last_success))
-        return Turn(self.completed + 1, self.mdp_state, action, state)
+        return Turn(self.completed + 1, self.mdp_state, action, state, phase=phase)
 
     def _do_select_action(self) -> str:
         self.turn = turn = self._next_turn()
@@ -282,6 +284,12 @@ class Session:
         self.rec.event("turn_end", turn=turn.number, success=turn.success, score=score, total=self.total)
         self.monitor.mark("turn_end", turn.number)
         self._say_progress(progress_line(row, self.n_turns, self.total))
+        status = self.policy.status()  # e.g. the posterior over user models after this turn
+        if status:
+            self.rec.event("policy_status", turn=turn.number,
+                           **{k: v for k, v in status.items() if k not in ("progress", "summary", "phase")})
+            if status.get("progress"):
+                self._say_progress(status["progress"])
         return "finish_turns" if done else "next_turn"
 
     def _record_row(self, turn: Turn, score: int | None, signed: int | None) -> dict[str, Any]:

@@ -26,6 +26,7 @@ class Turn:
     success: bool | None = None
     notes: list[str] = field(default_factory=list)
     recorded: bool = False
+    phase: str = ""  # what the policy said the turn is for (e.g. "assessment"), empty when nothing
 
     @property
     def turn_state(self) -> mdp.State:
@@ -66,6 +67,7 @@ class Turn:
             "engagement_note": (lis.reason if lis.engagement is None else "") if lis
             else ("" if self.success is None else "no listening phase"),
             "notes": "; ".join(self.notes),
+            "phase": self.phase,
         }
 
 
@@ -79,6 +81,7 @@ class SessionResult:
     rows: list[dict[str, Any]]
     seed: int
     error: str = ""
+    policy_summary: str = ""  # what the policy concluded (e.g. the user model the participant matched)
 
     @property
     def completed_rows(self) -> list[dict[str, Any]]:
@@ -114,6 +117,8 @@ class SessionResult:
             f"status: {self.status} (exit {self.exit_code})" + (f": {self.error}" if self.error else ""),
             f"session folder: {self.path if self.path else '(none written)'}",
         ]
+        if self.policy_summary:
+            lines.insert(-2, self.policy_summary)
         return "\n".join(lines)
 
 
@@ -124,7 +129,7 @@ def progress_line(row: dict[str, Any], n_turns: int, total: int) -> str:
     mark = "ok " if row["success"] else "err"
     return (f"turn {row['turn']:3d}/{n_turns}  L{row['level']} {fb}  {row['sequence']:>9} vs "
             f"{row['response']:<9} {mark} {row['score']:+d}  total {total:4d}  E {eng}"
-            + (f"  ({row['notes']})" if row["notes"] else ""))
+            + (f"  ({row['notes']})" if row["notes"] else "") + (f"  [{row['phase']}]" if row.get("phase") else ""))
 
 
 def _round(x: float | None, nd: int = 4) -> float | None:

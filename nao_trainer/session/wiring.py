@@ -119,7 +119,7 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
     # file, is found here. Without policy.state_path a learning policy saves into the session folder,
     # which gets its path once the folder exists (_run_wired).
     policy = make_policy(config.policy.kind, list(config.policy.schedule), config.policy.learning,
-                         config.policy.state_file)
+                         config.policy.state_file, config)
     # Not closed on failure here: closing a learning policy saves it, and nothing is written before the robot answers.
     ensure_output_dir(config.output_dir())  # an unusable output folder is found before the robot moves
 
@@ -139,7 +139,7 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
     standin = robot = recorder = monitor = answers = buttons = None
     policy_to_close: Policy | None = None  # closed (and a learning policy saved) only once the folder exists
     session: Session | None = None
-    status, code, error = "error", 1, ""
+    status, code, error, summary = "error", 1, "", ""
     try:
         if url == "mock":
             from nao_trainer.robot.standin import StandIn
@@ -199,13 +199,19 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
                 _close_quietly(closer, recorder)
             if robot is not None:
                 _close_quietly(robot, recorder)
+            if session is not None and session.completed:
+                summary = str(policy.status().get("summary", ""))  # e.g. the user model the participant matched
             if recorder is not None and recorder.is_open:
                 if standin is not None:
                     _write_transcript(recorder.path, standin.transcript())
-                recorder.close(status, code, total_score=session.total if session else 0, error=error)
+                if summary:
+                    recorder.event("policy_summary", summary=summary)
+                recorder.close(status, code, total_score=session.total if session else 0, error=error,
+                               policy_summary=summary or None)
             if standin is not None:
                 standin.stop()
-    return SessionResult(recorder.path if recorder else None, status, code, session.rows if session else [], seed, error)
+    return SessionResult(recorder.path if recorder else None, status, code, session.rows if session else [], seed, error,
+                         summary)
 
 
 def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, simulator: UserSimulator | None,

@@ -128,6 +128,9 @@ class RecordingPolicy:
     def observe(self, transition):
         self.seen.append(transition)
 
+    def status(self):
+        return {}
+
     def close(self):
         self.closed = True
 
