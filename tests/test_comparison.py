@@ -85,8 +85,13 @@ def test_evaluate_on_clusters_writes_table_and_figure(tmp_path, capsys):
     assert by["best-fixed"]["score"] >= by["fixed:2"]["score"] - 1e-9
     assert report["claims"][0]["a"] == "usp:shaping" and report["claims"][0]["n"] == 6
     assert (out / "evaluation.png").stat().st_size > 0 and (out / "evaluation.csv").read_text().startswith("policy,")
-    rows = json.loads((out / "evaluation.json").read_text())["rows"]
-    assert len(rows) == 3 * (4 + 2 * 2 + 2 + 1) - 3  # staircase: 1 row per user, usp kinds: 2 seeds
+    from nao_trainer.cli.evaluate import read_rows
+
+    rows = read_rows(out / "evaluation_rows.csv.gz")
+    assert len(rows) == 3 * (2 + 1 + 2 * 2 + 2 + 1)  # baselines 1 row per user, usp kinds 2 seeds
+    oracle = {r["user"]: r["score"] for r in rows if r["policy"] == "oracle"}
+    for r in rows:
+        assert r["regret"] == pytest.approx(oracle[r["user"]] - r["score"], abs=1e-8)
 
 
 def test_policy_files_for_the_other_mdp_are_refused_with_one_line(tmp_path, capsys):
@@ -132,3 +137,15 @@ def test_leave_one_session_out_never_trains_on_the_user(dataset_root):
     np.testing.assert_array_equal(other.truth.p_success, user.truth.p_success)
     for lv in (1, 2, 3, 4):
         assert np.ptp(user.truth.p_success[mdp.LEVEL == lv]) == 0
+
+
+def test_evaluate_on_sessions_of_a_dataset_root(dataset_root, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    out = tmp_path / "ev"
+    rc = main(["evaluate", "--users", str(dataset_root), "--limit", "2", "--seeds", "1", "--episodes", "100",
+               "--policies", "fixed:2,best-fixed,usp:qaug,oracle", "--out", str(out), "--no-plots", "--json"])
+    assert rc == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["users"] == "sessions" and report["n_users"] == 2
+    by = {s["policy"]: s for s in report["summary"]}
+    assert by["oracle"]["score"] >= max(s["score"] for s in report["summary"]) - 1e-9

@@ -74,3 +74,9 @@ def test_training_rejects_an_unknown_mdp():
     with pytest.raises(ValueError, match="mdp must be one of paper, informed"):
         TrainingSpec(process="pomdp")
     assert np.isfinite(TrainingSpec(process="informed").config.alpha)
+
+
+def test_the_commands_list_the_same_mdps_as_the_core():
+    from nao_trainer.cli import evaluate, sweep, train  # noqa: F401 - the parsers' choices
+
+    assert evaluate.MDPS == sweep.MDPS == mdps.NAMES

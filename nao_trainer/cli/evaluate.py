@@ -11,6 +11,9 @@ from pathlib import Path
 from nao_trainer.errors import ConfigError, DataError
 
 MDPS = ("paper", "informed")  # core.mdps.NAMES, repeated so that --help does not import numpy
+ROWS_FILE = "evaluation_rows.csv.gz"
+ROW_COLUMNS = ("user", "cluster", "policy", "seed", "score", "engagement", "success", "regret", "samples",
+               "visits_l1", "visits_l2", "visits_l3", "visits_l4")
 
 
 def register(sub) -> None:
@@ -44,6 +47,8 @@ def register(sub) -> None:
     p.add_argument("--out", type=Path, default=Path("evaluation"), help="output folder (default ./evaluation)")
     p.add_argument("--no-plots", action="store_true", help="skip the figure")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    p.add_argument("--per-user", action="store_true",
+                   help="also print each user's mean score per policy (mean over seeds)")
     g = p.add_argument_group("personalisation (docs/personalisation.md)")
     g.add_argument("--personalise", action="store_true",
                    help="evaluate the personalisation pipeline (assess, match, choose, keep learning) on held-out "
@@ -100,7 +105,7 @@ def run(args) -> int:
                  "mc_episodes": spec.mc_episodes, "turns": spec.turns, "seed": spec.seed,
                  "hyperparameters": spec.config.to_dict(),
                  "policy_files": None if args.policy_files is None else str(args.policy_files)},
-        "summary": summary, "claims": comparison.claims(rows), "rows": rows,
+        "summary": summary, "claims": comparison.claims(rows), "rows_file": ROWS_FILE,
         "seconds": round(time.perf_counter() - t0, 2),
     }
     from nao_trainer.files import write_json_atomic, write_text_atomic
@@ -108,16 +113,19 @@ def run(args) -> int:
     out = Path(args.out)
     write_json_atomic(out / "evaluation.json", report)
     write_text_atomic(out / "evaluation.csv", to_csv(summary))
-    paths = [out / "evaluation.json", out / "evaluation.csv"]
+    write_rows(rows, out / ROWS_FILE)
+    paths = [out / "evaluation.json", out / "evaluation.csv", out / ROWS_FILE]
     if not args.no_plots:
         from nao_trainer.plots.evaluation import plot_evaluation
 
         title = f"{kind} users ({len(user_list)}), {args.mdp} MDP: means and 95 % CIs over users and seeds"
         paths.append(plot_evaluation(summary, title, out / "evaluation.png"))
     if args.json:
-        print(json.dumps({k: v for k, v in report.items() if k != "rows"}))
+        print(json.dumps(report))
     else:
         print(format_table(summary, report["claims"]))
+        if args.per_user:
+            print(per_user_table(rows))
         for path in paths:
             print(f"  {path}")
     return 0
@@ -143,6 +151,53 @@ def format_table(summary: list[dict], claims: list[dict]) -> str:
             lines.append(f"  {c['a']:<22} - {c['b']:<26} score {c['score_diff']:+.2f} {_ci(c['score_diff_ci'])}  "
                          f"engagement {c['engagement_diff']:+.4f} {_ci(c['engagement_diff_ci'], 4)}")
     return "\n".join(lines)
+
+
+def per_user_table(rows: list[dict]) -> str:
+    """Mean score over seeds of every (user, policy): one line per policy, one column per user."""
+    import numpy as np
+
+    user_names = list(dict.fromkeys(r["user"] for r in rows))
+    policies = list(dict.fromkeys(r["policy"] for r in rows))
+    lines = ["score per user (mean over seeds): " + ", ".join(user_names)]
+    for pol in policies:
+        vals = [np.mean([r["score"] for r in rows if r["user"] == u and r["policy"] == pol]) for u in user_names]
+        lines.append(f"  {pol:<26} " + " ".join(f"{v:7.2f}" for v in vals))
+    return "\n".join(lines)
+
+
+def write_rows(rows: list[dict], path: Path) -> None:
+    """Every (user, policy, seed) row as gzip CSV (mtime 0: the same run gives the same bytes)."""
+    import gzip
+    import os
+
+    lines = [",".join(ROW_COLUMNS)]
+    for r in rows:
+        vals = [r["user"], r["cluster"], r["policy"], "" if r["seed"] is None else r["seed"], repr(r["score"]),
+                repr(r["engagement"]), repr(r["success"]), repr(r["regret"]), r["samples"], *r["visits"]]
+        lines.append(",".join(str(v) for v in vals))
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb", mtime=0, filename="") as fh:
+        fh.write(("\n".join(lines) + "\n").encode())
+    os.replace(tmp, path)
+
+
+def read_rows(path: Path) -> list[dict]:
+    """Rows written by ``write_rows`` (numbers as floats, seed None for baselines)."""
+    import csv
+    import gzip
+
+    with gzip.open(path, "rt") as fh:
+        out = []
+        for r in csv.DictReader(fh):
+            row = {k: r[k] for k in ("user", "cluster", "policy")}
+            row["seed"] = None if r["seed"] == "" else int(r["seed"])
+            for k in ("score", "engagement", "success", "regret"):
+                row[k] = float(r[k])
+            row["samples"] = int(r["samples"])
+            row["visits"] = [float(r[f"visits_l{i}"]) for i in (1, 2, 3, 4)]
+            out.append(row)
+    return out
 
 
 def to_csv(summary: list[dict]) -> str:

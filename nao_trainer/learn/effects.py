@@ -77,9 +77,10 @@ def _drop_empty(x: np.ndarray) -> np.ndarray:
 
 
 def _pav_non_increasing(y: np.ndarray) -> np.ndarray:
-    from nao_trainer.learn.fitting import _pav_non_increasing as pav
+    """Least-squares non-increasing fit of a short vector (scikit-learn's pool adjacent violators)."""
+    from sklearn.isotonic import isotonic_regression
 
-    return pav(y)
+    return isotonic_regression(np.asarray(y, dtype=float), increasing=False)
 
 
 @dataclass
