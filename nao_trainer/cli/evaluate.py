@@ -60,6 +60,10 @@ def register(sub) -> None:
                    help="strength (pseudo-turns) of the per-level Beta priors; inf: no per-level learning (default 10)")
     g.add_argument("--margin", type=float, default=0.5,
                    help="anti-flip-flop margin: points of expected value a new policy must gain (default 0.5)")
+    g.add_argument("--session-prior", default="data", metavar="data|K",
+                   help="shrinkage of each held-out session's success per level toward its cluster: 'data' (the "
+                        "Beta prior of --users sessions, strength estimated from the data; default) or K pseudo-turns "
+                        "(e.g. 2: the session's own rates)")
     g.add_argument("--export-users", type=Path, default=None, metavar="DIR",
                    help="also write every held-out session's user simulator to DIR (usable as --user-model FILE)")
     p.set_defaults(func=run)
@@ -230,7 +234,12 @@ def run_personalise(args) -> int:
         raise ConfigError("--personalise needs the dataset: add --data DATASET_ROOT")
     if args.policies:
         raise ConfigError("--personalise compares a fixed set of policies; drop --policies")
+    try:
+        session_prior = None if args.session_prior == "data" else float(args.session_prior)
+    except ValueError:
+        raise ConfigError(f"--session-prior must be 'data' or a number of pseudo-turns, got {args.session_prior!r}") from None
     spec = personalise.PersonaliseSpec(lengths=personalise.parse_lengths(args.assessment), kappa=args.kappa,
+                                       session_prior=session_prior,
                                        margin=args.margin, episodes=args.episodes, seeds=1,
                                        mc_episodes=args.mc_episodes, seed=args.seed)
     check_backend(args.backend)
@@ -257,6 +266,7 @@ def run_personalise(args) -> int:
     report = {"command": "nao-trainer " + " ".join(shlex.quote(a) for a in argv),
               "users": "sessions (leave-one-session-out)", "n_users": len(result["users"]),
               "spec": {"lengths": list(spec.lengths), "levels": list(spec.levels), "kappa": spec.kappa,
+                       "session_prior": "data" if spec.session_prior is None else spec.session_prior,
                        "margin": spec.margin, "method": spec.method, "episodes": spec.episodes,
                        "mc_episodes": spec.mc_episodes, "turns": spec.turns, "seed": spec.seed},
               "summary": summary, "engagement_information": engagement, "rows": result["rows"],
@@ -272,7 +282,9 @@ def run_personalise(args) -> int:
     if not args.no_plots:
         from nao_trainer.plots.personalise import plot_personalise
 
-        title = (f"{len(result['users'])} held-out sessions (leave-one-session-out): means and 95 % CIs over users")
+        prior = "Beta prior from the data" if spec.session_prior is None else f"own rates, prior {spec.session_prior:g} turns"
+        title = (f"{len(result['users'])} held-out sessions (leave-one-session-out; {prior}): "
+                 "means and 95 % CIs over users")
         paths.append(plot_personalise(summary, title, out / "personalise.png"))
     if args.json:
         print(json.dumps({k: v for k, v in report.items() if k != "rows"}))

@@ -35,7 +35,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from nao_trainer.core import assessment, baselines, evaluation, posterior
+from nao_trainer.core import assessment, baselines, evaluation, mdp, posterior
 from nao_trainer.core.qlearning import METHODS, QConfig
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import ConfigError
@@ -46,7 +46,14 @@ PIPELINES: tuple[str, ...] = ("paper", "posterior-ev", "personalised")
 
 @dataclass(frozen=True)
 class PersonaliseSpec:
+    """``session_prior``: how the held-out session's success per level is shrunk toward its
+    cluster: None = ``learn.users.session_user`` (a Beta prior whose strength is estimated from the
+    cluster's sessions, the default user set of ``evaluate --users sessions``), or a number of
+    pseudo-turns (e.g. 2: the session's own rates, barely shrunk) to ask what personalisation wins
+    on users as different from their clusters as the raw sessions are."""
+
     lengths: tuple[int, ...] = tuple(range(13))
+    session_prior: float | None = None
     levels: tuple[int, ...] = assessment.DEFAULT_LEVELS
     kappa: float = 10.0
     margin: float = 0.5
@@ -67,6 +74,8 @@ class PersonaliseSpec:
             raise ConfigError(f"--kappa must be > 0 (inf: no per-level learning), got {self.kappa}")
         if self.margin < 0:
             raise ConfigError(f"--margin must be >= 0, got {self.margin}")
+        if self.session_prior is not None and not self.session_prior > 0:
+            raise ConfigError(f"--session-prior must be 'data' or a number > 0, got {self.session_prior}")
         if self.mc_episodes < 2 or self.episodes < 1 or self.seeds < 1:
             raise ConfigError("--mc-episodes must be >= 2, --episodes and --seeds >= 1")
 
@@ -120,7 +129,25 @@ def _engagement_sigma(sim: UserSimulator, turns: Any) -> float:
     return float(max(np.sqrt(np.mean(resid ** 2)), 1e-3))
 
 
-def held_out(turns: Any, session: str, k: int, n_init: int, seed: int) -> HeldOut:
+def own_rates_user(name: str, own: Any, prior: UserSimulator, kappa: float, cluster: str) -> User:
+    """A level-only user from the session's own success per level, shrunk toward ``prior``'s level
+    rates by ``kappa`` pseudo-turns, with ``learn.users.session_user``'s engagement."""
+    from nao_trainer.learn.users import level_only
+
+    p_level = np.zeros(4)
+    for lv in (1, 2, 3, 4):
+        mine = own.level == lv
+        m = float(prior.p_success[(mdp.LEVEL == lv) & mdp.REACHABLE].mean())
+        p_level[lv - 1] = (float(own.success[mine].sum()) + kappa * m) / (float(mine.sum()) + kappa)
+    e_level = np.array([float(prior.engagement[mdp.LEVEL == lv].mean()) for lv in (1, 2, 3, 4)])
+    for lv in (1, 2, 3, 4):
+        e_own = own.engagement[(own.level == lv) & np.isfinite(own.engagement)]
+        if e_own.size:
+            e_level[lv - 1] = float(e_own.mean())
+    return User(name, level_only(prior, p_level, e_level, name=name), prior, cluster)
+
+
+def held_out(turns: Any, session: str, k: int, n_init: int, seed: int, session_prior: float | None = None) -> HeldOut:
     """Fit everything without ``session`` (see the module docstring)."""
     from nao_trainer.core.usermodel import cluster_users, user_models
     from nao_trainer.learn.fitting import FitOptions, fit_cluster
@@ -147,7 +174,10 @@ def held_out(turns: Any, session: str, k: int, n_init: int, seed: int) -> HeldOu
         member_sets.append(members)
     generic = fit_cluster(rest, 0, options, np.random.default_rng(seed), np.zeros(4), np.zeros(4),
                           {"compat": None, "left_out": session}).simulator
-    user = session_user(f"session:{session}", own, member_sets[cid - 1], sims[cid - 1], str(cid), sims[cid - 1])
+    if session_prior is None:
+        user = session_user(f"session:{session}", own, member_sets[cid - 1], sims[cid - 1], str(cid), sims[cid - 1])
+    else:
+        user = own_rates_user(f"session:{session}", own, sims[cid - 1], session_prior, str(cid))
     return HeldOut(user, tuple(sims), np.array(sizes, dtype=float), np.array(sigma), generic, cid - 1,
                    own.state.copy(), own.success.copy(), own.engagement.copy())
 
@@ -238,7 +268,7 @@ def engagement_information(h: HeldOut, lengths: Sequence[int] = (6, 12, 25)) -> 
 
 
 def _one(turns: Any, session: str, k: int, n_init: int, seed: int, spec: PersonaliseSpec) -> dict[str, Any]:
-    h = held_out(turns, session, k, n_init, seed)
+    h = held_out(turns, session, k, n_init, seed, spec.session_prior)
     return {"rows": score_held_out(h, spec), "engagement": engagement_information(h),
             "user": h.user.truth.to_dict(), "best_level": None}
 
