@@ -32,9 +32,13 @@ setup(
         "fast": ["numba>=0.60"],
         # fan-out of training, sweeps and evaluations (learn.parallel); dask://HOST:PORT backends
         "cluster": ["joblib>=1.3", "dask[distributed]>=2024.1"],
-        "test": ["pytest>=7", "pytest-xdist>=3"],
-        "all": ["matplotlib>=3.7", "gymnasium>=1.0", "numba>=0.60", "joblib>=1.3", "dask[distributed]>=2024.1"],
+        "console": ["starlette>=0.37", "uvicorn>=0.29"],
+        "test": ["pytest>=7", "pytest-xdist>=3", "playwright>=1.40"],
+        "all": ["matplotlib>=3.7", "gymnasium>=1.0", "numba>=0.60", "joblib>=1.3", "dask[distributed]>=2024.1",
+                "starlette>=0.37", "uvicorn>=0.29"],
     },
+    # The console's page and the vendored uPlot (MIT; version and licence in console/static/).
+    package_data={"nao_trainer.console": ["static/*"]},
     entry_points={"console_scripts": ["nao-trainer=nao_trainer.cli:entry_point"]},
     include_package_data=True,
     classifiers=[

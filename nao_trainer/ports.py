@@ -145,6 +145,9 @@ class AnswerSource(Protocol):
     def abandon(self) -> None:
         """The turn was interrupted (robot lost): nothing of it may land in a later window. Often a no-op."""
 
+    def watch(self, callback: Callable[[Press], None]) -> None:
+        """Call ``callback(press)`` for every press of an answer window as it arrives (the console shows them)."""
+
     def close(self) -> None: ...
 
 
@@ -183,6 +186,11 @@ class EngagementMonitor(Protocol):
     def set_target(self, engagement: float | None) -> None:
         """For a simulated Muse: the engagement its signal should show next (ignored otherwise)."""
 
+    def live(self) -> dict | None:
+        """The latest engagement index and per-channel contact quality (for a supervisor), None when EEG is off.
+
+        Called from another thread: must only read."""
+
     def close(self) -> None: ...
 
 
@@ -202,6 +210,9 @@ class NullMonitor:
 
     def set_target(self, engagement: float | None) -> None:
         pass
+
+    def live(self) -> dict | None:
+        return None
 
     def close(self) -> None:
         pass
@@ -248,3 +259,95 @@ class Policy(Protocol):
 
     def close(self) -> None:
         """Persist whatever must survive the session."""
+
+    def probabilities(self, state: int) -> "np.ndarray | None":
+        """P(a | state) the policy would choose with now (shown to a supervisor), None if unknown."""
+
+    def guide(self, state: int, action: int) -> None:
+        """A supervisor chose ``action`` in ``state`` (an override); a policy may come to prefer it."""
+
+    def snapshot(self) -> dict | None:
+        """The learning state as JSON-ready data (checkpointed after every turn), None when stateless."""
+
+    def restore(self, data: dict | None) -> None:
+        """Go back to a ``snapshot`` (a resumed session continues as if never interrupted)."""
+
+
+
+# ----------------------------------------------------------------------------------------------
+# Operator commands and observers
+# ----------------------------------------------------------------------------------------------
+
+#: What an operator can ask of a running session (terminal keys and the console share them).
+COMMAND_KINDS: tuple[str, ...] = ("pause", "resume", "stop", "override", "repeat", "invalid", "note")
+
+
+@dataclass(frozen=True)
+class Command:
+    """One operator command: ``kind`` (``COMMAND_KINDS``), its arguments, who sent it and when (ISO UTC)."""
+
+    kind: str
+    args: dict = field(default_factory=dict)
+    source: str = "api"
+    at: str = ""
+    id: int = 0
+
+
+class CommandQueue:
+    """Thread-safe FIFO of operator commands; the session drains it at defined points only.
+
+    Producers (a key reader thread, the console's server thread) ``submit``; the session thread
+    ``drain``s between states and ``wait``s on it while paused. No command acts outside the session thread.
+    """
+
+    def __init__(self) -> None:
+        import threading
+
+        self._cond = threading.Condition()
+        self._items: list[Command] = []
+        self._next_id = 1
+
+    def submit(self, kind: str, args: dict | None = None, source: str = "api") -> Command:
+        """Queue a command; ValueError for an unknown kind (the caller reports it)."""
+        from datetime import datetime, timezone
+
+        if kind not in COMMAND_KINDS:
+            raise ValueError(f"unknown command {kind!r}; use one of {', '.join(COMMAND_KINDS)}")
+        with self._cond:
+            cmd = Command(kind, dict(args or {}), str(source),
+                          datetime.now(timezone.utc).isoformat(timespec="milliseconds"), self._next_id)
+            self._next_id += 1
+            self._items.append(cmd)
+            self._cond.notify_all()
+        return cmd
+
+    def drain(self) -> list[Command]:
+        """Every queued command, oldest first (the queue is then empty)."""
+        with self._cond:
+            items, self._items = self._items, []
+        return items
+
+    def wait(self, timeout_s: float) -> bool:
+        """Block until a command is queued or ``timeout_s`` passed; True when one is waiting."""
+        with self._cond:
+            if not self._items:
+                self._cond.wait(timeout_s)
+            return bool(self._items)
+
+    def __len__(self) -> int:
+        with self._cond:
+            return len(self._items)
+
+
+class SessionObserver(Protocol):
+    """Told what happens in a session as it happens (the console). ``notify`` must return at once."""
+
+    def notify(self, kind: str, data: dict) -> None:
+        """``kind``: session, state, turn_start, press, row, command, pause, summary (see docs/console.md)."""
+
+
+class NullObserver:
+    """Nobody watching."""
+
+    def notify(self, kind: str, data: dict) -> None:
+        pass

@@ -116,6 +116,11 @@ class ScriptedAnswers:
         self.timeouts: list[float] = []
         self.abandoned = 0
         self.closed = False
+        self.watcher = None
+        self.on_collect: Callable[[TurnContext], None] | None = None  # e.g. send a command mid-answer
+
+    def watch(self, callback) -> None:
+        self.watcher = callback
 
     def _response(self) -> tuple[str, ...]:
         assert self.context is not None
@@ -139,7 +144,12 @@ class ScriptedAnswers:
         if self.context is None:
             raise ValueError("collect() before prepare()")
         self.timeouts.append(timeout_s)
+        if self.on_collect is not None:
+            self.on_collect(self.context)
         presses = tuple(Press(key=l, letter=l, t=t) for l, t in zip(self._response(), self.times))
+        for p in presses:
+            if self.watcher is not None:
+                self.watcher(p)
         return Answer(presses=presses, timed_out=len(presses) < n_expected)
 
     def abandon(self) -> None:

@@ -18,7 +18,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("__init__", "errors", "files", "ports"),
     ("core",),
     ("data",),
-    ("robot", "eeg", "answers"),
+    ("robot", "eeg", "answers", "console"),
     ("learn",),
     ("session",),
     ("plots",),

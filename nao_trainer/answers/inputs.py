@@ -34,6 +34,7 @@ class PressWindow:
         self._presses: list[Press] = []
         self._last: dict[str, float] = {}
         self.discarded = 0  # presses outside any window (before the beep, after collect)
+        self.listener: Callable[[Press], None] | None = None  # told of every accepted press
 
     def open(self) -> float:
         """Open the window now; press times count from here."""
@@ -54,9 +55,12 @@ class PressWindow:
             if last is not None and t - last < self.debounce_s:
                 return False  # a bounce of the same button
             self._last[key] = t
-            self._presses.append(Press(key=key, letter=letter, t=t - self._opened_at))
+            press = Press(key=key, letter=letter, t=t - self._opened_at)
+            self._presses.append(press)
             self._cond.notify_all()
-            return True
+        if self.listener is not None:
+            self.listener(press)
+        return True
 
     def collect(self, n_expected: int, timeout_s: float) -> Answer:
         """Wait for ``n_expected`` presses (+ grace) or the timeout, then close the window."""
@@ -115,6 +119,9 @@ class TactileAnswers:
 
     def abandon(self) -> None:
         pass  # presses outside an open window are discarded anyway
+
+    def watch(self, callback: Callable[[Press], None]) -> None:
+        self.window.listener = callback
 
     def close(self) -> None:
         self.window.close()
@@ -200,6 +207,9 @@ class KeyboardAnswers:
 
     def abandon(self) -> None:
         pass  # keys typed outside an open window are discarded anyway
+
+    def watch(self, callback: Callable[[Press], None]) -> None:
+        self.window.listener = callback
 
     def close(self) -> None:
         self._stop_reader()

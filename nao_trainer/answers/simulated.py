@@ -82,6 +82,13 @@ class SimulatedParticipant:
         self._presser: threading.Thread | None = None
         self._press_error: str | None = None  # a press that failed (robot gone): collect() reports it
         self._generation = 0
+        self._watch: Callable[[Press], None] | None = None
+
+    def watch(self, callback: Callable[[Press], None]) -> None:
+        """Presses go through ``inner`` when there is one (it reports them), else are reported at collect."""
+        if self.inner is not None:
+            self.inner.watch(callback)
+        self._watch = callback
 
     def prepare(self, context: TurnContext) -> None:
         """Decide the turn's outcome, response and timing; set the simulated Muse's target."""
@@ -140,6 +147,9 @@ class SimulatedParticipant:
         delay = self._opened + end - time.monotonic()
         if delay > 0:
             time.sleep(delay)
+        if self._watch is not None:
+            for p in presses:
+                self._watch(p)
         return Answer(presses=presses, timed_out=timed_out)
 
     def abandon(self) -> None:

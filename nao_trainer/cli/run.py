@@ -32,12 +32,22 @@ def register(sub) -> None:
     p.add_argument("--policy", metavar="SPEC",
                    help="schedule | random | usp:CLUSTER[:METHOD] | personalised (assess, match the user models, "
                         "choose by posterior expected value, keep learning; docs/personalisation.md)")
-    p.add_argument("--fresh", action="store_true",
-                   help="personalised: set the participant's saved state aside (kept, renamed) and start from the prior")
     p.add_argument("--no-learning", action="store_true", help="a learning policy does not update during the session")
     p.add_argument("--no-practice", action="store_true", help="skip the practice round")
     p.add_argument("--quiet", action="store_true", help="no per-turn progress lines")
     p.add_argument("--plot", action="store_true", help="also draw session.png (levels, score, engagement) in the session folder")
+    p.add_argument("--max-duration", type=float, metavar="S",
+                   help="end the session cleanly between turns after S session seconds (session.max_duration_s)")
+    p.add_argument("--resume", metavar="SESSION_DIR",
+                   help="continue an interrupted session in its folder (its configuration, seed and learning state)")
+    p.add_argument("--fresh-policy", action="store_true",
+                   help="start a learning policy from the trained one, not from the participant's saved state "
+                        "(the old state is moved aside); personalised: start from the prior")
+    p.add_argument("--no-keys", action="store_true", help="do not read operator keys (p pause, r resume, s stop) from the terminal")
+    p.add_argument("--console", action="store_true", help="serve the supervisor console (a web page; the link is printed)")
+    p.add_argument("--console-port", type=int, metavar="P", help="console port (default: console.port, 0 = a free port)")
+    p.add_argument("--console-bind", metavar="ADDRESS",
+                   help="listen on ADDRESS instead of 127.0.0.1 (prints a warning: others could steer the session)")
     p.set_defaults(func=run)
 
 
@@ -56,7 +66,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, object]:
         "participant_model.user_model": args.user_model,
         "policy.learning": False if args.no_learning else None,
         "session.practice": False if args.no_practice else None,
-        "policy.fresh": True if args.fresh else None,
+        "session.max_duration_s": args.max_duration,
     }
 
 
@@ -64,8 +74,30 @@ def run(args: argparse.Namespace) -> int:
     from nao_trainer.session.config import load_config
     from nao_trainer.session.wiring import RunOptions, run_session
 
-    config = load_config(args.config, overrides_from_args(args))
-    result = run_session(config, RunOptions(quiet=args.quiet))
+    import sys
+
+    from nao_trainer.errors import ConfigError
+
+    overrides = overrides_from_args(args)
+    if args.console_port is not None and not 0 <= args.console_port <= 65535:
+        raise ConfigError(f"--console-port {args.console_port}: a port is 0-65535 (0 = any free port)")
+    options = RunOptions(quiet=args.quiet, keys=not args.no_keys, console=args.console or args.console_port is not None,
+                         console_port=args.console_port, console_bind=args.console_bind,
+                         fresh_policy=args.fresh_policy)
+    resume = None
+    if args.resume:
+        from nao_trainer.session.wiring import prepare_resume
+
+        given = [k for k, v in overrides.items() if v is not None] + (["--config"] if args.config else []) \
+            + (["--fresh-policy"] if args.fresh_policy else [])
+        if given:
+            raise ConfigError(f"--resume continues a session with its own configuration; drop {', '.join(given)}")
+        config, resume = prepare_resume(Path(args.resume))
+        print(f"resuming {resume.folder} after turn {resume.checkpoint['completed']} of {config.session.turns}",
+              file=sys.stderr)
+    else:
+        config = load_config(args.config, overrides)
+    result = run_session(config, options, resume=resume)
     print(result.summary())
     if args.plot and result.path is not None and result.completed_rows:
         from nao_trainer.plots.session import plot_session

@@ -368,6 +368,7 @@ class OnlineEngagement:
 
     def _window(self, w: np.ndarray, t_end: float) -> WindowResult:
         clean, reasons = window_quality(w, self.fs, self.thresholds)
+        self.last_clean = clean  # per-channel contact of the latest window (a supervisor's view)
         frac = float(clean.mean())
         if clean.sum() < self.min_clean_channels:
             bad = ", ".join(f"{n} {r}" for n, r in zip(self.channel_names, reasons) if r)

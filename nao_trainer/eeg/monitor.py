@@ -137,6 +137,19 @@ class LslMonitor:
             return "unavailable"
         return "lost" if self._lost else "streaming"
 
+    def live(self) -> dict | None:
+        """Latest index and per-channel contact (``ports.EngagementMonitor.live``); reads only, any thread."""
+        windows, engine = self.windows, self.engine
+        last = windows[-1] if windows else None
+        clean = getattr(engine, "last_clean", None) if engine is not None else None
+        return {
+            "status": self.status,
+            "index": None if last is None or last.index_smoothed is None else round(float(last.index_smoothed), 4),
+            "clean_fraction": None if last is None else round(float(last.clean_fraction), 3),
+            "channels": {} if clean is None else {str(n): bool(c) for n, c in zip(engine.channel_names, clean)},
+            "reason": "" if last is None else last.reason,
+        }
+
     def _attach(self, inlet: EEGInlet) -> None:
         self.inlet = inlet
         p = self.proc

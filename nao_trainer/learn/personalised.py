@@ -13,7 +13,7 @@ Across sessions, everything lives in ``<output>/participants/<pseudonym>/persona
 per-level counts, the learners' tables and one line per session. A returning participant starts
 from it and skips the assessment (the carried-over posterior already holds it). The file is
 refused in one line when it was made for another MDP, with other user models or policies
-(fingerprint), or is torn; ``--fresh`` keeps the old file as ``personalised.json.replaced-<time>``
+(fingerprint), or is torn; ``--fresh-policy`` keeps the old file as ``personalised.json.replaced-<time>``
 and starts from the prior. Nothing is reset silently.
 """
 from __future__ import annotations
@@ -34,7 +34,7 @@ from nao_trainer.errors import DataError
 from nao_trainer.files import JsonFormat
 from nao_trainer.ports import Transition
 
-FRESH = "start afresh with --fresh (the old file is kept beside it)"
+FRESH = "start afresh with --fresh-policy (the old file is kept beside it)"
 PARTICIPANT_FILE = JsonFormat("nao-trainer/participant-personalisation", 1, "participant personalisation state",
                               "participant state", FRESH)
 FILENAME = "personalised.json"
@@ -57,13 +57,14 @@ class PersonalisedPolicy:
 
     name = "personalised"
 
-    def __init__(self, models: ModelSet, learners: list[tuple[str, QLearner]], fingerprint: str, path: Path,
+    def __init__(self, models: ModelSet, learners: list[tuple[str, QLearner]], fingerprint: str, path: Path | None,
                  turns: int, schedule: tuple[int, ...], kappa: float, margin: float, learning: bool,
                  saved: dict[str, Any] | None = None, use_engagement: bool = False) -> None:
         self.models = models
         self.learners = learners
         self.fingerprint = fingerprint
-        self.path = Path(path)
+        self.path = Path(path) if path is not None else None  # None: the session folder, once it exists
+        self.guided = np.zeros((mdp.N_STATES, mdp.N_ACTIONS), dtype=np.int64)
         self.learning = learning
         self.use_engagement = use_engagement
         self.saved = saved or {}
@@ -104,6 +105,45 @@ class PersonalisedPolicy:
 
     def bind_state_dir(self, folder: Path) -> None:
         self.session_dir = Path(folder)  # named in the participant's session history
+        if self.path is None:  # policy.state_path "{session}": nothing carried over, saved with the session
+            self.path = self.session_dir / FILENAME
+
+    def probabilities(self, state: int) -> np.ndarray | None:
+        """P(a | state) of the next choice: the assessment's level, else the followed candidate's."""
+        if self.pers.in_assessment(self.turn):
+            out = np.zeros(mdp.N_ACTIONS)
+            out[self.pers.schedule[self.turn] - 1] = 1.0
+            return out
+        current = int(self.pers.current[0])
+        if current < 0:
+            current = int(self.pers.expected_values(self.turn)[0].argmax())
+        return self.pers.candidates[current].table[state].copy()
+
+    def guide(self, state: int, action: int) -> None:
+        """A supervisor's override: counted (and kept across sessions); the candidate learners learn
+        the overridden turn in ``observe`` like any other (off-policy). The posterior-EV choice is
+        not biased toward overrides."""
+        if self.learning:
+            self.guided[state, action] += 1
+
+    def snapshot(self) -> dict | None:
+        """The whole state (a session checkpoint carries it; ``restore`` goes back to it)."""
+        return {**self.payload(), "turn": self.turn, "current": int(self.pers.current[0]),
+                "switches": int(self.pers.switches[0]), "full": int(self.pers.full[0])}
+
+    def restore(self, data: dict | None) -> None:
+        if not data:
+            return
+        p = self.pers
+        p.log_w[0] = data["log_w"]
+        p.map_log_w[0] = data["map_log_w"]
+        p.wins[0], p.played[0] = data["wins"], data["played"]
+        p.current[0], p.switches[0], p.full[0] = data["current"], data["switches"], data["full"]
+        self.turn = p.turn = int(data["turn"])
+        self.guided = np.array(data.get("guided", self.guided.tolist()), dtype=np.int64)
+        restore_learners(self.learners, data["learners"], self.path or Path("checkpoint"))
+        for i, (_c, learner) in enumerate(self.learners):
+            p.set_candidate_table(i, baselines.learner_table(learner))
 
     def close(self) -> None:
         if not self._closed:
@@ -148,11 +188,13 @@ class PersonalisedPolicy:
             "wins": p.wins[0].tolist(), "played": p.played[0].tolist(),
             "learners": {c: {"q": lr.q.tolist(), "h": lr.h.tolist(), "h_counts": lr.h_counts.tolist(),
                              "visits": lr.visits.tolist()} for c, lr in self.learners},
-            "sessions": self.history + [entry],
+            "sessions": self.history + [entry], "guided": self.guided.tolist(),
             "updated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         }
 
     def save(self) -> None:
+        if self.path is None:
+            return  # the session folder does not exist yet: nothing has been played
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             PARTICIPANT_FILE.write(self.path, self.payload())
@@ -178,7 +220,7 @@ def read_state(path: Path, fingerprint: str) -> dict[str, Any]:
 
 
 def set_aside(path: Path) -> Path:
-    """``--fresh``: keep the old file as ``<name>.replaced-<time>`` (never deleted)."""
+    """``--fresh-policy``: keep the old file as ``<name>.replaced-<time>`` (never deleted)."""
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     target = path.with_name(f"{path.name}.replaced-{stamp}")
     n = 2
@@ -189,11 +231,30 @@ def set_aside(path: Path) -> Path:
     return target
 
 
-def load_personalised(output: Path, pseudonym: str, turns: int, schedule: Sequence[int], kappa: float,
-                      margin: float, learning: bool, fresh: bool, models_dir: Path | None = None,
-                      policies_dir: Path | None = None, use_engagement: bool = False) -> PersonalisedPolicy:
-    """The personalised policy for ``pseudonym``, from the shipped models and policies and the
-    participant's saved state (module docstring)."""
+def restore_learners(learners: list[tuple[str, QLearner]], tables: dict[str, Any], path: Path) -> None:
+    """Put saved tables back into the candidate learners; DataError naming ``path`` when they do not fit."""
+    for cid, learner in learners:
+        saved = tables.get(cid)
+        if saved is None:
+            raise DataError(f"{path}: participant state lacks the learner of cluster {cid}; {FRESH}")
+        try:
+            for key, dtype in (("q", float), ("h", float), ("h_counts", np.int64), ("visits", np.int64)):
+                value = np.array(saved[key], dtype=dtype)
+                if value.shape != getattr(learner, key).shape:
+                    raise ValueError(f"{key} has shape {value.shape}")
+                setattr(learner, key, value)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DataError(f"{path}: invalid learner tables of cluster {cid} ({exc}); {FRESH}") from None
+
+
+def load_personalised(path: Path | None, pseudonym: str, turns: int, schedule: Sequence[int], kappa: float,
+                      margin: float, learning: bool, fresh: bool, guidance: float = 0.0,
+                      models_dir: Path | None = None, policies_dir: Path | None = None,
+                      use_engagement: bool = False) -> PersonalisedPolicy:
+    """The personalised policy for ``pseudonym`` from the shipped models and policies and the
+    participant's saved state at ``path`` (None: kept in the session folder, nothing carried over);
+    see the module docstring. ``guidance`` is accepted for the session's interface: overrides are
+    learned from, not weighted (``PersonalisedPolicy.guide``)."""
     from nao_trainer.learn import artifacts, usp
 
     manifest = artifacts.load_manifest(models_dir)
@@ -213,35 +274,26 @@ def load_personalised(output: Path, pseudonym: str, turns: int, schedule: Sequen
         method = pman.get("default_method", {}).get(cid)
         if method is None:
             raise DataError(f"{folder}: no trained policy for cluster {cid}; train with `nao-trainer train --out {folder}`")
-        path = folder / usp.policy_filename(cid, method)
-        payload = usp.read_policy_file(path)
-        usp.check_simulator(payload, sim, path)
-        learners.append((cid, usp.learner_from_payload(payload, path)))
+        policy_path = folder / usp.policy_filename(cid, method)
+        payload = usp.read_policy_file(policy_path)
+        usp.check_simulator(payload, sim, policy_path)
+        learners.append((cid, usp.learner_from_payload(payload, policy_path)))
         digests.append(f"{cid}:{method}:{payload['simulator']['fingerprint']}")
     fingerprint = models_fingerprint(models, [s.fingerprint() for s in sims], digests)
-    path = participant_file(output, pseudonym)
     saved = None
-    if path.exists():
+    if path is not None and Path(path).exists():
+        path = Path(path)
         if fresh:
             kept = set_aside(path)
-            print(f"policy personalised: --fresh: {path.name} kept as {kept.name}; starting from the prior",
+            print(f"policy personalised: starting fresh from the prior; the previous state was moved to {kept}",
                   file=sys.stderr)
         else:
             saved = read_state(path, fingerprint)
-            for cid, learner in learners:
-                tables = saved["learners"].get(cid)
-                if tables is None:
-                    raise DataError(f"{path}: participant state lacks the learner of cluster {cid}; {FRESH}")
-                try:
-                    for key, dtype in (("q", float), ("h", float), ("h_counts", np.int64), ("visits", np.int64)):
-                        value = np.array(tables[key], dtype=dtype)
-                        if value.shape != getattr(learner, key).shape:
-                            raise ValueError(f"{key} has shape {value.shape}")
-                        setattr(learner, key, value)
-                except (KeyError, TypeError, ValueError) as exc:
-                    raise DataError(f"{path}: invalid learner tables of cluster {cid} ({exc}); {FRESH}") from None
-            n = len(saved["sessions"])
-            print(f"policy personalised: {pseudonym} returns after {n} session(s): starting from the saved posterior "
-                  f"({path}); no assessment", file=sys.stderr)
-    return PersonalisedPolicy(models, learners, fingerprint, path, turns, tuple(int(x) for x in schedule), kappa,
-                              margin, learning, saved, use_engagement)
+            restore_learners(learners, saved["learners"], path)
+            print(f"policy personalised: {pseudonym} returns after {len(saved['sessions'])} session(s): starting from "
+                  f"the saved posterior ({path}); no assessment", file=sys.stderr)
+    policy = PersonalisedPolicy(models, learners, fingerprint, path, turns, tuple(int(x) for x in schedule), kappa,
+                                margin, learning, saved, use_engagement)
+    if saved is not None and "guided" in saved:
+        policy.guided = np.array(saved["guided"], dtype=np.int64)
+    return policy

@@ -37,7 +37,7 @@ import numpy as np
 
 from nao_trainer import __version__
 from nao_trainer.core import mdp, mdps
-from nao_trainer.core.qlearning import METHOD_TEXT, METHODS, QConfig, QLearner
+from nao_trainer.core.qlearning import METHOD_TEXT, METHODS, QConfig, QLearner, policy_probabilities
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import PROJECT_ROOT, JsonFormat, read_json, write_json_atomic
@@ -192,7 +192,8 @@ class LivePolicy:
     without it, nothing changes and nothing is written.
     """
 
-    def __init__(self, learner: QLearner, payload: dict[str, Any], learning: bool, state_path: Path | None) -> None:
+    def __init__(self, learner: QLearner, payload: dict[str, Any], learning: bool, state_path: Path | None,
+                 guidance: float = 0.0) -> None:
         # A learning policy needs ``state_path`` only when it saves: without one, the session binds
         # it to its folder once that exists (the policy is loaded and checked before the robot connects).
         self.learner = learner
@@ -200,13 +201,74 @@ class LivePolicy:
         self.learning = learning
         self.state_path = Path(state_path) if state_path is not None else None
         self.name = f"usp:{payload['cluster']}:{learner.method}" + ("" if learning else " (frozen)")
+        self.guidance = float(guidance)
+        #: How often the supervisor chose each action in each state (``guide``); kept with the state.
+        self.guided = np.zeros((mdp.N_STATES, mdp.N_ACTIONS), dtype=np.int64)
+        for key, n in (payload.get("live", {}).get("guided") or {}).items():
+            s, a = (int(x) for x in key.split(","))
+            self.guided[s, a] = int(n)
+        self.loaded_from: Path | None = None  # the state file learning resumed from (None: the trained policy)
         self._closed = False
 
+    def choice_values(self, state: int) -> np.ndarray:
+        """What ``act`` chooses on: the learner's values ``V(s, .)`` plus the guidance term.
+
+        ``G(s, a) = guidance * n(s, a) / n(s) * (max V(s, .) - min V(s, .) + 1)`` over the allowed
+        actions, where ``n(s, a)`` counts the supervisor's overrides toward ``a`` in ``s`` and
+        ``n(s)`` all of them in ``s``. Scaled by the spread of the values, so it means the same in
+        every state: with ``guidance >= 1``, an action the supervisor always chose in ``s`` is
+        preferred there by at least ``guidance`` value points. The Q tables themselves learn only
+        from outcomes (off-policy, in ``observe``).
+        """
+        values = self.learner.values(state)
+        n = self.guided[state]
+        total = n.sum()
+        if not (self.guidance and total):
+            return values
+        allowed = values[mdp.ACTION_MASK[state]]
+        spread = float(allowed.max() - allowed.min()) + 1.0
+        return values + self.guidance * (n / total) * spread
+
     def act(self, state: int, rng: np.random.Generator) -> int:
-        return self.learner.act(state, rng)
+        if not (self.guidance and self.guided[state].any()):
+            return self.learner.act(state, rng)
+        u = rng.random()  # one uniform, as the learner would draw: the random stream stays aligned
+        allowed = np.flatnonzero(mdp.ACTION_MASK[state])
+        cum = np.cumsum(self.probabilities(state)[allowed])
+        return int(allowed[min(int(np.searchsorted(cum, u * cum[-1], side="left")), len(allowed) - 1)])
 
     def probabilities(self, state: int) -> np.ndarray:
-        return self.learner.probabilities(state)
+        if not (self.guidance and self.guided[state].any()):
+            return self.learner.probabilities(state)
+        return policy_probabilities(self.choice_values(state), mdp.ACTION_MASK[state],
+                                    self.learner.inverse_temperature(state))
+
+    def guide(self, state: int, action: int) -> None:
+        """The supervisor overrode the policy with ``action`` in ``state``: remember it (the Q update
+        happens in ``observe``, off-policy, like any turn)."""
+        if not self.learning:
+            return
+        self.guided[state, action] += 1
+        self.payload["live"]["guided"] = {f"{s},{a}": int(self.guided[s, a]) for s, a in zip(*np.nonzero(self.guided))}
+
+    def snapshot(self) -> dict | None:
+        """The whole learning state (a session checkpoint carries it)."""
+        shift = self.learner._shift
+        return {"q": self.learner.q.tolist(), "h": self.learner.h.tolist(), "h_counts": self.learner.h_counts.tolist(),
+                "visits": self.learner.visits.tolist(), "live": dict(self.payload["live"]),
+                "guided": self.guided.tolist(), "shift": list(shift) if shift is not None else None}
+
+    def restore(self, data: dict | None) -> None:
+        if not data:
+            return
+        lr = self.learner
+        lr.q[:] = np.array(data["q"], dtype=float)
+        lr.h[:] = np.array(data["h"], dtype=float)
+        lr.h_counts[:] = np.array(data["h_counts"], dtype=np.int64)
+        lr.visits[:] = np.array(data["visits"], dtype=np.int64)
+        lr._shift = (int(data["shift"][0]), float(data["shift"][1])) if data.get("shift") else None
+        self.guided[:] = np.array(data["guided"], dtype=np.int64)
+        self.payload["live"] = dict(data["live"])
 
     def observe(self, transition: Transition) -> None:
         if not self.learning:
@@ -261,7 +323,8 @@ def parse_spec(spec: str) -> tuple[str, str | None]:
     return parts[1], method
 
 
-def load_policy(spec: str, learning: bool, state_path: Path | None, policies_dir: Path | None = None, models_dir: Path | None = None) -> LivePolicy:
+def load_policy(spec: str, learning: bool, state_path: Path | None, policies_dir: Path | None = None,
+                models_dir: Path | None = None, guidance: float = 0.0, fresh: bool = False) -> LivePolicy:
     """The trained policy ``usp:CLUSTER[:METHOD]`` for a live session (see the module docstring).
 
     METHOD defaults to the folder manifest's ``default_method`` for the cluster (the method whose
@@ -286,6 +349,12 @@ def load_policy(spec: str, learning: bool, state_path: Path | None, policies_dir
                         f"not {cluster!r} {method!r}; {RETRAIN}")
     check_simulator(payload, load_simulator(cluster, models_dir), path)
     source = path
+    if fresh and state_path is not None and Path(state_path).exists():
+        # --fresh-policy: start from the trained policy; the old state is kept beside, never deleted.
+        stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
+        aside = Path(state_path).with_name(f"{Path(state_path).name}.replaced-{stamp}")
+        os.replace(state_path, aside)
+        print(f"policy {spec}: starting fresh; the previous state was moved to {aside}", file=sys.stderr)
     if state_path is not None and Path(state_path).exists():
         saved = read_policy_file(Path(state_path))
         for key in ("cluster", "method", "simulator", "hyperparameters"):
@@ -295,8 +364,9 @@ def load_policy(spec: str, learning: bool, state_path: Path | None, policies_dir
                                 "from the trained policy")
         payload, source = saved, Path(state_path)
     learner = learner_from_payload(payload, source)
-    policy = LivePolicy(learner, payload, learning, state_path)
+    policy = LivePolicy(learner, payload, learning, state_path, guidance)
     if source != path:
+        policy.loaded_from = source
         print(f"policy {policy.name}: resuming from {source} ({payload['live']['turns_learned']} live turns learned)",
               file=sys.stderr)
     return policy

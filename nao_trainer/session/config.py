@@ -13,6 +13,7 @@ import difflib
 import hashlib
 import os
 import re
+import string
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -78,6 +79,23 @@ def _schedule(value: list) -> str | None:
     return None
 
 
+STATE_PATH_FIELDS = ("pseudonym", "output")
+
+
+def _state_path(value: str) -> str | None:
+    if value == "{session}":
+        return None
+    try:
+        names = {n for _, n, _, _ in string.Formatter().parse(value) if n is not None}
+    except ValueError as exc:
+        return f"has a broken placeholder ({exc})"
+    unknown = names - set(STATE_PATH_FIELDS)
+    if unknown:
+        return (f"unknown placeholder {{{sorted(unknown)[0]}}}; use {{pseudonym}} and {{output}}, "
+                "or exactly {session} for the session folder")
+    return None
+
+
 SCHEMA: dict[str, Any] = {
     "study": {"name": Field(str), "description": Field(str, nullable=True)},
     "participant": {"pseudonym": Field(str, check=lambda v: None if re.fullmatch(r"[A-Za-z0-9_-]{1,40}", v)
@@ -98,6 +116,7 @@ SCHEMA: dict[str, Any] = {
         "dialogue": Field(str),
         "behaviors": Field(str),
         "output": Field(str),
+        "max_duration_s": Field((int, float), nullable=True, min=1, max=86400),
     },
     "timing": {
         "speed": Field((int, float), min=0.1, max=200),
@@ -124,13 +143,19 @@ SCHEMA: dict[str, Any] = {
         "kind": Field(str, check=_policy_spec),
         "schedule": Field(list, item=str, check=_schedule),
         "learning": Field(bool),
-        "state_path": Field(str, nullable=True),
+        "state_path": Field(str, nullable=True, check=lambda v: _state_path(v)),
+        "guidance": Field((int, float), min=0, max=10),
         # personalised (learn.personalised, docs/personalisation.md)
         "assessment": Field(list, item=int, check=lambda v: None if len(v) <= 12 and all(1 <= x <= 4 for x in v)
                             else "levels 1..4, at most 12 turns"),
         "kappa": Field((int, float), min=0.01),
         "margin": Field((int, float), min=0),
-        "fresh": Field(bool),
+    },
+    "console": {
+        "enabled": Field(bool),
+        "port": Field(int, min=0, max=65535),
+        "bind": Field(str, check=lambda v: None if re.fullmatch(r"[0-9A-Za-z.:-]{1,253}", v)
+                      else "must be an IP address or host name, e.g. 127.0.0.1"),
     },
     # Types only: the modes, scopes, stream properties and processing keys are judged by the one
     # validator of the section, eeg.settings.EEGSettings (called by load_config with file:line).
@@ -181,6 +206,7 @@ class SessionSection:
     dialogue: str
     behaviors: str
     output: str
+    max_duration_s: float | None
 
     @property
     def dialogue_path(self) -> Path:
@@ -235,22 +261,32 @@ class PolicySection:
     schedule: tuple[str, ...]
     learning: bool
     state_path: str | None
+    guidance: float
     assessment: tuple[int, ...]
     kappa: float
     margin: float
-    fresh: bool
 
-    @property
-    def state_file(self) -> Path | None:
-        """``state_path`` resolved (a learning policy's state across sessions), or None."""
-        return Path(self.state_path).expanduser().resolve() if self.state_path else None
+    def state_file(self, pseudonym: str, output: Path) -> Path | None:
+        """Where a learning policy keeps its state across sessions: by default the participant's
+        folder ``<output>/participants/<pseudonym>/policy_state.json``; None = the session folder."""
+        if self.state_path == "{session}":
+            return None
+        template = self.state_path or str(Path("{output}") / "participants" / "{pseudonym}" / "policy_state.json")
+        return Path(template.format(pseudonym=pseudonym, output=output)).expanduser().resolve()
+
+
+@dataclass(frozen=True)
+class ConsoleSection:
+    enabled: bool
+    port: int
+    bind: str
 
 
 #: The dataclass of each schema section (keys = field names, checked at import below).
 SECTIONS: dict[str, type] = {
     "study": StudySection, "participant": ParticipantSection, "robot": RobotSection, "session": SessionSection,
     "timing": TimingSection, "answers": AnswersSection, "participant_model": ParticipantModelSection,
-    "policy": PolicySection, "eeg": EEGSettings,
+    "policy": PolicySection, "console": ConsoleSection, "eeg": EEGSettings,
 }
 assert all(tuple(SCHEMA[name]) == tuple(f.name for f in fields(cls)) for name, cls in SECTIONS.items()), \
     "config SECTIONS and SCHEMA disagree"
@@ -284,25 +320,33 @@ class StudyConfig:
     answers: AnswersSection
     participant_model: ParticipantModelSection
     policy: PolicySection
+    console: ConsoleSection
     eeg: EEGSettings  # what the EEG monitor takes
 
     @classmethod
     def build(cls, values: dict[str, Any], sources: tuple[str, ...], text_sha256: str,
-              eeg: EEGSettings) -> "StudyConfig":
+              eeg: EEGSettings, overrides: dict[str, Any] | None = None) -> "StudyConfig":
         """Typed sections from validated ``values`` (``eeg`` validated by its own settings class)."""
         sections = {name: section(**{k: _frozen(v) for k, v in values[name].items()})
                     for name, section in SECTIONS.items() if name != "eeg"}
-        return cls(values=values, sources=sources, text_sha256=text_sha256, eeg=eeg, **sections)
+        return cls(values=values, sources=sources, text_sha256=text_sha256, eeg=eeg, overrides=overrides, **sections)
 
     def output_dir(self) -> Path:
         return self.session.output_dir
 
+    def policy_state_file(self) -> Path | None:
+        """The learning policy's state file for this participant (``policy.state_path``), None = session folder."""
+        return self.policy.state_file(self.participant.pseudonym, self.output_dir())
+
     def response_timeout_s(self, length: int) -> float:
         return self.timing.response_timeout_s(length)
 
+    overrides: dict[str, Any] | None = None  # the command line's dotted keys (to rebuild the same config)
+
     def snapshot(self) -> dict[str, Any]:
-        """What session.json stores: the merged values (never holds credentials)."""
-        return {"values": self.values, "sources": list(self.sources), "sha256": self.text_sha256}
+        """What session.json stores: the merged values (never holds credentials), and what to load them again."""
+        return {"values": self.values, "sources": list(self.sources), "sha256": self.text_sha256,
+                "overrides": {k: v for k, v in (self.overrides or {}).items() if v is not None}}
 
 
 @dataclass
@@ -446,4 +490,5 @@ def load_config(study: str | Path | None = None, overrides: Mapping[str, Any] | 
     t = values["robot"]
     if t["backoff_max_s"] < t["backoff_initial_s"]:
         raise ConfigError(f"{locs.get('@robot.backoff_max_s')}: key 'robot.backoff_max_s' must be >= robot.backoff_initial_s")
-    return StudyConfig.build(values, tuple(sources), digest.hexdigest(), eeg)
+    return StudyConfig.build(values, tuple(sources), digest.hexdigest(), eeg,
+                             {k: v for k, v in (overrides or {}).items() if v is not None})

@@ -13,7 +13,14 @@ from nao_trainer.files import PROJECT_ROOT
 TURN_STATES = ("select_action", "feedback", "announce", "speak_sequence", "beep", "await_answer", "score", "record")
 INTRO_STATES = ("greet", "instructions", "practice")
 ACTIVE_STATES = INTRO_STATES + TURN_STATES + ("goodbye",)
-STATES: list[str] = [*ACTIVE_STATES, "paused", "aborted", "done"]
+#: A turn is in flight in these states (it has been chosen and not yet recorded).
+IN_TURN = TURN_STATES[1:]
+#: ``paused``: the robot was lost; ``operator_pause``: the operator paused (robot idle, EEG recording).
+STATES: list[str] = [*ACTIVE_STATES, "paused", "operator_pause", "aborted", "done"]
+#: Where pause, stop and repeat act. Not in score/record: an answer already given is recorded first
+#: (the engine holds those commands until the next turn begins).
+INTERRUPTIBLE = INTRO_STATES + TURN_STATES[:6]
+_PLAYING = [*INTRO_STATES, *TURN_STATES]
 TRANSITIONS: list[dict[str, Any]] = [
     {"trigger": "explain", "source": "greet", "dest": "instructions"},
     {"trigger": "practise", "source": "instructions", "dest": "practice"},
@@ -29,12 +36,29 @@ TRANSITIONS: list[dict[str, Any]] = [
     {"trigger": "finish_turns", "source": "record", "dest": "goodbye"},
     {"trigger": "end", "source": "goodbye", "dest": "done"},
     {"trigger": "robot_lost", "source": list(ACTIVE_STATES), "dest": "paused"},
-    {"trigger": "resume_intro", "source": "paused", "dest": "instructions"},
-    {"trigger": "resume_turn", "source": "paused", "dest": "select_action"},
+    {"trigger": "resume_intro", "source": ["paused", "operator_pause"], "dest": "instructions"},
+    {"trigger": "resume_turn", "source": ["paused", "operator_pause"], "dest": "select_action"},
     {"trigger": "resume_goodbye", "source": "paused", "dest": "goodbye"},
     {"trigger": "give_up", "source": "paused", "dest": "aborted"},
-    {"trigger": "abort", "source": [*ACTIVE_STATES, "paused"], "dest": "aborted"},
+    {"trigger": "abort", "source": [*ACTIVE_STATES, "paused", "operator_pause"], "dest": "aborted"},
+    # Operator commands (session.engine drains them between states; see docs/session.md).
+    {"trigger": "pause", "source": list(INTERRUPTIBLE), "dest": "operator_pause"},
+    {"trigger": "operator_stop", "source": [*INTERRUPTIBLE, "operator_pause"], "dest": "goodbye"},
+    {"trigger": "time_up", "source": ["select_action", "operator_pause"], "dest": "goodbye"},
+    {"trigger": "repeat_turn", "source": list(IN_TURN[:5]), "dest": "select_action"},
+    {"trigger": "repeat_last", "source": "select_action", "dest": None},
+    {"trigger": "override_next", "source": [*_PLAYING, "operator_pause"], "dest": None},
+    {"trigger": "mark_invalid", "source": list(IN_TURN), "dest": None},
+    {"trigger": "add_note", "source": [*ACTIVE_STATES, "paused", "operator_pause"], "dest": None},
+    # A resumed session (``run --resume``) goes straight to the next turn.
+    {"trigger": "resume_session", "source": "greet", "dest": "select_action"},
 ]
+#: Which trigger each operator command fires (``repeat``: mid-turn ``repeat_turn``, between turns ``repeat_last``).
+COMMAND_TRIGGERS: dict[str, tuple[str, ...]] = {
+    "pause": ("pause",), "resume": ("resume_turn", "resume_intro"), "stop": ("operator_stop",),
+    "override": ("override_next",), "repeat": ("repeat_turn", "repeat_last"), "invalid": ("mark_invalid",),
+    "note": ("add_note",),
+}
 FINAL_STATES = ("done", "aborted")
 DIAGRAM_PATH = PROJECT_ROOT / "docs" / "session-states.md"
 

@@ -19,7 +19,35 @@ if TYPE_CHECKING:
     from nao_trainer.session.config import StudyConfig
 
 
-class FixedSchedule:
+class StatelessPolicy:
+    """Defaults of ``ports.Policy`` for a policy that does not learn: nothing to save, guide or restore."""
+
+    def observe(self, transition: Transition) -> None:
+        pass
+
+    def bind_state_dir(self, folder: Path) -> None:
+        pass  # nothing to save
+
+    def close(self) -> None:
+        pass
+
+    def probabilities(self, state: int) -> np.ndarray | None:
+        return None
+
+    def guide(self, state: int, action: int) -> None:
+        pass  # the override is played; nothing to learn
+
+    def snapshot(self) -> dict | None:
+        return None
+
+    def restore(self, data: dict | None) -> None:
+        pass
+
+    def status(self) -> dict[str, Any]:
+        return {}  # nothing to report beyond the record
+
+
+class FixedSchedule(StatelessPolicy):
     """Plays a list of actions in order, cycling when the session is longer.
 
     A feedback action is replaced by the first level action of the schedule in ``START`` (where
@@ -53,14 +81,29 @@ class FixedSchedule:
     def bind_state_dir(self, folder: Path) -> None:
         pass  # nothing to save
 
-    def status(self) -> dict[str, Any]:
-        return {}
-
     def close(self) -> None:
         pass
 
+    def probabilities(self, state: int) -> np.ndarray | None:
+        return _one_hot(state, self.actions[self._i % len(self.actions)])
 
-class UniformRandom:
+    def guide(self, state: int, action: int) -> None:
+        pass  # the override is played; nothing to learn
+
+    def snapshot(self) -> dict | None:
+        return {"next": self._i}
+
+    def restore(self, data: dict | None) -> None:
+        self._i = int((data or {}).get("next", 0))
+
+
+def _one_hot(state: int, action: int) -> np.ndarray:
+    probs = np.zeros(mdp.N_ACTIONS)
+    probs[action if mdp.ACTION_MASK[state, action] else int(np.flatnonzero(mdp.ACTION_MASK[state])[0])] = 1.0
+    return probs
+
+
+class UniformRandom(StatelessPolicy):
     """Uniform over the allowed actions of the state, drawn with the session's generator.
 
     This is how the published data were explored: every action equally likely.
@@ -78,15 +121,24 @@ class UniformRandom:
     def bind_state_dir(self, folder: Path) -> None:
         pass  # nothing to save
 
-    def status(self) -> dict[str, Any]:
-        return {}
-
     def close(self) -> None:
+        pass
+
+    def probabilities(self, state: int) -> np.ndarray | None:
+        return mdp.ACTION_MASK[state] / mdp.ACTION_MASK[state].sum()
+
+    def guide(self, state: int, action: int) -> None:
+        pass  # the override is played; nothing to learn
+
+    def snapshot(self) -> dict | None:
+        return None
+
+    def restore(self, data: dict | None) -> None:
         pass
 
 
 def make_policy(spec: str, schedule: Sequence[str], learning: bool, state_path: Path | None,
-                study: "StudyConfig | None" = None) -> Policy:
+                guidance: float = 0.0, fresh: bool = False, study: "StudyConfig | None" = None) -> Policy:
     """The policy named by ``spec``: "schedule", "random", "usp:CLUSTER[:METHOD]" or "personalised"
     (which needs the ``study``: participant, output folder, turns and its ``policy`` settings)."""
     if spec == "personalised":
@@ -98,8 +150,11 @@ def make_policy(spec: str, schedule: Sequence[str], learning: bool, state_path: 
             raise ConfigError(f"policy {spec!r}: learned policies are not available in this install ({exc}); "
                               "use --policy schedule or random") from None
         pol = study.policy
-        return load_personalised(study.output_dir(), study.participant.pseudonym, study.session.turns,
-                                 pol.assessment, float(pol.kappa), float(pol.margin), learning, pol.fresh)
+        # Beside a usp's policy_state.json in the participant's folder, unless policy.state_path names a file.
+        path = state_path.with_name("personalised.json") if state_path is not None and not pol.state_path \
+            else state_path
+        return load_personalised(path, study.participant.pseudonym, study.session.turns, pol.assessment,
+                                 float(pol.kappa), float(pol.margin), learning, fresh, guidance=guidance)
     if spec == "schedule":
         return FixedSchedule(schedule)
     if spec == "random":
@@ -110,5 +165,5 @@ def make_policy(spec: str, schedule: Sequence[str], learning: bool, state_path: 
         except ImportError as exc:
             raise ConfigError(f"policy {spec!r}: learned policies are not available in this install ({exc}); "
                               "use --policy schedule or random") from None
-        return load_policy(spec, learning, state_path)
+        return load_policy(spec, learning, state_path, guidance=guidance, fresh=fresh)
     raise ConfigError(f"policy {spec!r}: use 'schedule', 'random', 'personalised' or 'usp:CLUSTER[:METHOD]'")

@@ -7,7 +7,9 @@ Layout of ``<out>/<pseudonym>_<YYYYmmdd-HHMMSS>[_n]/``:
 * ``events.jsonl``: every state-machine event, robot failure, pause and reconnection, one JSON
   object per line, flushed per line;
 * ``session.json``: configuration snapshot and hash, versions, seed, robot URL (never
-  credentials), start/end time and exit status; written at start, rewritten atomically at the end.
+  credentials), start/end time and exit status; written at start, rewritten atomically at the end;
+* ``checkpoint.json``: after every recorded turn, what ``run --resume`` needs to continue exactly
+  there (engine state, random generator states, the policy's learning state), written atomically.
 
 A folder is never reused: an existing name gets a ``_2``, ``_3``... suffix.
 """
@@ -18,6 +20,7 @@ import datetime as dt
 import json
 import os
 import platform
+import threading
 import time
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -30,9 +33,11 @@ from nao_trainer.files import write_text_atomic
 TURN_COLUMNS: tuple[str, ...] = (
     "turn", "start_time", "state", "length", "level", "feedback", "previous_score", "action",
     "sequence", "response", "success", "score", "signed_score", "reaction_time", "completion_time",
-    "engagement", "engagement_index", "eeg_quality", "answer_engagement", "engagement_note", "notes",
+    "engagement", "engagement_index", "eeg_quality", "answer_engagement", "engagement_note", "notes", "invalid",
     "phase",
 )
+CHECKPOINT = "checkpoint.json"
+CHECKPOINT_FORMAT = "nao-trainer/session-checkpoint-1"
 VERSIONED = ("nao-trainer", "qi", "numpy", "pylsl", "transitions", "PyYAML", "scikit-learn")
 
 
@@ -103,6 +108,7 @@ class SessionRecorder:
     _writer = None
     _events = None
     rows: int = 0
+    _lock: threading.Lock = field(default_factory=threading.Lock)  # events come from the console's thread too
 
     def open(self, info: dict[str, Any]) -> Path:
         """Create the folder and its files; ``info`` is the initial content of session.json."""
@@ -119,6 +125,29 @@ class SessionRecorder:
         self._pending.clear()
         return self.path
 
+    def reopen(self, path: Path, resumption: dict[str, Any]) -> Path:
+        """Continue an existing session folder (``run --resume``): files are appended to, never rewritten."""
+        self.path = Path(path)
+        self._info = json.loads((self.path / "session.json").read_text(encoding="utf-8"))
+        self._info.setdefault("resumptions", []).append(dict(resumption, at=now_iso()))
+        self._info.update(status="running")
+        for key in ("ended", "exit_code", "error"):
+            self._info.pop(key, None)
+        self.rows = sum(1 for _ in read_turns(self.path))
+        self._write_json()
+        self._turns = open(self.path / "turns.csv", "a", newline="", encoding="utf-8")
+        self._writer = csv.DictWriter(self._turns, fieldnames=TURN_COLUMNS, extrasaction="raise")
+        self._events = open(self.path / "events.jsonl", "a", encoding="utf-8")
+        for ev in self._pending:
+            self._write_event(ev)
+        self._pending.clear()
+        return self.path
+
+    def checkpoint(self, data: dict[str, Any]) -> None:
+        """Write ``checkpoint.json`` atomically (the state after the last recorded turn)."""
+        if self.path is not None:
+            write_text_atomic(self.path / CHECKPOINT, json.dumps({"format": CHECKPOINT_FORMAT, **data}, default=str) + "\n")
+
     @property
     def is_open(self) -> bool:
         return self._turns is not None
@@ -127,13 +156,18 @@ class SessionRecorder:
         """Log one event (kept in memory until the folder exists)."""
         ev = {"t": now_iso(), "mono": round(time.monotonic(), 4), "event": name, **data}
         if self._events is None:
+            if self._turns is None and self.path is not None:
+                return  # closed: nothing more is written
             self._pending.append(ev)
         else:
             self._write_event(ev)
 
     def _write_event(self, ev: dict[str, Any]) -> None:
-        self._events.write(json.dumps(ev, default=str) + "\n")
-        self._events.flush()
+        line = json.dumps(ev, default=str) + "\n"
+        with self._lock:
+            if self._events is not None:
+                self._events.write(line)
+                self._events.flush()
 
     def turn(self, row: dict[str, Any]) -> None:
         """Append one turn row and make it durable before returning."""
@@ -156,8 +190,9 @@ class SessionRecorder:
             self._info.update(info, status=status, exit_code=exit_code, ended=now_iso(), turns_recorded=self.rows)
             self._write_json()
             self._turns.close()
-            self._events.close()
-            self._turns = self._events = None
+            with self._lock:
+                self._events.close()
+                self._turns = self._events = None
 
 
 def read_turns(path: Path) -> list[dict[str, str]]:

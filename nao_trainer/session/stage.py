@@ -83,9 +83,10 @@ class Stage:
         """Set the eye colour of ``event``."""
         self.leds(self.behaviors[event].leds)
 
-    def say(self, event: str, behavior: str | None = None, **fields: Any) -> str:
-        """Say a dialogue line of ``event`` with the behavior of ``behavior`` (default: the event's own)."""
-        return self._say_as(behavior or event, event, self.dialogue.say(event, self.rng, **fields))
+    def say(self, event: str, behavior: str | None = None, rng: np.random.Generator | None = None, **fields: Any) -> str:
+        """Say a dialogue line of ``event`` with the behavior of ``behavior`` (default: the event's own);
+        the variant is drawn with ``rng`` (default: the session's generator)."""
+        return self._say_as(behavior or event, event, self.dialogue.say(event, rng or self.rng, **fields))
 
     def feedback(self, kind: int, last_success: bool, level: int, turn: int) -> str:
         """Encouraging (kind 1) or challenging (2) feedback on the last outcome."""

@@ -26,6 +26,7 @@ class Turn:
     success: bool | None = None
     notes: list[str] = field(default_factory=list)
     recorded: bool = False
+    invalid: bool = False  # the operator marked it invalid: recorded, not learned from
     phase: str = ""  # what the policy said the turn is for (e.g. "assessment"), empty when nothing
 
     @property
@@ -67,6 +68,7 @@ class Turn:
             "engagement_note": (lis.reason if lis.engagement is None else "") if lis
             else ("" if self.success is None else "no listening phase"),
             "notes": "; ".join(self.notes),
+            "invalid": True if self.invalid else None,
             "phase": self.phase,
         }
 
@@ -81,6 +83,8 @@ class SessionResult:
     rows: list[dict[str, Any]]
     seed: int
     error: str = ""
+
+    summary_extra: str = ""  # e.g. the resumption this result continues
     policy_summary: str = ""  # what the policy concluded (e.g. the user model the participant matched)
 
     @property
@@ -115,6 +119,7 @@ class SessionResult:
             f"turns completed: {len(self.completed_rows)}   total score: {self.total_score}   "
             f"mean engagement: {'n/a (EEG off)' if eng is None else f'{eng:.2f}'}",
             f"status: {self.status} (exit {self.exit_code})" + (f": {self.error}" if self.error else ""),
+            *([self.summary_extra] if self.summary_extra else []),
             f"session folder: {self.path if self.path else '(none written)'}",
         ]
         if self.policy_summary:
@@ -130,6 +135,13 @@ def progress_line(row: dict[str, Any], n_turns: int, total: int) -> str:
     return (f"turn {row['turn']:3d}/{n_turns}  L{row['level']} {fb}  {row['sequence']:>9} vs "
             f"{row['response']:<9} {mark} {row['score']:+d}  total {total:4d}  E {eng}"
             + (f"  ({row['notes']})" if row["notes"] else "") + (f"  [{row['phase']}]" if row.get("phase") else ""))
+
+def summary_data(result: "SessionResult") -> dict[str, Any]:
+    """The final summary as data (the console shows it)."""
+    return {"status": result.status, "exit_code": result.exit_code, "total_score": result.total_score,
+            "turns_completed": len(result.completed_rows), "mean_engagement": result.mean_engagement,
+            "levels": [{"level": lv, "played": n, "success_rate": rate} for lv, n, rate in result.level_table()],
+            "error": result.error, "policy_summary": result.policy_summary}
 
 
 def _round(x: float | None, nd: int = 4) -> float | None:

@@ -64,8 +64,8 @@ def test_a_torn_participant_state_is_refused_in_one_line_and_fresh_starts_over(t
     path.write_text('{"format": "nao-trainer/participant-personalisation", "format_')
     res = run(out, "--pseudonym", "p9", "--turns", "2")
     assert res.returncode == 2
-    assert res.stderr.count("\n") == 1 and "torn or corrupt" in res.stderr and "--fresh" in res.stderr
-    res = run(out, "--pseudonym", "p9", "--turns", "2", "--fresh")
+    assert res.stderr.count("\n") == 1 and "torn or corrupt" in res.stderr and "--fresh-policy" in res.stderr
+    res = run(out, "--pseudonym", "p9", "--turns", "2", "--fresh-policy")
     assert res.returncode == 0, res.stderr
     assert len(list(path.parent.glob("personalised.json.replaced-*"))) == 1 and path.exists()
 

@@ -11,7 +11,8 @@ from nao_trainer.ports import Transition
 
 
 def load(out, fresh=False, turns=8):
-    return personalised.load_personalised(out, "p01", turns, (2, 3, 4), 10.0, 0.5, True, fresh)
+    return personalised.load_personalised(personalised.participant_file(out, "p01"), "p01", turns, (2, 3, 4), 10.0,
+                                          0.5, True, fresh)
 
 
 def play(policy, successes, seed=0):
@@ -53,7 +54,7 @@ def test_state_persists_across_two_sessions(tmp_path):
 
 
 def one_line(exc):
-    return "\n" not in str(exc.value) and "--fresh" in str(exc.value)
+    return "\n" not in str(exc.value) and "--fresh-policy" in str(exc.value)
 
 
 def test_foreign_or_corrupt_state_is_refused_in_one_line_and_fresh_keeps_it(tmp_path):

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nao_trainer.session.policies import StatelessPolicy
 from nao_trainer.session import engine as sess
 from nao_trainer.session import machine
 from nao_trainer.session.wiring import run_session
@@ -114,7 +115,7 @@ def test_same_seed_same_session(tmp_path):
     assert key(a) != key(c)
 
 
-class RecordingPolicy:
+class RecordingPolicy(StatelessPolicy):
     """A policy that plays L1 then RF1 forever and keeps what the session reports to it."""
 
     name = "recording"

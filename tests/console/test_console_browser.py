@@ -1,0 +1,191 @@
+"""The supervisor console in a real browser (Playwright driving the OS's Chromium) against `nao-trainer run --console`.
+
+Skipped, with a notice, where Chromium or Playwright is missing (.ci/run installs Chromium).
+Set NAO_TRAINER_SCREENSHOT=FILE to save a screenshot of the page mid-session (docs/img/console.png).
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from nao_trainer.session.record import read_events, read_turns
+
+CHROMIUM = os.environ.get("NAO_TRAINER_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
+
+
+def _browser_or_skip():
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        pytest.skip("playwright is not installed (pip install -e '.[test]'): the console's browser tests did not run")
+    if not Path(CHROMIUM).exists():
+        pytest.skip(f"no Chromium at {CHROMIUM} (apt-get install -y chromium; .ci/run installs it): "
+                    "the console's browser tests did not run")
+    return sync_playwright
+
+
+class Run:
+    """`nao-trainer run --console` in a subprocess; its stderr lines are collected as they come."""
+
+    def __init__(self, out: Path, *extra: str) -> None:
+        env = dict(os.environ, QI_LOG_LEVEL="silent")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "nao_trainer", "run", "--console", "--turns", "80", "--speed", "4", "--eeg", "off",
+             "--no-practice", "--policy", "usp:2", "--out", str(out), "--pseudonym", "C1", *extra],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, stdin=subprocess.DEVNULL)
+        self.lines: list[str] = []
+        threading.Thread(target=self._read, daemon=True).start()
+        self.link = self.wait(lambda: next((ln.split()[1] for ln in self.lines if ln.startswith("console: ")), None),
+                              60, "the console link")
+        self.base = self.link.split("?")[0]
+        self.folder = self.wait(lambda: next(iter(out.glob("C1_*")), None), 30, "the session folder")
+
+    def _read(self) -> None:
+        for line in self.proc.stderr:
+            self.lines.append(line.rstrip("\n"))
+
+    def wait(self, predicate, timeout: float, what: str):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            value = predicate()
+            if value:
+                return value
+            if self.proc.poll() is not None and not value:
+                pytest.fail(f"the session ended ({self.proc.returncode}) while waiting for {what}:\n" + "\n".join(self.lines[-20:]))
+            time.sleep(0.05)
+        pytest.fail(f"timed out waiting for {what}")
+
+    def events(self) -> list[dict]:
+        return read_events(self.folder)
+
+    def rows(self) -> list[dict]:
+        return read_turns(self.folder)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    sync_playwright = _browser_or_skip()
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox", "--disable-dev-shm-usage"])
+        yield b
+        b.close()
+
+
+def test_the_console_shows_the_session_live_and_steers_it(browser, tmp_path):
+    run = Run(tmp_path / "out")
+    assert run.link.startswith("http://127.0.0.1:") and "token=" in run.link
+    requests: list[str] = []
+    context = browser.new_context(viewport={"width": 1400, "height": 1100}, bypass_csp=True)  # lets wait_for_function evaluate
+    page = context.new_page()
+    page.on("request", lambda r: requests.append(r.url))
+    page.on("dialog", lambda d: d.accept())  # "Stop the session?"
+    try:
+        resp = page.goto(run.link)
+        assert resp.status == 200 and page.url == run.base  # the token left the URL
+        cookie = next(c for c in context.cookies() if c["name"] == "nao_console")
+        assert cookie["httpOnly"] and cookie["sameSite"] == "Strict"
+        # turns appear live in the table and the chart
+        page.wait_for_function("document.querySelectorAll('#turns tbody tr').length >= 2", timeout=60000)
+        assert page.locator("#chart canvas").count() >= 1
+        assert page.locator("#probs .prob").count() == 6
+        assert "robot: connected" in page.inner_text("#robot")
+        # a second viewer sees the same
+        second = browser.new_context(bypass_csp=True).new_page()
+        second.goto(run.link)
+        second.wait_for_function("document.querySelectorAll('#turns tbody tr').length >= 2", timeout=30000)
+        second.context.close()
+        if os.environ.get("NAO_TRAINER_SCREENSHOT"):
+            page.wait_for_function("document.querySelectorAll('#turns tbody tr').length >= 6", timeout=60000)
+            page.screenshot(path=os.environ["NAO_TRAINER_SCREENSHOT"], full_page=True)
+
+        # pause -> the session pauses (events; the robot's transcript is checked at the end)
+        page.click("#btn-pause")
+        run.wait(lambda: any(e["event"] == "transition" and e["dest"] == "operator_pause" for e in run.events()), 30, "pause")
+        page.wait_for_function("document.getElementById('status').textContent === 'paused'", timeout=10000)
+        n = len(run.rows())
+        time.sleep(1.5)
+        assert len(run.rows()) == n  # no turn played while paused
+        page.click("#btn-resume")
+        run.wait(lambda: any(e["event"] == "transition" and e["trigger"] == "resume_turn" for e in run.events()), 30, "resume")
+
+        # override -> the next row carries that action
+        page.select_option("#override-action", "L4")
+        page.click("#btn-override")
+        row = run.wait(lambda: next((r for r in run.rows() if "operator chose L4" in r["notes"]), None), 60, "the override")
+        assert row["action"] == "L4" and row["level"] == "4"
+        assert [r["action"] for r in run.rows() if int(r["turn"]) == int(row["turn"])][-1] == "L4"
+
+        # mark invalid -> kept with a note, not learned (retried if the click fell between two turns)
+        invalid = None
+        for _ in range(8):
+            page.wait_for_function("document.getElementById('machine').textContent.includes('speak_sequence') || "
+                                   "document.getElementById('machine').textContent.includes('await_answer')", timeout=30000)
+            page.fill("#invalid-note", "phone rang")
+            page.click("#btn-invalid")
+            ok = run.wait(lambda: [e for e in run.events() if e["event"] == "command" and e["kind"] == "invalid"],
+                          20, "the invalid command")[-1]
+            if ok["accepted"]:
+                invalid = ok["turn"]
+                break
+        assert invalid is not None
+        row = run.wait(lambda: next((r for r in run.rows() if r["turn"] == str(invalid) and r["success"]), None), 30, "the row")
+        assert row["invalid"] == "True" and "phone rang" in row["notes"]
+        assert any(e["event"] == "not_learned" and e["turn"] == invalid for e in run.events())
+
+        # stop -> goodbye, exit code 5, safe posture
+        page.click("#btn-stop")
+        assert run.proc.wait(60) == 5
+        page.wait_for_function("document.getElementById('summary-card').className.indexOf('hidden') < 0", timeout=10000)
+        assert "stopped" in page.inner_text("#summary")
+    finally:
+        context.close()
+        if run.proc.poll() is None:
+            run.proc.kill()
+    info = json.loads((run.folder / "session.json").read_text())
+    assert info["status"] == "stopped" and info["exit_code"] == 5
+    transcript = [json.loads(ln) for ln in (run.folder / "robot_transcript.jsonl").read_text().splitlines()]
+    said = [e["args"][0] for e in transcript if e["method"] == "say"]
+    assert "Sorry, I need a short break. Please wait a moment." in said and "Thank you" in " ".join(said[-2:])
+    assert [e["args"][0] for e in transcript if e["method"] == "goToPosture"][-1] == "Crouch"
+    cmds = [(e["kind"], e["source"]) for e in run.events() if e["event"] == "command" and e["accepted"]]
+    assert ("pause", "console") in cmds and ("stop", "console") in cmds
+    # learning saw every completed turn but the invalid one
+    rows = [r for r in run.rows() if r["success"] in ("True", "False")]
+    state = json.loads((run.folder / "policy_state.json").read_text())  # the demo study keeps it in the session folder
+    assert state["payload"]["live"]["turns_learned"] == len(rows) - 1
+    # no request left this machine's console
+    assert requests and all(u.startswith(run.base) for u in requests), [u for u in requests if not u.startswith(run.base)]
+
+
+def test_a_wrong_token_gets_403_and_is_logged(browser, tmp_path):
+    run = Run(tmp_path / "out")
+    context = browser.new_context(bypass_csp=True)
+    page = context.new_page()
+    try:
+        assert page.goto(run.base + "?token=not-the-token").status == 403
+        assert page.goto(run.base).status == 403  # no cookie either
+        assert page.goto(run.base + "state").status == 403
+        api = context.request
+        assert api.post(run.base + "command", data={"kind": "stop"}).status == 403
+        page.goto(run.link)
+        html = page.content()
+        assert "C1" not in html and "NAO_PASSWORD" not in html
+        state = page.evaluate("fetch('/state').then(r => r.text())")
+        assert "C1" not in state  # the pseudonym never reaches the page
+        assert api.get(run.base + "command").status == 405  # commands are POST only
+    finally:
+        context.close()
+        run.proc.terminate()
+        run.proc.wait(30)
+    forbidden = [e for e in read_events(run.folder) if e["event"] == "console_forbidden"]
+    assert len(forbidden) >= 4 and {e["path"] for e in forbidden} >= {"/", "/state", "/command"}
+    assert all(e["client"] == "127.0.0.1" for e in forbidden)
