@@ -21,7 +21,7 @@ import numpy as np
 from nao_trainer import __version__
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import ConfigError, DataError, Interrupted, RobotUnavailable, UserError
-from nao_trainer.files import read_json, write_text_atomic
+from nao_trainer.files import PROJECT_ROOT, read_json, write_text_atomic
 from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, Policy, Robot,
                                RobotConnectionLost, SessionObserver)
 from nao_trainer.session.behaviors import Behaviors, load_behaviors
@@ -101,6 +101,9 @@ def build_simulator(config: StudyConfig) -> UserSimulator:
             from nao_trainer.learn.artifacts import load_simulator
         except ImportError as exc:
             raise ConfigError(f"user model {spec!r}: data-driven simulators are not available in this install ({exc})") from None
+        shipped = PROJECT_ROOT / spec
+        if spec.endswith(".json") and not Path(spec).is_absolute() and not Path(spec).exists() and shipped.exists():
+            spec = str(shipped)  # a file shipped with the project (e.g. the demo's sim/participants/level4.json)
         return load_simulator(spec)
     pm = config.participant_model
     return UserSimulator.from_level_rates("config-levels", list(pm.success_by_level), list(pm.engagement_by_level))

@@ -16,10 +16,20 @@ from nao_trainer.session.record import read_events, read_turns
 PARTICIPANTS = PROJECT_ROOT / "sim" / "participants"
 
 
+STUDY = """study: {name: personalised-test}
+robot: {url: mock}
+answers: {input: simulated}
+policy: {kind: personalised}
+"""
+
+
 def run(out: Path, *args: str) -> subprocess.CompletedProcess:
+    """A study whose participants keep their state (policy.state_path null: their folder), unlike the demo."""
     env = dict(os.environ, QI_LOG_LEVEL="silent")
-    return subprocess.run([sys.executable, "-m", "nao_trainer", "run", "--policy", "personalised", "--out", str(out),
-                           "--eeg", "off", "--no-practice", "--speed", "200", "--seed", "3", *args],
+    study = out.parent / "study.yaml"
+    study.write_text(STUDY)
+    return subprocess.run([sys.executable, "-m", "nao_trainer", "run", "--config", str(study), "--out", str(out),
+                           "--eeg", "off", "--no-practice", "--speed", "50", "--seed", "2018", "--no-keys", *args],
                           capture_output=True, text=True, env=env, timeout=120)
 
 

@@ -83,3 +83,20 @@ def test_foreign_or_corrupt_state_is_refused_in_one_line_and_fresh_keeps_it(tmp_
     kept = list(path.parent.glob("personalised.json.replaced-*"))
     assert len(kept) == 1 and kept[0].read_text() == torn and not path.exists()
     assert fresh.pers.schedule == (2, 3, 4) and np.allclose(fresh.pers.posterior()[0], fresh.models.prior)
+
+
+def test_participants_of_different_ability_get_different_levels_on_average():
+    """Over 300 simulated sessions with the shipped models and policies: the strong participant
+    (best level 4) gets level 4 after the assessment, the weak one (best level 2) does not."""
+    from nao_trainer.core import evaluation
+    from nao_trainer.files import PROJECT_ROOT
+    from nao_trainer.learn.artifacts import load_simulator_file
+
+    visits = {}
+    for who in ("level2", "level4"):
+        policy = personalised.load_personalised(None, who, 25, (2, 2, 3, 3, 4, 4), 10.0, 0.5, False, False)
+        truth = load_simulator_file(PROJECT_ROOT / "sim" / "participants" / f"{who}.json")
+        visits[who] = evaluation.monte_carlo(policy.pers, truth.p_success, truth.engagement, 300,
+                                             np.random.default_rng(0)).visits
+    assert visits["level2"][3] < 2.5 and visits["level4"][3] > 6.0  # 2 level-4 turns are the assessment's
+    assert visits["level2"][1] > 18
