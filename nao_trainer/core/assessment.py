@@ -128,6 +128,7 @@ class Personaliser:
     start_turns: np.ndarray | None = None
     start_map_log_w: np.ndarray | None = None
     probes: tuple[int, ...] = (1, 2, 3)
+    bonus: np.ndarray | None = None  # (n, C) added to the candidates' values in the next decisions
     _v: np.ndarray = field(init=False, repr=False)
     _n: np.ndarray = field(init=False, repr=False)
 
@@ -261,6 +262,8 @@ class Personaliser:
                 self.current[fresh] = np.asarray(self.own_policy)[best]
             return self.current
         ev = self.expected_values(turn)
+        if self.bonus is not None:  # e.g. the supervisor's guidance (learn.personalised)
+            ev = ev + self.bonus
         self.last_ev = ev
         best = ev.argmax(axis=1)
         rows = np.arange(len(best))

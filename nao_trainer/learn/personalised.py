@@ -59,7 +59,7 @@ class PersonalisedPolicy:
 
     def __init__(self, models: ModelSet, learners: list[tuple[str, QLearner]], fingerprint: str, path: Path | None,
                  turns: int, schedule: tuple[int, ...], kappa: float, margin: float, learning: bool,
-                 saved: dict[str, Any] | None = None, use_engagement: bool = False) -> None:
+                 saved: dict[str, Any] | None = None, use_engagement: bool = False, guidance: float = 0.0) -> None:
         self.models = models
         self.learners = learners
         self.fingerprint = fingerprint
@@ -67,6 +67,7 @@ class PersonalisedPolicy:
         self.guided = np.zeros((mdp.N_STATES, mdp.N_ACTIONS), dtype=np.int64)
         self.learning = learning
         self.use_engagement = use_engagement
+        self.guidance = float(guidance)
         self.saved = saved or {}
         history = list(self.saved.get("sessions", []))
         if history:  # a returning participant: the posterior carried over already holds an assessment
@@ -88,7 +89,22 @@ class PersonalisedPolicy:
 
     def act(self, state: int, rng: np.random.Generator) -> int:
         self.last_action_phase = "assessment" if self.pers.in_assessment(self.turn) else "personalised"
+        self.pers.bonus = self.guidance_bonus(state)
         return int(self.pers.act(np.array([state]), self.turn, rng)[0])
+
+    def guidance_bonus(self, state: int) -> np.ndarray | None:
+        """(1, C): the supervisor's overrides in ``state`` as extra value for the candidates that play them.
+
+        ``G_c = guidance * sum_a pi_c(a | s) n(s, a) / n(s) * (spread of the candidates' values + 1)``,
+        the rule of the learning policies (``learn.usp``): with guidance 1 a candidate that always
+        plays the action the supervisor always chose here is preferred; 0 turns it off.
+        """
+        n = self.guided[state]
+        if not (self.guidance and n.sum()):
+            return None
+        share = np.array([c.table[state] @ n for c in self.pers.candidates]) / n.sum()
+        ev = self.pers.expected_values(self.turn)[0]
+        return (self.guidance * share * (ev.max() - ev.min() + 1.0))[None]
 
     def observe(self, transition: Transition) -> None:
         if self._closed:
@@ -120,9 +136,9 @@ class PersonalisedPolicy:
         return self.pers.candidates[current].table[state].copy()
 
     def guide(self, state: int, action: int) -> None:
-        """A supervisor's override: counted (and kept across sessions); the candidate learners learn
-        the overridden turn in ``observe`` like any other (off-policy). The posterior-EV choice is
-        not biased toward overrides."""
+        """A supervisor's override: counted (kept across sessions) and, with ``policy.guidance`` > 0,
+        turned into extra value for the candidates that play it (``guidance_bonus``); the candidate
+        learners learn the overridden turn in ``observe`` like any other (off-policy)."""
         if self.learning:
             self.guided[state, action] += 1
 
@@ -253,8 +269,8 @@ def load_personalised(path: Path | None, pseudonym: str, turns: int, schedule: S
                       use_engagement: bool = False) -> PersonalisedPolicy:
     """The personalised policy for ``pseudonym`` from the shipped models and policies and the
     participant's saved state at ``path`` (None: kept in the session folder, nothing carried over);
-    see the module docstring. ``guidance`` is accepted for the session's interface: overrides are
-    learned from, not weighted (``PersonalisedPolicy.guide``)."""
+    see the module docstring. ``guidance``: how much the supervisor's overrides weigh in the choice
+    (``PersonalisedPolicy.guidance_bonus``)."""
     from nao_trainer.learn import artifacts, usp
 
     manifest = artifacts.load_manifest(models_dir)
@@ -293,7 +309,7 @@ def load_personalised(path: Path | None, pseudonym: str, turns: int, schedule: S
             print(f"policy personalised: {pseudonym} returns after {len(saved['sessions'])} session(s): starting from "
                   f"the saved posterior ({path}); no assessment", file=sys.stderr)
     policy = PersonalisedPolicy(models, learners, fingerprint, path, turns, tuple(int(x) for x in schedule), kappa,
-                                margin, learning, saved, use_engagement)
+                                margin, learning, saved, use_engagement, guidance)
     if saved is not None and "guided" in saved:
         policy.guided = np.array(saved["guided"], dtype=np.int64)
     return policy

@@ -100,3 +100,24 @@ def test_participants_of_different_ability_get_different_levels_on_average():
                                              np.random.default_rng(0)).visits
     assert visits["level2"][3] < 2.5 and visits["level4"][3] > 6.0  # 2 level-4 turns are the assessment's
     assert visits["level2"][1] > 18
+
+
+def test_guidance_feeds_in_and_a_snapshot_restores():
+    guided = personalised.load_personalised(None, "g", 25, (), 10.0, 0.5, True, False, guidance=1.0)
+    plain = personalised.load_personalised(None, "g", 25, (), 10.0, 0.5, True, False, guidance=0.0)
+    rng = np.random.default_rng(0)
+    for pol in (guided, plain):
+        for _ in range(5):
+            pol.guide(mdp.START, 3)  # the supervisor started with level 4, five times
+    assert [guided.act(mdp.START, rng) for _ in range(5)] == [3] * 5  # guidance 1: preferred
+    assert plain.act(mdp.START, rng) != 3  # guidance 0: the posterior choice (level 2 here)
+    assert guided.status()["following"] == "fixed:4"
+    # A checkpoint's snapshot restores the whole state in a new policy.
+    play(plain, [True, False, True, True], seed=2)
+    snap = plain.snapshot()
+    other = personalised.load_personalised(None, "g", 25, (), 10.0, 0.5, True, False)
+    other.restore(snap)
+    assert np.allclose(other.pers.log_w, plain.pers.log_w) and other.turn == plain.turn == 4
+    assert other.status()["following"] == plain.status()["following"]
+    for (_c, a), (_d, b) in zip(plain.learners, other.learners):
+        assert np.array_equal(a.q, b.q)
