@@ -16,30 +16,39 @@ _FLAT_STYLE = {"oracle": ("#8172b3", "per-user oracle"), "best-fixed": ("#55a868
 
 
 def plot_personalise(summary: list[dict[str, Any]], title: str, path: Path) -> Path:
-    """Mean score per session (95 % CI over users) of each pipeline by assessment length, with the
-    baselines that do not assess as horizontal lines."""
+    """Left: mean score per session (95 % CI over users) of each pipeline by assessment length, the
+    baselines that do not assess as horizontal lines. Right: the paired difference to the best fixed
+    level (95 % CI over users), where the intervals are narrow enough to read."""
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(8, 4.8))
+    fig, (ax, dx) = plt.subplots(1, 2, figsize=(13, 4.8))
     for name, (color, label) in _FLAT_STYLE.items():
         entry = next((s for s in summary if s["policy"] == name), None)
         if entry is not None:
             ax.axhline(entry["score"], color=color, ls="--", lw=1.2, label=f"{label} ({entry['score']:.1f})")
+            if entry.get("d_reference") is not None and name != "best-fixed":
+                dx.axhline(entry["d_reference"], color=color, ls="--", lw=1.2,
+                           label=f"{label} ({entry['d_reference']:+.2f})")
+    dx.axhline(0.0, color=_FLAT_STYLE["best-fixed"][0], lw=1.0)
     for name, (color, label) in _PIPELINE_STYLE.items():
         rows = sorted((s for s in summary if s["policy"] == name), key=lambda s: s["assessment"])
         if not rows:
             continue
         x = np.array([s["assessment"] for s in rows])
-        y = np.array([s["score"] for s in rows])
-        lo = np.array([s["score_ci"][0] if s["score_ci"] else s["score"] for s in rows])
-        hi = np.array([s["score_ci"][1] if s["score_ci"] else s["score"] for s in rows])
-        ax.plot(x, y, "o-", color=color, label=label, ms=4)
-        ax.fill_between(x, lo, hi, color=color, alpha=0.15)
-    ax.set_xlabel("assessment turns (blocks at levels 2, 3, 4; included in the 25-turn session)")
+        for axis, key, ci_key in ((ax, "score", "score_ci"), (dx, "d_reference", "d_reference_ci")):
+            y = np.array([s[key] for s in rows])
+            lo = np.array([s[ci_key][0] if s[ci_key] else s[key] for s in rows])
+            hi = np.array([s[ci_key][1] if s[ci_key] else s[key] for s in rows])
+            axis.plot(x, y, "o-", color=color, label=label, ms=4)
+            axis.fill_between(x, lo, hi, color=color, alpha=0.15)
+    for axis in (ax, dx):
+        axis.set_xlabel("assessment turns (blocks at levels 2, 3, 4; included in the 25-turn session)")
     ax.set_ylabel("score per session (equation 1)")
-    ax.set_title(title, fontsize=9)
+    dx.set_ylabel("score minus the best fixed level's (paired)")
     ax.legend(fontsize=7, loc="lower left")
+    dx.legend(fontsize=7, loc="lower left")
+    fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
