@@ -145,7 +145,8 @@ class PersonalisedPolicy:
     def snapshot(self) -> dict | None:
         """The whole state (a session checkpoint carries it; ``restore`` goes back to it)."""
         return {**self.payload(), "turn": self.turn, "current": int(self.pers.current[0]),
-                "switches": int(self.pers.switches[0]), "full": int(self.pers.full[0])}
+                "switches": int(self.pers.switches[0]), "full": int(self.pers.full[0]),
+                "schedule": list(self.pers.schedule), "history": self.history, "started": self.started}
 
     def restore(self, data: dict | None) -> None:
         if not data:
@@ -156,6 +157,11 @@ class PersonalisedPolicy:
         p.wins[0], p.played[0] = data["wins"], data["played"]
         p.current[0], p.switches[0], p.full[0] = data["current"], data["switches"], data["full"]
         self.turn = p.turn = int(data["turn"])
+        # this session's own assessment and the sessions before it (the participant file already
+        # holds the interrupted session itself, which is not a previous one)
+        p.schedule = tuple(int(x) for x in data["schedule"])
+        self.history = list(data["history"])
+        self.started = str(data["started"])
         self.guided = np.array(data.get("guided", self.guided.tolist()), dtype=np.int64)
         restore_learners(self.learners, data["learners"], self.path or Path("checkpoint"))
         for i, (_c, learner) in enumerate(self.learners):
