@@ -177,10 +177,13 @@ class Session:
     def _log_transition(self, event: Any) -> None:
         reason, self._reason = self._reason, None
         turn = self.turn.number if self.turn else None
-        extra = {"reason": reason} if reason else {}
+        extra: dict[str, Any] = {"reason": reason} if reason else {}
+        dest = event.transition.dest
+        if dest is None:  # an internal transition (an operator command that does not change the state)
+            dest, extra["internal"] = self.state, True
         self.rec.event("transition", trigger=event.event.name, source=event.transition.source,
-                       dest=event.transition.dest, turn=turn, **extra)
-        self.observer.notify("state", {"state": event.transition.dest, "trigger": event.event.name, "turn": turn,
+                       dest=dest, turn=turn, **extra)
+        self.observer.notify("state", {"state": dest, "trigger": event.event.name, "turn": turn,
                                        "elapsed_s": round(self.elapsed_s(), 2), **extra})
 
     def elapsed_s(self) -> float:
@@ -417,18 +420,28 @@ class Session:
 
         Returns the trigger of a command that changes the state (stop wins over pause), else None.
         """
-        trigger = None
-        commands, self._held = self._held + self.commands.drain(), []
-        for cmd in commands:
-            if self.state in HOLD_STATES and cmd.kind in ("pause", "stop", "repeat"):
-                self._held.append(cmd)  # the answer is in: record the turn first
-                continue
-            t = self._apply(cmd)
-            if t is not None and trigger != "operator_stop":
-                trigger = t
+        if self.state == "operator_pause":
+            return None  # its handler says the pause line first, then takes the commands
+        trigger = self._apply_pending(hold=self.state in HOLD_STATES)
         if trigger is None and self.state == "select_action" and self._time_up():
             return self._end_for_time()
         return trigger
+
+    def _apply_pending(self, hold: bool = False) -> str | None:
+        """Apply the queued commands in order until one changes the state; the rest wait for the next point.
+
+        ``hold``: pause, stop and repeat wait too (the turn's answer is in: it is recorded first).
+        """
+        pending, self._held = self._held + self.commands.drain(), []
+        for i, cmd in enumerate(pending):
+            if hold and cmd.kind in ("pause", "stop", "repeat"):
+                self._held.append(cmd)
+                continue
+            trigger = self._apply(cmd)
+            if trigger is not None:
+                self._held += pending[i + 1:]
+                return trigger
+        return None
 
     def _end_for_time(self) -> str:
         self.status = "time limit"
@@ -475,6 +488,7 @@ class Session:
                 self._log_command(cmd, False, f"unknown action {name!r}; use {', '.join(mdp.ACTION_NAMES)}")
                 return None
             self._override = mdp.ACTION_NAMES.index(name)
+            self._reason = by
             self.trigger(trigger)
             self._log_command(cmd, True, f"next turn plays {name}")
             return None
@@ -488,10 +502,12 @@ class Session:
             note = str(cmd.args.get("note") or "").strip()
             self.turn.invalid = True
             self.turn.notes.append(f"invalid ({cmd.source})" + (f": {note}" if note else ""))
+            self._reason = by
             self.trigger(trigger)
             self._log_command(cmd, True, f"turn {self.turn.number} marked invalid")
             return None
         if cmd.kind == "note":
+            self._reason = by
             self.trigger(trigger)
             self._log_command(cmd, True, str(cmd.args.get("text", ""))[:500])
             return None
@@ -519,15 +535,14 @@ class Session:
         self._say_progress("paused by the operator: resume with r (or the console), stop with s")
         self.stage.say("paused")
         while True:
-            for cmd in self.commands.drain():
-                trigger = self._apply(cmd)
-                if trigger is not None:
-                    if trigger != "operator_stop":
-                        self.monitor.mark("pause_end", self.turn.number if self.turn else None)
-                        self.observer.notify("pause", {"paused": False})
-                        self._say_progress("resumed by the operator")
-                        self.stage.say("resumed", behavior="greeting")
-                    return trigger
+            trigger = self._apply_pending()
+            if trigger is not None:
+                if trigger != "operator_stop":
+                    self.monitor.mark("pause_end", self.turn.number if self.turn else None)
+                    self.observer.notify("pause", {"paused": False})
+                    self._say_progress("resumed by the operator")
+                    self.stage.say("resumed", behavior="greeting")
+                return trigger
             if self._time_up():
                 return self._end_for_time()
             self.commands.wait(PAUSE_POLL_S)

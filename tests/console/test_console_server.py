@@ -88,3 +88,47 @@ def test_only_loopback_unless_asked_on_the_command_line():
     assert _console_bind(cfg, RunOptions(console_bind="0.0.0.0")) == "0.0.0.0"
     assert _console_bind(load_config(None, {}), RunOptions()) is None  # no console unless asked
     assert _console_bind(load_config(None, {}), RunOptions(console=True)) == "127.0.0.1"
+
+
+def test_another_address_prints_a_warning_and_the_link_never_reaches_the_files(tmp_path):
+    import io
+
+    from nao_trainer.session.record import read_events
+    from nao_trainer.session.wiring import run_session
+
+    cfg = load_config(None, {"session.turns": 1, "timing.speed": 50.0, "eeg.mode": "off", "session.practice": False,
+                             "session.output": str(tmp_path)})
+    out = io.StringIO()
+    result = run_session(cfg, RunOptions(console=True, console_bind="127.0.0.2"), progress=out)
+    text = out.getvalue()
+    assert result.exit_code == 0
+    assert "warning: the console listens on 127.0.0.2" in text
+    link = next(ln.split()[1] for ln in text.splitlines() if ln.startswith("console: "))
+    assert link.startswith("http://127.0.0.2:") and "token=" in link
+    token = link.split("token=")[1]
+    assert token not in "".join(p.read_text() for p in result.path.iterdir() if p.is_file())
+    ev = next(e for e in read_events(result.path) if e["event"] == "console")
+    assert ev["bind"] == "127.0.0.2" and "token" not in ev["url"]
+
+
+def test_ctrl_c_still_reaches_the_session_with_the_console_running(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", "--console", "--speed", "5", "--eeg", "off",
+                             "--out", str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, QI_LOG_LEVEL="silent"), stdin=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        for line in proc.stderr:
+            if line.startswith("console: ") or time.monotonic() > deadline:
+                break
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130 and "status: interrupted (exit 130)" in out

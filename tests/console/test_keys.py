@@ -91,7 +91,7 @@ def test_keys_pause_resume_and_stop_a_session_on_a_real_terminal(tmp_path):
     try:
         folder = wait_for(lambda: out.exists() and next(iter(out.iterdir()), None), 60, "the session folder")
         screen = subprocess.run([tmux, "-L", sock, "capture-pane", "-p", "-t", "k"], capture_output=True, text=True).stdout
-        wait_for(lambda: len(read_turns(folder)) >= 2, 60, "two turns")
+        wait_for(lambda: (folder / "turns.csv").exists() and len(read_turns(folder)) >= 2, 60, "two turns")
         assert HELP in subprocess.run([tmux, "-L", sock, "capture-pane", "-p", "-t", "k", "-S", "-200"],
                                       capture_output=True, text=True).stdout or HELP in screen
         keys("p")

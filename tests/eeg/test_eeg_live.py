@@ -376,3 +376,23 @@ def test_stream_query_pick_prefers_the_muse_name():
     a, muse, b = info("OpenBCI"), info("Muse"), info("Other")
     assert q.pick([a, muse, b]) is muse and q.pick([a, b]) is a and q.pick([]) is None
     assert StreamQuery(prefer_name="Other").pick(iter([a, muse, b])) is b
+
+
+def test_live_view_reports_the_index_and_each_channels_contact(tmp_path):
+    # What the supervisor console shows: the latest index and, per channel, whether it is clean.
+    monitor = _simulated(tmp_path, seed=3)
+    try:
+        deadline = time.monotonic() + 10
+        while (monitor.live() or {}).get("index") is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        good = monitor.live()
+        monitor.simulator.set_fault(1, "flat")
+        time.sleep(1.5)
+        faulty = monitor.live()
+    finally:
+        monitor.close()
+    assert good["status"] == "streaming" and good["index"] is not None
+    names = list(good["channels"])
+    assert len(names) == 4 and all(good["channels"].values())
+    assert faulty["channels"][names[1]] is False and sum(faulty["channels"].values()) == 3
+    assert NullMonitor().live() is None

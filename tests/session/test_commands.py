@@ -193,6 +193,9 @@ def test_notes_and_refused_commands_are_recorded_with_source_and_reason(tmp_path
     note, resume = commands(path)
     assert note["accepted"] and note["detail"] == "participant asked for water" and note["source"] == "console"
     assert not resume["accepted"] and resume["detail"] == "not possible in state greet"
+    moves = [e for e in read_events(path) if e["event"] == "transition"]
+    assert moves[0]["trigger"] == "add_note" and moves[0]["dest"] == "greet" and moves[0]["internal"] is True
+    assert moves[0]["reason"] == "note by operator (console)"
     with pytest.raises(ValueError, match="unknown command"):
         q.submit("dance")
 
@@ -225,3 +228,20 @@ def test_every_command_kind_has_a_transition_in_the_table():
     names = {t["trigger"] for t in TRANSITIONS}
     assert set(COMMAND_TRIGGERS) == set(COMMAND_KINDS)
     assert all(t in names for ts in COMMAND_TRIGGERS.values() for t in ts)
+
+
+def test_commands_sent_together_act_one_state_change_at_a_time(tmp_path):
+    robot = HookedRobot()
+    s, rec, path, q, _ = make(tmp_path, robot, turns=3)
+
+    def burst():
+        q.submit("pause", source="console")
+        q.submit("note", {"text": "after the pause"}, source="console")
+        q.submit("resume", source="console")
+
+    robot.hooks["Level 2."] = [burst]
+    assert run(s, rec) == EXIT_OK
+    cmds = commands(path)
+    assert [(c["kind"], c["state"], c["accepted"]) for c in cmds] == [
+        ("pause", "speak_sequence", True), ("note", "operator_pause", True), ("resume", "operator_pause", True)]
+    assert robot.said().count(PAUSE_LINE) == 1 and len([r for r in read_turns(path) if r["success"]]) == 3

@@ -24,6 +24,9 @@ def study(tmp_path: Path) -> Path:
     text = (ROOT / "config" / "studies" / "demo.yaml").read_text()
     text = text.replace("mode: simulated", 'mode: "off"').replace("speed: 25", "speed: 10")
     text = text.replace('state_path: "{session}"', "state_path: null")  # per participant (the default)
+    # Both runs must see the same presses: without a debounce no press of the simulated hand can be
+    # merged with the one before when the machine is busy (the comparison is about the random streams).
+    text = text.replace("answers:\n  input: simulated", "answers:\n  input: simulated\n  debounce_s: 0.0")
     path = tmp_path / "study.yaml"
     path.write_text(text)
     return path
@@ -41,6 +44,7 @@ def comparable(rows):
 
 def test_a_killed_session_resumes_and_plays_the_same_turns_as_an_uninterrupted_one(tmp_path):
     cfg = study(tmp_path)
+    assert "debounce_s: 0.0" in cfg.read_text()
     flags = ["--config", str(cfg), "--turns", "10", "--seed", "77", "--pseudonym", "R", "--quiet"]
     whole = run(*flags, "--out", str(tmp_path / "a"))
     killed = run(*flags, "--out", str(tmp_path / "b"))

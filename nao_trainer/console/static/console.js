@@ -97,7 +97,7 @@ function renderChart() {
     chart = new uPlot({ width, height: 200, scales: { x: { time: false }, y: { range: [0, 1] } },
       series: [{ label: "turn" }, { label: "engagement", stroke: "#1f6fd1", width: 2, points: { show: true } },
                { label: "level / 4", stroke: "#b36b00", dash: [4, 4] }],
-      axes: [{ label: "turn" }, {}] }, data, $("chart"));
+      axes: [{ label: "turn", incrs: [1, 2, 5, 10, 20, 50] }, {}] }, data, $("chart"));
   } else { chart.setData(data); }
 }
 
