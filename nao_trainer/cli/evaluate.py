@@ -12,6 +12,10 @@ from nao_trainer.errors import ConfigError, DataError
 
 MDPS = ("paper", "informed")  # core.mdps.NAMES, repeated so that --help does not import numpy
 ROWS_FILE = "evaluation_rows.csv.gz"
+PERSONALISE_ROWS_FILE = "personalise_rows.csv.gz"
+PERSONALISE_ROW_COLUMNS = ("user", "cluster", "user_best_level", "policy", "assessment", "score", "engagement",
+                           "success", "regret", "samples", "switches", "matched", "level", "visits_1", "visits_2",
+                           "visits_3", "visits_4")
 ROW_COLUMNS = ("user", "cluster", "policy", "seed", "score", "engagement", "success", "regret", "samples",
                "visits_l1", "visits_l2", "visits_l3", "visits_l4")
 
@@ -269,11 +273,12 @@ def run_personalise(args) -> int:
                        "session_prior": "data" if spec.session_prior is None else spec.session_prior,
                        "margin": spec.margin, "method": spec.method, "episodes": spec.episodes,
                        "mc_episodes": spec.mc_episodes, "turns": spec.turns, "seed": spec.seed},
-              "summary": summary, "engagement_information": engagement, "rows": result["rows"],
+              "summary": summary, "engagement_information": engagement, "rows_file": PERSONALISE_ROWS_FILE,
               "seconds": round(time.perf_counter() - t0, 2)}
     write_json_atomic(out / "personalise.json", report)
     write_text_atomic(out / "personalise.csv", personalise_csv(summary))
-    paths = [out / "personalise.json", out / "personalise.csv"]
+    write_personalise_rows(result["rows"], out / PERSONALISE_ROWS_FILE)
+    paths = [out / "personalise.json", out / "personalise.csv", out / PERSONALISE_ROWS_FILE]
     if args.export_users is not None:
         for user in result["users"]:
             name = user["name"].removeprefix("session:").replace("/", "_")
@@ -336,3 +341,18 @@ def personalise_csv(summary: list[dict]) -> str:
                 *lo_hi(g.get("share_ci")), f"{s['regret']:.6g}", s.get("matched", ""), s.get("switches", "")]
         lines.append(",".join(str(v) for v in vals))
     return "\n".join(lines) + "\n"
+
+
+def write_personalise_rows(rows: list[dict], path: Path) -> None:
+    """Every (user, policy, assessment length) row of ``--personalise`` as gzip CSV (same bytes for the same run)."""
+    import gzip
+    import os
+
+    lines = [",".join(PERSONALISE_ROW_COLUMNS)]
+    for r in rows:
+        vals = [r.get(k) for k in PERSONALISE_ROW_COLUMNS[:-4]] + list(r["visits"])
+        lines.append(",".join("" if v is None else repr(v) if isinstance(v, float) else str(v) for v in vals))
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb", mtime=0, filename="") as fh:
+        fh.write(("\n".join(lines) + "\n").encode())
+    os.replace(tmp, path)

@@ -96,6 +96,11 @@ def test_evaluate_personalise_on_a_held_out_session(dataset_root, tmp_path, monk
     assert all(oracle["score"] >= s["score"] - 1e-9 for s in exact)
     assert [e["turns"] for e in report["engagement_information"]] == [6, 12, 25]
     assert (out / "personalise.csv").read_text().startswith("policy,assessment,users,score")
+    import gzip
+
+    with gzip.open(out / "personalise_rows.csv.gz", "rt") as fh:
+        lines = fh.read().splitlines()
+    assert lines[0].startswith("user,cluster,user_best_level,policy,assessment") and len(lines) == 1 + 4 + 3 * 2
     from nao_trainer.learn.artifacts import load_simulator_file
 
     (exported,) = list(users.iterdir())
