@@ -126,17 +126,20 @@ def test_the_console_shows_the_session_live_and_steers_it(browser, tmp_path):
 
         # mark invalid -> kept with a note, not learned (retried if the click fell between two turns)
         invalid = None
-        for _ in range(8):
+
+        def invalid_commands():
+            return [e for e in run.events() if e["event"] == "command" and e["kind"] == "invalid"]
+
+        for attempt in range(8):
             page.wait_for_function("document.getElementById('machine').textContent.includes('speak_sequence') || "
                                    "document.getElementById('machine').textContent.includes('await_answer')", timeout=30000)
             page.fill("#invalid-note", "phone rang")
             page.click("#btn-invalid")
-            ok = run.wait(lambda: [e for e in run.events() if e["event"] == "command" and e["kind"] == "invalid"],
-                          20, "the invalid command")[-1]
+            ok = run.wait(lambda: len(invalid_commands()) > attempt and invalid_commands(), 20, "the invalid command")[-1]
             if ok["accepted"]:
                 invalid = ok["turn"]
                 break
-        assert invalid is not None
+        assert invalid is not None, invalid_commands()
         row = run.wait(lambda: next((r for r in run.rows() if r["turn"] == str(invalid) and r["success"]), None), 30, "the row")
         assert row["invalid"] == "True" and "phone rang" in row["notes"]
         assert any(e["event"] == "not_learned" and e["turn"] == invalid for e in run.events())
