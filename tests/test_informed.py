@@ -44,7 +44,7 @@ def informed_policies(tmp_path_factory):
     sims = [artifacts.load_simulator(c) for c in ("1", "2")]
     result = train_grid(sims, ["1", "2"], TrainingSpec(seeds=2, episodes=100, workers=1, process="informed"),
                         progress=False)
-    write_outputs(result, out, "sim/models", "test", plots=False)
+    write_outputs(result, out, "sim/models", "test")
     return out, result
 
 
