@@ -15,3 +15,13 @@ $NT evaluate --users sessions --data "$ROOT" --mdp informed --out docs/results/s
 $NT evaluate --users clusters --policy-files sim/policies \
     --policies fixed:2,best-fixed,usp:performance,usp:shaping,usp:qaug,usp-learning:qaug,oracle \
     --out docs/results/clusters-shipped
+# Personalising for a new participant (docs/personalisation.md): held-out sessions, assessment lengths 0-12
+$NT evaluate --personalise --users sessions --data "$ROOT" --out docs/results/personalise
+USERS=$(mktemp -d)
+$NT evaluate --personalise --users sessions --data "$ROOT" --session-prior 2 --out docs/results/personalise-own-rates \
+    --export-users "$USERS"
+# the demo's two simulated participants: one whose best level is 2, one whose best is 4 (own rates)
+mkdir -p sim/participants
+cp "$USERS/user_17_session_1.json" sim/participants/level2.json
+cp "$USERS/user_8_session_1.json" sim/participants/level4.json
+rm -r "$USERS"

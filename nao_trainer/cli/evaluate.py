@@ -12,6 +12,10 @@ from nao_trainer.errors import ConfigError, DataError
 
 MDPS = ("paper", "informed")  # core.mdps.NAMES, repeated so that --help does not import numpy
 ROWS_FILE = "evaluation_rows.csv.gz"
+PERSONALISE_ROWS_FILE = "personalise_rows.csv.gz"
+PERSONALISE_ROW_COLUMNS = ("user", "cluster", "user_best_level", "policy", "assessment", "score", "engagement",
+                           "success", "regret", "samples", "switches", "matched", "level", "visits_1", "visits_2",
+                           "visits_3", "visits_4")
 ROW_COLUMNS = ("user", "cluster", "policy", "seed", "score", "engagement", "success", "regret", "samples",
                "visits_l1", "visits_l2", "visits_l3", "visits_l4")
 
@@ -49,10 +53,29 @@ def register(sub) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--per-user", action="store_true",
                    help="also print each user's mean score per policy (mean over seeds)")
+    g = p.add_argument_group("personalisation (docs/personalisation.md)")
+    g.add_argument("--personalise", action="store_true",
+                   help="evaluate the personalisation pipeline (assess, match, choose, keep learning) on held-out "
+                        "sessions against always level 2, the best fixed level, a generic policy, the paper's "
+                        "pipeline and the per-user oracle; needs --users sessions --data DATASET_ROOT")
+    g.add_argument("--assessment", default="0-12", metavar="LENGTHS",
+                   help="assessment lengths to compare, e.g. 0-12 or 0,6,12 (default 0-12)")
+    g.add_argument("--kappa", type=float, default=10.0,
+                   help="strength (pseudo-turns) of the per-level Beta priors; inf: no per-level learning (default 10)")
+    g.add_argument("--margin", type=float, default=0.5,
+                   help="anti-flip-flop margin: points of expected value a new policy must gain (default 0.5)")
+    g.add_argument("--session-prior", default="data", metavar="data|K",
+                   help="shrinkage of each held-out session's success per level toward its cluster: 'data' (the "
+                        "Beta prior of --users sessions, strength estimated from the data; default) or K pseudo-turns "
+                        "(e.g. 2: the session's own rates)")
+    g.add_argument("--export-users", type=Path, default=None, metavar="DIR",
+                   help="also write every held-out session's user simulator to DIR (usable as --user-model FILE)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    if getattr(args, "personalise", False):
+        return run_personalise(args)
     from nao_trainer.learn import comparison, users
     from nao_trainer.learn.parallel import check_backend
 
@@ -200,3 +223,136 @@ def to_csv(summary: list[dict]) -> str:
                 "" if not ref else f"{ref['score_diff']:.6g}", *lo_hi(ref.get("score_diff_ci"))]
         lines.append(",".join(str(v) for v in vals))
     return "\n".join(lines) + "\n"
+
+
+def run_personalise(args) -> int:
+    """``evaluate --personalise``: the pipeline on leave-one-session-out users (learn.personalise)."""
+    from nao_trainer.files import write_json_atomic, write_text_atomic
+    from nao_trainer.learn import artifacts, personalise
+    from nao_trainer.learn.parallel import check_backend
+
+    if args.users not in ("sessions",) and not Path(args.users).exists():
+        raise ConfigError("--personalise evaluates on held-out sessions: use --users sessions --data DATASET_ROOT")
+    source = args.data if args.users == "sessions" else Path(args.users)
+    if source is None:
+        raise ConfigError("--personalise needs the dataset: add --data DATASET_ROOT")
+    if args.policies:
+        raise ConfigError("--personalise compares a fixed set of policies; drop --policies")
+    try:
+        session_prior = None if args.session_prior == "data" else float(args.session_prior)
+    except ValueError:
+        raise ConfigError(f"--session-prior must be 'data' or a number of pseudo-turns, got {args.session_prior!r}") from None
+    spec = personalise.PersonaliseSpec(lengths=personalise.parse_lengths(args.assessment), kappa=args.kappa,
+                                       session_prior=session_prior,
+                                       margin=args.margin, episodes=args.episodes, seeds=1,
+                                       mc_episodes=args.mc_episodes, seed=args.seed)
+    check_backend(args.backend)
+    if args.workers < 1 or (args.limit is not None and args.limit < 1):
+        raise ConfigError("--workers and --limit must be >= 1")
+    if not args.no_plots and importlib.util.find_spec("matplotlib") is None:
+        raise ConfigError("figures need matplotlib: pip install 'nao-trainer[plots]', or add --no-plots")
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        if args.export_users is not None:
+            Path(args.export_users).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DataError(f"{exc.filename}: cannot create the folder ({exc.strerror}); choose another") from None
+    manifest = artifacts.load_manifest(args.models)
+    t0 = time.perf_counter()
+    print(f"evaluate --personalise: held-out sessions of {source}, assessment lengths {list(spec.lengths)}",
+          file=sys.stderr)
+    result = personalise.run(source, spec, manifest.get("compat"), int(manifest.get("k", 3)), workers=args.workers,
+                             backend=args.backend, limit=args.limit)
+    summary = personalise.summarise(result["rows"])
+    engagement = personalise.summarise_engagement(result["engagement"])
+    argv = getattr(args, "argv", None) or ["evaluate", "--personalise"]
+    report = {"command": "nao-trainer " + " ".join(shlex.quote(a) for a in argv),
+              "users": "sessions (leave-one-session-out)", "n_users": len(result["users"]),
+              "spec": {"lengths": list(spec.lengths), "levels": list(spec.levels), "kappa": spec.kappa,
+                       "session_prior": "data" if spec.session_prior is None else spec.session_prior,
+                       "margin": spec.margin, "method": spec.method, "episodes": spec.episodes,
+                       "mc_episodes": spec.mc_episodes, "turns": spec.turns, "seed": spec.seed},
+              "summary": summary, "engagement_information": engagement, "rows_file": PERSONALISE_ROWS_FILE,
+              "seconds": round(time.perf_counter() - t0, 2)}
+    write_json_atomic(out / "personalise.json", report)
+    write_text_atomic(out / "personalise.csv", personalise_csv(summary))
+    write_personalise_rows(result["rows"], out / PERSONALISE_ROWS_FILE)
+    paths = [out / "personalise.json", out / "personalise.csv", out / PERSONALISE_ROWS_FILE]
+    if args.export_users is not None:
+        for user in result["users"]:
+            name = user["name"].removeprefix("session:").replace("/", "_")
+            write_json_atomic(Path(args.export_users) / f"{name}.json", user)
+        paths.append(Path(args.export_users))
+    if not args.no_plots:
+        from nao_trainer.plots.personalise import plot_personalise
+
+        prior = "Beta prior from the data" if spec.session_prior is None else f"own rates, prior {spec.session_prior:g} turns"
+        title = (f"{len(result['users'])} held-out sessions (leave-one-session-out; {prior}): "
+                 "means and 95 % CIs over users")
+        paths.append(plot_personalise(summary, title, out / "personalise.png"))
+    if args.json:
+        print(json.dumps({k: v for k, v in report.items() if k != "rows"}))
+    else:
+        print(format_personalise(summary, engagement))
+        for path in paths:
+            print(f"  {path}")
+    return 0
+
+
+def _share(g: dict) -> str:
+    if g.get("share") is None:
+        return "n/a"
+    return f"{g['share']:+.2f} {_ci(g['share_ci'])}"
+
+
+def format_personalise(summary: list[dict], engagement: list[dict]) -> str:
+    """The personalisation summary as aligned text (d best-fixed: paired score difference)."""
+    lines = [f"{'policy':<14} {'A':>3} {'score':>7} {'95% CI':>17} {'d best-fixed':>13} {'95% CI':>17} "
+             f"{'gap closed':>24} {'matched':>8}"]
+    for s in summary:
+        a = "" if s["assessment"] is None else str(s["assessment"])
+        d = "" if s["d_reference"] is None else f"{s['d_reference']:+.2f}"
+        m = f"{s['matched']:.2f}" if "matched" in s else ""
+        lines.append(f"{s['policy']:<14} {a:>3} {s['score']:7.2f} {_ci(s['score_ci']):>17} {d:>13} "
+                     f"{_ci(s['d_reference_ci']):>17} {_share(s['gap_closed']):>24} {m:>8}")
+    if engagement:
+        lines.append("does engagement help the match? (real turns of each held-out session; P = P(its cluster))")
+        for e in engagement:
+            a, b = e["outcomes"], e["outcomes+engagement"]
+            lines.append(f"  first {e['turns']:2d} turns: outcomes only {a['accuracy']:.2f} right, P {a['p_true']:.2f}; "
+                         f"with engagement {b['accuracy']:.2f} right, P {b['p_true']:.2f}; "
+                         f"diff P {e['p_true_diff']:+.3f} {_ci(e['p_true_diff_ci'], 3)}")
+    return "\n".join(lines)
+
+
+def personalise_csv(summary: list[dict]) -> str:
+    cols = ["policy", "assessment", "users", "score", "score_lo", "score_hi", "d_best_fixed", "d_best_fixed_lo",
+            "d_best_fixed_hi", "gap_closed", "gap_closed_lo", "gap_closed_hi", "regret", "matched", "switches"]
+    lines = [",".join(cols)]
+    for s in summary:
+        def lo_hi(ci):
+            return ("", "") if not ci else (f"{ci[0]:.6g}", f"{ci[1]:.6g}")
+
+        g = s["gap_closed"]
+        vals = [s["policy"], "" if s["assessment"] is None else s["assessment"], s["users"], f"{s['score']:.6g}",
+                *lo_hi(s["score_ci"]), "" if s["d_reference"] is None else f"{s['d_reference']:.6g}",
+                *lo_hi(s["d_reference_ci"]), "" if g.get("share") is None else f"{g['share']:.6g}",
+                *lo_hi(g.get("share_ci")), f"{s['regret']:.6g}", s.get("matched", ""), s.get("switches", "")]
+        lines.append(",".join(str(v) for v in vals))
+    return "\n".join(lines) + "\n"
+
+
+def write_personalise_rows(rows: list[dict], path: Path) -> None:
+    """Every (user, policy, assessment length) row of ``--personalise`` as gzip CSV (same bytes for the same run)."""
+    import gzip
+    import os
+
+    lines = [",".join(PERSONALISE_ROW_COLUMNS)]
+    for r in rows:
+        vals = [r.get(k) for k in PERSONALISE_ROW_COLUMNS[:-4]] + list(r["visits"])
+        lines.append(",".join("" if v is None else repr(v) if isinstance(v, float) else str(v) for v in vals))
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb", mtime=0, filename="") as fh:
+        fh.write(("\n".join(lines) + "\n").encode())
+    os.replace(tmp, path)

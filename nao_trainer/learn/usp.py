@@ -283,6 +283,9 @@ class LivePolicy:
         live["updated"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
         self.save()
 
+    def status(self) -> dict[str, Any]:
+        return {}
+
     def bind_state_dir(self, folder: Path) -> None:
         """Without a configured state file, a learning policy saves into the session ``folder``."""
         if self.learning and self.state_path is None:

@@ -72,9 +72,9 @@ def is_robot_address(url: str) -> bool:
 
 
 def _policy_spec(value: str) -> str | None:
-    if value in ("schedule", "random") or re.fullmatch(r"usp:[^:\s]+(:[A-Za-z0-9_-]+)?", value):
+    if value in ("schedule", "random", "personalised") or re.fullmatch(r"usp:[^:\s]+(:[A-Za-z0-9_-]+)?", value):
         return None
-    return "must be 'schedule', 'random' or 'usp:CLUSTER[:METHOD]'"
+    return "must be 'schedule', 'random', 'personalised' or 'usp:CLUSTER[:METHOD]'"
 
 
 def _schedule(value: list) -> str | None:
@@ -156,6 +156,11 @@ SCHEMA: dict[str, Any] = {
         "learning": Field(bool),
         "state_path": Field(str, nullable=True, check=lambda v: _state_path(v)),
         "guidance": Field((int, float), min=0, max=10),
+        # personalised (learn.personalised, docs/personalisation.md)
+        "assessment": Field(list, item=int, check=lambda v: None if len(v) <= 12 and all(1 <= x <= 4 for x in v)
+                            else "levels 1..4, at most 12 turns"),
+        "kappa": Field((int, float), min=0.01),
+        "margin": Field((int, float), min=0),
     },
     "console": {
         "enabled": Field(bool),
@@ -269,6 +274,9 @@ class PolicySection:
     learning: bool
     state_path: str | None
     guidance: float
+    assessment: tuple[int, ...]
+    kappa: float
+    margin: float
 
     def state_file(self, pseudonym: str, output: Path) -> Path | None:
         """Where a learning policy keeps its state across sessions: by default the participant's
