@@ -29,11 +29,15 @@ setup(
         "plots": ["matplotlib>=3.7"],
         "gym": ["gymnasium>=1.0"],
         "console": ["starlette>=0.37", "uvicorn>=0.29"],
+        # the compiled learner (core.qkernel); without it training runs the numpy learner (same results)
+        "fast": ["numba>=0.60"],
+        # fan-out of training, sweeps and evaluations (learn.parallel); dask://HOST:PORT backends
+        "cluster": ["joblib>=1.3", "dask[distributed]>=2024.1"],
         # session.xdf: LabRecorder's engine (a release candidate, binary wheels) and the reader
         "xdf": ["labrecorder>=1.0.0rc0", "pyxdf>=1.16"],
         "test": ["pytest>=7", "pytest-xdist>=3", "playwright>=1.40", "pyxdf>=1.16"],
-        "all": ["matplotlib>=3.7", "gymnasium>=1.0", "starlette>=0.37", "uvicorn>=0.29", "labrecorder>=1.0.0rc0",
-                "pyxdf>=1.16"],
+        "all": ["matplotlib>=3.7", "gymnasium>=1.0", "starlette>=0.37", "uvicorn>=0.29", "numba>=0.60", "joblib>=1.3",
+                "dask[distributed]>=2024.1", "labrecorder>=1.0.0rc0", "pyxdf>=1.16"],
     },
     # The console's page and the vendored uPlot (MIT; version and licence in console/static/).
     package_data={"nao_trainer.console": ["static/*"]},

@@ -1,7 +1,8 @@
-"""Benchmark: the full policy-training grid (issue 5's speed target).
+"""Benchmark: the full policy-training grid.
 
 3 user models x 3 methods x 20 seeds x 10,000 episodes x 25 turns = 45 M simulated turns,
-target <= 20 s on a 2-core machine. Prints the wall time of the training itself (worker start-up
+target <= 6 s on a 2-core machine (the compiled kernel, ``core.qkernel``; ``--engine numpy`` measures
+the vectorised numpy learner, 13.7 s before the kernel). Prints the wall time of the training itself (worker start-up
 included, output writing excluded) and simulated turns per second. Uses the shipped user models
 (sim/models) when present, otherwise three per-level-rate simulators.
 
@@ -14,14 +15,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import sys
 import time
 
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.learn.training import TrainingSpec, train_grid
 
-TARGET_TURNS, TARGET_S = 45e6, 20.0  # the full grid in <= 20 s
+TARGET_TURNS, TARGET_S = 45e6, 6.0  # the full grid in <= 6 s
 
 def simulators() -> tuple[list[UserSimulator], list[str], str]:
     try:
@@ -43,29 +43,29 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--repeat", type=int, default=2, help="measure this many times (the machine may be shared)")
+    ap.add_argument("--engine", default="auto", choices=["auto", "numpy", "numba"], help="learner engine")
     args = ap.parse_args()
     sims, ids, source = simulators()
-    spec = TrainingSpec(seeds=args.seeds, episodes=args.episodes, workers=args.workers)
+    spec = TrainingSpec(seeds=args.seeds, episodes=args.episodes, workers=args.workers, engine=args.engine)
     n_turns = len(ids) * len(spec.methods) * spec.seeds * spec.episodes * spec.turns
     print(f"policy training grid: {len(ids)} models ({source}) x {len(spec.methods)} methods x {spec.seeds} seeds x "
-          f"{spec.episodes} episodes x {spec.turns} turns = {n_turns / 1e6:.1f} M turns, {spec.workers} workers")
+          f"{spec.episodes} episodes x {spec.turns} turns = {n_turns / 1e6:.1f} M turns, {spec.workers} workers, "
+          f"engine {spec.engine}")
     times = []
     for i in range(args.repeat):
         load = os.getloadavg()[0]
-        cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN).ru_utime + resource.getrusage(resource.RUSAGE_SELF).ru_utime
         t0 = time.perf_counter()
         result = train_grid(sims, ids, spec, progress=False)
         wall = time.perf_counter() - t0
-        cpu = resource.getrusage(resource.RUSAGE_CHILDREN).ru_utime + resource.getrusage(resource.RUSAGE_SELF).ru_utime - cpu0
         times.append(wall)
         assert result.turns == n_turns
         print(f"  run {i + 1}: {wall:6.2f} s  {n_turns / wall / 1e6:5.2f} M turns/s  "
-              f"(CPU {cpu:.1f} s over all processes; load average before: {load:.2f})")
+              f"(load average before: {load:.2f}{'; worker processes started in this run' if i == 0 else '; workers reused'})")
     best = min(times)
     judged = n_turns >= TARGET_TURNS
     ok = not judged or best <= TARGET_S * n_turns / TARGET_TURNS
     verdict = ("OK" if ok else "MISSED") if judged else "(smaller grid: not judged)"
-    print(f"best: {best:.2f} s, {n_turns / best / 1e6:.2f} M simulated turns/s (target: 45 M turns in <= 20 s) "
+    print(f"best: {best:.2f} s, {n_turns / best / 1e6:.2f} M simulated turns/s (target: 45 M turns in <= 6 s) "
           f"{verdict}")
     return 0 if ok else 1
 

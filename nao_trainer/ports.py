@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Protocol, runtime_checkable
+from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -254,6 +254,14 @@ class Policy(Protocol):
 
     def bind_state_dir(self, folder: Path) -> None:
         """The session folder exists: a learning policy without a state file of its own saves there."""
+
+    def status(self) -> dict[str, Any]:
+        """What the policy believes, for the record and the operator ({} when nothing to say).
+
+        Keys the session uses when present: ``phase`` (of the turn just chosen, recorded in
+        turns.csv), ``progress`` (a line after the turn's progress line), ``summary`` (the end of
+        the session summary); the whole dict goes to events.jsonl after every turn.
+        """
 
     def close(self) -> None:
         """Persist whatever must survive the session."""

@@ -20,8 +20,10 @@ def register(sub) -> None:
     p.add_argument("source", metavar="SOURCE", type=Path, help="study folder, dataset root or turn-table CSV")
     p.add_argument("--out", "-o", type=Path, required=True, metavar="DIR", help="folder for the models and figures")
     p.add_argument("--compat", choices=["authors2018"], default=None,
-                   help="per-turn engagement as the authors computed it (reproduces the paper's user models); "
-                   "for a turn-table CSV the mode recorded in its CSV.json applies")
+                   help="per-turn engagement as the authors computed it and the authors' simulators (full state "
+                   "regression; reproduces the paper's user models). Default: the project's engagement and "
+                   "simulators that keep an effect only where a test supports it (docs/evaluation.md). For a "
+                   "turn-table CSV the mode recorded in its CSV.json applies")
     p.add_argument("--k", type=int, default=3, help="number of clusters (default 3)")
     p.add_argument("--seed", type=int, default=0, help="seed of K-means, MDS and cross-validation folds")
     p.add_argument("--json", action="store_true", help="print the cluster table as JSON on stdout")

@@ -32,7 +32,9 @@ def register(sub) -> None:
                    help="use only the LSL stream with this source_id (one headband among several; eeg.source_id)")
     p.add_argument("--user-model", metavar="CLUSTER|FILE",
                    help="simulated participant from a fitted user model (cluster id or simulator JSON)")
-    p.add_argument("--policy", metavar="SPEC", help="schedule | random | usp:CLUSTER[:METHOD]")
+    p.add_argument("--policy", metavar="SPEC",
+                   help="schedule | random | usp:CLUSTER[:METHOD] | personalised (assess, match the user models, "
+                        "choose by posterior expected value, keep learning; docs/personalisation.md)")
     p.add_argument("--no-learning", action="store_true", help="a learning policy does not update during the session")
     p.add_argument("--no-practice", action="store_true", help="skip the practice round")
     p.add_argument("--quiet", action="store_true", help="no per-turn progress lines")
@@ -43,7 +45,7 @@ def register(sub) -> None:
                    help="continue an interrupted session in its folder (its configuration, seed and learning state)")
     p.add_argument("--fresh-policy", action="store_true",
                    help="start a learning policy from the trained one, not from the participant's saved state "
-                        "(the old state is moved aside)")
+                        "(the old state is moved aside); personalised: start from the prior")
     p.add_argument("--no-keys", action="store_true", help="do not read operator keys (p pause, r resume, s stop) from the terminal")
     p.add_argument("--console", action="store_true", help="serve the supervisor console (a web page; the link is printed)")
     p.add_argument("--console-port", type=int, metavar="P", help="console port (default: console.port, 0 = a free port)")

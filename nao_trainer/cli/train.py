@@ -27,6 +27,9 @@ def register(sub) -> None:
     p.add_argument("--turns", type=int, default=25, help="turns per episode (default 25, as in the study)")
     p.add_argument("--seed", type=int, default=0, help="base seed; same seed, same outputs (default 0)")
     p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
+    p.add_argument("--mdp", choices=("paper", "informed"), default="paper",
+                   help="decision process: paper (outcome of the last turn hidden) or informed (default paper)")
+    p.add_argument("--backend", default=None, help="local (default) or dask://HOST:PORT (a running dask scheduler)")
     p.add_argument("--out", type=Path, default=Path("trained_policies"),
                    help="output folder (default ./trained_policies; the shipped ones are in sim/policies)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
@@ -41,7 +44,7 @@ def run(args) -> int:
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
     try:
         spec = TrainingSpec(methods=methods, seeds=args.seeds, episodes=args.episodes, turns=args.turns,
-                            seed=args.seed, workers=args.workers)
+                            seed=args.seed, workers=args.workers, process=args.mdp, backend=args.backend)
     except ValueError as exc:  # its messages start with the field, which is the option's name
         raise ConfigError(f"--{exc}") from None
     if not args.no_plots and importlib.util.find_spec("matplotlib") is None:  # fail before a long run

@@ -55,7 +55,8 @@ class ConsoleHub:
         self._sources: dict[str, Callable[[], Any]] = {}
         self.closed = False
         self.state: dict[str, Any] = {"session": {}, "machine": {}, "turn": None, "presses": [], "rows": [],
-                                      "commands": [], "paused": False, "robot": "connecting", "summary": None}
+                                      "commands": [], "paused": False, "robot": "connecting", "summary": None,
+                                      "policy_status": None}
 
     # -- the session's side (its thread) ------------------------------------------------------------
 
@@ -87,6 +88,8 @@ class ConsoleHub:
             st["robot"] = data.get("robot", st["robot"])
         elif kind == "summary":
             st["summary"] = dict(data)
+        elif kind == "policy":
+            st["policy_status"] = dict(data)
 
     def set_sources(self, **sources: Callable[[], Any]) -> None:
         """Read-only callables polled for the tick (``eeg``: the monitor's ``live``, ``elapsed``)."""

@@ -3,9 +3,9 @@
 Pure: no I/O, no global randomness. Two implementations of the *same* maths:
 
 * ``QLearner``: one agent, for live sessions (``act`` / ``update``);
-* ``BatchLearner``: many independent agents (cluster x method x seed) in lock-step over simulated
-  users, vectorised with numpy. Tests check that both produce identical actions and tables when fed
-  the same random numbers.
+* ``core.batch.BatchLearner``: many independent agents (cluster x method x seed) in lock-step over
+  simulated users, vectorised with numpy (or compiled, ``core.qkernel``). Tests check that both
+  produce identical actions and tables when fed the same random numbers.
 
 Learning rule
     ``Q(s, a) <- Q(s, a) + alpha * (r' + gamma * max_b Q(s', b) - Q(s, a))``; on the last turn of an
@@ -44,7 +44,6 @@ the first action whose cumulative weight reaches ``u`` times the total.
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -57,7 +56,6 @@ METHOD_TEXT: dict[str, str] = {
     "shaping": "r' = r + beta1 * e (reward shaping)",
     "qaug": "choose on Q + beta2 * H(s,a) (Q-augmentation)",
 }
-_N_LEVEL_ACTIONS = len(mdp.LEVEL_ACTIONS)
 
 
 def check_method(method: str) -> str:
@@ -247,14 +245,19 @@ class QLearner:
     h: np.ndarray | None = None
     h_counts: np.ndarray | None = None
     visits: np.ndarray | None = None
+    process: str = "paper"  # the decision process (core.mdps): its states index the tables
 
     def __post_init__(self) -> None:
+        from nao_trainer.core import mdps
+
         check_method(self.method)
-        shape = (mdp.N_STATES, mdp.N_ACTIONS)
+        self._proc = mdps.get(self.process)
+        n_states = self._proc.n_states
+        shape = (n_states, mdp.N_ACTIONS)
         self.q = _table(self.q, shape, 0.0, float, "q")
         self.h = _table(self.h, shape, self.config.h_prior, float, "h")
         self.h_counts = _table(self.h_counts, shape, 0, np.int64, "h_counts")
-        self.visits = _table(self.visits, (mdp.N_STATES,), 0, np.int64, "visits")
+        self.visits = _table(self.visits, (n_states,), 0, np.int64, "visits")
         if np.any(self.h_counts < 0) or np.any(self.visits < 0):
             raise ValueError("h_counts and visits must be >= 0")
         # (next_state, max Q(next_state)) from the last update: the softmax shift of the next choice,
@@ -272,13 +275,13 @@ class QLearner:
 
     def probabilities(self, state: int) -> np.ndarray:
         """The current policy P(a | state) (zero for actions not allowed)."""
-        _check_state(state)
-        return policy_probabilities(self.values(state), mdp.ACTION_MASK[state], self.inverse_temperature(state))
+        self._check_state(state)
+        return policy_probabilities(self.values(state), self._proc.action_mask[state], self.inverse_temperature(state))
 
     def choose(self, state: int, u: float) -> int:
         """The action for uniform ``u`` in [0, 1) (inverse CDF over the allowed actions)."""
-        _check_state(state)
-        allowed = np.flatnonzero(mdp.ACTION_MASK[state])
+        self._check_state(state)
+        allowed = np.flatnonzero(self._proc.action_mask[state])
         column = self.values(state)[allowed][:, None]
         top = np.array([self._shift[1]]) if self._shift is not None and self._shift[0] == state else None
         k = choose_columns(column, np.array([self.inverse_temperature(state)]), np.array([u]), top)[0]
@@ -291,11 +294,12 @@ class QLearner:
     def update(self, state: int, action: int, score: float, engagement: float | None,
                next_state: int, done: bool) -> float:
         """Learn from one transition; returns the TD target used."""
-        _check_state(state)
-        if not mdp.ACTION_MASK[state, action]:
-            raise ValueError(f"action {mdp.ACTION_NAMES[action]} is not allowed in {mdp.state_label(state)}")
-        if not 0 <= next_state < mdp.N_TURN_STATES:
-            raise ValueError(f"next_state must be a turn state 0..107, got {next_state!r}")
+        self._check_state(state)
+        if not self._proc.action_mask[state, action]:
+            raise ValueError(f"action {mdp.ACTION_NAMES[action]} is not allowed in {self._proc.label(state)}")
+        if not 0 <= next_state < self._proc.n_states or next_state == self._proc.start:
+            raise ValueError(f"next_state must be a turn state 0..{self._proc.n_states - 1} other than "
+                             f"START, got {next_state!r}")
         reward = float(score)
         if engagement is not None:
             e = float(engagement)
@@ -317,6 +321,10 @@ class QLearner:
         self.visits[state] += 1
         return target
 
+    def _check_state(self, state: int) -> None:
+        if not 0 <= state < self._proc.n_states:
+            raise ValueError(f"state must be in 0..{self._proc.n_states - 1}, got {state!r}")
+
 
 def _table(value, shape, fill, dtype, name) -> np.ndarray:
     if value is None:
@@ -327,154 +335,3 @@ def _table(value, shape, fill, dtype, name) -> np.ndarray:
     if dtype is float and not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} has non-finite values")
     return arr
-
-
-def _check_state(state: int) -> None:
-    if not 0 <= state < mdp.N_STATES:
-        raise ValueError(f"state must be in 0..{mdp.N_STATES - 1}, got {state!r}")
-
-
-# ----------------------------------------------------------------------------------------------
-# Many agents in lock-step
-# ----------------------------------------------------------------------------------------------
-
-
-@dataclass
-class BatchResult:
-    """Final tables of every agent and its per-episode outcomes.
-
-    ``episode_score[i, k]``: total eq.-(1) score of agent i's episode k; ``episode_engagement[i, k]``:
-    that episode's mean per-turn engagement.
-    """
-
-    q: np.ndarray  # (n, 109, 6)
-    h: np.ndarray  # (n, 109, 6)
-    h_counts: np.ndarray  # (n, 109, 6)
-    visits: np.ndarray  # (n, 109)
-    episode_score: np.ndarray  # (n, episodes)
-    episode_engagement: np.ndarray  # (n, episodes)
-
-
-class BatchLearner:
-    """``n`` independent Q-learners, each training on its own simulated user, stepped together.
-
-    Agent ``i`` uses ``p_success[i]`` (108,) and ``engagement[i]`` (108, 2) of its simulated user,
-    ``methods[i]`` and the shared ``config``. Each agent draws its random numbers from its own
-    generator in blocks of ``(episodes, turns, 2)`` uniforms (``[..., 0]`` chooses the action,
-    ``[..., 1]`` the outcome: success when ``u < p_success[s']``), so its result does not depend on
-    the other agents in the batch nor on the block size.
-
-    All agents start every episode in ``START`` at the same step, which makes the start-state mask
-    a column slice. Per-agent tables are stored flat with the agent's offset added to the state
-    index so every step is a handful of ``np.take`` calls over the agents.
-    """
-
-    def __init__(self, p_success: np.ndarray, engagement: np.ndarray, methods: Sequence[str],
-                 config: QConfig = QConfig()) -> None:
-        p = np.asarray(p_success, dtype=float)
-        e = np.asarray(engagement, dtype=float)
-        n = len(methods)
-        if p.shape != (n, mdp.N_TURN_STATES) or e.shape != (n, mdp.N_TURN_STATES, 2):
-            raise ValueError(f"need p_success ({n}, 108) and engagement ({n}, 108, 2), got {p.shape} and {e.shape}")
-        if not (np.all((p >= 0) & (p <= 1)) and np.all((e >= 0) & (e <= 1))):
-            raise ValueError("p_success and engagement must lie in [0, 1]")
-        self.methods = [check_method(m) for m in methods]
-        self.config = config
-        self.n = n
-        self._p = p
-        self._e = e
-
-    def run(self, episodes: int, turns: int, rngs: Sequence[np.random.Generator], block: int = 200,
-            progress: Callable[[int, int], None] | None = None) -> BatchResult:
-        """Train every agent for ``episodes`` episodes of ``turns`` turns; ``progress(done, total)``."""
-        if len(rngs) != self.n:
-            raise ValueError(f"need one generator per agent ({self.n}), got {len(rngs)}")
-        if episodes < 1 or turns < 1 or block < 1:
-            raise ValueError(f"episodes, turns and block must be >= 1, got {episodes}, {turns}, {block}")
-        cfg, n = self.config, self.n
-        S, A = mdp.N_STATES, mdp.N_ACTIONS
-        NS = n * S
-        agents = np.arange(n)
-        gbase = agents * S  # global state gs = agent * 109 + state
-        # Per-agent tables indexed by global state (START rows are never read for p / e).
-        p_g = np.zeros((n, S))
-        p_g[:, : mdp.N_TURN_STATES] = self._p
-        p_g = p_g.ravel()
-        e_g = np.zeros((n, S, 2))
-        e_g[:, : mdp.N_TURN_STATES] = self._e
-        e_g = e_g.ravel()  # indexed by the global state-outcome code gso = gs * 2 + o
-        score = np.zeros((S, 2))
-        score[: mdp.N_TURN_STATES] = mdp.SCORE
-        score_g = np.tile(score.ravel(), n)
-        beta1 = np.array([cfg.shaping_weight(m) for m in self.methods])
-        beta2 = np.array([cfg.augment_weight(m) for m in self.methods])
-        reward_g = score_g + np.repeat(beta1, S * 2) * e_g  # r' = r + beta1 * e, same float ops as QLearner
-        # NEXT_STATE per agent as global states, indexed by gso * 6 + a.
-        nxt = np.where(mdp.NEXT_STATE < 0, 0, mdp.NEXT_STATE).transpose(0, 2, 1)  # (S, 2, A)
-        next_g = (nxt[None] + gbase[:, None, None, None]).ravel()
-        p_next = p_g[next_g]  # P(success) of the next turn, same index
-        inv_tau = inverse_temperature(np.arange(episodes * turns + 1), cfg)
-
-        # Action-major tables (A, n * S): a column per global state makes max/softmax over actions
-        # a few cheap ufunc calls on (n,) rows; flat index of (a, gs) is a * NS + gs.
-        q = np.zeros((A, NS))
-        h = np.full((A, NS), cfg.h_prior)
-        qv = q + np.repeat(beta2, S)[None, :] * h  # values chosen on: Q or Q + beta2 * H
-        counts = np.zeros((A, NS))  # float: (e - h) / n then matches QLearner's int count exactly
-        visits = np.zeros(NS, dtype=np.int64)
-        q_flat, h_flat, qv_flat, c_flat = q.ravel(), h.ravel(), qv.ravel(), counts.ravel()
-        ep_score = np.zeros((n, episodes))
-        ep_eng = np.zeros((n, episodes))
-        start_gso = (gbase + mdp.START) * 2
-        start_gs = gbase + mdp.START
-        qv_start = qv[:_N_LEVEL_ACTIONS]
-        alpha, gamma = cfg.alpha, cfg.gamma
-        last = turns - 1
-
-        for b0 in range(0, episodes, block):
-            nb = min(block, episodes - b0)
-            u = np.empty((nb, turns, 2, n))
-            for i, rng in enumerate(rngs):
-                u[..., i] = rng.random((nb, turns, 2))
-            codes = np.empty((nb, turns, n), dtype=np.int64)
-            for k in range(nb):
-                gso, gs = start_gso, start_gs
-                uk = u[k]
-                top = None  # START: shift by the column max; later: max Q(s') of the last update
-                for t in range(turns):
-                    vis = visits[gs]
-                    vals = (qv_start if t == 0 else qv).take(gs, axis=1)
-                    ut = uk[t]
-                    a = choose_columns(vals, inv_tau[vis], ut[0], top)
-                    idx = gso * A + a
-                    gs2 = next_g[idx]
-                    gso2 = gs2 * 2 + (ut[1] < p_next[idx])
-                    codes[k, t] = gso2
-                    target = reward_g[gso2]
-                    if t != last:
-                        top = column_max(q.take(gs2, axis=1))
-                        target = target + gamma * top
-                    qi = a * NS + gs
-                    q_sa = q_flat[qi]
-                    q_new = q_sa + alpha * (target - q_sa)
-                    q_flat[qi] = q_new
-                    cnt = c_flat[qi] + 1
-                    c_flat[qi] = cnt
-                    h_sa = h_flat[qi]
-                    h_new = h_sa + (e_g[gso2] - h_sa) / cnt
-                    h_flat[qi] = h_new
-                    qv_flat[qi] = q_new + beta2 * h_new
-                    visits[gs] = vis + 1
-                    gso, gs = gso2, gs2
-            # Per agent over its own contiguous (episode, turn) block, so the float sums do not
-            # depend on how many agents share the batch.
-            per_agent = np.ascontiguousarray(codes.transpose(2, 0, 1))
-            ep_score[:, b0 : b0 + nb] = score_g[per_agent].sum(axis=2)
-            ep_eng[:, b0 : b0 + nb] = e_g[per_agent].mean(axis=2)
-            if progress is not None:
-                progress(b0 + nb, episodes)
-        as_agents = lambda x: np.ascontiguousarray(x.reshape(A, n, S).transpose(1, 2, 0))  # noqa: E731
-        return BatchResult(
-            q=as_agents(q), h=as_agents(h), h_counts=as_agents(counts).astype(np.int64),
-            visits=visits.reshape(n, S), episode_score=ep_score, episode_engagement=ep_eng,
-        )

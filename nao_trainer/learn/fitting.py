@@ -312,7 +312,21 @@ def _session_folds(sessions: np.ndarray, folds: int, rng: np.random.Generator) -
     return [np.isin(sessions, names[order[i::folds]]) for i in range(min(folds, len(names)))]
 
 
-def cross_validate(turns: Turns, options: FitOptions, rng: np.random.Generator) -> tuple[float, float]:
+def _fit_tables(turns: Turns, options: FitOptions, tested: bool) -> tuple[np.ndarray, np.ndarray, Any, Any]:
+    """(P table, engagement table, performance model, engagement model) of the chosen fit."""
+    if tested:
+        from nao_trainer.learn.effects import TestedEngagementModel, TestedPerformanceModel
+
+        pm = TestedPerformanceModel().fit(turns.state, turns.success)
+        em = TestedEngagementModel().fit(turns.state, turns.success, turns.engagement)
+    else:
+        pm = PerformanceModel(options.prior_strength, options.logistic_C).fit(turns.state, turns.success)
+        em = EngagementModel(options.svr_C, options.svr_epsilon).fit(turns.state, turns.success, turns.engagement)
+    return pm.table_, em.table_, pm, em
+
+
+def cross_validate(turns: Turns, options: FitOptions, rng: np.random.Generator,
+                   tested: bool = False) -> tuple[float, float]:
     """(performance, engagement) RMSE of models fitted on the other session folds.
 
     Performance: fitted P(s) vs the held-out fold's per-state success rate; engagement: fitted
@@ -325,16 +339,23 @@ def cross_validate(turns: Turns, options: FitOptions, rng: np.random.Generator) 
     perf_sq = perf_n = eng_sq = eng_n = 0.0
     for test in folds:
         train, held = turns.subset(~test), turns.subset(test)
-        pm = PerformanceModel(options.prior_strength, options.logistic_C).fit(train.state, train.success)
+        p_table = (_fit_tables(train, options, True)[0] if tested else
+                   PerformanceModel(options.prior_strength, options.logistic_C).fit(train.state, train.success).table_)
         held_pm = PerformanceModel(0.0).fit(held.state, held.success)
         seen = held_pm.counts_ > 0
-        perf_sq += float(np.sum(held_pm.counts_[seen] * (pm.table_[seen] - held_pm.mle_[seen]) ** 2))
+        perf_sq += float(np.sum(held_pm.counts_[seen] * (p_table[seen] - held_pm.mle_[seen]) ** 2))
         perf_n += float(held_pm.counts_[seen].sum())
         if np.isfinite(train.engagement).any() and np.isfinite(held.engagement).any():
-            em = EngagementModel(options.svr_C, options.svr_epsilon).fit(train.state, train.success, train.engagement)
+            if tested:
+                from nao_trainer.learn.effects import TestedEngagementModel
+
+                e_table = TestedEngagementModel().fit(train.state, train.success, train.engagement).table_
+            else:
+                e_table = EngagementModel(options.svr_C, options.svr_epsilon).fit(
+                    train.state, train.success, train.engagement).table_
             cell_n, cell_mean = _cell_means(held)
             ok = cell_n > 0
-            eng_sq += float(np.sum(cell_n[ok] * (em.table_.reshape(-1)[ok] - cell_mean[ok]) ** 2))
+            eng_sq += float(np.sum(cell_n[ok] * (e_table.reshape(-1)[ok] - cell_mean[ok]) ** 2))
             eng_n += float(cell_n[ok].sum())
     return float(np.sqrt(perf_sq / perf_n)), float(np.sqrt(eng_sq / eng_n)) if eng_n else float("nan")
 
@@ -350,18 +371,37 @@ def _cell_means(turns: Turns) -> tuple[np.ndarray, np.ndarray]:
 
 def fit_cluster(turns: Turns, cluster_id: int, options: FitOptions, rng: np.random.Generator,
                 p: np.ndarray, e: np.ndarray, metadata: dict[str, Any]) -> ClusterFit:
-    """Fit one cluster's simulator from its turns (see the module docstring)."""
-    pm = PerformanceModel(options.prior_strength, options.logistic_C).fit(turns.state, turns.success)
-    em = EngagementModel(options.svr_C, options.svr_epsilon).fit(turns.state, turns.success, turns.engagement)
-    cv_p, cv_e = cross_validate(turns, options, rng)
+    """Fit one cluster's simulator from its turns (see the module docstring).
+
+    ``metadata["compat"] == "authors2018"``: the full state regression above (how the shipped models
+    were made); otherwise effects beyond the level only where the data supports them
+    (``learn.effects``).
+    """
+    tested = metadata.get("compat") != "authors2018"
+    p_table, e_table, pm, em = _fit_tables(turns, options, tested)
+    cv_p, cv_e = cross_validate(turns, options, rng, tested)
+    extra: dict[str, Any] = {}
+    if tested:
+        from nao_trainer.learn.effects import effect_report
+
+        extra = {"effects": effect_report(pm, em), "model": "tested effects (learn.effects)"}
+        mle = PerformanceModel(0.0).fit(turns.state, turns.success)
+        seen = mle.counts_ > 0
+        pm.rmse_ = float(np.sqrt(np.mean((p_table[seen] - mle.mle_[seen]) ** 2)))
+        pm.rmse_regression_ = pm.rmse_
+        pm.monotone_applied_ = False
+        pm.counts_ = mle.counts_
+        cell_n, cell_mean = _cell_means(turns)
+        ok = cell_n > 0
+        em.rmse_ = float(np.sqrt(np.mean((e_table.reshape(-1)[ok] - cell_mean[ok]) ** 2)))
     sim = UserSimulator(
         name=f"cluster-{cluster_id}",
-        p_success=pm.table_,
-        engagement=em.table_,
+        p_success=p_table,
+        engagement=e_table,
         reaction_quantiles=time_quantiles(turns.level, turns.reaction_time, "reaction time"),
         completion_quantiles=time_quantiles(turns.level, turns.completion_time, "completion time"),
         metadata={**metadata, "cluster": cluster_id, "sessions": int(len(np.unique(turns.session))),
-                  "turns": int(len(turns.state)), "monotone_in_length": pm.monotone_applied_},
+                  "turns": int(len(turns.state)), "monotone_in_length": pm.monotone_applied_, **extra},
     )
     return ClusterFit(
         id=cluster_id,
@@ -375,7 +415,7 @@ def fit_cluster(turns: Turns, cluster_id: int, options: FitOptions, rng: np.rand
         cv_rmse_performance=cv_p,
         cv_rmse_engagement=cv_e,
         data_level_success=_level_success(turns),
-        simulated_level_success=_level_success(turns, pm.table_),
+        simulated_level_success=_level_success(turns, p_table),
         observed_states=int(np.sum(pm.counts_ > 0)),
     )
 

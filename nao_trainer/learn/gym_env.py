@@ -21,7 +21,8 @@ except ImportError as exc:  # pragma: no cover - exercised only without the extr
         "nao_trainer.learn.gym_env needs gymnasium: pip install 'nao-trainer[gym]' (or pip install gymnasium)"
     ) from exc
 
-from nao_trainer.core import mdp
+from nao_trainer.core import mdp, mdps
+from nao_trainer.core import mdp as _mdp
 from nao_trainer.core.simulation import UserSimulator
 
 ENV_ID = "NaoTrainer/SequenceLearning-v0"
@@ -46,9 +47,11 @@ class SequenceLearningEnv(gym.Env):
     ``Discrete(109)``: the index of the turn state (L, RF, PR) just played,
     ``(level-1)*27 + RF*9 + PR+4`` (``nao_trainer.core.mdp.decode``), or 108 = START before the
     first turn. The played turn's outcome is hidden: it shows only as the next state's PR.
+    With ``mdp="informed"``: ``Discrete(217)``, the turn state and its outcome, ``index * 2 + outcome``
+    (``nao_trainer.core.mdps``), START = 216.
 
     ## Starting State
-    Always START (108).
+    Always START (108; 216 in the informed MDP).
 
     ## Rewards
     The paper's equation (1) for the turn just played: +level on success, -1 on failure.
@@ -63,12 +66,15 @@ class SequenceLearningEnv(gym.Env):
 
     ## Arguments
     ``simulator``: a ``UserSimulator`` or a spec for ``nao_trainer.learn.artifacts.load_simulator``
-    (cluster id or JSON path); ``turns``: episode length; ``render_mode``: None or ``"ansi"``.
+    (cluster id or JSON path); ``turns``: episode length; ``render_mode``: None or ``"ansi"``;
+    ``mdp``: ``"paper"`` (default) or ``"informed"`` (``nao_trainer.core.mdps``).
     """
 
     metadata = {"render_modes": ["ansi"], "render_fps": 4}
 
-    def __init__(self, simulator: UserSimulator | str = "1", turns: int = 25, render_mode: str | None = None):
+    def __init__(self, simulator: UserSimulator | str = "1", turns: int = 25, render_mode: str | None = None,
+                 mdp: str = "paper"):
+        self.process = mdps.get(mdp)
         if isinstance(simulator, str):
             from nao_trainer.learn.artifacts import load_simulator
 
@@ -82,20 +88,22 @@ class SequenceLearningEnv(gym.Env):
         self.simulator = simulator
         self.turns = int(turns)
         self.render_mode = render_mode
-        self.observation_space = spaces.Discrete(mdp.N_STATES)
-        self.action_space = spaces.Discrete(mdp.N_ACTIONS)
-        self.state = mdp.START
+        self.observation_space = spaces.Discrete(self.process.n_states)
+        self.action_space = spaces.Discrete(_mdp.N_ACTIONS)
+        self.state = self.process.start
+        self._full = mdps.START_FULL
         self.turn = 0
         self._success = False
         self._last: dict[str, Any] = {}
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[int, dict[str, Any]]:
         super().reset(seed=seed)
-        self.state = mdp.START
+        self.state = self.process.start
+        self._full = mdps.START_FULL
         self.turn = 0
         self._success = False
         self._last = {}
-        return self.state, {"action_mask": mdp.action_mask(mdp.START), "turn": 0}
+        return self.state, {"action_mask": self.process.action_mask[self.state].copy(), "turn": 0}
 
     def step(self, action: int) -> tuple[int, float, bool, bool, dict[str, Any]]:
         if self.turn >= self.turns:
@@ -103,16 +111,17 @@ class SequenceLearningEnv(gym.Env):
         a = int(action)
         if not 0 <= a < mdp.N_ACTIONS:
             raise ValueError(f"action must be in 0..{mdp.N_ACTIONS - 1}, got {action!r}")
-        invalid = not mdp.ACTION_MASK[self.state, a]
+        invalid = not self.process.action_mask[self.state, a]
         if invalid:
             a = 0
-        nxt = int(mdp.NEXT_STATE[self.state, a, int(self._success)])
+        nxt = int(mdps.NEXT_TURN[self._full, a])
         success = self.simulator.sample_success(nxt, self.np_random)
-        self.state, self._success = nxt, success
+        self._full = 2 * nxt + int(success)
+        self.state, self._success = int(self.process.obs[self._full]), success
         self.turn += 1
         reward = float(mdp.SCORE[nxt, int(success)])
         info = {
-            "action_mask": mdp.action_mask(nxt),
+            "action_mask": self.process.action_mask[self.state].copy(),
             "engagement": self.simulator.engagement_of(nxt, success),
             "success": success,
             "turn": self.turn,
@@ -121,7 +130,7 @@ class SequenceLearningEnv(gym.Env):
             "invalid_action": invalid,
         }
         self._last = {"action": mdp.ACTION_NAMES[a], **info}
-        return nxt, reward, self.turn >= self.turns, False, info
+        return self.state, reward, self.turn >= self.turns, False, info
 
     def render(self) -> str | None:
         if self.render_mode != "ansi":
@@ -129,7 +138,7 @@ class SequenceLearningEnv(gym.Env):
         if not self._last:
             return f"turn 0/{self.turns}: START"
         d = self._last
-        return (f"turn {d['turn']}/{self.turns}: {d['action']} -> state {mdp.state_label(self.state)} "
+        return (f"turn {d['turn']}/{self.turns}: {d['action']} -> state {self.process.label(self.state)} "
                 f"{'success' if d['success'] else 'failure'} score {d['score']:+d} engagement {d['engagement']:.2f}")
 
 

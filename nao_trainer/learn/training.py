@@ -1,6 +1,6 @@
 """Training user-specific policies on simulated users (paper section 5.2, Figures 7 and 8).
 
-``train_grid`` trains one Q-learner per (cluster, method, seed) with ``core.qlearning.BatchLearner``,
+``train_grid`` trains one Q-learner per (cluster, method, seed) with ``core.batch.BatchLearner``,
 split over worker processes, and summarises the runs; ``write_outputs`` writes the figures, CSV
 tables, ``results.json`` and one policy file per (cluster, method) (format: ``nao_trainer.learn.usp``).
 
@@ -33,7 +33,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from nao_trainer.core import mdp
-from nao_trainer.core.qlearning import METHODS, BatchLearner, QConfig, QLearner, expected_scores
+from nao_trainer.core.batch import BatchLearner
+from nao_trainer.core.qlearning import METHODS, QConfig, QLearner, expected_scores
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.files import write_json_atomic, write_text_atomic
 
@@ -51,8 +52,21 @@ class TrainingSpec:
     config: QConfig = field(default_factory=QConfig)
     tail: float = 0.1  # fraction of final episodes summarised
     block: int = 200  # episodes of random numbers drawn per agent at a time (speed only)
+    process: str = "paper"  # the decision process (core.mdps): paper or informed
+    engine: str = "auto"  # numpy, numba or auto (numba when installed); same results
+    backend: str | None = None  # None: local processes; dask://HOST:PORT: a dask.distributed cluster
 
     def __post_init__(self) -> None:
+        from nao_trainer.core import mdps
+        from nao_trainer.learn.parallel import check_backend
+
+        try:
+            mdps.get(self.process)
+        except ValueError:
+            raise ValueError(f"mdp must be one of {', '.join(mdps.NAMES)}, got {self.process!r}") from None
+        if self.engine not in BatchLearner.ENGINES:
+            raise ValueError(f"engine must be one of {', '.join(BatchLearner.ENGINES)}, got {self.engine!r}")
+        check_backend(self.backend)
         # Messages start with the field's name (the CLI prefixes "--" to name its option).
         if not self.methods:
             raise ValueError("methods: give at least one of " + ", ".join(METHODS))
@@ -115,7 +129,7 @@ class GridResult:
 
     def learner(self, c: int, m: int, k: int) -> QLearner:
         return QLearner(self.spec.methods[m], self.spec.config, self.q[c, m, k].copy(), self.h[c, m, k].copy(),
-                        self.h_counts[c, m, k].copy(), self.visits[c, m, k].copy())
+                        self.h_counts[c, m, k].copy(), self.visits[c, m, k].copy(), self.spec.process)
 
     # -- summaries ------------------------------------------------------------------------------
 
@@ -135,7 +149,7 @@ class GridResult:
         probs = self.s0_probabilities()
         rows = []
         for c, cluster in enumerate(self.clusters):
-            best, uniform = expected_scores(self.simulators[c].p_success, self.spec.turns)
+            best, uniform = self._scale(c)
             for m, method in enumerate(self.spec.methods):
                 s_mean, s_ci = mean_ci(score[c, m])
                 e_mean, e_ci = mean_ci(eng[c, m])
@@ -163,8 +177,30 @@ class GridResult:
                     }
         return rows
 
-    def s0_probabilities(self, state: int = mdp.S0_INDEX) -> np.ndarray:
-        """Mean over seeds of each agent's final P(a | state) (C, M, 6); qaug uses Q' (Figure 8)."""
+    def _scale(self, c: int) -> tuple[float, float]:
+        """Expected score of the optimum and of uniform play on cluster c's simulator, in this MDP."""
+        if self.spec.process == "paper":
+            return expected_scores(self.simulators[c].p_success, self.spec.turns)
+        from nao_trainer.core import evaluation
+
+        sim = self.simulators[c]
+        best = evaluation.optimal(sim.p_success, self.spec.turns, self.spec.process).value
+        uniform = evaluation.evaluate(evaluation.uniform_policy(self.spec.process), sim.p_success, sim.engagement,
+                                      self.spec.turns, self.spec.process).score
+        return best, uniform
+
+    @property
+    def s0_index(self) -> int:
+        """S0 in this MDP: in the informed MDP, S0 after its failed turn (the paper's S0 follows a failure)."""
+        return mdp.S0_INDEX if self.spec.process == "paper" else 2 * mdp.S0_INDEX
+
+    def s0_probabilities(self, state: int | None = None) -> np.ndarray:
+        """Mean over seeds of each agent's final P(a | state) (C, M, 6); qaug uses Q' (Figure 8).
+
+        The default state is S0; in the informed MDP S0 after a failure (the paper's S0 follows a
+        failed level-2 turn).
+        """
+        state = self.s0_index if state is None else state
         C, M, K = self.q.shape[:3]
         out = np.zeros((C, M, mdp.N_ACTIONS))
         for c in range(C):
@@ -228,7 +264,7 @@ def _t_half_width(data: np.ndarray, axis: int) -> np.ndarray:
 
 def _run_chunk(p: np.ndarray, e: np.ndarray, methods: list[str], config: QConfig,
                seeds: list[np.random.SeedSequence], episodes: int, turns: int, block: int,
-               report: bool) -> tuple[Any, float]:
+               report: bool, process: str = "paper", engine: str = "numpy") -> tuple[Any, float]:
     """Train one chunk of agents (runs in a worker process or in-process)."""
     rngs = [np.random.Generator(np.random.PCG64(s)) for s in seeds]
     t0 = time.perf_counter()
@@ -242,7 +278,8 @@ def _run_chunk(p: np.ndarray, e: np.ndarray, methods: list[str], config: QConfig
             print(f"  train: episode {done}/{total} ({rate / 1e6:.2f} M turns/s in this worker)",
                   file=sys.stderr, flush=True)
 
-    result = BatchLearner(p, e, methods, config).run(episodes, turns, rngs, block=block, progress=progress)
+    result = BatchLearner(p, e, methods, config, process, engine).run(episodes, turns, rngs, block=block,
+                                                                       progress=progress)
     return result, time.perf_counter() - t0
 
 
@@ -262,23 +299,16 @@ def train_grid(simulators: Sequence[UserSimulator], clusters: Sequence[str], spe
     n_workers = max(1, min(spec.workers, len(agents)))
     bounds = np.linspace(0, len(agents), n_workers + 1).round().astype(int)
     chunks = [(p[a:b], e[a:b], methods[a:b], spec.config, seeds[a:b], spec.episodes, spec.turns, spec.block,
-               progress and i == 0) for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]))]
+               progress and i == 0, spec.process, spec.engine) for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]))]
     if progress:
         total = len(agents) * spec.episodes * spec.turns
         print(f"train: {len(clusters)} clusters x {len(spec.methods)} methods x {spec.seeds} seeds = {len(agents)} "
               f"agents, {spec.episodes} episodes x {spec.turns} turns ({total / 1e6:.1f} M turns) "
               f"on {n_workers} worker(s)", file=sys.stderr, flush=True)
     t0 = time.perf_counter()
-    if n_workers == 1:
-        outputs = [_run_chunk(*chunks[0])]
-    else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
+    from nao_trainer.learn.parallel import fan_out
 
-        # fork (Linux, the only platform qi supports): starts fast and works from scripts without an
-        # ``if __name__ == "__main__"`` guard; training code runs no threads that fork could break.
-        with ProcessPoolExecutor(n_workers, mp_context=multiprocessing.get_context("fork")) as pool:
-            outputs = list(pool.map(_run_chunk, *zip(*chunks)))
+    outputs = fan_out(_run_chunk, chunks, n_workers, spec.backend)
     seconds = time.perf_counter() - t0
     parts = [o[0] for o in outputs]
     shape = (len(clusters), len(spec.methods), spec.seeds)
@@ -329,7 +359,7 @@ def write_s0_csv(result: GridResult, path: Path) -> None:
     A policy at a rarely visited state stays close to uniform: ``s0_visits_mean`` tells which.
     """
     probs = result.s0_probabilities()
-    visits = result.visits[..., mdp.S0_INDEX].mean(axis=2)
+    visits = result.visits[..., result.s0_index].mean(axis=2)
     lines = ["cluster,method," + ",".join(mdp.ACTION_NAMES) + ",s0_visits_mean"]
     for c, cluster in enumerate(result.clusters):
         for m, method in enumerate(result.spec.methods):
@@ -376,7 +406,7 @@ def write_outputs(result: GridResult, out_dir: Path, models_source: str, command
             policy_files[f"{cluster}:{method}"] = path.name
     summary = result.summary_json()
     summary["default_method"] = default_methods(result)
-    summary["spec"] = {"methods": list(result.spec.methods), "seeds": result.spec.seeds,
+    summary["spec"] = {"methods": list(result.spec.methods), "seeds": result.spec.seeds, "mdp": result.spec.process,
                        "episodes": result.spec.episodes, "turns": result.spec.turns, "seed": result.spec.seed,
                        "hyperparameters": result.spec.config.to_dict(), "models": models_source,
                        "command": command}

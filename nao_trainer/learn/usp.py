@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from nao_trainer import __version__
-from nao_trainer.core import mdp
+from nao_trainer.core import mdp, mdps
 from nao_trainer.core.qlearning import METHOD_TEXT, METHODS, QConfig, QLearner, policy_probabilities
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import ConfigError, DataError
@@ -82,8 +82,8 @@ def make_payload(learner: QLearner, cluster: str, simulator: UserSimulator,
         "method": learner.method,
         "method_text": METHOD_TEXT[learner.method],
         "hyperparameters": learner.config.to_dict(),
-        "mdp_definition": mdp.DEFINITION,
-        "states": [mdp.state_label(s) for s in range(mdp.N_STATES)],
+        "mdp_definition": mdps.get(learner.process).definition,
+        "states": mdps.get(learner.process).labels(),
         "actions": list(mdp.ACTION_NAMES),
         "q": learner.q.tolist(),
         "h": learner.h.tolist(),
@@ -100,23 +100,35 @@ def save_policy_file(path: Path, payload: dict[str, Any]) -> None:
     POLICY_FILE.write(path, payload)
 
 
-def read_policy_file(path: Path) -> dict[str, Any]:
+def read_policy_file(path: Path, process: str = "paper") -> dict[str, Any]:
     """The verified payload of a policy file; DataError naming the file and the fix otherwise.
 
-    Checks, in order: readable JSON, format and version, checksum, state/action definition.
+    Checks, in order: readable JSON, format and version, checksum, state/action definition (the
+    policy must be made for the decision process ``process``, ``core.mdps``).
     """
     path = Path(path)
     payload = POLICY_FILE.read(path, DataError)
-    check_definition(payload, path)
+    check_definition(payload, path, process)
     return payload
 
 
-def check_definition(payload: dict[str, Any], path: Path) -> None:
+def policy_process(payload: dict[str, Any]) -> str | None:
+    """The decision process (``core.mdps`` name) a payload was made for, None if unknown."""
+    proc = mdps.by_definition(str(payload.get("mdp_definition")))
+    return None if proc is None else proc.name
+
+
+def check_definition(payload: dict[str, Any], path: Path, process: str = "paper") -> None:
     """Refuse a policy made for another state/action definition, naming what differs."""
-    if payload.get("mdp_definition") != mdp.DEFINITION:
+    proc = mdps.get(process)
+    made_for = policy_process(payload)
+    if made_for is not None and made_for != proc.name:
+        raise DataError(f"{path}: policy was made for the {made_for} MDP, not the {proc.name} MDP; "
+                        f"use --mdp {made_for} or retrain with `nao-trainer train --mdp {proc.name}`")
+    if payload.get("mdp_definition") != proc.definition:
         raise DataError(f"{path}: policy was trained for another state/action definition "
                         f"({payload.get('mdp_definition')!r}, this build: {mdp.DEFINITION!r}); {RETRAIN}")
-    states = [mdp.state_label(s) for s in range(mdp.N_STATES)]
+    states = proc.labels()
     if payload.get("states") != states:
         raise DataError(f"{path}: policy's state list differs from this build's {len(states)} states; {RETRAIN}")
     if payload.get("actions") != list(mdp.ACTION_NAMES):
@@ -130,7 +142,7 @@ def learner_from_payload(payload: dict[str, Any], path: Path) -> QLearner:
         config = QConfig.from_dict(payload["hyperparameters"])
         return QLearner(payload["method"], config, np.array(payload["q"], dtype=float),
                         np.array(payload["h"], dtype=float), np.array(payload["h_counts"], dtype=np.int64),
-                        np.array(payload["visits"], dtype=np.int64))
+                        np.array(payload["visits"], dtype=np.int64), policy_process(payload) or "paper")
     except KeyError as exc:
         raise DataError(f"{path}: policy file lacks field {exc.args[0]!r}; {RETRAIN}") from None
     except (TypeError, ValueError) as exc:
@@ -270,6 +282,9 @@ class LivePolicy:
         live["turns_without_engagement"] += int(t.engagement is None)
         live["updated"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
         self.save()
+
+    def status(self) -> dict[str, Any]:
+        return {}
 
     def bind_state_dir(self, folder: Path) -> None:
         """Without a configured state file, a learning policy saves into the session ``folder``."""

@@ -77,7 +77,7 @@ def plot_s0_policies(result: "GridResult", path: Path) -> Path:
     """
     plt = pyplot()
     probs = result.s0_probabilities()
-    visits = result.visits[..., mdp.S0_INDEX].mean(axis=2)  # few visits -> still near-uniform
+    visits = result.visits[..., result.s0_index].mean(axis=2)  # few visits -> still near-uniform
     n_rows, n_cols = len(result.clusters), len(result.spec.methods)
     fig, axes = plt.subplots(n_rows, n_cols, figsize=(3.2 * n_cols, 2.4 * n_rows), squeeze=False,
                              sharey=True)

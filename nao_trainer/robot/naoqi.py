@@ -11,12 +11,9 @@ from __future__ import annotations
 import atexit
 import logging
 import os
-import re
-import socket
 import threading
 import time
 import weakref
-from dataclasses import dataclass
 from typing import Any, Callable
 
 os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise; must precede `import qi`
@@ -24,151 +21,22 @@ import qi  # noqa: E402
 
 from nao_trainer.errors import ConfigError, RobotUnavailable  # noqa: E402
 from nao_trainer.ports import BUTTON_LETTERS, RobotCallFailed, RobotConnectionLost  # noqa: E402
+from nao_trainer.robot.qi_calls import (  # noqa: E402,F401
+    CallTimeouts, _explain, is_connection_lost)
+from nao_trainer.robot.address import (  # noqa: E402,F401 - re-exported: the client's public names
+    PASSWORD_ENV, USER_ENV, Credentials, _AuthenticatorFactory, _resolve_host, credentials_from_env, normalize_url,
+    redact_url)
 
 log = logging.getLogger(__name__)
 
-#: Environment variables holding NAOqi 2.9 credentials (never read from files, never logged).
-USER_ENV, PASSWORD_ENV = "NAO_USER", "NAO_PASSWORD"
-DEFAULT_PORTS = {"tcp": 9559, "tcps": 9503}
 BODY_LANGUAGE_MODES = ("disabled", "random", "contextual")
 STANDIN_HINT = "(no robot at hand? start `nao-trainer mock-robot` and use tcp://127.0.0.1:9559)"
-
-# qi reports every failure as RuntimeError; these messages mean the link to the robot is gone.
-_LOST_MARKERS = (
-    "session closed",
-    "socket is not connected",
-    "not connected",
-    "connection refused",
-    "connection reset",
-    "broken pipe",
-    "disconnected",
-    "socket was closed",
-    "socket closed",
-    "network is unreachable",
-    "no route to host",
-)
-_URL_RE = re.compile(r"^(?P<scheme>[a-zA-Z][a-zA-Z0-9+.-]*)://(?:(?P<userinfo>[^@/]*)@)?(?P<host>\[[^\]]+\]|[^:/]+)(?::(?P<port>\d+))?/?$")
 
 
 class MissingService(RobotUnavailable):
     """The robot is connected but does not offer a NAOqi service the project needs."""
 
 
-# ------------------------------------------------------------------------------------------------
-# Addresses and credentials
-# ------------------------------------------------------------------------------------------------
-
-
-def redact_url(url: str) -> str:
-    """``url`` with any user-info (``user:password@``) replaced by ``***@``; safe to print or log."""
-    return re.sub(r"^([a-zA-Z][a-zA-Z0-9+.-]*://)[^@/]*@", r"\1***@", url.strip())
-
-
-def normalize_url(url: str) -> str:
-    """Turn a robot address into a qi URL: ``IP`` -> ``tcp://IP:9559``; ``tcps://IP`` -> ``tcps://IP:9503``.
-
-    Raises ConfigError for other schemes and for credentials written into the URL (they belong
-    in ``NAO_USER`` / ``NAO_PASSWORD``).
-    """
-    text = url.strip()
-    if "://" not in text:
-        text = f"tcp://{text}"
-    m = _URL_RE.match(text)
-    if not m:
-        raise ConfigError(
-            f"robot address {redact_url(url)!r} is not of the form tcp://IP:9559 (NAOqi <= 2.8) "
-            "or tcps://IP:9503 (NAOqi 2.9)"
-        )
-    if m.group("userinfo") is not None:
-        raise ConfigError(
-            f"robot address {redact_url(url)!r} contains credentials: remove them from the address and set "
-            f"{USER_ENV} / {PASSWORD_ENV} in the environment instead"
-        )
-    scheme = m.group("scheme").lower()
-    if scheme not in DEFAULT_PORTS:
-        raise ConfigError(
-            f"robot address {url!r}: scheme {scheme!r} is not supported; use tcp://IP:9559 (NAOqi <= 2.8) "
-            "or tcps://IP:9503 (NAOqi 2.9)"
-        )
-    port = int(m.group("port")) if m.group("port") else DEFAULT_PORTS[scheme]
-    if not 0 < port < 65536:
-        raise ConfigError(f"robot address {url!r}: port {port} is out of range 1..65535")
-    return f"{scheme}://{m.group('host')}:{port}"
-
-
-@dataclass(frozen=True)
-class Credentials:
-    """A NAOqi 2.9 user and password; ``repr`` never shows the password."""
-
-    user: str
-    password: str
-
-    def __repr__(self) -> str:
-        return f"Credentials(user={self.user!r}, password='***')"
-
-    __str__ = __repr__
-
-
-def credentials_from_env(environ: dict[str, str] | None = None) -> Credentials | None:
-    """The robot credentials from ``NAO_USER`` / ``NAO_PASSWORD``; None when neither is set."""
-    env = os.environ if environ is None else environ
-    user, password = env.get(USER_ENV, ""), env.get(PASSWORD_ENV, "")
-    if not user and not password:
-        return None
-    if not user or not password:
-        missing = USER_ENV if not user else PASSWORD_ENV
-        raise ConfigError(f"{missing} is not set: NAOqi 2.9 needs both {USER_ENV} and {PASSWORD_ENV} in the environment")
-    return Credentials(user, password)
-
-
-class _Authenticator:
-    """libqi client authenticator: sends the user and token once, when the robot asks."""
-
-    def __init__(self, creds: Credentials) -> None:
-        self._creds = creds
-
-    def initialAuthData(self) -> dict[str, str]:
-        return {"user": self._creds.user, "token": self._creds.password}
-
-    def _processAuth(self, data: Any) -> dict[str, str]:  # noqa: N802 - libqi's name
-        return {}
-
-
-class _AuthenticatorFactory:
-    def __init__(self, creds: Credentials) -> None:
-        self._creds = creds
-
-    def newAuthenticator(self) -> _Authenticator:  # noqa: N802 - libqi's name
-        return _Authenticator(self._creds)
-
-
-# ------------------------------------------------------------------------------------------------
-# Deadlines and error translation
-# ------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class CallTimeouts:
-    """Deadlines for remote calls (seconds); speech gets extra time per character of text."""
-
-    default_s: float = 10.0
-    say_base_s: float = 15.0
-    say_per_char_s: float = 0.25
-    posture_s: float = 60.0
-    subscribe_s: float = 5.0
-
-    def say(self, text: str) -> float:
-        return self.say_base_s + self.say_per_char_s * len(text)
-
-
-def is_connection_lost(error: BaseException | str) -> bool:
-    """Whether a qi error message means the link to the robot is gone."""
-    text = str(error).lower()
-    return any(marker in text for marker in _LOST_MARKERS)
-
-
-#: Longest single blocking wait on a qi future. ``future.wait`` blocks in C++, where Python cannot
-#: deliver Ctrl-C/SIGTERM; waiting in slices lets an operator interrupt a long utterance at once.
 _WAIT_SLICE_S = 0.1
 
 
@@ -593,39 +461,6 @@ def _new_session(creds: Credentials | None) -> Any:
     return session
 
 
-def url_host(url: str) -> str:
-    """The host part of a normalised qi URL, without IPv6 brackets."""
-    m = _URL_RE.match(url)
-    return m.group("host").strip("[]") if m else url
-
-
-def _resolve_host(url: str, deadline_s: float) -> None:
-    """Raise RobotUnavailable when the URL's host name cannot be resolved.
-
-    libqi reports an unknown host in ways that read like a login failure; resolving first names
-    the real problem. ``getaddrinfo`` has no timeout of its own, so it runs in a thread bounded by
-    the connect deadline (a slow resolver then falls through to the connect, which has its own).
-    """
-    host = url_host(url)
-    outcome: list[BaseException | None] = []
-
-    def resolve() -> None:
-        try:
-            socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
-            outcome.append(None)
-        except (OSError, UnicodeError) as exc:
-            outcome.append(exc)
-
-    worker = threading.Thread(target=resolve, name="resolve-robot-host", daemon=True)
-    worker.start()
-    worker.join(deadline_s)
-    if outcome and isinstance(outcome[0], (socket.gaierror, UnicodeError)):
-        raise RobotUnavailable(
-            f"the robot's host name {host!r} cannot be resolved: check the spelling of --robot (or robot.url), "
-            "or use the robot's IP address (press its chest button to hear it)"
-        )
-
-
 def _connect_session(session: Any, url: str, deadline_s: float) -> None:
     """Connect ``session`` to ``url`` within ``deadline_s``; close it and raise RobotUnavailable otherwise.
 
@@ -646,15 +481,3 @@ def _connect_session(session: Any, url: str, deadline_s: float) -> None:
         raise RobotUnavailable(f"cannot reach the robot at {where}: {_explain(error)} {STANDIN_HINT}")
 
 
-def _explain(error: str) -> str:
-    """A short, user-facing reading of a qi connect error."""
-    text = error.lower()
-    if "refused" in text:
-        return "connection refused - is the robot on, is the address right, is NAOqi running on that port?"
-    if "auth" in text:
-        return f"authentication failed - check {USER_ENV} / {PASSWORD_ENV} (NAOqi 2.9)"
-    if "unreachable" in text or "no route" in text or "timed out" in text:
-        return "network unreachable - is the laptop on the robot's network?"
-    if "resolve" in text or "host not found" in text or "name" in text:
-        return "unknown host name - check the address"
-    return f"{error.strip()} - is the robot on and the address right?"

@@ -21,6 +21,7 @@ from typing import Any, Callable, Mapping
 
 from nao_trainer.eeg.settings import EEGSettings
 from nao_trainer.errors import ConfigError
+from nao_trainer.robot.address import parse_url, redact_url
 from nao_trainer.files import PROJECT_ROOT, read_yaml
 
 #: Repository root (parent of the package). Relative paths in configs resolve against it, so
@@ -61,14 +62,8 @@ class Field:
 def _robot_url(value: str) -> str | None:
     if value in (MOCK, DESKTOP):
         return None
-    if "@" in value:
-        return "must not contain credentials; set NAO_USER and NAO_PASSWORD in the environment instead"
-    m = re.fullmatch(r"tcps?://[^/:@\s]+(:(\d{1,5}))?", value)
-    if not m:
-        return "must be 'mock', 'desktop', tcp://HOST:9559 (NAOqi <= 2.8) or tcps://HOST:9503 (NAOqi 2.9)"
-    if m.group(2) and not 1 <= int(m.group(2)) <= 65535:
-        return f"has port {int(m.group(2))}, out of range 1..65535 (NAOqi listens on 9559, or 9503 for tcps)"
-    return None
+    problem = parse_url(value)[1]  # the robot client's own rule: the two never disagree
+    return f"{problem} (got {redact_url(value)!r})" if problem else None  # never echo a password
 
 
 def is_robot_address(url: str) -> bool:
@@ -77,9 +72,9 @@ def is_robot_address(url: str) -> bool:
 
 
 def _policy_spec(value: str) -> str | None:
-    if value in ("schedule", "random") or re.fullmatch(r"usp:[^:\s]+(:[A-Za-z0-9_-]+)?", value):
+    if value in ("schedule", "random", "personalised") or re.fullmatch(r"usp:[^:\s]+(:[A-Za-z0-9_-]+)?", value):
         return None
-    return "must be 'schedule', 'random' or 'usp:CLUSTER[:METHOD]'"
+    return "must be 'schedule', 'random', 'personalised' or 'usp:CLUSTER[:METHOD]'"
 
 
 def _schedule(value: list) -> str | None:
@@ -161,6 +156,11 @@ SCHEMA: dict[str, Any] = {
         "learning": Field(bool),
         "state_path": Field(str, nullable=True, check=lambda v: _state_path(v)),
         "guidance": Field((int, float), min=0, max=10),
+        # personalised (learn.personalised, docs/personalisation.md)
+        "assessment": Field(list, item=int, check=lambda v: None if len(v) <= 12 and all(1 <= x <= 4 for x in v)
+                            else "levels 1..4, at most 12 turns"),
+        "kappa": Field((int, float), min=0.01),
+        "margin": Field((int, float), min=0),
     },
     "console": {
         "enabled": Field(bool),
@@ -275,6 +275,9 @@ class PolicySection:
     learning: bool
     state_path: str | None
     guidance: float
+    assessment: tuple[int, ...]
+    kappa: float
+    margin: float
 
     def state_file(self, pseudonym: str, output: Path) -> Path | None:
         """Where a learning policy keeps its state across sessions: by default the participant's

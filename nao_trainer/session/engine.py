@@ -276,7 +276,7 @@ class Session:
         if self.replay is not None:
             turn, self.replay = self.replay, None
             return Turn(turn.number, turn.previous_state, turn.action, turn.state, notes=["replay of interrupted turn"],
-                        replay=True)
+                        replay=True, phase=turn.phase)
         notes: list[str] = []
         action = self._take_override()
         if action is not None:
@@ -284,6 +284,7 @@ class Session:
             self.policy.guide(self.mdp_state, action)
         else:
             action = int(self.policy.act(self.mdp_state, self.policy_rng))
+        phase = "override" if notes else str(self.policy.status().get("phase", ""))
         if not (0 <= action < mdp.N_ACTIONS and mdp.ACTION_MASK[self.mdp_state, action]):
             raise ValueError(f"policy {self.policy.name} chose action {action!r}, "
                              f"not allowed in state {mdp.state_label(self.mdp_state)}")
@@ -291,7 +292,7 @@ class Session:
             state = int(mdp.NEXT_STATE[mdp.START, action, 0])
         else:
             state = mdp.next_state(self.mdp_state, action, bool(self.last_success))
-        return Turn(self.completed + 1, self.mdp_state, action, state, notes=notes)
+        return Turn(self.completed + 1, self.mdp_state, action, state, notes=notes, phase=phase)
 
     def _take_override(self) -> int | None:
         """The operator's action for this turn, if one is pending and allowed here (else refused, logged)."""
@@ -385,6 +386,13 @@ class Session:
         self.monitor.mark("turn_end", turn.number)
         self.observer.notify("row", {**row, "total": self.total, "elapsed_s": round(self.elapsed_s(), 2)})
         self._say_progress(progress_line(row, self.n_turns, self.total))
+        status = self.policy.status()  # e.g. the posterior over user models after this turn
+        if status:
+            shown = {k: v for k, v in status.items() if k not in ("progress", "summary", "phase")}
+            self.rec.event("policy_status", turn=turn.number, **shown)
+            self.observer.notify("policy", {"turn": turn.number, **shown})
+            if status.get("progress"):
+                self._say_progress(status["progress"])
         return "finish_turns" if done else "next_turn"
 
     def _record_row(self, turn: Turn, score: int | None, signed: int | None) -> dict[str, Any]:

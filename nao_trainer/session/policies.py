@@ -1,18 +1,22 @@
 """Policies the session can follow without learning: a fixed schedule and a seeded uniform one.
 
 Both implement ``ports.Policy``. Learned, user-specific policies (``usp:CLUSTER[:METHOD]``) come
-from ``nao_trainer.learn.usp`` and are imported only when asked for.
+from ``nao_trainer.learn.usp``, the personalised pipeline (``personalised``) from
+``nao_trainer.learn.personalised``; both are imported only when asked for.
 """
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
 from nao_trainer.core import mdp
 from nao_trainer.errors import ConfigError
 from nao_trainer.ports import Policy, Transition
+
+if TYPE_CHECKING:
+    from nao_trainer.session.config import StudyConfig
 
 
 class StatelessPolicy:
@@ -38,6 +42,9 @@ class StatelessPolicy:
 
     def restore(self, data: dict | None) -> None:
         pass
+
+    def status(self) -> dict[str, Any]:
+        return {}  # nothing to report beyond the record
 
 
 class FixedSchedule(StatelessPolicy):
@@ -131,8 +138,23 @@ class UniformRandom(StatelessPolicy):
 
 
 def make_policy(spec: str, schedule: Sequence[str], learning: bool, state_path: Path | None,
-                guidance: float = 0.0, fresh: bool = False) -> Policy:
-    """The policy named by ``spec``: "schedule", "random" or "usp:CLUSTER[:METHOD]"."""
+                guidance: float = 0.0, fresh: bool = False, study: "StudyConfig | None" = None) -> Policy:
+    """The policy named by ``spec``: "schedule", "random", "usp:CLUSTER[:METHOD]" or "personalised"
+    (which needs the ``study``: participant, output folder, turns and its ``policy`` settings)."""
+    if spec == "personalised":
+        if study is None:
+            raise ConfigError("policy 'personalised' needs the study configuration")
+        try:
+            from nao_trainer.learn.personalised import load_personalised
+        except ImportError as exc:
+            raise ConfigError(f"policy {spec!r}: learned policies are not available in this install ({exc}); "
+                              "use --policy schedule or random") from None
+        pol = study.policy
+        # Beside a usp's policy_state.json in the participant's folder, unless policy.state_path names a file.
+        path = state_path.with_name("personalised.json") if state_path is not None and not pol.state_path \
+            else state_path
+        return load_personalised(path, study.participant.pseudonym, study.session.turns, pol.assessment,
+                                 float(pol.kappa), float(pol.margin), learning, fresh, guidance=guidance)
     if spec == "schedule":
         return FixedSchedule(schedule)
     if spec == "random":
@@ -144,4 +166,4 @@ def make_policy(spec: str, schedule: Sequence[str], learning: bool, state_path: 
             raise ConfigError(f"policy {spec!r}: learned policies are not available in this install ({exc}); "
                               "use --policy schedule or random") from None
         return load_policy(spec, learning, state_path, guidance=guidance, fresh=fresh)
-    raise ConfigError(f"policy {spec!r}: use 'schedule', 'random' or 'usp:CLUSTER[:METHOD]'")
+    raise ConfigError(f"policy {spec!r}: use 'schedule', 'random', 'personalised' or 'usp:CLUSTER[:METHOD]'")

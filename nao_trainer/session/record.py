@@ -34,6 +34,7 @@ TURN_COLUMNS: tuple[str, ...] = (
     "turn", "start_time", "state", "length", "level", "feedback", "previous_score", "action",
     "sequence", "response", "success", "score", "signed_score", "reaction_time", "completion_time",
     "engagement", "engagement_index", "eeg_quality", "answer_engagement", "engagement_note", "notes", "invalid", "replay",
+    "phase",
 )
 #: session.json's format and version (``data/own.py`` reads them and refuses a newer version).
 FORMAT = {"format": "nao-trainer/session", "format_version": 1}

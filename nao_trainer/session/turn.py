@@ -28,6 +28,7 @@ class Turn:
     recorded: bool = False
     invalid: bool = False  # the operator marked it invalid: recorded, not learned from
     replay: bool = False  # the second go of a turn interrupted by a robot loss (same number, state, action)
+    phase: str = ""  # what the policy said the turn is for (e.g. "assessment"), empty when nothing
 
     @property
     def turn_state(self) -> mdp.State:
@@ -70,6 +71,7 @@ class Turn:
             "notes": "; ".join(self.notes),
             "invalid": True if self.invalid else None,
             "replay": True if self.replay else None,
+            "phase": self.phase,
         }
 
 
@@ -85,6 +87,7 @@ class SessionResult:
     error: str = ""
 
     summary_extra: str = ""  # e.g. the resumption this result continues
+    policy_summary: str = ""  # what the policy concluded (e.g. the user model the participant matched)
 
     @property
     def completed_rows(self) -> list[dict[str, Any]]:
@@ -130,6 +133,8 @@ class SessionResult:
             *([self.summary_extra] if self.summary_extra else []),
             f"session folder: {self.path if self.path else '(none written)'}",
         ]
+        if self.policy_summary:
+            lines.insert(-2, self.policy_summary)
         return "\n".join(lines)
 
 
@@ -144,14 +149,14 @@ def progress_line(row: dict[str, Any], n_turns: int, total: int) -> str:
     mark = "ok " if row["success"] else "err"
     return (f"turn {row['turn']:3d}/{n_turns}  L{row['level']} {fb}  {row['sequence']:>9} vs "
             f"{row['response']:<9} {mark} {row['score']:+d}  total {total:4d}  E {eng}"
-            + (f"  ({row['notes']})" if row["notes"] else ""))
+            + (f"  ({row['notes']})" if row["notes"] else "") + (f"  [{row['phase']}]" if row.get("phase") else ""))
 
 def summary_data(result: "SessionResult") -> dict[str, Any]:
     """The final summary as data (the console shows it)."""
     return {"status": result.status, "exit_code": result.exit_code, "total_score": result.total_score,
             "turns_completed": len(result.completed_rows), "mean_engagement": result.mean_engagement,
             "levels": [{"level": lv, "played": n, "success_rate": rate} for lv, n, rate in result.level_table()],
-            "error": result.error}
+            "error": result.error, "policy_summary": result.policy_summary}
 
 
 def _round(x: float | None, nd: int = 4) -> float | None:

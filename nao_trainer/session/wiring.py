@@ -21,7 +21,7 @@ import numpy as np
 from nao_trainer import __version__
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import ConfigError, DataError, Interrupted, RobotUnavailable, UserError
-from nao_trainer.files import read_json, write_text_atomic
+from nao_trainer.files import PROJECT_ROOT, read_json, write_text_atomic
 from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, Policy, Robot,
                                RobotConnectionLost, SessionObserver)
 from nao_trainer.session.behaviors import Behaviors, load_behaviors
@@ -101,6 +101,9 @@ def build_simulator(config: StudyConfig) -> UserSimulator:
             from nao_trainer.learn.artifacts import load_simulator
         except ImportError as exc:
             raise ConfigError(f"user model {spec!r}: data-driven simulators are not available in this install ({exc})") from None
+        shipped = PROJECT_ROOT / spec
+        if spec.endswith(".json") and not Path(spec).is_absolute() and not Path(spec).exists() and shipped.exists():
+            spec = str(shipped)  # a file shipped with the project (e.g. the demo's sim/participants/level4.json)
         return load_simulator(spec)
     pm = config.participant_model
     return UserSimulator.from_level_rates("config-levels", list(pm.success_by_level), list(pm.engagement_by_level))
@@ -143,7 +146,8 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
     # file, is found here. Per participant by default (policy.state_path); "{session}" = the session folder,
     # bound once the folder exists (_run_wired).
     policy = make_policy(config.policy.kind, list(config.policy.schedule), config.policy.learning,
-                         config.policy_state_file(), config.policy.guidance, options.fresh_policy)
+                         config.policy_state_file(), config.policy.guidance, options.fresh_policy,
+                         study=config)
     # Not closed on failure here: closing a learning policy saves it, and nothing is written before the robot answers.
     ensure_output_dir(config.output_dir())  # an unusable output folder is found before the robot moves
     preflight(config, progress)  # robot, disk and a required EEG stream, before any session folder exists
@@ -197,7 +201,7 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
     standin = robot = recorder = monitor = answers = buttons = keys = console = None
     policy_to_close: Policy | None = None  # closed (and a learning policy saved) only once the folder exists
     session: Session | None = None
-    status, code, error = "error", 1, ""
+    status, code, error, summary = "error", 1, "", ""
     commands = options.commands or CommandQueue()
     result: SessionResult | None = None
     try:
@@ -301,14 +305,19 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
                 _close_quietly(closer, recorder)
             if robot is not None:
                 _close_quietly(robot, recorder)
+            if session is not None and session.completed:
+                summary = str(policy.status().get("summary", ""))  # e.g. the user model the participant matched
             if recorder is not None and recorder.is_open:
                 if standin is not None:
                     _write_transcript(recorder.path, standin.transcript(), append=resume is not None)
-                recorder.close(status, code, total_score=session.total if session else 0, error=error)
+                if summary:
+                    recorder.event("policy_summary", summary=summary)
+                recorder.close(status, code, total_score=session.total if session else 0, error=error,
+                               policy_summary=summary or None)
             if standin is not None:
                 standin.stop()
             result = SessionResult(recorder.path if recorder else None, status, code, session.rows if session else [],
-                                   seed, error)
+                                   seed, error, policy_summary=summary)
             if console is not None:
                 console.hub.notify("summary", summary_data(result))
                 console.stop()

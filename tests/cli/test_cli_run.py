@@ -50,7 +50,11 @@ def test_no_flags_plays_the_25_turn_demo(tmp_path):
     assert len(with_engagement) >= 20, [r["notes"] for r in rows]
     assert all(0.0 <= float(r["engagement"]) <= 1.0 for r in with_engagement)
     assert " E 0." in res.stderr or " E 1." in res.stderr
-    assert info["policy"] == "usp:2" and info["user_model"] and (folder / "policy_state.json").exists()
+    # ... and personalisation: assessment turns, then the level the strong simulated participant can do
+    assert info["policy"] == "personalised" and info["user_model"] and (folder / "personalised.json").exists()
+    assert [r["phase"] for r in rows[:7]] == ["assessment"] * 6 + ["personalised"]
+    assert sum(r["level"] == "4" for r in rows[6:]) >= 10, [r["level"] for r in rows]
+    assert "matched user model: cluster-" in res.stdout
     assert (folder / "eeg" / "windows.csv").exists()
 
 

@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from nao_trainer.core import mdp
+from nao_trainer.core.batch import BatchLearner
 from nao_trainer.core.qlearning import (
-    METHODS, BatchLearner, QConfig, QLearner, choose_columns, expected_scores, inverse_temperature,
+    METHODS, QConfig, QLearner, choose_columns, expected_scores, inverse_temperature,
     policy_probabilities,
     temperature,
 )

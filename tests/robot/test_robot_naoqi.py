@@ -326,11 +326,11 @@ def test_authenticator_sends_user_and_token():
 
 def test_credentials_from_env_go_into_the_qi_handshake_and_are_not_shown(standin, monkeypatch):
     """libqi asks the authenticator during the handshake even when the server (here the stand-in) does not check."""
-    import nao_trainer.robot.naoqi as naoqi_module
+    import nao_trainer.robot.address as address
 
     sent = []
-    original = naoqi_module._Authenticator.initialAuthData
-    monkeypatch.setattr(naoqi_module._Authenticator, "initialAuthData", lambda self: sent.append(1) or original(self))
+    original = address._Authenticator.initialAuthData
+    monkeypatch.setattr(address._Authenticator, "initialAuthData", lambda self: sent.append(1) or original(self))
     monkeypatch.setenv("NAO_USER", "nao")
     monkeypatch.setenv("NAO_PASSWORD", "pw-123")
     robot = NaoqiRobot.connect(standin.url, 3.0)
@@ -344,12 +344,12 @@ def test_credentials_from_env_go_into_the_qi_handshake_and_are_not_shown(standin
 
 
 def test_no_credentials_means_no_authenticator(standin, monkeypatch):
-    import nao_trainer.robot.naoqi as naoqi_module
+    import nao_trainer.robot.address as address
 
     monkeypatch.delenv("NAO_USER", raising=False)
     monkeypatch.delenv("NAO_PASSWORD", raising=False)
     sent = []
-    monkeypatch.setattr(naoqi_module._Authenticator, "initialAuthData", lambda self: sent.append(1) or {})
+    monkeypatch.setattr(address._Authenticator, "initialAuthData", lambda self: sent.append(1) or {})
     robot = NaoqiRobot.connect(standin.url, 3.0)
     robot.close()
     assert sent == []

@@ -64,7 +64,7 @@ def test_unknown_section(tmp_path):
     ("robot:\n  url: tcps://nao:secret@10.0.0.2:9503\n", 2, "robot.url", "NAO_USER and NAO_PASSWORD"),
     ("robot:\n  url: http://10.0.0.2\n", 2, "robot.url", "tcp://HOST:9559"),
     ("policy:\n  schedule: [RF1, L2]\n", 2, "policy.schedule", "must start with a level action"),
-    ("policy:\n  kind: greedy\n", 2, "policy.kind", "'schedule', 'random' or 'usp:CLUSTER"),
+    ("policy:\n  kind: greedy\n", 2, "policy.kind", "'schedule', 'random', 'personalised' or 'usp:CLUSTER"),
     ("participant_model:\n  success_by_level: [1, 1, 1]\n", 2, "participant_model.success_by_level", "4 values"),
     ("participant_model:\n  success_by_level: [1, 1, 1, 1.5]\n", 2, "participant_model.success_by_level", "[0, 1]"),
     ("eeg:\n  required: yes please\n", 2, "eeg.required", "true/false"),
@@ -195,3 +195,16 @@ def test_a_repeated_section_is_refused_instead_of_dropping_settings(tmp_path):
 def test_a_robot_port_out_of_range_is_refused_at_load(tmp_path, url, words):
     with pytest.raises(ConfigError, match=rf"study.yaml:2: key 'robot.url' has {words}"):
         load_config(study(tmp_path, f"robot:\n  url: {url}\n"))
+
+
+@pytest.mark.parametrize("url", ["10.0.0.5", "tcp://nao.local", "tcps://[fe80::1]:9503", "[::1]:9559"])
+def test_the_config_accepts_every_address_the_robot_client_accepts(tmp_path, url):
+    from nao_trainer.robot.address import normalize_url
+    normalize_url(url)  # the client takes it ...
+    assert load_config(study(tmp_path, f"robot:\n  url: '{url}'\n")).robot.url == url  # ... and so does the config
+
+
+def test_a_password_in_the_robot_address_is_not_echoed(tmp_path):
+    with pytest.raises(ConfigError) as err:
+        load_config(study(tmp_path, "robot:\n  url: tcps://nao:s3cret@10.0.0.2:9503\n"))
+    assert "s3cret" not in str(err.value) and "NAO_PASSWORD" in str(err.value)

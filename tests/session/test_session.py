@@ -129,6 +129,9 @@ class RecordingPolicy(StatelessPolicy):
     def observe(self, transition):
         self.seen.append(transition)
 
+    def status(self):
+        return {}
+
     def close(self):
         self.closed = True
 

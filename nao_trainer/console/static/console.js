@@ -54,6 +54,15 @@ function renderProbs() {
   });
 }
 
+function renderPolicyStatus() {
+  // What a personalising policy believes: the posterior over user models and what it follows.
+  const p = S.policy_status, box = $("policy-status");
+  if (!p || !p.posterior) { box.textContent = ""; return; }
+  const ranked = Object.entries(p.posterior).sort((a, b) => b[1] - a[1]);
+  box.textContent = "user models: " + ranked.map(([n, w]) => n + " " + fmt(w)).join(" | ") +
+    (p.following ? " · following " + p.following : " · assessment");
+}
+
 function rowClass(r) {
   if (r.invalid === true || r.invalid === "True") return "invalid";
   if (r.success === null || r.success === "") return "interrupted";
@@ -137,7 +146,7 @@ function renderSummary() {
 }
 
 function renderAll() {
-  renderHeader(); renderTurn(); renderRows(); $("log").innerHTML = ""; S.commands.forEach(logCommand); renderSummary();
+  renderHeader(); renderTurn(); renderRows(); $("log").innerHTML = ""; S.commands.forEach(logCommand); renderSummary(); renderPolicyStatus();
 }
 
 function connect() {
@@ -155,6 +164,7 @@ function connect() {
   on("pause", (d) => { S.paused = d.paused; renderHeader(); });
   on("robot", (d) => { S.robot = d.robot; renderHeader(); });
   on("summary", (d) => { S.summary = d; renderHeader(); renderSummary(); });
+  on("policy", (d) => { S.policy_status = d; renderPolicyStatus(); });
   on("tick", renderTick);
   es.addEventListener("closed", () => { es.close(); pill("link", "stream: session ended"); });
 }

@@ -1,0 +1,321 @@
+"""The personalised policy of a live session (``--policy personalised``) and the participant's state.
+
+The policy runs ``core.assessment``'s pipeline for one participant: the assessment turns, the
+posterior over the shipped user models (``sim/models``, prior = cluster sizes) after every turn,
+the choice among the candidates (each cluster's trained policy from ``sim/policies``, each fixed
+level) by posterior expected value with the anti-flip-flop margin, and the participant's per-level
+Beta posteriors. Every candidate Q-learner keeps learning from every turn (off-policy Q-learning:
+the update needs no one to have followed it), and its value tables are recomputed from its new
+softmax policy, so the choice sees what it learned.
+
+Across sessions, everything lives in ``<output>/participants/<pseudonym>/personalised.json``
+(``PARTICIPANT_FILE``: checksummed, written atomically after every turn): the posterior, the
+per-level counts, the learners' tables and one line per session. A returning participant starts
+from it and skips the assessment (the carried-over posterior already holds it). The file is
+refused in one line when it was made for another MDP, with other user models or policies
+(fingerprint), or is torn; ``--fresh-policy`` keeps the old file as ``personalised.json.replaced-<time>``
+and starts from the prior. Nothing is reset silently.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import sys
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from nao_trainer.core import assessment, baselines, evaluation, mdp
+from nao_trainer.core.posterior import ModelSet
+from nao_trainer.core.qlearning import QLearner
+from nao_trainer.errors import DataError
+from nao_trainer.files import JsonFormat
+from nao_trainer.ports import Transition
+
+FRESH = "start afresh with --fresh-policy (the old file is kept beside it)"
+PARTICIPANT_FILE = JsonFormat("nao-trainer/participant-personalisation", 1, "participant personalisation state",
+                              "participant state", FRESH)
+FILENAME = "personalised.json"
+
+
+def participant_file(output: Path, pseudonym: str) -> Path:
+    return Path(output) / "participants" / pseudonym / FILENAME
+
+
+def models_fingerprint(models: ModelSet, fingerprints: Sequence[str], policy_digests: Sequence[str]) -> str:
+    """One digest of the user models (tables and priors) and the trained policies the state was built on."""
+    h = hashlib.sha256()
+    for part in (*fingerprints, *policy_digests, ",".join(f"{p:.12g}" for p in models.prior)):
+        h.update(part.encode())
+    return h.hexdigest()
+
+
+class PersonalisedPolicy:
+    """``ports.Policy`` for the pipeline of ``core.assessment`` (see the module docstring)."""
+
+    name = "personalised"
+
+    def __init__(self, models: ModelSet, learners: list[tuple[str, QLearner]], fingerprint: str, path: Path | None,
+                 turns: int, schedule: tuple[int, ...], kappa: float, margin: float, learning: bool,
+                 saved: dict[str, Any] | None = None, use_engagement: bool = False, guidance: float = 0.0) -> None:
+        self.models = models
+        self.learners = learners
+        self.fingerprint = fingerprint
+        self.path = Path(path) if path is not None else None  # None: the session folder, once it exists
+        self.guided = np.zeros((mdp.N_STATES, mdp.N_ACTIONS), dtype=np.int64)
+        self.learning = learning
+        self.use_engagement = use_engagement
+        self.guidance = float(guidance)
+        self.saved = saved or {}
+        history = list(self.saved.get("sessions", []))
+        if history:  # a returning participant: the posterior carried over already holds an assessment
+            schedule = ()
+        cands = [assessment.Candidate(f"usp:{c}", baselines.learner_table(lr)) for c, lr in learners]
+        cands += [assessment.Candidate(f"fixed:{lv}", evaluation.fixed_level_policy(lv)) for lv in (1, 2, 3, 4)]
+        self.pers = assessment.Personaliser(
+            models, cands, schedule, kappa, margin, turns, "ev", tuple(range(len(learners))), "paper",
+            start_log_w=self.saved.get("log_w"), start_wins=self.saved.get("wins"),
+            start_turns=self.saved.get("played"), start_map_log_w=self.saved.get("map_log_w"))
+        self.history = history
+        self.turn = 0
+        self.session_dir: Path | None = None
+        self.started = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        self.last_action_phase = "assessment" if schedule else "personalised"
+        self._closed = False
+
+    # -- ports.Policy ------------------------------------------------------------------------------
+
+    def act(self, state: int, rng: np.random.Generator) -> int:
+        self.last_action_phase = "assessment" if self.pers.in_assessment(self.turn) else "personalised"
+        self.pers.bonus = self.guidance_bonus(state)
+        return int(self.pers.act(np.array([state]), self.turn, rng)[0])
+
+    def guidance_bonus(self, state: int) -> np.ndarray | None:
+        """(1, C): the supervisor's overrides in ``state`` as extra value for the candidates that play them.
+
+        ``G_c = guidance * sum_a pi_c(a | s) n(s, a) / n(s) * (spread of the candidates' values + 1)``,
+        the rule of the learning policies (``learn.usp``): with guidance 1 a candidate that always
+        plays the action the supervisor always chose here is preferred; 0 turns it off.
+        """
+        n = self.guided[state]
+        if not (self.guidance and n.sum()):
+            return None
+        share = np.array([c.table[state] @ n for c in self.pers.candidates]) / n.sum()
+        ev = self.pers.expected_values(self.turn)[0]
+        return (self.guidance * share * (ev.max() - ev.min() + 1.0))[None]
+
+    def observe(self, transition: Transition) -> None:
+        if self._closed:
+            raise ValueError("policy is closed: observe() after close()")
+        t = transition
+        e = None if (t.engagement is None or not self.use_engagement) else np.array([t.engagement])
+        self.pers.update(np.array([t.next_state]), np.array([t.score > 0]), e)
+        if self.learning:
+            for i, (_c, learner) in enumerate(self.learners):
+                learner.update(t.state, t.action, t.score, t.engagement, t.next_state, t.done)
+                self.pers.set_candidate_table(i, baselines.learner_table(learner))
+        self.turn += 1
+        self.save()
+
+    def bind_state_dir(self, folder: Path) -> None:
+        self.session_dir = Path(folder)  # named in the participant's session history
+        if self.path is None:  # policy.state_path "{session}": nothing carried over, saved with the session
+            self.path = self.session_dir / FILENAME
+
+    def probabilities(self, state: int) -> np.ndarray | None:
+        """P(a | state) of the next choice: the assessment's level, else the followed candidate's."""
+        if self.pers.in_assessment(self.turn):
+            out = np.zeros(mdp.N_ACTIONS)
+            out[self.pers.schedule[self.turn] - 1] = 1.0
+            return out
+        current = int(self.pers.current[0])
+        if current < 0:
+            current = int(self.pers.expected_values(self.turn)[0].argmax())
+        return self.pers.candidates[current].table[state].copy()
+
+    def guide(self, state: int, action: int) -> None:
+        """A supervisor's override: counted (kept across sessions) and, with ``policy.guidance`` > 0,
+        turned into extra value for the candidates that play it (``guidance_bonus``); the candidate
+        learners learn the overridden turn in ``observe`` like any other (off-policy)."""
+        if self.learning:
+            self.guided[state, action] += 1
+
+    def snapshot(self) -> dict | None:
+        """The whole state (a session checkpoint carries it; ``restore`` goes back to it)."""
+        return {**self.payload(), "turn": self.turn, "current": int(self.pers.current[0]),
+                "switches": int(self.pers.switches[0]), "full": int(self.pers.full[0]),
+                "schedule": list(self.pers.schedule), "history": self.history, "started": self.started}
+
+    def restore(self, data: dict | None) -> None:
+        if not data:
+            return
+        p = self.pers
+        p.log_w[0] = data["log_w"]
+        p.map_log_w[0] = data["map_log_w"]
+        p.wins[0], p.played[0] = data["wins"], data["played"]
+        p.current[0], p.switches[0], p.full[0] = data["current"], data["switches"], data["full"]
+        self.turn = p.turn = int(data["turn"])
+        # this session's own assessment and the sessions before it (the participant file already
+        # holds the interrupted session itself, which is not a previous one)
+        p.schedule = tuple(int(x) for x in data["schedule"])
+        self.history = list(data["history"])
+        self.started = str(data["started"])
+        self.guided = np.array(data.get("guided", self.guided.tolist()), dtype=np.int64)
+        restore_learners(self.learners, data["learners"], self.path or Path("checkpoint"))
+        for i, (_c, learner) in enumerate(self.learners):
+            p.set_candidate_table(i, baselines.learner_table(learner))
+
+    def close(self) -> None:
+        if not self._closed:
+            self.save()
+        self._closed = True
+
+    def status(self) -> dict[str, Any]:
+        """What the record and the operator see: phase of the next turn, posterior, the match, the choice."""
+        w = self.pers.posterior()[0]
+        best = int(w.argmax())
+        current = int(self.pers.current[0])
+        following = self.pers.candidates[current].name if current >= 0 else None
+        phase = self.last_action_phase
+        ranked = sorted(zip(self.models.names, w), key=lambda x: -x[1])
+        post = " | ".join(f"{n} {p:.2f}" for n, p in ranked)
+        levels = self.pers.level_estimates()[0]
+        return {
+            "phase": phase,
+            "posterior": {n: round(float(p), 4) for n, p in zip(self.models.names, w)},
+            "matched": self.models.names[best], "match_probability": round(float(w[best]), 4),
+            "following": following, "switches": int(self.pers.switches[0]),
+            "level_success": [round(float(x), 4) for x in levels],
+            "progress": f"           posterior: {post}" + (f" -> following {following}" if following else
+                                                          " (assessment)"),
+            "summary": (f"matched user model: {self.models.names[best]} (posterior {w[best]:.2f}; {post}); "
+                        f"following {following or 'the assessment'}; estimated success by level "
+                        + " ".join(f"L{i + 1} {x:.2f}" for i, x in enumerate(levels))),
+        }
+
+    # -- the participant's file -----------------------------------------------------------------------
+
+    def payload(self) -> dict[str, Any]:
+        p = self.pers
+        entry = {"started": self.started, "session": str(self.session_dir) if self.session_dir else None,
+                 "turns": self.turn, "assessment": len(p.schedule), **{k: v for k, v in self.status().items()
+                                                                       if k in ("matched", "match_probability",
+                                                                                "following", "switches")}}
+        return {
+            "mdp_definition": mdp.DEFINITION, "models_fingerprint": self.fingerprint,
+            "models": list(self.models.names), "kappa": p.kappa, "margin": p.margin,
+            "log_w": p.log_w[0].tolist(), "map_log_w": p.map_log_w[0].tolist(),
+            "wins": p.wins[0].tolist(), "played": p.played[0].tolist(),
+            "learners": {c: {"q": lr.q.tolist(), "h": lr.h.tolist(), "h_counts": lr.h_counts.tolist(),
+                             "visits": lr.visits.tolist()} for c, lr in self.learners},
+            "sessions": self.history + [entry], "guided": self.guided.tolist(),
+            "updated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        }
+
+    def save(self) -> None:
+        if self.path is None:
+            return  # the session folder does not exist yet: nothing has been played
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            PARTICIPANT_FILE.write(self.path, self.payload())
+        except OSError as exc:
+            raise DataError(f"{self.path}: cannot save the participant's state ({exc.strerror or exc}); "
+                            "make session.output writable") from None
+
+
+def read_state(path: Path, fingerprint: str) -> dict[str, Any]:
+    """A participant's saved state, checked; DataError in one line otherwise (module docstring)."""
+    saved = PARTICIPANT_FILE.read(path, DataError)
+    if saved.get("mdp_definition") != mdp.DEFINITION:
+        raise DataError(f"{path}: participant state made for another MDP ({str(saved.get('mdp_definition'))[:40]}...); "
+                        f"{FRESH}")
+    if saved.get("models_fingerprint") != fingerprint:
+        raise DataError(f"{path}: participant state made with other user models or policies (fingerprint "
+                        f"{str(saved.get('models_fingerprint'))[:12]}..., now {fingerprint[:12]}...); use the models "
+                        f"and policies it was made with, or {FRESH}")
+    for key in ("log_w", "map_log_w", "wins", "played", "learners", "sessions"):
+        if key not in saved:
+            raise DataError(f"{path}: participant state lacks {key!r}; {FRESH}")
+    return saved
+
+
+def set_aside(path: Path) -> Path:
+    """``--fresh-policy``: keep the old file as ``<name>.replaced-<time>`` (never deleted)."""
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    target = path.with_name(f"{path.name}.replaced-{stamp}")
+    n = 2
+    while target.exists():
+        target = path.with_name(f"{path.name}.replaced-{stamp}_{n}")
+        n += 1
+    os.replace(path, target)
+    return target
+
+
+def restore_learners(learners: list[tuple[str, QLearner]], tables: dict[str, Any], path: Path) -> None:
+    """Put saved tables back into the candidate learners; DataError naming ``path`` when they do not fit."""
+    for cid, learner in learners:
+        saved = tables.get(cid)
+        if saved is None:
+            raise DataError(f"{path}: participant state lacks the learner of cluster {cid}; {FRESH}")
+        try:
+            for key, dtype in (("q", float), ("h", float), ("h_counts", np.int64), ("visits", np.int64)):
+                value = np.array(saved[key], dtype=dtype)
+                if value.shape != getattr(learner, key).shape:
+                    raise ValueError(f"{key} has shape {value.shape}")
+                setattr(learner, key, value)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DataError(f"{path}: invalid learner tables of cluster {cid} ({exc}); {FRESH}") from None
+
+
+def load_personalised(path: Path | None, pseudonym: str, turns: int, schedule: Sequence[int], kappa: float,
+                      margin: float, learning: bool, fresh: bool, guidance: float = 0.0,
+                      models_dir: Path | None = None, policies_dir: Path | None = None,
+                      use_engagement: bool = False) -> PersonalisedPolicy:
+    """The personalised policy for ``pseudonym`` from the shipped models and policies and the
+    participant's saved state at ``path`` (None: kept in the session folder, nothing carried over);
+    see the module docstring. ``guidance``: how much the supervisor's overrides weigh in the choice
+    (``PersonalisedPolicy.guidance_bonus``)."""
+    from nao_trainer.learn import artifacts, usp
+
+    manifest = artifacts.load_manifest(models_dir)
+    rows = manifest.get("clusters", [])
+    if not rows:
+        raise DataError("the user model folder lists no clusters; refit with `nao-trainer fit`")
+    sims = [artifacts.load_simulator(str(r["id"]), models_dir) for r in rows]
+    sizes = np.array([float(r.get("size") or 1.0) for r in rows])
+    models = ModelSet(tuple(s.name for s in sims), np.stack([s.p_success for s in sims]),
+                      np.stack([s.engagement for s in sims]), sizes,
+                      np.array([float(r.get("rmse_engagement") or 0.13) for r in rows]) if use_engagement else None)
+    folder = Path(policies_dir) if policies_dir else usp.default_policies_dir()
+    pman = usp.read_manifest(folder)
+    learners, digests = [], []
+    for r, sim in zip(rows, sims):
+        cid = str(r["id"])
+        method = pman.get("default_method", {}).get(cid)
+        if method is None:
+            raise DataError(f"{folder}: no trained policy for cluster {cid}; train with `nao-trainer train --out {folder}`")
+        policy_path = folder / usp.policy_filename(cid, method)
+        payload = usp.read_policy_file(policy_path)
+        usp.check_simulator(payload, sim, policy_path)
+        learners.append((cid, usp.learner_from_payload(payload, policy_path)))
+        digests.append(f"{cid}:{method}:{payload['simulator']['fingerprint']}")
+    fingerprint = models_fingerprint(models, [s.fingerprint() for s in sims], digests)
+    saved = None
+    if path is not None and Path(path).exists():
+        path = Path(path)
+        if fresh:
+            kept = set_aside(path)
+            print(f"policy personalised: starting fresh from the prior; the previous state was moved to {kept}",
+                  file=sys.stderr)
+        else:
+            saved = read_state(path, fingerprint)
+            restore_learners(learners, saved["learners"], path)
+            print(f"policy personalised: {pseudonym} returns after {len(saved['sessions'])} session(s): starting from "
+                  f"the saved posterior ({path}); no assessment", file=sys.stderr)
+    policy = PersonalisedPolicy(models, learners, fingerprint, path, turns, tuple(int(x) for x in schedule), kappa,
+                                margin, learning, saved, use_engagement, guidance)
+    if saved is not None and "guided" in saved:
+        policy.guided = np.array(saved["guided"], dtype=np.int64)
+    return policy
