@@ -8,19 +8,16 @@ returns the next trigger. Interruptions are uniform:
   interrupted, the robot reconnected with exponential backoff and the turn replayed; after
   ``robot.max_reconnect_s`` the session ends (``aborted``, exit code 3);
 * a refused call the task needs (``RobotCallFailed``: speech, beep) ends it as a robot error (exit 3);
-* Ctrl-C or SIGTERM -> ``aborted``: the robot is silenced, exit code 130.
-
-Operator commands (``ports.CommandQueue``: terminal keys, the console) are drained between states
-and each fires a trigger of ``session.machine.COMMAND_TRIGGERS``; a command whose trigger the
-current state does not have is refused, with the reason, in ``events.jsonl``. Pause takes effect
-after the current state (the robot finishes its utterance), says the pause line and waits, the EEG
-still recording; resume replays the interrupted turn; stop says goodbye (exit code 5).
-``session.max_duration_s`` ends the session between turns (status "time limit", exit 0).
+* Ctrl-C or SIGTERM -> ``aborted``: the robot is silenced, exit code 130;
+* operator commands (``session.operator``) act between states: pause, resume, stop (exit code 5);
+  ``session.max_duration_s`` ends the session between turns (status "time limit", exit 0).
 
 A turn (``core.mdp``): ``select_action`` (policy, new turn state and sequence), ``feedback`` (RF
 actions), ``announce``, ``speak_sequence``, ``beep`` (the answer window opens), ``await_answer``,
 ``score`` (equation (1)), ``record`` (turns.csv, fsynced; the policy observes the transition).
-The engine imports no adapter: ``session.wiring`` builds them and hands them in.
+The parts of ``Session`` in their own modules: ``session.operator`` (commands), ``session.checkpoint``
+(``--resume``), ``session.phases`` (EEG phases, the answer window), ``session.reporting`` (rows, events,
+progress). The engine imports no adapter: ``session.wiring`` builds them and hands them in.
 """
 from __future__ import annotations
 
@@ -33,28 +30,26 @@ from transitions import Machine
 
 from nao_trainer.core import mdp, task
 from nao_trainer.errors import Interrupted, RobotUnavailable
-from nao_trainer.ports import (Answer, AnswerSource, Command, CommandQueue, EngagementMonitor, NullMonitor,
-                               NullObserver, PhaseEngagement, Policy, Press, Robot, RobotCallFailed,
-                               RobotConnectionLost, SessionObserver, Transition, TurnContext)
+from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, NullObserver, Policy, Robot,
+                               RobotCallFailed, RobotConnectionLost, SessionObserver, Transition, TurnContext)
 from nao_trainer.session.behaviors import Behaviors
+from nao_trainer.session.checkpoint import Checkpoints
 from nao_trainer.session.config import StudyConfig
 from nao_trainer.session.dialogue import Dialogue
-from nao_trainer.session.machine import (COMMAND_TRIGGERS, FINAL_STATES, IN_TURN, INTRO_STATES, STATES, TRANSITIONS,
-                                         TURN_STATES)
+from nao_trainer.session.machine import FINAL_STATES, INTRO_STATES, STATES, TRANSITIONS, TURN_STATES
+from nao_trainer.session.operator import OperatorCommands
+from nao_trainer.session.phases import EEGPhases
 from nao_trainer.session.record import SessionRecorder, now_iso
+from nao_trainer.session.reporting import Reporting
 from nao_trainer.session.stage import Clock, Stage
 from nao_trainer.session.turn import Turn, progress_line
 
 EXIT_OK, EXIT_ROBOT_LOST, EXIT_INTERRUPTED = 0, RobotUnavailable.exit_code, Interrupted.exit_code
 #: The operator stopped the session (a key or the console): goodbye and safe posture, then this code.
 EXIT_OPERATOR_STOP = 5
-#: How often (wall seconds) a paused session looks at the command queue and the clock.
-PAUSE_POLL_S = 0.2
-#: States where pause, stop and repeat wait for the turn to be recorded.
-HOLD_STATES = ("score", "record")
 
 
-class Session:
+class Session(OperatorCommands, Checkpoints, EEGPhases, Reporting):
     """One training session: owns the machine and talks to the world only through the ports.
 
     Build it connected (``wiring.run_session`` does that); ``run()`` plays it to the end and
@@ -93,19 +88,12 @@ class Session:
         self.lost_in: str | None = None
         self.status = "running"
         self.error = ""
-        self._phase: str | None = None
         self._beep_onset = 0.0
-        self.commands = commands if commands is not None else CommandQueue()
         self.observer: SessionObserver = observer or NullObserver()
+        self._init_commands(commands)
         # Generators a checkpoint must carry besides the session's and the policy's (the simulated participant's).
-        self._rngs = {"session": rng, "policy": policy_rng, **(rngs or {})}
-        self._resume = resume
+        self._init_checkpoints({"session": rng, "policy": policy_rng, **(rngs or {})}, resume)
         self._policy_state = policy_state  # which learning state the policy started from (events.jsonl)
-        self._override: int | None = None  # the operator's choice for the next turn
-        self._held: list[Command] = []  # pause/stop/repeat that came while a turn was being scored/recorded
-        self._paused_in: str | None = None
-        self._reason: str | None = None  # why the next transition happens (an operator command, the clock)
-        self._elapsed_before = 0.0  # session seconds played before a resumption
         self._t0 = self.clock.now()
         self.max_duration_s = config.session.max_duration_s
         self.machine = Machine(model=self, states=STATES, transitions=TRANSITIONS, initial="greet",
@@ -175,71 +163,9 @@ class Session:
         if self.state not in FINAL_STATES:
             self.trigger("abort")
 
-    def _log_transition(self, event: Any) -> None:
-        reason, self._reason = self._reason, None
-        turn = self.turn.number if self.turn else None
-        extra: dict[str, Any] = {"reason": reason} if reason else {}
-        dest = event.transition.dest
-        if dest is None:  # an internal transition (an operator command that does not change the state)
-            dest, extra["internal"] = self.state, True
-        self.rec.event("transition", trigger=event.event.name, source=event.transition.source,
-                       dest=dest, turn=turn, **extra)
-        self.observer.notify("state", {"state": dest, "trigger": event.event.name, "turn": turn,
-                                       "elapsed_s": round(self.elapsed_s(), 2), **extra})
-
     def elapsed_s(self) -> float:
         """Session seconds since the session started (across a resumption; pauses count)."""
         return self._elapsed_before + self.clock.session(self.clock.now() - self._t0)
-
-    def _time_up(self) -> bool:
-        return self.max_duration_s is not None and self.elapsed_s() >= self.max_duration_s
-
-    def _on_press(self, press: Press) -> None:
-        """An answer source saw a press (called from its thread): tell the observer."""
-        self.observer.notify("press", {"turn": self.turn.number if self.turn else 0, "key": press.key,
-                                       "letter": press.letter, "t": round(self.clock.session(press.t), 3)})
-
-    def _say_progress(self, line: str) -> None:
-        if self.progress is not None:
-            print(line, file=self.progress, flush=True)
-
-    # -- EEG phases and the answer window ----------------------------------------------------------
-
-    def _begin_phase(self, phase: str, turn: int | None) -> None:
-        if self._phase is not None:
-            self._end_phase()
-        self.monitor.begin_phase(phase, turn)
-        self.monitor.mark(f"{phase}_start", turn)
-        self._phase = phase
-
-    def _end_phase(self) -> PhaseEngagement | None:
-        if self._phase is None:
-            return None
-        self.monitor.mark(f"{self._phase}_end", self.turn.number if self.turn else None)
-        self._phase = None
-        return self.monitor.end_phase()
-
-    def _beep(self, turn: int) -> float:
-        """Open the answer window and beep; returns the beep onset (time 0 of the answer)."""
-        self.stage.look("answer")
-        self.answers.open_window()
-        return self.stage.beep(turn)
-
-    def _collect(self, turn: int, length: int, onset: float) -> Answer:
-        """Close the listening phase at beep + tail (EEG), then wait for the answer."""
-        if self._phase == "listening":
-            self.clock.wait_until(onset + self.clock.wall(self.cfg.timing.listening_tail_s))
-            assert self.turn is not None
-            self.turn.listening = self._end_phase()
-            self._begin_phase("answer", turn)
-        # The window opened at the beep; the timeout counts from there (sources measure from open_window).
-        answer = self.answers.collect(length, self.clock.wall(self.cfg.timing.response_timeout_s(length)))
-        self.rec.event("answer", turn=turn, timed_out=answer.timed_out,  # each press, seconds from the beep
-                       presses=[{"key": p.key, "letter": p.letter, "t": round(self.clock.session(p.t), 3)}
-                                for p in answer.presses])
-        if not self.robot.is_connected():  # an answer window does not talk to the robot: ask
-            raise RobotConnectionLost("the robot dropped during the answer window")
-        return answer
 
     # -- intro -----------------------------------------------------------------------------------
 
@@ -293,19 +219,6 @@ class Session:
         else:
             state = mdp.next_state(self.mdp_state, action, bool(self.last_success))
         return Turn(self.completed + 1, self.mdp_state, action, state, notes=notes, phase=phase)
-
-    def _take_override(self) -> int | None:
-        """The operator's action for this turn, if one is pending and allowed here (else refused, logged)."""
-        action, self._override = self._override, None
-        if action is None:
-            return None
-        if not mdp.ACTION_MASK[self.mdp_state, action]:
-            self.rec.event("command_refused", kind="override", action=mdp.ACTION_NAMES[action],
-                           reason=f"not allowed in state {mdp.state_label(self.mdp_state)}")
-            self.observer.notify("command", {"kind": "override", "accepted": False,
-                                             "reason": f"{mdp.ACTION_NAMES[action]} not allowed before the first turn"})
-            return None
-        return action
 
     def _do_select_action(self) -> str:
         self.turn = turn = self._next_turn()
@@ -394,195 +307,6 @@ class Session:
             if status.get("progress"):
                 self._say_progress(status["progress"])
         return "finish_turns" if done else "next_turn"
-
-    def _record_row(self, turn: Turn, score: int | None, signed: int | None) -> dict[str, Any]:
-        return self._write_row(turn, turn.row(score, signed, self.clock.speed, self.monitor.records_eeg))
-
-    def _write_row(self, turn: Turn, row: dict[str, Any]) -> dict[str, Any]:
-        self.rec.turn(row)
-        turn.recorded = True
-        self.rows.append(row)
-        return row
-
-    def _abandon_turn(self, why: str) -> None:
-        """Record the turn in flight as interrupted (never silently lost)."""
-        turn = self.turn
-        assert turn is not None
-        self._end_phase()
-        self.answers.abandon()
-        turn.notes.append(why)
-        turn.success = None
-        self._record_row(turn, None, None)
-        self.rec.event("turn_interrupted", turn=turn.number, reason=why)
-        self.observer.notify("row", {**self.rows[-1], "total": self.total, "elapsed_s": round(self.elapsed_s(), 2)})
-        self._say_progress(f"turn {turn.number:3d}/{self.n_turns}  {why}")
-
-    # -- operator commands -----------------------------------------------------------------------
-
-    def _between_states(self) -> str | None:
-        """The defined point where commands act: drain the queue, then look at the clock.
-
-        Returns the trigger of a command that changes the state (stop wins over pause), else None.
-        """
-        if self.state == "operator_pause":
-            return None  # its handler says the pause line first, then takes the commands
-        trigger = self._apply_pending(hold=self.state in HOLD_STATES)
-        if trigger is None and self.state == "select_action" and self._time_up():
-            return self._end_for_time()
-        return trigger
-
-    def _apply_pending(self, hold: bool = False) -> str | None:
-        """Apply the queued commands in order until one changes the state; the rest wait for the next point.
-
-        ``hold``: pause, stop and repeat wait too (the turn's answer is in: it is recorded first).
-        """
-        pending, self._held = self._held + self.commands.drain(), []
-        for i, cmd in enumerate(pending):
-            if hold and cmd.kind in ("pause", "stop", "repeat"):
-                self._held.append(cmd)
-                continue
-            trigger = self._apply(cmd)
-            if trigger is not None:
-                self._held += pending[i + 1:]
-                return trigger
-        return None
-
-    def _end_for_time(self) -> str:
-        self.status = "time limit"
-        self._reason = f"session.max_duration_s = {self.max_duration_s:g} s reached"
-        self.rec.event("max_duration", elapsed_s=round(self.elapsed_s(), 2), max_duration_s=self.max_duration_s)
-        self._say_progress(f"maximum session duration ({self.max_duration_s:g} s) reached: ending the session")
-        return "time_up"
-
-    def _allowed(self, kind: str) -> str | None:
-        """The trigger of command ``kind`` the current state has, or None."""
-        triggers = set(self.machine.get_triggers(self.state))
-        for t in COMMAND_TRIGGERS[kind]:
-            if t in triggers:
-                if t == "repeat_last" and self.turn is None:
-                    continue
-                if t == "resume_intro" and self._paused_in not in INTRO_STATES:
-                    continue
-                if t == "resume_turn" and self._paused_in in INTRO_STATES:
-                    continue
-                return t
-        return None
-
-    def _log_command(self, cmd: Command, accepted: bool, detail: str) -> None:
-        self.rec.event("command", kind=cmd.kind, args=cmd.args, source=cmd.source, at=cmd.at, id=cmd.id,
-                       state=self.state, accepted=accepted, detail=detail,
-                       turn=self.turn.number if self.turn else None)
-        if accepted:
-            self.monitor.mark(f"command_{cmd.kind}", self.turn.number if self.turn else None)
-        self.observer.notify("command", {"id": cmd.id, "kind": cmd.kind, "args": cmd.args, "source": cmd.source,
-                                         "at": cmd.at, "state": self.state, "accepted": accepted, "detail": detail})
-        if not accepted:
-            self._say_progress(f"command {cmd.kind} from {cmd.source} refused: {detail}")
-
-    def _apply(self, cmd: Command) -> str | None:
-        """Act on one command at a defined point; returns a trigger that changes the state, or None."""
-        trigger = self._allowed(cmd.kind)
-        if trigger is None:
-            self._log_command(cmd, False, f"not possible in state {self.state}")
-            return None
-        by = f"{cmd.kind} by operator ({cmd.source})"
-        if cmd.kind == "override" or trigger == "repeat_last":
-            name = cmd.args.get("action") if cmd.kind == "override" else mdp.ACTION_NAMES[self.turn.action]
-            if name not in mdp.ACTION_NAMES:
-                self._log_command(cmd, False, f"unknown action {name!r}; use {', '.join(mdp.ACTION_NAMES)}")
-                return None
-            self._override = mdp.ACTION_NAMES.index(name)
-            self._reason = by
-            self.trigger(trigger)
-            self._log_command(cmd, True, f"next turn plays {name}")
-            return None
-        if cmd.kind == "invalid":
-            assert self.turn is not None
-            wanted = cmd.args.get("turn")
-            if wanted is not None and int(wanted) != self.turn.number:
-                self._log_command(cmd, False, f"turn {wanted} is not the turn in flight ({self.turn.number}); "
-                                              "a recorded turn cannot be changed")
-                return None
-            note = str(cmd.args.get("note") or "").strip()
-            self.turn.invalid = True
-            self.turn.notes.append(f"invalid ({cmd.source})" + (f": {note}" if note else ""))
-            self._reason = by
-            self.trigger(trigger)
-            self._log_command(cmd, True, f"turn {self.turn.number} marked invalid")
-            return None
-        if cmd.kind == "note":
-            self._reason = by
-            self.trigger(trigger)
-            self._log_command(cmd, True, str(cmd.args.get("text", ""))[:500])
-            return None
-        # state changes: pause, resume, stop, repeat of the turn in flight
-        if cmd.kind in ("pause", "stop", "repeat") and self.turn is not None and not self.turn.recorded \
-                and self.state in IN_TURN:
-            if cmd.kind == "stop":
-                self.stage.silence()
-            self._abandon_turn(f"interrupted: {by}")
-            if cmd.kind != "stop":
-                self.replay = self.turn
-        if cmd.kind == "pause":
-            self._paused_in = self.state
-        if cmd.kind == "stop":
-            self.status = "stopped"
-        self._reason = by
-        self._log_command(cmd, True, f"{trigger} from {self.state}")
-        return trigger
-
-    def _do_operator_pause(self) -> str:
-        """Paused by the operator: say so, keep the EEG recording, wait for resume or stop."""
-        self._end_phase()
-        self.monitor.mark("pause_start", self.turn.number if self.turn else None)
-        self.observer.notify("pause", {"paused": True, "in": self._paused_in})
-        self._say_progress("paused by the operator: resume with r (or the console), stop with s")
-        self.stage.say("paused")
-        while True:
-            trigger = self._apply_pending()
-            if trigger is not None:
-                if trigger != "operator_stop":
-                    self.monitor.mark("pause_end", self.turn.number if self.turn else None)
-                    self.observer.notify("pause", {"paused": False})
-                    self._say_progress("resumed by the operator")
-                    self.stage.say("resumed", behavior="greeting")
-                return trigger
-            if self._time_up():
-                return self._end_for_time()
-            self.commands.wait(PAUSE_POLL_S)
-
-    # -- checkpoint and resumption ----------------------------------------------------------------
-
-    def _checkpoint(self, row: dict[str, Any]) -> None:
-        """After each recorded turn: everything a resumed session needs to continue exactly here."""
-        self.rec.checkpoint({
-            "completed": self.completed, "total": self.total, "mdp_state": self.mdp_state,
-            "last_success": self.last_success, "elapsed_s": round(self.elapsed_s(), 3), "row": row,
-            "rng": {name: g.bit_generator.state for name, g in self._rngs.items()},
-            "policy": self.policy.snapshot(), "override": self._override,
-        })
-
-    def _resume_from_checkpoint(self) -> str:
-        """A resumed session: restore the state of the last completed turn and go to the next turn."""
-        cp, self._resume = self._resume, None
-        assert cp is not None
-        for name, state in cp["rng"].items():
-            if name in self._rngs:
-                self._rngs[name].bit_generator.state = state
-        self.policy.restore(cp.get("policy"))
-        self.completed, self.total = int(cp["completed"]), int(cp["total"])
-        self.mdp_state, self.last_success = int(cp["mdp_state"]), cp["last_success"]
-        self._override = cp.get("override")
-        self._elapsed_before = float(cp.get("elapsed_s", 0.0))
-        self._t0 = self.clock.now()
-        self.rows = list(cp.get("rows_before", []))
-        self.rec.event("resumed", after_turn=self.completed, total=self.total, elapsed_s=self._elapsed_before)
-        self.monitor.mark("session_resumed")
-        self.stage.posture(self.behaviors.start_posture)
-        # An utterance the uninterrupted session did not have: its own generator, not the session's.
-        self.stage.say("resumed", behavior="greeting", rng=np.random.default_rng(self.completed))
-        self._reason = f"resumed after turn {self.completed}"
-        return "resume_session"
 
     # -- goodbye ---------------------------------------------------------------------------------
 
