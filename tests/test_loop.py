@@ -63,8 +63,8 @@ def test_sessions_import_fit_train_and_play_a_trained_policy(tmp_path):
     assert len(rows) == 64 and {r["success"] for r in rows} <= {"0", "1"}
     assert {r["pseudonym"] for r in rows} == {f"{g}{i}" for g in GROUPS for i in range(1, 5)}
 
-    fit = _cli("fit", str(tmp_path / "turns.csv"), "--out", str(tmp_path / "models"), "--k", "2",
-               "--no-figures", "--json")
+    fit = _cli("fit", str(study), "--out", str(tmp_path / "models"), "--k", "2", "--no-figures", "--json",
+               "--no-cache")  # the study folder itself (import inside fit)
     report = json.loads(fit.stdout)
     groups = [{s.split("_")[0].rstrip("1234") for s in c["sessions"]} for c in report["clusters"]]
     assert sorted(map(sorted, groups)) == [["strong"], ["weak"]], report["clusters"]

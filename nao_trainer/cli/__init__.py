@@ -54,9 +54,12 @@ def main(argv: list[str] | None = None) -> int:
 
 def entry_point() -> None:
     code = main()
-    # Everything is closed and written by now. Interpreter teardown would let qi release the stand-in's
-    # Python service objects on its own threads, which aborted about 2 % of exits (SIGABRT, "terminate
-    # called without an active exception", in qi_python's shared-pointer release): leave without it.
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)
+    if "qi" in sys.modules:
+        # Everything is closed and written by now. Interpreter teardown would let qi release the stand-in's
+        # Python service objects on its own threads, which aborted about 2 % of exits (SIGABRT, "terminate
+        # called without an active exception", in qi_python's shared-pointer release): leave without it.
+        # Only where qi was loaded: other commands keep the teardown (it stops worker pools, for one).
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
