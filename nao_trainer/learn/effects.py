@@ -27,10 +27,15 @@ from typing import Any
 import numpy as np
 
 from nao_trainer.core import mdp
+from nao_trainer.errors import DataError
 
 ALPHA = 0.05
 SUCCESS_EFFECTS: tuple[str, ...] = ("feedback", "previous")
 ENGAGEMENT_EFFECTS: tuple[str, ...] = ("outcome", "feedback", "previous")
+
+
+class TooFewTurns(DataError):
+    """A cluster has too few turns to fit a model: a user error (more data or fewer clusters), not a crash."""
 
 
 def _columns(states: np.ndarray, outcome: np.ndarray | None, effects: tuple[str, ...]) -> np.ndarray:
@@ -144,7 +149,8 @@ class TestedEngagementModel:
         o = np.asarray(success, dtype=float)[ok]
         e = np.asarray(engagement, dtype=float)[ok]
         if len(e) < 8:
-            raise ValueError("too few turns with engagement to fit the engagement model")
+            raise TooFewTurns(f"only {len(e)} turns with engagement in a cluster: the tested-effects fit needs at least "
+                              "8 (fit more sessions, a smaller --k, or --compat authors2018)")
 
         def rss(x: np.ndarray) -> tuple[float, int, np.ndarray]:
             x = _drop_empty(x)

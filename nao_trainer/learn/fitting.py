@@ -347,9 +347,12 @@ def cross_validate(turns: Turns, options: FitOptions, rng: np.random.Generator,
         perf_n += float(held_pm.counts_[seen].sum())
         if np.isfinite(train.engagement).any() and np.isfinite(held.engagement).any():
             if tested:
-                from nao_trainer.learn.effects import TestedEngagementModel
+                from nao_trainer.learn.effects import TestedEngagementModel, TooFewTurns
 
-                e_table = TestedEngagementModel().fit(train.state, train.success, train.engagement).table_
+                try:
+                    e_table = TestedEngagementModel().fit(train.state, train.success, train.engagement).table_
+                except TooFewTurns:  # a fold too small to fit: it adds nothing to the engagement RMSE
+                    continue
             else:
                 e_table = EngagementModel(options.svr_C, options.svr_epsilon).fit(
                     train.state, train.success, train.engagement).table_

@@ -168,3 +168,15 @@ def test_fingerprint_ignores_float_noise_but_not_a_real_change():
     tiny = near_zero.copy()
     tiny[0] = [1e-17, 3e-16]
     assert variant(engagement=near_zero).fingerprint() == variant(engagement=tiny).fingerprint()
+
+
+def test_too_few_engagement_turns_in_a_cluster_is_a_one_line_user_error():
+    """A tiny study fitted with the tested-effects models: a DataError the CLI prints in one line, not a traceback."""
+    import numpy as np
+
+    from nao_trainer.errors import UserError
+    from nao_trainer.learn.effects import TestedEngagementModel
+
+    states = np.array([30, 31, 32, 33, 34])
+    with pytest.raises(UserError, match=r"only 5 turns with engagement.*smaller --k"):
+        TestedEngagementModel().fit(states, np.ones(5), np.full(5, 0.3))
