@@ -35,7 +35,7 @@ def main() -> int:
 
     os.environ.setdefault("QI_LOG_LEVEL", "silent")
     from nao_trainer.eeg.lsl_scope import configure_lsl
-    from nao_trainer.eeg.monitor import open_monitor
+    from nao_trainer.eeg.factory import open_monitor
 
     print(f"LSL configuration: {configure_lsl('machine')}", file=sys.stderr)
     sid = f"MuseBench-{uuid.uuid4().hex[:8]}"

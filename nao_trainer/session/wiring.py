@@ -5,7 +5,6 @@ The only module of the session that knows the concrete adapters (``robot.naoqi``
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import secrets
 import signal
@@ -114,9 +113,9 @@ def open_engagement_monitor(config: StudyConfig, session_dir: Path, rng: np.rand
     eeg = config.eeg
     if eeg.mode == "off":
         return NullMonitor()  # without importing pylsl
-    from nao_trainer.eeg.monitor import open_monitor  # sets LSL's scope before its first stream object
+    from nao_trainer.eeg.factory import open_monitor  # sets LSL's scope before its first stream object
 
-    return open_monitor(eeg.mode, dataclasses.asdict(eeg), session_dir, rng, config.participant.pseudonym,
+    return open_monitor(eeg.mode, eeg, session_dir, rng, config.participant.pseudonym,
                         record_xdf=True)  # session.xdf beside the session's files (eeg.xdf: false turns it off)
 
 

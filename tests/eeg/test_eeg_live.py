@@ -13,7 +13,8 @@ from nao_trainer.eeg.inlet import StreamQuery
 from nao_trainer.eeg.lsl_scope import configure_lsl
 from nao_trainer.eeg.markers import MarkerOutlet, event_name, marker_source_id
 from nao_trainer.core.eeg import Processing
-from nao_trainer.eeg.monitor import LslMonitor, open_monitor
+from nao_trainer.eeg.factory import open_monitor
+from nao_trainer.eeg.monitor import LslMonitor
 from nao_trainer.eeg.settings import EEGSettings
 from nao_trainer.eeg.simulated_muse import SimulatedMuse
 from nao_trainer.errors import ConfigError, EEGUnavailable
