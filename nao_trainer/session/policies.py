@@ -75,20 +75,8 @@ class FixedSchedule(StatelessPolicy):
             return next(a for a in self.actions if mdp.ACTION_MASK[state, a])
         return action
 
-    def observe(self, transition: Transition) -> None:
-        pass
-
-    def bind_state_dir(self, folder: Path) -> None:
-        pass  # nothing to save
-
-    def close(self) -> None:
-        pass
-
     def probabilities(self, state: int) -> np.ndarray | None:
         return _one_hot(state, self.actions[self._i % len(self.actions)])
-
-    def guide(self, state: int, action: int) -> None:
-        pass  # the override is played; nothing to learn
 
     def snapshot(self) -> dict | None:
         return {"next": self._i}
@@ -115,26 +103,8 @@ class UniformRandom(StatelessPolicy):
         allowed = np.flatnonzero(mdp.ACTION_MASK[state])
         return int(allowed[rng.integers(len(allowed))])
 
-    def observe(self, transition: Transition) -> None:
-        pass
-
-    def bind_state_dir(self, folder: Path) -> None:
-        pass  # nothing to save
-
-    def close(self) -> None:
-        pass
-
     def probabilities(self, state: int) -> np.ndarray | None:
         return mdp.ACTION_MASK[state] / mdp.ACTION_MASK[state].sum()
-
-    def guide(self, state: int, action: int) -> None:
-        pass  # the override is played; nothing to learn
-
-    def snapshot(self) -> dict | None:
-        return None
-
-    def restore(self, data: dict | None) -> None:
-        pass
 
 
 def make_policy(spec: str, schedule: Sequence[str], learning: bool, state_path: Path | None,
