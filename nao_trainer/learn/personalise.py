@@ -149,19 +149,11 @@ def own_rates_user(name: str, own: Any, prior: UserSimulator, kappa: float, clus
 
 def held_out(turns: Any, session: str, k: int, n_init: int, seed: int, session_prior: float | None = None) -> HeldOut:
     """Fit everything without ``session`` (see the module docstring)."""
-    from nao_trainer.core.usermodel import cluster_users, user_models
     from nao_trainer.learn.fitting import FitOptions, fit_cluster
-    from nao_trainer.learn.users import session_user
+    from nao_trainer.learn.users import hold_out, session_user
 
-    mine = turns.session == session
-    rest, own = turns.subset(~mine), turns.subset(mine)
-    um = user_models(rest.session, rest.level, rest.success, rest.engagement)
-    clustering = cluster_users(um.features, k, n_init, seed)
-    own_um = user_models(own.session, own.level, own.success, own.engagement)
-    features = np.where(own_um.missing, um.features.mean(axis=0), own_um.features)[0]
-    cid = int(np.argmin(((clustering.centers - features) ** 2).sum(axis=1))) + 1
-    by_session = dict(zip(um.sessions, clustering.labels))
-    labels = np.array([by_session[s] for s in rest.session])
+    split = hold_out(turns, session, k, n_init, seed)
+    rest, own, labels, cid = split.rest, split.own, split.labels, split.cluster
     options = FitOptions(k=k, seed=seed, cv_folds=1)
     sims, sizes, sigma, member_sets = [], [], [], []
     for c in range(1, k + 1):

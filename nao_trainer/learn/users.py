@@ -132,25 +132,45 @@ def session_user(name: str, turns: Any, prior_turns: Any, prior_sim: UserSimulat
     return User(name, level_only(prior_sim, p_level, e_level, name=name), train, cluster)
 
 
-def _loso_one(turns: Any, session: str, k: int, n_init: int, seed: int) -> User:
-    """The user of ``session`` with its training simulator fitted without it (module docstring)."""
+@dataclass(frozen=True)
+class HeldOutSplit:
+    """A session set aside: the other sessions, their clusters, and the cluster the session is nearest."""
+
+    rest: Any  # Turns of every other session
+    own: Any  # Turns of the held-out session
+    labels: np.ndarray  # cluster id (1..k) of each turn of ``rest``
+    cluster: int  # the held-out session's nearest cluster (1..k), from its own user model
+
+
+def hold_out(turns: Any, session: str, k: int, n_init: int, seed: int) -> HeldOutSplit:
+    """Cluster the user models of every session but ``session``, then place ``session`` by its own user model.
+
+    The one rule of leave-one-session-out: what is fitted never sees the held-out session's turns.
+    """
     from nao_trainer.core.usermodel import cluster_users, user_models
-    from nao_trainer.learn.fitting import FitOptions, fit_cluster
 
     mine = turns.session == session
-    rest = turns.subset(~mine)
-    own = turns.subset(mine)
+    rest, own = turns.subset(~mine), turns.subset(mine)
     um = user_models(rest.session, rest.level, rest.success, rest.engagement)
     clustering = cluster_users(um.features, k, n_init, seed)
     own_um = user_models(own.session, own.level, own.success, own.engagement)
     features = np.where(own_um.missing, um.features.mean(axis=0), own_um.features)[0]
     cid = int(np.argmin(((clustering.centers - features) ** 2).sum(axis=1))) + 1
     by_session = dict(zip(um.sessions, clustering.labels))
-    members = rest.subset(np.array([by_session[s] == cid for s in rest.session]))
+    return HeldOutSplit(rest, own, np.array([by_session[s] for s in rest.session]), cid)
+
+
+def _loso_one(turns: Any, session: str, k: int, n_init: int, seed: int) -> User:
+    """The user of ``session`` with its training simulator fitted without it (module docstring)."""
+    from nao_trainer.learn.fitting import FitOptions, fit_cluster
+
+    split = hold_out(turns, session, k, n_init, seed)
+    cid = split.cluster
+    members = split.rest.subset(split.labels == cid)
     options = FitOptions(k=k, seed=seed, cv_folds=1)
     fit = fit_cluster(members, cid, options, np.random.default_rng(seed), np.zeros(4), np.zeros(4),
                       {"compat": None, "left_out": session})
-    return session_user(f"session:{session}", own, members, fit.simulator, str(cid), fit.simulator)
+    return session_user(f"session:{session}", split.own, members, fit.simulator, str(cid), fit.simulator)
 
 
 def session_user_set(source: Path, compat: str | None = None, k: int = 3, n_init: int = 50, seed: int = 0,
