@@ -36,6 +36,16 @@ class RobotCallFailed(Exception):
     """
 
 
+def check_beep(frequency_hz: float, duration_s: float, gain: float) -> None:
+    """ValueError for a beep no robot should play; every Robot checks ``beep`` arguments with this one rule."""
+    if not 20 <= int(frequency_hz) <= 20000:
+        raise ValueError(f"beep frequency must be 20..20000 Hz, got {frequency_hz!r}")
+    if not 0.0 < float(duration_s) <= 60.0:
+        raise ValueError(f"beep duration must be in (0, 60] seconds, got {duration_s!r}")
+    if not 0.0 <= float(gain) <= 1.0:
+        raise ValueError(f"beep gain must be in [0, 1], got {gain!r}")
+
+
 @runtime_checkable
 class Robot(Protocol):
     """What the session asks of a robot. ``nao_trainer.robot.naoqi.NaoqiRobot`` implements it."""

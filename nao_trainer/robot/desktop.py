@@ -25,7 +25,7 @@ from typing import Callable
 import numpy as np
 
 from nao_trainer.errors import ConfigError, RobotUnavailable
-from nao_trainer.ports import RobotCallFailed
+from nao_trainer.ports import RobotCallFailed, check_beep
 
 log = logging.getLogger(__name__)
 
@@ -153,12 +153,7 @@ class DesktopRobot:
         self._output(path)
 
     def beep(self, frequency_hz: int, duration_s: float, gain: float = 0.5) -> None:
-        if not 20 <= int(frequency_hz) <= 20000:
-            raise ValueError(f"beep frequency must be 20..20000 Hz, got {frequency_hz!r}")
-        if not 0.0 < float(duration_s) <= 60.0:
-            raise ValueError(f"beep duration must be in (0, 60] seconds, got {duration_s!r}")
-        if not 0.0 <= float(gain) <= 1.0:
-            raise ValueError(f"beep gain must be in [0, 1], got {gain!r}")
+        check_beep(frequency_hz, duration_s, gain)
         path = self._next_path("beep")
         # The beep is short by design (its length is already divided by the speed): keep it as asked.
         write_wav(path, sine_beep(float(frequency_hz), float(duration_s), float(gain)))

@@ -20,7 +20,7 @@ os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise; mu
 import qi  # noqa: E402
 
 from nao_trainer.errors import ConfigError, RobotUnavailable  # noqa: E402
-from nao_trainer.ports import BUTTON_LETTERS, RobotCallFailed, RobotConnectionLost  # noqa: E402
+from nao_trainer.ports import BUTTON_LETTERS, RobotCallFailed, RobotConnectionLost, check_beep  # noqa: E402
 from nao_trainer.robot.qi_calls import (  # noqa: E402,F401
     CallTimeouts, _explain, is_connection_lost)
 from nao_trainer.robot.address import (  # noqa: E402,F401 - re-exported: the client's public names
@@ -199,12 +199,7 @@ class NaoqiRobot:
 
     def beep(self, frequency_hz: int, duration_s: float, gain: float = 0.5) -> None:
         """Play a sine beep and return once played (gain 0..1, centred)."""
-        if not 20 <= int(frequency_hz) <= 20000:
-            raise ValueError(f"beep frequency must be 20..20000 Hz, got {frequency_hz!r}")
-        if not 0.0 < float(duration_s) <= 60.0:
-            raise ValueError(f"beep duration must be in (0, 60] seconds, got {duration_s!r}")
-        if not 0.0 <= float(gain) <= 1.0:
-            raise ValueError(f"beep gain must be in [0, 1], got {gain!r}")
+        check_beep(frequency_hz, duration_s, gain)
         self._call(
             "ALAudioPlayer",
             "playSine",
