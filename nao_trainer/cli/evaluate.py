@@ -1,7 +1,6 @@
 """`nao-trainer evaluate`: compare policies (baselines, oracle, trained learners) on simulated users."""
 from __future__ import annotations
 
-import importlib.util
 import json
 import shlex
 import sys
@@ -9,6 +8,7 @@ import time
 from pathlib import Path
 
 from nao_trainer.errors import ConfigError, DataError
+from nao_trainer.cli._checks import make_output_dir, require_matplotlib
 
 MDPS = ("paper", "informed")  # core.mdps.NAMES, repeated so that --help does not import numpy
 ROWS_FILE = "evaluation_rows.csv.gz"
@@ -88,12 +88,8 @@ def run(args) -> int:
     check_backend(args.backend)
     if args.workers < 1 or (args.limit is not None and args.limit < 1):
         raise ConfigError("--workers and --limit must be >= 1")
-    if not args.no_plots and importlib.util.find_spec("matplotlib") is None:
-        raise ConfigError("figures need matplotlib: pip install 'nao-trainer[plots]', or add --no-plots")
-    try:
-        Path(args.out).mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise DataError(f"{args.out}: cannot create the output folder ({exc.strerror}); choose another --out") from None
+    require_matplotlib(not args.no_plots)
+    make_output_dir(args.out)
     t0 = time.perf_counter()
     kind, user_list = users.load_users(args.users, args.models, args.data, args.workers, args.backend, args.seed,
                                        args.limit)
@@ -249,8 +245,7 @@ def run_personalise(args) -> int:
     check_backend(args.backend)
     if args.workers < 1 or (args.limit is not None and args.limit < 1):
         raise ConfigError("--workers and --limit must be >= 1")
-    if not args.no_plots and importlib.util.find_spec("matplotlib") is None:
-        raise ConfigError("figures need matplotlib: pip install 'nao-trainer[plots]', or add --no-plots")
+    require_matplotlib(not args.no_plots)
     out = Path(args.out)
     try:
         out.mkdir(parents=True, exist_ok=True)

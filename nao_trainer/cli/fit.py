@@ -2,10 +2,10 @@
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import sys
 from pathlib import Path
+from nao_trainer.cli._checks import require_matplotlib
 
 
 def register(sub) -> None:
@@ -40,8 +40,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.k < 1:
         raise ConfigError(f"--k must be a positive number of clusters, got {args.k}")
-    if not args.no_figures and importlib.util.find_spec("matplotlib") is None:  # fail before the import and fit
-        raise ConfigError("figures need matplotlib: pip install 'nao-trainer[plots]', or add --no-figures")
+    require_matplotlib(not args.no_figures, "--no-figures")
     say = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
     fitted = fit_and_save(args.source, args.out, compat=args.compat, k=args.k, seed=args.seed,
                           cache=None if args.no_cache else (args.cache or "default"), progress=say)

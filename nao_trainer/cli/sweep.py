@@ -1,14 +1,14 @@
 """`nao-trainer sweep`: hyper-parameter sweeps (beta1, beta2, alpha, ...) on simulated users."""
 from __future__ import annotations
 
-import importlib.util
 import json
 import shlex
 import sys
 import time
 from pathlib import Path
 
-from nao_trainer.errors import ConfigError, DataError
+from nao_trainer.errors import ConfigError
+from nao_trainer.cli._checks import make_output_dir, require_matplotlib
 
 MDPS = ("paper", "informed")
 
@@ -46,12 +46,8 @@ def run(args) -> int:
     check_backend(args.backend)
     if args.workers < 1:
         raise ConfigError(f"--workers must be >= 1, got {args.workers}")
-    if not args.no_plots and importlib.util.find_spec("matplotlib") is None:
-        raise ConfigError("figures need matplotlib: pip install 'nao-trainer[plots]', or add --no-plots")
-    try:
-        Path(args.out).mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise DataError(f"{args.out}: cannot create the output folder ({exc.strerror}); choose another --out") from None
+    require_matplotlib(not args.no_plots)
+    make_output_dir(args.out)
     _, user_list = users.load_users(args.users, args.models)
     n_points = len(spec.points())
     turns = n_points * len(user_list) * spec.seeds * spec.episodes * spec.turns

@@ -1,13 +1,13 @@
 """`nao-trainer train`: learn user-specific policies on the simulated users (paper Figures 7 and 8)."""
 from __future__ import annotations
 
-import importlib.util
 import json
 import shlex
 import sys
 from pathlib import Path
 
 from nao_trainer.errors import ConfigError, DataError
+from nao_trainer.cli._checks import make_output_dir, require_matplotlib
 
 #: ``core.qlearning.METHODS``, repeated here so that ``--help`` does not import numpy (a test keeps them equal).
 METHODS = ("performance", "shaping", "qaug")
@@ -47,13 +47,9 @@ def run(args) -> int:
                             seed=args.seed, workers=args.workers, process=args.mdp, backend=args.backend)
     except ValueError as exc:  # its messages start with the field, which is the option's name
         raise ConfigError(f"--{exc}") from None
-    if not args.no_plots and importlib.util.find_spec("matplotlib") is None:  # fail before a long run
-        raise ConfigError("figures need matplotlib: pip install 'nao-trainer[plots]', or add --no-plots")
+    require_matplotlib(not args.no_plots)
     created = not Path(args.out).exists()
-    try:  # before a long run: the output folder must be usable
-        Path(args.out).mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise DataError(f"{args.out}: cannot create the output folder ({exc.strerror}); choose another --out") from None
+    make_output_dir(args.out)
     try:
         models_dir = Path(args.models) if args.models else artifacts.default_models_dir()
         clusters = artifacts.available_models(models_dir)
