@@ -10,7 +10,7 @@ from pathlib import Path
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.cli._checks import make_output_dir, require_matplotlib
 
-MDPS = ("paper", "informed")  # core.mdps.NAMES, repeated so that --help does not import numpy
+MDPS = ("paper", "informed")  # core.processes.NAMES, repeated so that --help does not import numpy
 ROWS_FILE = "evaluation_rows.csv.gz"
 PERSONALISE_ROWS_FILE = "personalise_rows.csv.gz"
 PERSONALISE_ROW_COLUMNS = ("user", "cluster", "user_best_level", "policy", "assessment", "score", "engagement",

@@ -44,7 +44,7 @@ from typing import Sequence
 
 import numpy as np
 
-from nao_trainer.core import mdp, mdps, task
+from nao_trainer.core import mdp, processes, task
 from nao_trainer.core.posterior import FLOOR, ModelSet, log_likelihood, normalise, shifts
 
 DEFAULT_LEVELS: tuple[int, ...] = (2, 3, 4)
@@ -71,25 +71,25 @@ def assessment_schedule(length: int = DEFAULT_LENGTH, levels: Sequence[int] = DE
 
 
 def value_tables(policy: np.ndarray, p_success: np.ndarray, turns: int,
-                 process: "str | mdps.DecisionProcess" = "paper") -> tuple[np.ndarray, np.ndarray]:
+                 process: "str | processes.DecisionProcess" = "paper") -> tuple[np.ndarray, np.ndarray]:
     """(V, N) of a stationary policy on a user: V[r, x] expected score, N[r, x, l] expected turns at
-    level l+1, over the next ``r`` turns (0..turns) from full state ``x`` (``core.mdps``).
+    level l+1, over the next ``r`` turns (0..turns) from full state ``x`` (``core.processes``).
 
     ``V[turns, START_FULL]`` equals ``core.evaluation.evaluate(...).score``.
     """
-    proc = mdps.get(process)
+    proc = processes.get(process)
     table = np.asarray(policy, dtype=float)
     if table.shape != (proc.n_states, mdp.N_ACTIONS):
         raise ValueError(f"policy table of shape {table.shape} does not fit the {proc.name} MDP")
-    valid = mdps.NEXT_TURN >= 0
-    nxt = np.where(valid, mdps.NEXT_TURN, 0)  # (217, 6)
+    valid = processes.NEXT_TURN >= 0
+    nxt = np.where(valid, processes.NEXT_TURN, 0)  # (217, 6)
     pi = np.where(valid, table[proc.obs], 0.0)
     p = np.asarray(p_success, dtype=float)[nxt]
     reward = p * mdp.SCORE[nxt, 1] + (1.0 - p) * mdp.SCORE[nxt, 0]
     onehot = np.eye(4)[mdp.LEVEL[nxt] - 1]  # (217, 6, 4)
     fail, win = 2 * nxt, 2 * nxt + 1
-    v = np.zeros((turns + 1, mdps.N_FULL))
-    n = np.zeros((turns + 1, mdps.N_FULL, 4))
+    v = np.zeros((turns + 1, processes.N_FULL))
+    n = np.zeros((turns + 1, processes.N_FULL, 4))
     for r in range(1, turns + 1):
         v[r] = (pi * (reward + p * v[r - 1][win] + (1.0 - p) * v[r - 1][fail])).sum(axis=1)
         cont = p[..., None] * n[r - 1][win] + (1.0 - p)[..., None] * n[r - 1][fail]
@@ -144,11 +144,11 @@ class Personaliser:
         if self.mode == "map" and len(self.own_policy) != self.models.k:
             raise ValueError("mode 'map' needs own_policy: one candidate index per model")
         c, k, t = len(self.candidates), self.models.k, self.turns
-        self._v = np.zeros((c, k, t + 1, mdps.N_FULL))
-        self._n = np.zeros((c, k, t + 1, mdps.N_FULL, 4))
+        self._v = np.zeros((c, k, t + 1, processes.N_FULL))
+        self._n = np.zeros((c, k, t + 1, processes.N_FULL, 4))
         for i in range(c):
             self._tables_for(i)
-        self.reset(1, mdps.get(self.process))
+        self.reset(1, processes.get(self.process))
 
     def _tables_for(self, i: int) -> None:
         for k in range(self.models.k):
@@ -162,8 +162,8 @@ class Personaliser:
 
     # -- core.evaluation.EpisodePolicy ------------------------------------------------------------
 
-    def reset(self, n: int, process: "mdps.DecisionProcess | str") -> None:
-        self._proc = mdps.get(process)
+    def reset(self, n: int, process: "processes.DecisionProcess | str") -> None:
+        self._proc = processes.get(process)
         k = self.models.k
         lw = np.log(self.models.prior) if self.start_log_w is None else np.asarray(self.start_log_w, dtype=float)
         self.log_w = np.tile(lw, (n, 1))
@@ -172,7 +172,7 @@ class Personaliser:
             np.asarray(self.start_map_log_w, dtype=float), (n, 1))
         self.wins = np.tile(np.zeros(4) if self.start_wins is None else np.asarray(self.start_wins, float), (n, 1))
         self.played = np.tile(np.zeros(4) if self.start_turns is None else np.asarray(self.start_turns, float), (n, 1))
-        self.full = np.full(n, mdps.START_FULL)
+        self.full = np.full(n, processes.START_FULL)
         self.current = np.full(n, -1)
         self.switches = np.zeros(n, dtype=np.int64)
         self.probes_played = np.zeros(n, dtype=np.int64)

@@ -245,13 +245,13 @@ class QLearner:
     h: np.ndarray | None = None
     h_counts: np.ndarray | None = None
     visits: np.ndarray | None = None
-    process: str = "paper"  # the decision process (core.mdps): its states index the tables
+    process: str = "paper"  # the decision process (core.processes): its states index the tables
 
     def __post_init__(self) -> None:
-        from nao_trainer.core import mdps
+        from nao_trainer.core import processes
 
         check_method(self.method)
-        self._proc = mdps.get(self.process)
+        self._proc = processes.get(self.process)
         n_states = self._proc.n_states
         shape = (n_states, mdp.N_ACTIONS)
         self.q = _table(self.q, shape, 0.0, float, "q")

@@ -27,7 +27,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from nao_trainer.core import baselines, evaluation, mdps
+from nao_trainer.core import baselines, evaluation, processes
 from nao_trainer.core.batch import BatchLearner
 from nao_trainer.core.qlearning import METHODS, QConfig, QLearner
 from nao_trainer.errors import ConfigError
@@ -73,7 +73,7 @@ class EvalSpec:
     def __post_init__(self) -> None:
         for p in self.policies:
             parse_policy(p)
-        mdps.get(self.process)
+        processes.get(self.process)
         for name in ("turns", "seeds", "episodes"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"--{name} must be >= 1, got {getattr(self, name)}")
@@ -111,7 +111,7 @@ def evaluate_user(user: User, spec: EvalSpec, given: dict[str, list[QLearner]] |
 
     ``given``: trained learners per method (e.g. read from policy files) instead of training here.
     """
-    proc = mdps.get(spec.process)
+    proc = processes.get(spec.process)
     truth = user.truth
     p, e, T = truth.p_success, truth.engagement, spec.turns
     oracle = evaluation.optimal(p, T, proc)

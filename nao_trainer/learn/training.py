@@ -52,18 +52,18 @@ class TrainingSpec:
     config: QConfig = field(default_factory=QConfig)
     tail: float = 0.1  # fraction of final episodes summarised
     block: int = 200  # episodes of random numbers drawn per agent at a time (speed only)
-    process: str = "paper"  # the decision process (core.mdps): paper or informed
+    process: str = "paper"  # the decision process (core.processes): paper or informed
     engine: str = "auto"  # numpy, numba or auto (numba when installed); same results
     backend: str | None = None  # None: local processes; dask://HOST:PORT: a dask.distributed cluster
 
     def __post_init__(self) -> None:
-        from nao_trainer.core import mdps
+        from nao_trainer.core import processes
         from nao_trainer.learn.parallel import check_backend
 
         try:
-            mdps.get(self.process)
+            processes.get(self.process)
         except ValueError:
-            raise ValueError(f"mdp must be one of {', '.join(mdps.NAMES)}, got {self.process!r}") from None
+            raise ValueError(f"mdp must be one of {', '.join(processes.NAMES)}, got {self.process!r}") from None
         if self.engine not in BatchLearner.ENGINES:
             raise ValueError(f"engine must be one of {', '.join(BatchLearner.ENGINES)}, got {self.engine!r}")
         check_backend(self.backend)

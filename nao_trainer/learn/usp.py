@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from nao_trainer import __version__
-from nao_trainer.core import mdp, mdps
+from nao_trainer.core import mdp, processes
 from nao_trainer.core.qlearning import METHOD_TEXT, METHODS, QConfig, QLearner, policy_probabilities
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import ConfigError, DataError
@@ -82,8 +82,8 @@ def make_payload(learner: QLearner, cluster: str, simulator: UserSimulator,
         "method": learner.method,
         "method_text": METHOD_TEXT[learner.method],
         "hyperparameters": learner.config.to_dict(),
-        "mdp_definition": mdps.get(learner.process).definition,
-        "states": mdps.get(learner.process).labels(),
+        "mdp_definition": processes.get(learner.process).definition,
+        "states": processes.get(learner.process).labels(),
         "actions": list(mdp.ACTION_NAMES),
         "q": learner.q.tolist(),
         "h": learner.h.tolist(),
@@ -104,7 +104,7 @@ def read_policy_file(path: Path, process: str = "paper") -> dict[str, Any]:
     """The verified payload of a policy file; DataError naming the file and the fix otherwise.
 
     Checks, in order: readable JSON, format and version, checksum, state/action definition (the
-    policy must be made for the decision process ``process``, ``core.mdps``).
+    policy must be made for the decision process ``process``, ``core.processes``).
     """
     path = Path(path)
     payload = POLICY_FILE.read(path, DataError)
@@ -113,14 +113,14 @@ def read_policy_file(path: Path, process: str = "paper") -> dict[str, Any]:
 
 
 def policy_process(payload: dict[str, Any]) -> str | None:
-    """The decision process (``core.mdps`` name) a payload was made for, None if unknown."""
-    proc = mdps.by_definition(str(payload.get("mdp_definition")))
+    """The decision process (``core.processes`` name) a payload was made for, None if unknown."""
+    proc = processes.by_definition(str(payload.get("mdp_definition")))
     return None if proc is None else proc.name
 
 
 def check_definition(payload: dict[str, Any], path: Path, process: str = "paper") -> None:
     """Refuse a policy made for another state/action definition, naming what differs."""
-    proc = mdps.get(process)
+    proc = processes.get(process)
     made_for = policy_process(payload)
     if made_for is not None and made_for != proc.name:
         raise DataError(f"{path}: policy was made for the {made_for} MDP, not the {proc.name} MDP; "

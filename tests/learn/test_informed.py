@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nao_trainer.core import mdp, mdps
+from nao_trainer.core import mdp, processes
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import DataError
 from nao_trainer.learn import usp
@@ -22,7 +22,7 @@ def test_gym_env_shows_the_outcome_in_the_informed_state():
     check_env(env, skip_render_check=True)
     assert env.observation_space.n == 217
     obs, info = env.reset(seed=1)
-    assert obs == mdps.START_FULL and not info["action_mask"][4:].any()
+    assert obs == processes.START_FULL and not info["action_mask"][4:].any()
     for a in (1, 4, 0, 5, 3, 2):
         obs, r, *_, info = env.step(a)
         assert obs % 2 == int(info["success"]) and mdp.LEVEL[obs // 2] == info["level"]
@@ -52,7 +52,7 @@ def test_informed_policy_files_record_their_mdp_and_load_back(informed_policies)
     out, result = informed_policies
     path = out / usp.policy_filename("1", "qaug")
     payload = usp.read_policy_file(path, "informed")
-    assert payload["mdp_definition"] == mdps.INFORMED_DEFINITION and len(payload["states"]) == 217
+    assert payload["mdp_definition"] == processes.INFORMED_DEFINITION and len(payload["states"]) == 217
     learner = usp.learner_from_payload(payload, path)
     assert learner.process == "informed" and learner.q.shape == (217, 6)
     assert result.q.shape[-2:] == (217, 6)
@@ -79,4 +79,4 @@ def test_training_rejects_an_unknown_mdp():
 def test_the_commands_list_the_same_mdps_as_the_core():
     from nao_trainer.cli import evaluate, sweep, train  # noqa: F401 - the parsers' choices
 
-    assert evaluate.MDPS == sweep.MDPS == mdps.NAMES
+    assert evaluate.MDPS == sweep.MDPS == processes.NAMES
