@@ -170,17 +170,17 @@ def policy_file_learners(users: Sequence[User], folder: Any, spec: EvalSpec) -> 
     """
     from pathlib import Path
 
-    from nao_trainer.learn import usp
+    from nao_trainer.learn import policy_files
 
     methods = sorted({arg for s in spec.policies for kind, arg in [parse_policy(s)] if kind.startswith("usp")},
                      key=METHODS.index)
     out: dict[str, dict[str, list[QLearner]]] = {}
     for user in users:
         for method in methods:
-            path = Path(folder) / usp.policy_filename(user.cluster, method)
-            payload = usp.read_policy_file(path, spec.process)
-            usp.check_simulator(payload, user.train, path)
-            out.setdefault(user.name, {})[method] = [usp.learner_from_payload(payload, path)]
+            path = Path(folder) / policy_files.policy_filename(user.cluster, method)
+            payload = policy_files.read_policy_file(path, spec.process)
+            policy_files.check_simulator(payload, user.train, path)
+            out.setdefault(user.name, {})[method] = [policy_files.learner_from_payload(payload, path)]
     return out
 
 

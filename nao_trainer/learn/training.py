@@ -2,7 +2,7 @@
 
 ``train_grid`` trains one Q-learner per (cluster, method, seed) with ``core.batch.BatchLearner``,
 split over worker processes, and summarises the runs; ``write_outputs`` writes the figures, CSV
-tables, ``results.json`` and one policy file per (cluster, method) (format: ``nao_trainer.learn.usp``).
+tables, ``results.json`` and one policy file per (cluster, method) (format: ``nao_trainer.learn.policy_files``).
 
 Reproducibility: agent (cluster, method, seed index) draws from
 ``SeedSequence(base_seed, spawn_key=(cluster_key, method_index, seed_index))`` where
@@ -37,6 +37,7 @@ from nao_trainer.core.batch import BatchLearner
 from nao_trainer.core.qlearning import METHODS, QConfig, QLearner, expected_scores
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.files import write_json_atomic, write_text_atomic
+from nao_trainer.learn import policy_files
 
 
 @dataclass(frozen=True)
@@ -382,14 +383,12 @@ def write_outputs(result: GridResult, out_dir: Path, models_source: str, command
 
     The figures are the command's business: ``plots.learning.write_figures(result, out_dir)``.
     """
-    from nao_trainer.learn import usp
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"curves": out / CURVES_CSV, "s0": out / S0_CSV, "results": out / RESULTS_JSON}
     write_curves_csv(result, paths["curves"])
     write_s0_csv(result, paths["s0"])
-    policy_files = {}
+    written: dict[str, str] = {}
     for c, cluster in enumerate(result.clusters):
         for m, method in enumerate(result.spec.methods):
             k = result.representative_seed(c, m)
@@ -400,20 +399,20 @@ def write_outputs(result: GridResult, out_dir: Path, models_source: str, command
                 "command": command, "tail_score_mean": score, "tail_engagement_mean": eng,
                 "selection": "seed whose final score is closest to the median over seeds",
             }
-            path = out / usp.policy_filename(cluster, method)
-            usp.save_policy_file(path, usp.make_payload(result.learner(c, m, k), cluster,
-                                                        result.simulators[c], provenance))
-            policy_files[f"{cluster}:{method}"] = path.name
+            path = out / policy_files.policy_filename(cluster, method)
+            policy_files.save_policy_file(path, policy_files.make_payload(result.learner(c, m, k), cluster,
+                                                                          result.simulators[c], provenance))
+            written[f"{cluster}:{method}"] = path.name
     summary = result.summary_json()
     summary["default_method"] = default_methods(result)
     summary["spec"] = {"methods": list(result.spec.methods), "seeds": result.spec.seeds, "mdp": result.spec.process,
                        "episodes": result.spec.episodes, "turns": result.spec.turns, "seed": result.spec.seed,
                        "hyperparameters": result.spec.config.to_dict(), "models": models_source,
                        "command": command}
-    summary["policies"] = policy_files
+    summary["policies"] = written
     summary["simulators"] = {cl: {"name": s.name, "fingerprint": s.fingerprint()}
                              for cl, s in zip(result.clusters, result.simulators)}
     write_json_atomic(paths["results"], summary)
-    usp.write_manifest(out, {cl: result.spec.methods for cl in result.clusters}, summary["default_method"],
-                       policy_files)
+    policy_files.write_manifest(out, {cl: result.spec.methods for cl in result.clusters}, summary["default_method"],
+                                written)
     return paths

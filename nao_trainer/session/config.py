@@ -20,6 +20,7 @@ from typing import Any, Mapping
 from nao_trainer.eeg.settings import EEGSettings
 from nao_trainer.errors import ConfigError
 from nao_trainer.files import PROJECT_ROOT, read_yaml
+from nao_trainer.policies.participant_state import state_file
 from nao_trainer.session.config_schema import (DESKTOP, INPUTS, MOCK, SCHEMA, Field,  # noqa: F401 (importable from here)
                                                check_value, is_robot_address)
 
@@ -131,11 +132,8 @@ class PolicySection:
 
     def state_file(self, pseudonym: str, output: Path) -> Path | None:
         """Where a learning policy keeps its state across sessions: by default the participant's
-        folder ``<output>/participants/<pseudonym>/policy_state.json``; None = the session folder."""
-        if self.state_path == "{session}":
-            return None
-        template = self.state_path or str(Path("{output}") / "participants" / "{pseudonym}" / "policy_state.json")
-        return Path(template.format(pseudonym=pseudonym, output=output)).expanduser().resolve()
+        folder (``policies.base.state_file``); None = the session folder."""
+        return state_file(self.kind, self.state_path, pseudonym, output)
 
 
 @dataclass(frozen=True)

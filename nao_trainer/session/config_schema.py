@@ -133,7 +133,7 @@ SCHEMA: dict[str, Any] = {
         "learning": Field(bool),
         "state_path": Field(str, nullable=True, check=lambda v: _state_path(v)),
         "guidance": Field((int, float), min=0, max=10),
-        # personalised (learn.personalised, docs/personalisation.md)
+        # personalised (policies.personalised, docs/personalisation.md)
         "assessment": Field(list, item=int, check=lambda v: None if len(v) <= 12 and all(1 <= x <= 4 for x in v)
                             else "levels 1..4, at most 12 turns"),
         "kappa": Field((int, float), min=0.01),

@@ -21,6 +21,7 @@ from nao_trainer import __version__
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import ConfigError, DataError, Interrupted, RobotUnavailable, UserError
 from nao_trainer.files import PROJECT_ROOT, read_json, write_text_atomic
+from nao_trainer.policies.factory import make_policy
 from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, Policy, Robot,
                                RobotConnectionLost, SessionObserver)
 from nao_trainer.session.behaviors import Behaviors, load_behaviors
@@ -139,14 +140,11 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
     seed = int(seed) if seed is not None else secrets.randbelow(2**31)
     simulator = build_simulator(config) if config.answers.input == "simulated" else None
     console_bind = _console_bind(config, options)
-    from nao_trainer.session.policies import make_policy
-
     # Loaded once, before the robot moves: a missing or stale policy, or a torn/foreign learning-state
     # file, is found here. Per participant by default (policy.state_path); "{session}" = the session folder,
     # bound once the folder exists (_run_wired).
-    policy = make_policy(config.policy.kind, list(config.policy.schedule), config.policy.learning,
-                         config.policy_state_file(), config.policy.guidance, options.fresh_policy,
-                         study=config)
+    policy = make_policy(config.policy, config.participant.pseudonym, config.output_dir(),
+                         turns=config.session.turns, fresh=options.fresh_policy)
     # Not closed on failure here: closing a learning policy saves it, and nothing is written before the robot answers.
     ensure_output_dir(config.output_dir())  # an unusable output folder is found before the robot moves
     preflight(config, progress)  # robot, disk and a required EEG stream, before any session folder exists
@@ -339,7 +337,7 @@ def _policy_state(policy: Policy, config: StudyConfig, fresh: bool, progress: Te
     """Which learning state the policy starts from (the session logs it as ``policy_state``), None when it does not learn."""
     if not (config.policy.learning and config.policy.kind.startswith("usp:")):
         return None
-    from nao_trainer.learn.usp import LivePolicy
+    from nao_trainer.policies.learned import LivePolicy  # the learning stack is imported only for learned policies
 
     assert isinstance(policy, LivePolicy)
     loaded, target = policy.loaded_from, config.policy_state_file()

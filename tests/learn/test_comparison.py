@@ -8,7 +8,7 @@ import pytest
 
 from nao_trainer.cli import main
 from nao_trainer.core import mdp
-from nao_trainer.learn import comparison, usp, users
+from nao_trainer.learn import comparison, policy_files, users
 from nao_trainer.learn import effects
 from nao_trainer.learn.fitting import Turns
 
@@ -95,14 +95,14 @@ def test_evaluate_on_clusters_writes_table_and_figure(tmp_path, capsys):
 
 
 def test_policy_files_for_the_other_mdp_are_refused_with_one_line(tmp_path, capsys):
-    rc = main(["evaluate", "--users", "clusters", "--mdp", "informed", "--policy-files", str(usp.default_policies_dir()),
+    rc = main(["evaluate", "--users", "clusters", "--mdp", "informed", "--policy-files", str(policy_files.default_policies_dir()),
                "--policies", "usp:qaug", "--out", str(tmp_path / "ev")])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "made for the paper MDP, not the informed MDP" in err[0]
 
 
 def test_shipped_policy_files_evaluate_on_the_shipped_models(tmp_path, capsys):
-    rc = main(["evaluate", "--users", "level-only", "--policy-files", str(usp.default_policies_dir()), "--policies",
+    rc = main(["evaluate", "--users", "level-only", "--policy-files", str(policy_files.default_policies_dir()), "--policies",
                "usp:qaug,best-fixed", "--out", str(tmp_path / "ev"), "--no-plots", "--json"])
     assert rc == 0
     report = json.loads(capsys.readouterr().out)

@@ -6,7 +6,7 @@ import pytest
 
 from nao_trainer.core import mdp, task
 from nao_trainer.errors import DataError
-from nao_trainer.learn import personalised
+from nao_trainer.policies import personalised
 from nao_trainer.ports import Transition
 
 
