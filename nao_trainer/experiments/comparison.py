@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -31,6 +32,8 @@ from nao_trainer.core import baselines, evaluation, processes
 from nao_trainer.core.batch import BatchLearner
 from nao_trainer.core.qlearning import METHODS, QConfig, QLearner
 from nao_trainer.errors import ConfigError
+from nao_trainer.learn import policy_files
+from nao_trainer.learn.parallel import fan_out
 from nao_trainer.learn.users import User
 
 DEFAULT_POLICIES: tuple[str, ...] = (
@@ -155,8 +158,6 @@ def evaluate_user(user: User, spec: EvalSpec, given: dict[str, list[QLearner]] |
 def run(users: Sequence[User], spec: EvalSpec, workers: int = 2, backend: str | None = None,
         given: dict[str, dict[str, list[QLearner]]] | None = None) -> list[dict[str, Any]]:
     """All rows, users fanned out through ``learn.parallel``; ``given[user name]``: see ``evaluate_user``."""
-    from nao_trainer.learn.parallel import fan_out
-
     given = given or {}
     parts = fan_out(evaluate_user, [(u, spec, given.get(u.name)) for u in users], workers, backend)
     return [row for part in parts for row in part]
@@ -168,10 +169,6 @@ def policy_file_learners(users: Sequence[User], folder: Any, spec: EvalSpec) -> 
     Each file must be made for ``spec.process`` and trained on the user's training simulator
     (fingerprint); otherwise a one-line DataError.
     """
-    from pathlib import Path
-
-    from nao_trainer.learn import policy_files
-
     methods = sorted({arg for s in spec.policies for kind, arg in [parse_policy(s)] if kind.startswith("usp")},
                      key=METHODS.index)
     out: dict[str, dict[str, list[QLearner]]] = {}

@@ -8,8 +8,8 @@ import pytest
 
 from nao_trainer.cli import main
 from nao_trainer.core import mdp
-from nao_trainer.learn import comparison, policy_files, users
-from nao_trainer.learn import effects
+from nao_trainer.experiments import comparison
+from nao_trainer.learn import effects, policy_files, users
 from nao_trainer.learn.fitting import Turns
 
 
@@ -85,7 +85,7 @@ def test_evaluate_on_clusters_writes_table_and_figure(tmp_path, capsys):
     assert by["best-fixed"]["score"] >= by["fixed:2"]["score"] - 1e-9
     assert report["claims"][0]["a"] == "usp:shaping" and report["claims"][0]["n"] == 6
     assert (out / "evaluation.png").stat().st_size > 0 and (out / "evaluation.csv").read_text().startswith("policy,")
-    from nao_trainer.cli.evaluate import read_rows
+    from nao_trainer.experiments.reports import read_rows
 
     rows = read_rows(out / "evaluation_rows.csv.gz")
     assert len(rows) == 3 * (2 + 1 + 2 * 2 + 2 + 1)  # baselines 1 row per user, usp kinds 2 seeds
