@@ -41,6 +41,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import Enum
+from math import comb
 from typing import Any, Sequence
 
 import numpy as np
@@ -227,8 +228,6 @@ class Personaliser:
         choice among candidates alone never does. Needs a finite ``kappa`` (with the models as
         fitted nothing is learned about the participant's own rates).
         """
-        from math import comb
-
         from scipy.special import gammaln as glab  # lazy: scipy is slow to import
 
         n_ep = self.log_w.shape[0]

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nao_trainer.core import mdp
+from nao_trainer.core import mdp, processes, qkernel
 from nao_trainer.core.qlearning import QConfig, check_method, choose_columns, column_max, inverse_temperature
 
 _N_LEVEL_ACTIONS = len(mdp.LEVEL_ACTIONS)
@@ -58,8 +58,6 @@ class BatchLearner:
 
     def __init__(self, p_success: np.ndarray, engagement: np.ndarray, methods: Sequence[str],
                  config: QConfig = QConfig(), process: str = "paper", engine: str = "numpy") -> None:
-        from nao_trainer.core import processes
-
         p = np.asarray(p_success, dtype=float)
         e = np.asarray(engagement, dtype=float)
         n = len(methods)
@@ -79,8 +77,6 @@ class BatchLearner:
 
     def _local_tables(self) -> dict[str, np.ndarray]:
         """Per-code tables shared by all agents (codes 0..217, see the class docstring)."""
-        from nao_trainer.core import processes
-
         C, A = 2 * mdp.N_STATES, mdp.N_ACTIONS
         nt = np.zeros((C, A), dtype=np.int64)
         nt[: processes.N_FULL] = 2 * np.where(processes.NEXT_TURN < 0, 0, processes.NEXT_TURN)
@@ -99,8 +95,6 @@ class BatchLearner:
             raise ValueError(f"episodes, turns and block must be >= 1, got {episodes}, {turns}, {block}")
         engine = self.engine
         if engine == "auto":
-            from nao_trainer.core import qkernel
-
             engine = "numba" if qkernel.available() else "numpy"
         if engine == "numba":
             return self._run_compiled(episodes, turns, rngs, progress)
@@ -207,8 +201,6 @@ class BatchLearner:
 
     def _run_compiled(self, episodes: int, turns: int, rngs: Sequence[np.random.Generator],
                       progress: Callable[[int, int], None] | None) -> BatchResult:
-        from nao_trainer.core import qkernel
-
         run_agent = qkernel.kernel()
         cfg, n = self.config, self.n
         S, A = self.process.n_states, mdp.N_ACTIONS

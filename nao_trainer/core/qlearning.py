@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from nao_trainer.core import mdp
+from nao_trainer.core import mdp, processes
 
 METHODS: tuple[str, ...] = ("performance", "shaping", "qaug")
 METHOD_TEXT: dict[str, str] = {
@@ -249,8 +249,6 @@ class QLearner:
     process: str = "paper"  # the decision process (core.processes): its states index the tables
 
     def __post_init__(self) -> None:
-        from nao_trainer.core import processes
-
         check_method(self.method)
         self._proc = processes.get(self.process)
         n_states = self._proc.n_states

@@ -22,8 +22,8 @@ except ImportError as exc:  # pragma: no cover - exercised only without the extr
     ) from exc
 
 from nao_trainer.core import mdp, processes
-from nao_trainer.core import mdp as _mdp
 from nao_trainer.core.simulation import UserSimulator
+from nao_trainer.learn.artifacts import load_simulator
 
 ENV_ID = "NaoTrainer/SequenceLearning-v0"
 
@@ -76,8 +76,6 @@ class SequenceLearningEnv(gym.Env):
                  mdp: str = "paper"):
         self.process = processes.get(mdp)
         if isinstance(simulator, str):
-            from nao_trainer.learn.artifacts import load_simulator
-
             simulator = load_simulator(simulator)
         if not isinstance(simulator, UserSimulator):
             raise TypeError(f"simulator must be a UserSimulator or a model spec, got {type(simulator).__name__}")
@@ -89,7 +87,7 @@ class SequenceLearningEnv(gym.Env):
         self.turns = int(turns)
         self.render_mode = render_mode
         self.observation_space = spaces.Discrete(self.process.n_states)
-        self.action_space = spaces.Discrete(_mdp.N_ACTIONS)
+        self.action_space = spaces.Discrete(self.process.action_mask.shape[1])  # the parameter `mdp` hides the module here
         self.state = self.process.start
         self._full = processes.START_FULL
         self.turn = 0

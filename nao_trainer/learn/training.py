@@ -21,6 +21,7 @@ means over seeds with the same per-episode 95 % t-interval.
 """
 from __future__ import annotations
 
+import gzip
 import hashlib
 import io
 import math
@@ -32,12 +33,13 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from nao_trainer.core import mdp
+from nao_trainer.core import evaluation, mdp, processes
 from nao_trainer.core.batch import BatchLearner
 from nao_trainer.core.qlearning import METHODS, QConfig, QLearner, expected_scores
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.files import write_json_atomic, write_text_atomic
 from nao_trainer.learn import policy_files
+from nao_trainer.learn.parallel import check_backend, fan_out
 
 
 @dataclass(frozen=True)
@@ -58,9 +60,6 @@ class TrainingSpec:
     backend: str | None = None  # None: local processes; dask://HOST:PORT: a dask.distributed cluster
 
     def __post_init__(self) -> None:
-        from nao_trainer.core import processes
-        from nao_trainer.learn.parallel import check_backend
-
         try:
             processes.get(self.process)
         except ValueError:
@@ -182,8 +181,6 @@ class GridResult:
         """Expected score of the optimum and of uniform play on cluster c's simulator, in this MDP."""
         if self.spec.process == "paper":
             return expected_scores(self.simulators[c].p_success, self.spec.turns)
-        from nao_trainer.core import evaluation
-
         sim = self.simulators[c]
         best = evaluation.optimal(sim.p_success, self.spec.turns, self.spec.process).value
         uniform = evaluation.evaluate(evaluation.uniform_policy(self.spec.process), sim.p_success, sim.engagement,
@@ -307,8 +304,6 @@ def train_grid(simulators: Sequence[UserSimulator], clusters: Sequence[str], spe
               f"agents, {spec.episodes} episodes x {spec.turns} turns ({total / 1e6:.1f} M turns) "
               f"on {n_workers} worker(s)", file=sys.stderr, flush=True)
     t0 = time.perf_counter()
-    from nao_trainer.learn.parallel import fan_out
-
     outputs = fan_out(_run_chunk, chunks, n_workers, spec.backend)
     seconds = time.perf_counter() - t0
     parts = [o[0] for o in outputs]
@@ -341,8 +336,6 @@ def write_curves_csv(result: GridResult, path: Path) -> None:
     curves = result.curves()
     cols = ["score_mean", "score_lo", "score_hi", "engagement_mean", "engagement_lo", "engagement_hi"]
     episodes = np.arange(1, result.spec.episodes + 1)
-    import gzip
-
     # mtime=0: the same run gives the same bytes; level 6 is much faster than the default 9, nearly as small.
     with gzip.GzipFile(path, "wb", compresslevel=6, mtime=0) as raw, io.TextIOWrapper(raw, encoding="utf-8") as fh:
         fh.write("cluster,method,episode," + ",".join(cols) + "\n")

@@ -166,7 +166,7 @@ def test_a_refit_writes_identical_files_and_the_shipped_policies_still_load(fitt
         assert (again / name).read_bytes() == (out / name).read_bytes(), name
     monkeypatch.setenv(artifacts.MODELS_ENV, str(again))
     for cluster in ("1", "2", "3"):
-        for method in usp.METHODS:
+        for method in learned.METHODS:
             policy = learned.load_policy(f"usp:{cluster}:{method}", learning=False, state_path=None)
             policy.close()
     shipped = artifacts.load_simulator("2", artifacts.DEFAULT_MODELS_DIR)
