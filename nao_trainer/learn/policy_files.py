@@ -24,6 +24,7 @@ The live policy that plays such a file in a session (``usp:CLUSTER[:METHOD]``) i
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 from pathlib import Path
 from typing import Any
@@ -45,6 +46,8 @@ MANIFEST_FORMAT = "nao-trainer/user-specific-policies"
 DEFAULT_POLICIES_DIR = PROJECT_ROOT / "sim" / "policies"
 POLICIES_ENV = "NAO_TRAINER_POLICIES"
 RETRAIN = "retrain with `nao-trainer train --out DIR` (or restore the file)"
+#: The fix for a participant's state file (a policy file too): never retrain, start afresh and keep it.
+FRESH = "start from the trained policy with --fresh-policy (the old file is kept beside it)"
 
 
 def default_policies_dir() -> Path:
@@ -91,15 +94,16 @@ def save_policy_file(path: Path, payload: dict[str, Any]) -> None:
     POLICY_FILE.write(path, payload)
 
 
-def read_policy_file(path: Path, process: str = "paper") -> dict[str, Any]:
-    """The verified payload of a policy file; DataError naming the file and the fix otherwise.
+def read_policy_file(path: Path, process: str = "paper", fix: str = RETRAIN) -> dict[str, Any]:
+    """The verified payload of a policy file; DataError naming the file and ``fix`` otherwise
+    (``FRESH`` for a participant's state file).
 
     Checks, in order: readable JSON, format and version, checksum, state/action definition (the
     policy must be made for the decision process ``process``, ``core.processes``).
     """
     path = Path(path)
-    payload = POLICY_FILE.read(path, DataError)
-    check_definition(payload, path, process)
+    payload = dataclasses.replace(POLICY_FILE, fix=fix).read(path, DataError)
+    check_definition(payload, path, process, fix)
     return payload
 
 
@@ -109,7 +113,7 @@ def policy_process(payload: dict[str, Any]) -> str | None:
     return None if proc is None else proc.name
 
 
-def check_definition(payload: dict[str, Any], path: Path, process: str = "paper") -> None:
+def check_definition(payload: dict[str, Any], path: Path, process: str = "paper", fix: str = RETRAIN) -> None:
     """Refuse a policy made for another state/action definition, naming what differs."""
     proc = processes.get(process)
     made_for = policy_process(payload)
@@ -118,16 +122,16 @@ def check_definition(payload: dict[str, Any], path: Path, process: str = "paper"
                         f"use --mdp {made_for} or retrain with `nao-trainer train --mdp {proc.name}`")
     if payload.get("mdp_definition") != proc.definition:
         raise DataError(f"{path}: policy was trained for another state/action definition "
-                        f"({payload.get('mdp_definition')!r}, this build: {mdp.DEFINITION!r}); {RETRAIN}")
+                        f"({payload.get('mdp_definition')!r}, this build: {mdp.DEFINITION!r}); {fix}")
     states = proc.labels()
     if payload.get("states") != states:
-        raise DataError(f"{path}: policy's state list differs from this build's {len(states)} states; {RETRAIN}")
+        raise DataError(f"{path}: policy's state list differs from this build's {len(states)} states; {fix}")
     if payload.get("actions") != list(mdp.ACTION_NAMES):
         raise DataError(f"{path}: policy's actions {payload.get('actions')} differ from "
-                        f"{list(mdp.ACTION_NAMES)}; {RETRAIN}")
+                        f"{list(mdp.ACTION_NAMES)}; {fix}")
 
 
-def learner_from_payload(payload: dict[str, Any], path: Path) -> QLearner:
+def learner_from_payload(payload: dict[str, Any], path: Path, fix: str = RETRAIN) -> QLearner:
     """Rebuild the Q-learner of a verified payload; DataError naming the bad field."""
     try:
         config = QConfig.from_dict(payload["hyperparameters"])
@@ -135,9 +139,9 @@ def learner_from_payload(payload: dict[str, Any], path: Path) -> QLearner:
                         np.array(payload["h"], dtype=float), np.array(payload["h_counts"], dtype=np.int64),
                         np.array(payload["visits"], dtype=np.int64), policy_process(payload) or "paper")
     except KeyError as exc:
-        raise DataError(f"{path}: policy file lacks field {exc.args[0]!r}; {RETRAIN}") from None
+        raise DataError(f"{path}: policy file lacks field {exc.args[0]!r}; {fix}") from None
     except (TypeError, ValueError) as exc:
-        raise DataError(f"{path}: invalid policy tables ({exc}); {RETRAIN}") from None
+        raise DataError(f"{path}: invalid policy tables ({exc}); {fix}") from None
 
 
 def check_simulator(payload: dict[str, Any], simulator: UserSimulator, path: Path) -> None:

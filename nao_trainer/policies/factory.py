@@ -35,4 +35,4 @@ def make_policy(section: PolicySettings, participant: str, output: Path, *, turn
     if kind == "personalised":
         return load_personalised(path, participant, turns, section.assessment, float(section.kappa),
                                  float(section.margin), section.learning, fresh, guidance=section.guidance)
-    return load_policy(kind, section.learning, path, guidance=section.guidance, fresh=fresh)
+    return load_policy(kind, section.learning, path, guidance=section.guidance, fresh=fresh, pseudonym=participant)

@@ -18,7 +18,7 @@ from nao_trainer.core import mdp
 from nao_trainer.core.qlearning import METHODS, QLearner, policy_probabilities
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.learn.artifacts import load_simulator
-from nao_trainer.learn.policy_files import (RETRAIN, check_simulator, default_policies_dir, learner_from_payload,
+from nao_trainer.learn.policy_files import (FRESH, RETRAIN, check_simulator, default_policies_dir, learner_from_payload,
                                             policy_filename, read_manifest, read_policy_file, save_policy_file)
 from nao_trainer.policies.base import Guidance, log
 from nao_trainer.policies.participant_state import session_state_file, set_aside
@@ -143,13 +143,15 @@ def parse_spec(spec: str) -> tuple[str, str | None]:
 
 
 def load_policy(spec: str, learning: bool, state_path: Path | None, policies_dir: Path | None = None,
-                models_dir: Path | None = None, guidance: float = 0.0, fresh: bool = False) -> LivePolicy:
+                models_dir: Path | None = None, guidance: float = 0.0, fresh: bool = False,
+                pseudonym: str | None = None) -> LivePolicy:
     """The trained policy ``usp:CLUSTER[:METHOD]`` for a live session (see the module docstring).
 
     METHOD defaults to the folder manifest's ``default_method`` for the cluster (the method whose
     policies scored best in training). The policy's simulator fingerprint must match the current
     user model of that cluster (``nao_trainer.learn.artifacts.load_simulator``). The session passes its
-    generator to ``act``.
+    generator to ``act``. ``pseudonym``: the participant; the state file belongs to them (stored
+    as ``live.pseudonym``): a state file of another participant is refused.
     """
     cluster, method = parse_spec(spec)
     folder = Path(policies_dir) if policies_dir else default_policies_dir()
@@ -171,14 +173,19 @@ def load_policy(spec: str, learning: bool, state_path: Path | None, policies_dir
         aside = set_aside(Path(state_path))
         log.warning("policy %s: starting fresh; the previous state was moved to %s", spec, aside)
     if state_path is not None and Path(state_path).exists():
-        saved = read_policy_file(Path(state_path))
+        saved = read_policy_file(Path(state_path), fix=FRESH)
         for key in ("cluster", "method", "simulator", "hyperparameters"):
             if saved.get(key) != payload.get(key):
                 raise DataError(f"{state_path}: holds the learning state of another policy ({key} differs from "
-                                f"{path.name}); choose another policy.state_path or delete the file to start "
-                                "from the trained policy")
+                                f"{path.name}); {FRESH}, or choose another policy.state_path")
+        owner = (saved.get("live") or {}).get("pseudonym")
+        if pseudonym is not None and owner is not None and owner != pseudonym:
+            raise DataError(f"{state_path}: the learning state of participant {owner!r}, not of {pseudonym!r} "
+                            f"(copied from another participant's folder?); {FRESH}")
         payload, source = saved, Path(state_path)
-    learner = learner_from_payload(payload, source)
+    learner = learner_from_payload(payload, source, FRESH if source != path else RETRAIN)
+    if pseudonym is not None:
+        payload["live"]["pseudonym"] = pseudonym  # the state saved from now on belongs to this participant
     policy = LivePolicy(learner, payload, learning, state_path, guidance)
     if source != path:
         policy.loaded_from = source

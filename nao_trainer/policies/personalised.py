@@ -63,8 +63,10 @@ class PersonalisedPolicy:
 
     def __init__(self, models: ModelSet, learners: list[tuple[str, QLearner]], fingerprint: str, path: Path | None,
                  turns: int, schedule: tuple[int, ...], kappa: float, margin: float, learning: bool,
-                 saved: dict[str, Any] | None = None, use_engagement: bool = False, guidance: float = 0.0) -> None:
+                 saved: dict[str, Any] | None = None, use_engagement: bool = False, guidance: float = 0.0,
+                 pseudonym: str | None = None) -> None:
         self.models = models
+        self.pseudonym = pseudonym  # whose state this is (stored in the file; another participant's is refused)
         self.learners = learners
         self.fingerprint = fingerprint
         self.path = Path(path) if path is not None else None  # None: the session folder, once it exists
@@ -201,7 +203,7 @@ class PersonalisedPolicy:
                                                                        if k in ("matched", "match_probability",
                                                                                 "following", "switches")}}
         return {
-            "mdp_definition": mdp.DEFINITION, "models_fingerprint": self.fingerprint,
+            "pseudonym": self.pseudonym, "mdp_definition": mdp.DEFINITION, "models_fingerprint": self.fingerprint,
             "models": list(self.models.names), "kappa": p.kappa, "margin": p.margin,
             **{k: pers[k] for k in ("log_w", "map_log_w", "wins", "played")},
             "learners": {c: lr.state_dict() for c, lr in self.learners},
@@ -220,9 +222,14 @@ class PersonalisedPolicy:
                             "make session.output writable") from None
 
 
-def read_state(path: Path, fingerprint: str) -> dict[str, Any]:
-    """A participant's saved state, checked; DataError in one line otherwise (module docstring)."""
+def read_state(path: Path, fingerprint: str, pseudonym: str | None = None) -> dict[str, Any]:
+    """A participant's saved state, checked; DataError in one line otherwise (module docstring).
+    A state that names another participant than ``pseudonym`` is refused (a file copied between folders)."""
     saved = PARTICIPANT_FILE.read(path, DataError)
+    owner = saved.get("pseudonym")
+    if pseudonym is not None and owner is not None and owner != pseudonym:
+        raise DataError(f"{path}: the participant state of {owner!r}, not of {pseudonym!r} (copied from another "
+                        f"participant's folder?); {FRESH}")
     if saved.get("mdp_definition") != mdp.DEFINITION:
         raise DataError(f"{path}: participant state made for another MDP ({str(saved.get('mdp_definition'))[:40]}...); "
                         f"{FRESH}")
@@ -286,9 +293,9 @@ def load_personalised(path: Path | None, pseudonym: str, turns: int, schedule: S
             kept = set_aside(path)
             log.warning("policy personalised: starting fresh from the prior; the previous state was moved to %s", kept)
         else:
-            saved = read_state(path, fingerprint)
+            saved = read_state(path, fingerprint, pseudonym)
             restore_learners(learners, saved["learners"], path)
             log.warning("policy personalised: %s returns after %d session(s): starting from the saved posterior (%s); "
                         "no assessment", pseudonym, len(saved["sessions"]), path)
     return PersonalisedPolicy(models, learners, fingerprint, path, turns, tuple(int(x) for x in schedule), kappa,
-                              margin, learning, saved, use_engagement, guidance)
+                              margin, learning, saved, use_engagement, guidance, pseudonym)

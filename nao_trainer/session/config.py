@@ -47,7 +47,11 @@ class StudySection:
 
 @dataclass(frozen=True)
 class ParticipantSection:
-    pseudonym: str
+    pseudonym: str  # "simulated" when none was entered (session.participant refuses that when a person answers)
+
+    def __post_init__(self) -> None:
+        if self.pseudonym is None:
+            object.__setattr__(self, "pseudonym", "simulated")
 
 
 @dataclass(frozen=True)

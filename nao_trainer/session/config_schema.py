@@ -86,7 +86,7 @@ def _state_path(value: str) -> str | None:
 
 SCHEMA: dict[str, Any] = {
     "study": {"name": Field(str), "description": Field(str, nullable=True)},
-    "participant": {"pseudonym": Field(str, check=lambda v: None if re.fullmatch(r"[A-Za-z0-9_-]{1,40}", v)
+    "participant": {"pseudonym": Field(str, nullable=True, check=lambda v: None if re.fullmatch(r"[A-Za-z0-9_-]{1,40}", v)
                                         else "must be 1-40 letters, digits, '_' or '-' (it names the session folder; never a real name)")},
     "robot": {
         "url": Field(str, check=_robot_url),

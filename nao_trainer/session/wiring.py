@@ -27,6 +27,7 @@ from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, Nu
 from nao_trainer.session.behaviors import Behaviors, load_behaviors
 from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig, load_config
 from nao_trainer.session.dialogue import Dialogue, load_dialogue
+from nao_trainer.session.participant import check_pseudonym, session_lock
 from nao_trainer.session.engine import EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session, who_stopped
 from nao_trainer.session.record import CHECKPOINT, CHECKPOINT_FORMAT, SessionRecorder, ensure_output_dir, read_turns, versions
 from nao_trainer.session.stage import leave_robot_safe
@@ -130,6 +131,7 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
     continues an interrupted session folder instead of creating one.
     """
     progress = None if options.quiet else (progress or sys.stderr)
+    check_pseudonym(config)  # refused in one line when a person answers and nobody entered a pseudonym
     language = config.session.language
     dialogue = load_dialogue(config.session.dialogue_path)
     if dialogue.language != language:
@@ -140,17 +142,18 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
     seed = int(seed) if seed is not None else secrets.randbelow(2**31)
     simulator = build_simulator(config) if config.answers.input == "simulated" else None
     console_bind = _console_bind(config, options)
-    # Loaded once, before the robot moves: a missing or stale policy, or a torn/foreign learning-state
-    # file, is found here. Per participant by default (policy.state_path); "{session}" = the session folder,
-    # bound once the folder exists (_run_wired).
-    policy = make_policy(config.policy, config.participant.pseudonym, config.output_dir(),
-                         turns=config.session.turns, fresh=options.fresh_policy)
-    # Not closed on failure here: closing a learning policy saves it, and nothing is written before the robot answers.
-    ensure_output_dir(config.output_dir())  # an unusable output folder is found before the robot moves
-    preflight(config, progress)  # robot, disk and a required EEG stream, before any session folder exists
-
-    with _signals_as_interrupt():
-        return _run_wired(config, progress, dialogue, behaviors, seed, simulator, policy, options, resume, console_bind)
+    with session_lock(config, progress):  # one session at a time per participant state
+        # Loaded once, before the robot moves: a missing or stale policy, or a torn/foreign learning-state
+        # file, is found here. Per participant by default (policy.state_path); "{session}" = the session folder,
+        # bound once the folder exists (_run_wired).
+        policy = make_policy(config.policy, config.participant.pseudonym, config.output_dir(),
+                             turns=config.session.turns, fresh=options.fresh_policy)
+        # Not closed on failure here: closing a learning policy saves it, and nothing is written before the robot answers.
+        ensure_output_dir(config.output_dir())  # an unusable output folder is found before the robot moves
+        preflight(config, progress)  # robot, disk and a required EEG stream, before any session folder exists
+        with _signals_as_interrupt():
+            return _run_wired(config, progress, dialogue, behaviors, seed, simulator, policy, options, resume,
+                              console_bind)
 
 
 def _console_bind(config: StudyConfig, options: RunOptions) -> str | None:
