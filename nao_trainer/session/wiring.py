@@ -21,12 +21,13 @@ from nao_trainer import __version__
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import ConfigError, DataError, Interrupted, RobotUnavailable, UserError
 from nao_trainer.files import PROJECT_ROOT, read_json, write_text_atomic
-from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, Policy, Robot,
+from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, NullObserver, Policy, Robot,
                                RobotConnectionLost, SessionObserver)
 from nao_trainer.session.behaviors import Behaviors, load_behaviors
 from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig, load_config
 from nao_trainer.session.dialogue import Dialogue, load_dialogue
 from nao_trainer.session.engine import EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session, who_stopped
+from nao_trainer.session.parts import Randomness, Script, SessionPorts
 from nao_trainer.session.record import CHECKPOINT, CHECKPOINT_FORMAT, SessionRecorder, ensure_output_dir, read_turns, versions
 from nao_trainer.session.stage import leave_robot_safe
 from nao_trainer.session.turn import SessionResult, summary_data
@@ -268,10 +269,10 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
             from nao_trainer.console.keys import KeyReader
 
             keys = KeyReader.start_if_terminal(commands, progress)
-        session = Session(config, robot, answers, policy, recorder, dialogue, behaviors, np.random.default_rng(session_ss),
-                          policy_rng, monitor, progress, commands=commands, observer=observer,
-                          rngs={"participant": participant_rng},
-                          resume=None if resume is None else dict(resume.checkpoint, rows_before=resume.rows),
+        ports = SessionPorts(robot, answers, policy, monitor, commands, observer or NullObserver())
+        session = Session(config, ports, recorder, Script(dialogue, behaviors),
+                          Randomness(np.random.default_rng(session_ss), policy_rng, {"participant": participant_rng}),
+                          progress=progress, resume=None if resume is None else dict(resume.checkpoint, rows_before=resume.rows),
                           policy_state=policy_state)
         if console is not None:
             console.hub.set_sources(eeg=monitor.live, elapsed=session.elapsed_s)
