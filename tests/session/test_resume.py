@@ -14,7 +14,7 @@ import pytest
 
 from nao_trainer.errors import DataError
 from nao_trainer.session.record import read_events, read_turns
-from nao_trainer.session.wiring import prepare_resume
+from nao_trainer.session.resume import prepare_resume
 
 ROOT = Path(__file__).resolve().parents[2]
 TIMING = {"start_time", "reaction_time", "completion_time"}  # wall-clock columns differ between runs
