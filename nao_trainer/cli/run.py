@@ -8,7 +8,6 @@ from pathlib import Path
 from nao_trainer.eeg.settings import MODES as EEG_MODES
 from nao_trainer.errors import ConfigError
 from nao_trainer.session.config import INPUTS, is_robot_address, load_config
-from nao_trainer.session.resume import prepare_resume
 
 
 def register(sub) -> None:
@@ -79,6 +78,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, object]:
 
 def run(args: argparse.Namespace) -> int:
     # Heavy (numpy, transitions, the adapters): imported when a session runs, so `nao-trainer --help` stays fast.
+    from nao_trainer.session.resume import prepare_resume
     from nao_trainer.session.wiring import RunOptions, run_session
 
     overrides = overrides_from_args(args)

@@ -320,15 +320,20 @@ class Session:
         self.total += score
         done = self.completed >= self.n_turns
         engagement = turn.listening.engagement if turn.listening else None
+        learn = None
         if turn.invalid:  # the operator marked it invalid: the learner does not see it
             self.rec.event("not_learned", turn=turn.number, reason="marked invalid")
         else:
-            self.policy.observe(Transition(turn.previous_state, turn.action, score, engagement, turn.state, done))
+            learn = Transition(turn.previous_state, turn.action, score, engagement, turn.state, done)
         self.mdp_state, self.last_success = turn.state, turn.success
-        # The checkpoint (with this row) first, then the row: a kill between the two loses nothing,
-        # as a resumption appends the checkpoint's row when turns.csv lacks it.
-        self.checkpoints.write(self._standing(), row, self.elapsed_s(), self.desk.override)
+        # The answered turn is on disk before the participant's learning state is saved: the checkpoint
+        # (with this row and the transition not yet learned), then the row, then the policy learns and
+        # saves. A kill or a failed write in between loses nothing: a resumption appends the checkpoint's
+        # row when turns.csv lacks it, and hands the policy the transition.
+        self.checkpoints.write(self._standing(), row, self.elapsed_s(), self.desk.override, learn)
         self.log.row(turn, row)
+        if learn is not None:
+            self.policy.observe(learn)
         self.rec.event("turn_end", turn=turn.number, success=turn.success, score=score, total=self.total)
         self.monitor.mark("turn_end", turn.number)
         self.observer.notify("row", {**row, "total": self.total, "elapsed_s": round(self.elapsed_s(), 2)})

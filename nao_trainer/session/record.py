@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import csv
 import datetime as dt
+import io
 import json
 import os
 import platform
@@ -135,6 +136,7 @@ class SessionRecorder:
         self._info.update(status="running")
         for key in ("ended", "exit_code", "error"):
             self._info.pop(key, None)
+        torn = drop_torn_tail(self.path)  # a row cut by a kill: never append onto half a line
         self.rows = sum(1 for _ in read_turns(self.path))
         self._write_json()
         self._turns = open(self.path / "turns.csv", "a", newline="", encoding="utf-8")
@@ -143,6 +145,8 @@ class SessionRecorder:
         for ev in self._pending:
             self._write_event(ev)
         self._pending.clear()
+        if torn:
+            self.event("torn_row_dropped", bytes=torn, file="turns.csv")
         return self.path
 
     def checkpoint(self, data: dict[str, Any]) -> None:
@@ -197,10 +201,33 @@ class SessionRecorder:
                 self._turns = self._events = None
 
 
-def read_turns(path: Path) -> list[dict[str, str]]:
-    """The rows of a session's turns.csv (a helper for tests and analysis)."""
+def read_turns(path: Path, complete_only: bool = False) -> list[dict[str, str]]:
+    """The rows of a session's turns.csv (a helper for tests and analysis); ``complete_only``: without
+    a torn last line (a row a kill cut short)."""
     with open(Path(path) / "turns.csv", newline="", encoding="utf-8") as f:
-        return list(csv.DictReader(f))
+        text = f.read()
+    if complete_only:
+        text = text[:_complete_length(text)]
+    return list(csv.DictReader(io.StringIO(text, newline="")))
+
+
+def _complete_length(text: str) -> int:
+    """Length of ``text`` up to its last line end (a complete file ends with one: csv writes ``\r\n``)."""
+    return 0 if "\n" not in text else text.rindex("\n") + 1
+
+
+def drop_torn_tail(folder: Path) -> int:
+    """Cut a torn last line off ``folder/turns.csv`` (fsynced); returns the bytes dropped (0: none)."""
+    path = Path(folder) / "turns.csv"
+    data = path.read_bytes()
+    keep = 0 if b"\n" not in data else data.rindex(b"\n") + 1
+    if keep == len(data):
+        return 0
+    with open(path, "r+b") as f:
+        f.truncate(keep)
+        f.flush()
+        os.fsync(f.fileno())
+    return len(data) - keep
 
 
 def read_events(path: Path) -> list[dict[str, Any]]:

@@ -152,6 +152,8 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
     policy = make_policy(config.policy.kind, list(config.policy.schedule), config.policy.learning,
                          config.policy_state_file(), config.policy.guidance, options.fresh_policy,
                          study=config)
+    if resume is not None:
+        resume.check_policy(policy)  # a tampered learning state is refused before anything is written
     # Not closed on failure here: closing a learning policy saves it, and nothing is written before the robot answers.
     ensure_output_dir(config.output_dir())  # an unusable output folder is found before the robot moves
     preflight(config, progress)  # robot, disk and a required EEG stream, before any session folder exists
