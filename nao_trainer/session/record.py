@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import csv
 import datetime as dt
+import errno
 import io
 import json
 import os
@@ -28,7 +29,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from nao_trainer.errors import ConfigError
+from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import write_text_atomic
 
 TURN_COLUMNS: tuple[str, ...] = (
@@ -65,6 +66,38 @@ def _fsync(f) -> None:
 
 
 _OUTPUT_FIX = "point session.output (or --out) at a folder you can write to"
+
+#: What a failed write means, by errno: (the cause, how to fix it).
+WRITE_CAUSES: dict[int, tuple[str, str]] = {
+    errno.ENOSPC: ("the disk is full", "free some space on it"),
+    errno.EDQUOT: ("the disk quota is used up", "free some space or raise the quota"),
+    errno.EROFS: ("the file system is read-only", "make it writable or choose another folder"),
+    errno.EACCES: ("no permission to write there", "make the folder writable for this user"),
+    errno.EPERM: ("no permission to write there", "make the folder writable for this user"),
+    errno.EMFILE: ("too many open files", "raise the limit (ulimit -n) or close other programs"),
+    errno.ENFILE: ("too many open files on this system", "close other programs"),
+    errno.EFBIG: ("the file is larger than this system allows", "raise the file size limit (ulimit -f)"),
+    errno.EIO: ("an input/output error of the disk", "check the disk"),
+}
+
+
+def os_error_in(exc: BaseException | None) -> OSError | None:
+    """The ``OSError`` behind ``exc`` (itself, its cause or its context: a library may wrap it), or None."""
+    seen = 0
+    while exc is not None and seen < 10:
+        if isinstance(exc, OSError) and exc.errno is not None:
+            return exc
+        exc = exc.__cause__ or exc.__context__
+        seen += 1
+    return None
+
+
+def write_failure(exc: OSError, folder: Path | None) -> DataError:
+    """One line for a failed write: which file, the cause (full disk, read-only, too many open files) and the fix."""
+    cause, fix = WRITE_CAUSES.get(exc.errno or 0, (exc.strerror or type(exc).__name__, "check the disk"))
+    where = exc.filename or folder or "the session folder"
+    kept = f"; the completed turns are on disk: continue with nao-trainer run --resume {folder}" if folder else ""
+    return DataError(f"{where}: cannot write ({cause}); {fix}{kept}")
 
 
 def ensure_output_dir(out: Path) -> Path:
@@ -111,6 +144,7 @@ class SessionRecorder:
     _writer = None
     _events = None
     rows: int = 0
+    events_failed: OSError | None = None  # the first failed write of events.jsonl (later events are dropped)
     _lock: threading.Lock = field(default_factory=threading.Lock)  # events come from the console's thread too
 
     def open(self, info: dict[str, Any]) -> Path:
@@ -171,9 +205,12 @@ class SessionRecorder:
     def _write_event(self, ev: dict[str, Any]) -> None:
         line = json.dumps(ev, default=str) + "\n"
         with self._lock:
-            if self._events is not None:
-                self._events.write(line)
-                self._events.flush()
+            if self._events is not None and self.events_failed is None:
+                try:
+                    self._events.write(line)
+                    self._events.flush()
+                except OSError as exc:  # the log must not end a session the turns can still be written in
+                    self.events_failed = exc
 
     def turn(self, row: dict[str, Any]) -> None:
         """Append one turn row and make it durable before returning."""
@@ -188,16 +225,35 @@ class SessionRecorder:
     def _write_json(self) -> None:
         write_text_atomic(self.path / "session.json", json.dumps(self._info, indent=2, default=str) + "\n")
 
+    def _write_json_in_place(self) -> None:
+        """session.json rewritten in the blocks it has (no new file): the last resort on a full disk."""
+        with open(self.path / "session.json", "r+", encoding="utf-8") as f:
+            f.write(json.dumps(self._info, indent=2, default=str) + "\n")
+            f.truncate()
+            f.flush()
+            os.fsync(f.fileno())
+
     def close(self, status: str, exit_code: int, **info: Any) -> None:
-        """Final session.json (atomic rewrite) and close every file. Safe to call twice."""
+        """Final session.json (atomic rewrite) and close every file. Safe to call twice; never raises
+        ``OSError``: a session that failed to write already says why, and the clean-up must finish."""
         if self.path is None:
             return
         if self._turns is not None:
             self._info.update(info, status=status, exit_code=exit_code, ended=now_iso(), turns_recorded=self.rows)
-            self._write_json()
-            self._turns.close()
+            if self.events_failed is not None:
+                self._info["events_lost"] = f"events.jsonl stopped at a failed write ({self.events_failed.strerror})"
+            for write in (self._write_json, self._write_json_in_place):
+                try:
+                    write()
+                    break
+                except OSError:
+                    continue
             with self._lock:
-                self._events.close()
+                for f in (self._turns, self._events):
+                    try:
+                        f.close()
+                    except OSError:
+                        pass  # its buffer could not be flushed: the rows written before are fsynced
                 self._turns = self._events = None
 
 

@@ -35,7 +35,7 @@ from nao_trainer.session.dialogue import Dialogue, load_dialogue
 from nao_trainer.session.engine import EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session, who_stopped
 from nao_trainer.session.parts import Randomness, Script, SessionPorts
 from nao_trainer.session.policies import make_policy
-from nao_trainer.session.record import SessionRecorder, ensure_output_dir, versions
+from nao_trainer.session.record import SessionRecorder, ensure_output_dir, os_error_in, versions, write_failure
 from nao_trainer.session.resume import Resumption
 from nao_trainer.session.stage import leave_robot_safe
 from nao_trainer.session.turn import SessionResult, summary_data
@@ -179,7 +179,7 @@ def preflight(config: StudyConfig, progress: TextIO | None) -> None:
     with its own exit code before anything is written. EEG is judged here only when it is required (a
     missing optional stream is reported by the monitor, which then keeps looking)."""
     plan = plan_from_config(config)
-    checks = [lambda: check_disk(plan.output_dir), lambda: check_robot(plan)]
+    checks = [lambda: check_disk(plan.output_dir, write_dirs=plan.write_dirs), lambda: check_robot(plan)]
     if config.eeg.mode == "lsl" and config.eeg.required:
         checks.append(lambda: check_eeg(plan, config.eeg.processing.window_s + 0.5))
     errors = {"robot": RobotUnavailable, "eeg": EEGUnavailable, "disk": UserError}
@@ -226,11 +226,16 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
     except RobotConnectionLost as exc:  # dropped while setting up (buttons): nothing was played yet
         out.status, out.code, out.error = "robot lost", EXIT_ROBOT_LOST, str(exc)
         raise RobotUnavailable(f"lost the robot while starting the session: {exc}") from None
-    except UserError as exc:  # e.g. a required EEG stream missing: recorded, then reported by the CLI
-        out.status, out.code, out.error = "error", exc.exit_code, str(exc)
-        raise
     except Exception as exc:
-        out.error = f"{type(exc).__name__}: {exc}"
+        failed = os_error_in(exc)  # a write failed (full disk, read-only, too many open files), maybe wrapped
+        if failed is not None:
+            error = write_failure(failed, recorder.path)
+            out.status, out.code, out.error = "error", error.exit_code, str(error)
+            raise error from None
+        if isinstance(exc, UserError):  # e.g. a required EEG stream missing: recorded, then reported by the CLI
+            out.status, out.code, out.error = "error", exc.exit_code, str(exc)
+        else:
+            out.error = f"{type(exc).__name__}: {exc}"
         raise
     finally:
         with _no_interrupts():  # shutdown must finish
@@ -247,7 +252,7 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
     stack.callback(_close_record, recorder, out, policy, standin, resume is not None)
     connect_url = standin.url if standin else config.robot.url
     robot = _connect_robot(config, connect_url, standin is not None, progress)
-    stack.callback(_close_quietly, robot, recorder)
+    stack.callback(_close_quietly, robot, recorder, out)
     stack.callback(_leave_robot_safe, out, robot, behaviors, config, recorder)
     # Only now that the robot answered does anything get written.
     path = _open_record(recorder, config, out.seed, robot, standin is not None, simulator, resume, progress)
@@ -258,13 +263,13 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
     observer = _start_console(stack, out, recorder, config, options, commands, console_bind, progress) \
         if console_bind is not None else options.observer
     monitor = open_engagement_monitor(config, path, np.random.default_rng(eeg_ss))
-    stack.callback(_close_quietly, monitor, recorder)
+    stack.callback(_close_quietly, monitor, recorder, out)
     if config.eeg.mode != "off" and progress:  # which headband this session listens to (events.jsonl too)
         print(f"EEG ({config.eeg.mode}): {monitor.describe()}", file=progress, flush=True)
     participant_rng = np.random.default_rng(participant_ss)
     answers, buttons = _make_answers(config, robot, standin, connect_url, simulator, monitor, participant_rng, progress)
-    stack.callback(_close_quietly, buttons, recorder)
-    stack.callback(_close_quietly, answers, recorder)
+    stack.callback(_close_quietly, buttons, recorder, out)
+    stack.callback(_close_quietly, answers, recorder, out)
     policy.bind_state_dir(path)
     stack.callback(_close_policy, policy, out, recorder)  # closed (a learning policy saved) once the folder exists
     ports = SessionPorts(robot, answers, policy, monitor, commands, observer or NullObserver())
@@ -277,7 +282,7 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
     stack.callback(_leave_session_safe, out)
     if options.keys and config.answers.input != "keyboard":
         keys = KeyReader.start_if_terminal(commands, progress)
-        stack.callback(_close_quietly, keys, recorder)  # the terminal is restored first, whatever happens next
+        stack.callback(_close_quietly, keys, recorder, out)  # the terminal is restored first, whatever happens next
     if isinstance(observer, _ConsoleObserver):
         observer.console.hub.set_sources(eeg=monitor.live, elapsed=session.elapsed_s)
     try:
@@ -392,7 +397,7 @@ def _leave_robot_safe(out: _Outcome, robot: Robot, behaviors: Behaviors, config:
 
 def _close_policy(policy: Policy, out: _Outcome, recorder: SessionRecorder) -> None:
     """Close the policy (a learning one saves its state), then read what it concluded."""
-    _close_quietly(policy, recorder)
+    _close_quietly(policy, recorder, out)
     if out.session is not None and out.session.completed:
         out.summary = str(policy.status().get("summary", ""))  # e.g. the user model the participant matched
 
@@ -402,7 +407,10 @@ def _close_record(recorder: SessionRecorder, out: _Outcome, policy: Policy, stan
     if not recorder.is_open:
         return
     if standin is not None:
-        _write_transcript(recorder.path, standin.transcript(), append=resumed)
+        try:
+            _write_transcript(recorder.path, standin.transcript(), append=resumed)
+        except OSError as exc:  # the session's own failure (if any) is what gets reported
+            recorder.event("close_failed", what="robot_transcript.jsonl", error=str(exc))
     if out.summary:
         recorder.event("policy_summary", summary=out.summary)
     recorder.close(out.status, out.code, total_score=out.session.total if out.session else 0, error=out.error,
@@ -458,13 +466,15 @@ def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, sim
                                 min_gap_s=max(0.3, 4 * config.answers.debounce_s)), buttons
 
 
-def _close_quietly(obj: Any, recorder: SessionRecorder | None) -> None:
+def _close_quietly(obj: Any, recorder: SessionRecorder | None, out: "_Outcome | None" = None) -> None:
+    """Close ``obj``; a failure is logged and (unless the session already failed, and says why) warned about."""
     if obj is None or not hasattr(obj, "close"):
         return
     try:
         obj.close()
     except Exception as exc:  # noqa: BLE001 - one failing close must not skip the others
-        print(f"nao-trainer: warning: closing {type(obj).__name__} failed: {exc}", file=sys.stderr)
+        if out is None or out.status != "error":
+            print(f"nao-trainer: warning: closing {type(obj).__name__} failed: {exc}", file=sys.stderr)
         if recorder is not None and recorder.is_open:
             recorder.event("close_failed", what=type(obj).__name__, error=str(exc))
 
