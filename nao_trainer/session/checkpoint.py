@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from nao_trainer.core import mdp, task
+from nao_trainer.core.settings import short
 from nao_trainer.ports import Policy, Transition
 from nao_trainer.session.record import TURN_COLUMNS, SessionRecorder
 
@@ -126,8 +127,8 @@ def checkpoint_problem(cp: Any, turns: int, learns: bool, rows_on_disk: int) -> 
         problem = _rng_problem(str(name), state)
         if problem:
             return problem
-    if learns and not isinstance(cp["policy"], dict):
-        return f"policy must hold the learning policy's state, got {type(cp['policy']).__name__}"
+    if learns and not (isinstance(cp["policy"], dict) and cp["policy"]):
+        return f"policy must hold the learning policy's state, got {short(cp['policy'])}"
     learn = cp.get("learn")
     if learn is not None and (not isinstance(learn, dict) or set(learn) != {f for f in Transition.__dataclass_fields__}):
         return "learn is not a transition"

@@ -112,7 +112,11 @@ def _rows_on_disk(folder: Path, fix: str) -> list[dict[str, Any]]:
     if not (folder / "turns.csv").is_file():
         raise DataError(f"{folder}: turns.csv is missing, the rows the checkpoint continues; {fix}")
     try:
-        rows = [_typed_row(r) for r in read_turns(folder, complete_only=True) if r.get("success") in ("True", "False")]
+        raw = read_turns(folder, complete_only=True)
+        for n, r in enumerate(raw, start=2):  # line numbers: the header is line 1
+            if None in r or None in r.values() or not r["turn"].isdigit():
+                raise ValueError(f"line {n} is not a turn row")
+        rows = [_typed_row(r) for r in raw if r["success"] in ("True", "False")]
     except (ValueError, TypeError, KeyError, csv.Error, UnicodeDecodeError) as exc:
         raise DataError(f"{folder}/turns.csv: not the session's rows ({type(exc).__name__}: {exc}); {fix}") from None
     numbers = sorted({r["turn"] for r in rows})
