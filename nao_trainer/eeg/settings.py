@@ -43,6 +43,8 @@ class EEGSettings:
     lsl_scope: str = setting("machine", kind=str, choices=SCOPES, doc="LSL discovery scope")
     processing: Processing = field(default_factory=Processing)
     xdf: bool = setting(True, kind=bool, doc="also record session.xdf (eeg/xdf.py)")
+    missing_alert_turns: int = setting(3, kind=int, min=0, max=1000,
+                                       doc="tell the operator after this many turns in a row without EEG (0 = never)")
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any] | None, mode: str | None = None,

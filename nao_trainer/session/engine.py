@@ -76,7 +76,7 @@ class Session:
                            config.timing, config.robot.posture_speed)
         self.log = SessionLog(recorder, ports.observer, progress, self.clock)
         self.phases = PhaseClock(ports.monitor, self.stage, ports.answers, ports.robot, self.clock, config.timing,
-                                 recorder)
+                                 recorder, self.log, config.eeg.missing_alert_turns)
         self.desk = OperatorDesk(ports.commands, self.log, recorder, ports.monitor, ports.observer)
         self.checkpoints = Checkpointer(recorder, ports.policy, random.by_name())
         self.reconnector = Reconnector(ports.robot, config.robot, self.clock, recorder, self.log, self.stage)
@@ -338,6 +338,7 @@ class Session:
         self.monitor.mark("turn_end", turn.number)
         self.observer.notify("row", {**row, "total": self.total, "elapsed_s": round(self.elapsed_s(), 2)})
         self.log.say(progress_line(row, self.n_turns, self.total))
+        self.phases.note_signal(turn.number, turn.listening)
         self._policy_status(turn.number)
         return "finish_turns" if done else "next_turn"
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 from nao_trainer.ports import Answer, AnswerSource, EngagementMonitor, PhaseEngagement, Robot, RobotConnectionLost
 from nao_trainer.session.config import TimingSection
 from nao_trainer.session.record import SessionRecorder
+from nao_trainer.session.reporting import SessionLog
 from nao_trainer.session.stage import Clock, Stage
 
 
@@ -17,7 +18,7 @@ class PhaseClock:
     """Begin and end EEG phases; open the answer window and collect the answer."""
 
     def __init__(self, monitor: EngagementMonitor, stage: Stage, answers: AnswerSource, robot: Robot, clock: Clock,
-                 timing: TimingSection, recorder: SessionRecorder) -> None:
+                 timing: TimingSection, recorder: SessionRecorder, log: SessionLog, missing_alert_turns: int = 3) -> None:
         self.monitor = monitor
         self.stage = stage
         self.answers = answers
@@ -25,7 +26,10 @@ class PhaseClock:
         self.clock = clock
         self.timing = timing
         self.rec = recorder
+        self.log = log
+        self.missing_alert_turns = missing_alert_turns  # 0: never tell
         self.phase: str | None = None  # the EEG phase in progress
+        self.missing = 0  # turns in a row without an engagement value while EEG is on
 
     def begin(self, phase: str, turn: int | None) -> None:
         """Start ``phase`` (ending the one in progress) with a marker in the recording."""
@@ -67,3 +71,21 @@ class PhaseClock:
         if not self.robot.is_connected():  # an answer window does not talk to the robot: ask
             raise RobotConnectionLost("the robot dropped during the answer window")
         return answer, listening
+
+    def note_signal(self, turn: int, listening: PhaseEngagement | None) -> None:
+        """After a recorded turn: count the turns in a row without EEG; at ``eeg.missing_alert_turns`` tell
+        the operator once (terminal line, console event, events.jsonl) so a lost headband is not found at the end."""
+        if not self.monitor.records_eeg:
+            return
+        if listening is not None and listening.engagement is not None:
+            if self.missing >= self.missing_alert_turns > 0:
+                self.rec.event("eeg_back", turn=turn, after_turns=self.missing)
+                self.log.observer.notify("eeg", {"missing_turns": 0, "turn": turn})
+            self.missing = 0
+            return
+        self.missing += 1
+        if self.missing == self.missing_alert_turns:
+            reason = (listening.reason if listening is not None else "") or "no value"
+            self.rec.event("eeg_missing", turn=turn, turns=self.missing, reason=reason)
+            self.log.observer.notify("eeg", {"missing_turns": self.missing, "turn": turn, "reason": reason})
+            self.log.say(f"warning: no EEG for the last {self.missing} turns ({reason}): check the headband and its stream")

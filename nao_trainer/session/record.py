@@ -82,10 +82,13 @@ WRITE_CAUSES: dict[int, tuple[str, str]] = {
 
 
 def os_error_in(exc: BaseException | None) -> OSError | None:
-    """The ``OSError`` behind ``exc`` (itself, its cause or its context: a library may wrap it), or None."""
+    """The failed file write behind ``exc`` (itself, its cause or its context: a library may wrap it), or None.
+
+    Only an ``OSError`` naming a file, with an errno of ``WRITE_CAUSES``: a port in use or a refused
+    connection is not a write failure."""
     seen = 0
     while exc is not None and seen < 10:
-        if isinstance(exc, OSError) and exc.errno is not None:
+        if isinstance(exc, OSError) and exc.errno in WRITE_CAUSES and exc.filename is not None:
             return exc
         exc = exc.__cause__ or exc.__context__
         seen += 1
@@ -218,8 +221,11 @@ class SessionRecorder:
         unknown = set(row) - set(TURN_COLUMNS)
         if unknown:
             raise KeyError(f"unknown turns.csv columns: {sorted(unknown)}")
-        self._writer.writerow(clean)
-        _fsync(self._turns)
+        try:
+            self._writer.writerow(clean)
+            _fsync(self._turns)
+        except OSError as exc:  # name the file: the session's report says which write failed
+            raise OSError(exc.errno, exc.strerror, str(self.path / "turns.csv")) from exc
         self.rows += 1
 
     def _write_json(self) -> None:

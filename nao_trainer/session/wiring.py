@@ -254,14 +254,15 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
     robot = _connect_robot(config, connect_url, standin is not None, progress)
     stack.callback(_close_quietly, robot, recorder, out)
     stack.callback(_leave_robot_safe, out, robot, behaviors, config, recorder)
-    # Only now that the robot answered does anything get written.
+    commands = options.commands if options.commands is not None else CommandQueue()  # an empty queue is falsy
+    # The console's port is taken before the folder exists: a port in use leaves no empty session folder.
+    observer = _start_console(stack, out, recorder, config, options, commands, console_bind, progress) \
+        if console_bind is not None else options.observer
+    # Only now that the robot answered (and the console listens) does anything get written.
     path = _open_record(recorder, config, out.seed, robot, standin is not None, simulator, resume, progress)
     if config.robot.url == DESKTOP:
         robot.record_audio_to(path / "audio")
     policy_state = _policy_state(policy, config, options.fresh_policy, progress)
-    commands = options.commands or CommandQueue()
-    observer = _start_console(stack, out, recorder, config, options, commands, console_bind, progress) \
-        if console_bind is not None else options.observer
     monitor = open_engagement_monitor(config, path, np.random.default_rng(eeg_ss))
     stack.callback(_close_quietly, monitor, recorder, out)
     if config.eeg.mode != "off" and progress:  # which headband this session listens to (events.jsonl too)
@@ -413,8 +414,10 @@ def _close_record(recorder: SessionRecorder, out: _Outcome, policy: Policy, stan
             recorder.event("close_failed", what="robot_transcript.jsonl", error=str(exc))
     if out.summary:
         recorder.event("policy_summary", summary=out.summary)
+    result = out.result(recorder)
     recorder.close(out.status, out.code, total_score=out.session.total if out.session else 0, error=out.error,
-                   policy_summary=out.summary or None)
+                   policy_summary=out.summary or None,
+                   eeg_turns=result.eeg_turns if result.eeg_on else None)  # how many counted turns had EEG
 
 
 def _policy_state(policy: Policy, config: StudyConfig, fresh: bool, progress: TextIO | None) -> dict[str, Any] | None:

@@ -105,3 +105,20 @@ def test_the_pre_session_check_tries_the_participant_folder_before_anything_is_w
     with pytest.raises(UserError, match=r"blocker/W1: cannot write there \(.*blocker is a file, not a folder\)"):
         run_session(cfg, RunOptions(quiet=True))
     assert not list((tmp_path / "out").glob("W1_*"))  # refused before the robot moved or a folder was made
+
+
+def test_a_console_port_in_use_leaves_no_session_folder(tmp_path):
+    import socket
+
+    from nao_trainer.errors import ConfigError
+
+    taken = socket.socket()
+    taken.bind(("127.0.0.1", 0))
+    taken.listen(1)
+    try:
+        with pytest.raises(ConfigError, match=r"console: cannot listen on 127.0.0.1:\d+"):
+            run_session(config(tmp_path, policy__kind="schedule"),
+                        RunOptions(quiet=True, console=True, console_port=taken.getsockname()[1]))
+    finally:
+        taken.close()
+    assert (tmp_path / "out").is_dir() and not list((tmp_path / "out").iterdir())  # no empty W1_* folder
