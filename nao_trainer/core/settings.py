@@ -32,6 +32,7 @@ class Rule:
     nullable: bool = False
     min: float | None = None
     max: float | None = None
+    above: float | None = None  # exclusive minimum (``> above``)
     choices: tuple[Any, ...] | None = None
     item: type | tuple[type, ...] | None = None  # element type of a list
     length: int | None = None  # exact list length
@@ -40,8 +41,10 @@ class Rule:
     doc: str = ""
 
 
-class SettingError(ConfigError):
-    """A value broke its rule: ``key`` (relative to the object checked) and ``problem`` (the words after the key)."""
+class SettingError(ConfigError, ValueError):
+    """A value broke its rule: ``key`` (relative to the object checked) and ``problem`` (the words after the key).
+
+    A ``ValueError`` too: library callers that build settings from numbers (sweeps, training specs) catch that."""
 
     def __init__(self, key: str, problem: str) -> None:
         super().__init__(f"key '{key}' {problem}")
@@ -176,6 +179,8 @@ def check_value(value: Any, spec: Rule) -> str | None:
         return f"must be one of {', '.join(map(str, spec.choices))}, got {value!r}"
     if spec.min is not None and value < spec.min:
         return f"must be >= {spec.min:g}, got {value!r}"
+    if spec.above is not None and value <= spec.above:
+        return f"must be > {spec.above:g}, got {value!r}"
     if spec.max is not None and value > spec.max:
         return f"must be <= {spec.max:g}, got {value!r}"
     if isinstance(value, list):
