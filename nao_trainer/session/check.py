@@ -18,7 +18,12 @@ from typing import Any, Callable
 
 import numpy as np
 
-from nao_trainer.errors import ConfigError, UserError
+from nao_trainer.core.engagement import window_quality
+from nao_trainer.eeg.inlet import EEGInlet, StreamQuery, resolve_eeg
+from nao_trainer.errors import ConfigError, RobotUnavailable, UserError
+from nao_trainer.ports import RobotCallFailed, RobotConnectionLost
+from nao_trainer.robot.address import redact_url
+from nao_trainer.robot.desktop import DesktopRobot
 from nao_trainer.session.record import WRITE_CAUSES
 
 #: Exit codes of failed required checks, by kind (as `nao-trainer run` would fail later).
@@ -176,7 +181,7 @@ def check_robot(plan: CheckPlan) -> CheckResult:
     url = plan.robot_url
     try:
         if url == "mock":
-            from nao_trainer.robot.standin import StandIn
+            from nao_trainer.robot.standin import StandIn  # heavy: qi
 
             standin = StandIn.start("tcp://127.0.0.1:0", speed=max(plan.speed, 1.0))
             url = standin.url
@@ -187,9 +192,7 @@ def check_robot(plan: CheckPlan) -> CheckResult:
 
 
 def _check_naoqi(url: str, plan: CheckPlan, label: str | None) -> CheckResult:
-    from nao_trainer.errors import RobotUnavailable
-    from nao_trainer.ports import RobotCallFailed, RobotConnectionLost
-    from nao_trainer.robot.naoqi import NaoqiRobot, redact_url
+    from nao_trainer.robot.naoqi import NaoqiRobot  # heavy: qi
 
     where = label or redact_url(url)
     try:
@@ -217,8 +220,6 @@ def _check_naoqi(url: str, plan: CheckPlan, label: str | None) -> CheckResult:
 
 
 def _check_desktop() -> CheckResult:
-    from nao_trainer.robot.desktop import DesktopRobot
-
     try:
         robot = DesktopRobot.start()
     except UserError as exc:
@@ -242,7 +243,6 @@ def check_eeg(plan: CheckPlan, listen_s: float = EEG_LISTEN_S) -> CheckResult:
     if plan.eeg_mode == "simulated":
         return CheckResult("eeg", True, "a simulated Muse is started with the session (no electrodes to check)",
                            required=False)
-    from nao_trainer.eeg.inlet import EEGInlet, StreamQuery, resolve_eeg
 
     settings = plan.eeg
     required = bool(settings.required)
@@ -282,8 +282,6 @@ def _listen(inlet: Any, seconds: float) -> np.ndarray:
 
 def channel_quality(x: np.ndarray, fs: float, window_s: float, hop_s: float) -> tuple[np.ndarray, list[str]]:
     """Per channel: the fraction of analysis windows the monitor's rules call clean, and the commonest reason."""
-    from nao_trainer.core.engagement import window_quality
-
     n = int(round(window_s * fs))
     hop = max(1, int(round(hop_s * fs)))
     starts = range(0, max(1, len(x) - n + 1), hop)
