@@ -2,10 +2,12 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from nao_trainer.eeg.settings import MODES as EEG_MODES
-from nao_trainer.session.config import INPUTS
+from nao_trainer.errors import ConfigError
+from nao_trainer.session.config import INPUTS, is_robot_address, load_config
 
 
 def register(sub) -> None:
@@ -75,10 +77,8 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, object]:
 
 
 def run(args: argparse.Namespace) -> int:
-    import sys
-
-    from nao_trainer.errors import ConfigError
-    from nao_trainer.session.config import is_robot_address, load_config
+    # Heavy (numpy, transitions, the adapters): imported when a session runs, so `nao-trainer --help` stays fast.
+    from nao_trainer.session.resume import prepare_resume
     from nao_trainer.session.wiring import RunOptions, run_session
 
     overrides = overrides_from_args(args)
@@ -89,8 +89,6 @@ def run(args: argparse.Namespace) -> int:
                          fresh_policy=args.fresh_policy)
     resume = None
     if args.resume:
-        from nao_trainer.session.wiring import prepare_resume
-
         given = [k for k, v in overrides.items() if v is not None] + (["--config"] if args.config else []) \
             + (["--fresh-policy"] if args.fresh_policy else [])
         if given:

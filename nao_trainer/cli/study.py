@@ -14,8 +14,8 @@ def register(sub) -> None:
         "study",
         help="a study table: one row per session written by `run` (CSV + figure)",
         description="Read every session folder written by `nao-trainer run` under STUDY_DIR and write "
-        "study.csv (session, pseudonym, date, turns, score, success per level, mean engagement, policy, status, "
-        "duration) and study.png (score and engagement per session, level over turns). Sessions that cannot "
+        "study.csv (session, pseudonym, date, turns, score, success per level, mean engagement, turns with EEG, "
+        "policy, status, duration) and study.png (score and engagement per session, level over turns). Sessions that cannot "
         "be read are reported one line each and left out.",
     )
     p.add_argument("root", metavar="STUDY_DIR", type=Path, help="folder holding session folders (session.output)")

@@ -57,7 +57,7 @@ class ConsoleHub:
         self.closed = False
         self.state: dict[str, Any] = {"session": {}, "machine": {}, "turn": None, "presses": [], "rows": [],
                                       "commands": [], "paused": False, "robot": "connecting", "summary": None,
-                                      "policy_status": None}
+                                      "policy_status": None, "eeg_missing": None}
 
     # -- the session's side (its thread) ------------------------------------------------------------
 
@@ -91,6 +91,8 @@ class ConsoleHub:
             st["summary"] = dict(data)
         elif kind == "policy":
             st["policy_status"] = dict(data)
+        elif kind == "eeg":  # EEG missing for several turns in a row (or back)
+            st["eeg_missing"] = dict(data) if data.get("missing_turns") else None
 
     def set_sources(self, **sources: Callable[[], Any]) -> None:
         """Read-only callables polled for the tick (``eeg``: the monitor's ``live``, ``elapsed``)."""

@@ -6,10 +6,9 @@ processing options of ``eeg.processing`` in a study config. Pure: no I/O.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
-from nao_trainer.errors import ConfigError
+from nao_trainer.core.settings import SettingError, build, setting, settings
 
 #: Scalp channel order of every 4-value line (and of a Muse's LSL stream, before ``Right AUX``).
 CHANNELS: tuple[str, ...] = ("TP9", "AF7", "AF8", "TP10")
@@ -17,7 +16,7 @@ CHANNELS: tuple[str, ...] = ("TP9", "AF7", "AF8", "TP10")
 RAW_RATE_HZ = 220.0
 
 
-@dataclass(frozen=True)
+@settings
 class Processing:
     """Engagement processing options (``eeg.processing`` in a study config).
 
@@ -32,54 +31,24 @@ class Processing:
     phase end drains it at once; 0.2 s keeps the reader well under 1 % of a core). record_raw: save the scalp samples to ``eeg/raw.csv``.
     """
 
-    window_s: float = 2.0
-    hop_s: float = 0.25
-    ewma_a: float = 0.75
-    resolve_timeout_s: float = 5.0
-    loss_timeout_s: float = 1.0
-    min_quality: float = 0.5
-    min_clean_channels: int = 2
-    gap_tolerance_s: float = 0.1
-    end_wait_s: float = 0.04
-    poll_s: float = 0.2
-    record_raw: bool = True
+    window_s: float = setting(2.0, kind=(int, float), min=0.25, max=30.0, doc="analysis window, s")
+    hop_s: float = setting(0.25, kind=(int, float), min=0.01, max=30.0, doc="step between windows, s")
+    ewma_a: float = setting(0.75, kind=(int, float), min=0.0, max=0.999, doc="smoothing factor a")
+    resolve_timeout_s: float = setting(5.0, kind=(int, float), min=0.0, max=120.0, doc="look for the stream, s")
+    loss_timeout_s: float = setting(1.0, kind=(int, float), min=0.1, max=60.0, doc="silence = lost, s")
+    min_quality: float = setting(0.5, kind=(int, float), min=0.0, max=1.0, doc="clean fraction a phase needs")
+    min_clean_channels: int = setting(2, kind=int, min=1, max=4, doc="clean scalp channels a window needs")
+    gap_tolerance_s: float = setting(0.1, kind=(int, float), min=0.0, max=10.0, doc="stamp jump that restarts, s")
+    end_wait_s: float = setting(0.04, kind=(int, float), min=0.0, max=1.0, doc="wait at a phase end, s")
+    poll_s: float = setting(0.2, kind=(int, float), min=0.005, max=1.0, doc="reader poll interval, s")
+    record_raw: bool = setting(True, kind=bool, doc="save the scalp samples to eeg/raw.csv")
 
     def __post_init__(self) -> None:
-        rules = {
-            "window_s": (0.25, 30.0), "hop_s": (0.01, 30.0), "ewma_a": (0.0, 0.999),
-            "resolve_timeout_s": (0.0, 120.0), "loss_timeout_s": (0.1, 60.0), "min_quality": (0.0, 1.0),
-            "min_clean_channels": (1, 4), "gap_tolerance_s": (0.0, 10.0), "end_wait_s": (0.0, 1.0), "poll_s": (0.005, 1.0),
-        }
-        for key, (lo, hi) in rules.items():
-            value = getattr(self, key)
-            if not lo <= value <= hi:
-                raise ConfigError(f"eeg.processing.{key}: {value!r} is out of range; use a value in [{lo}, {hi}]")
         if self.hop_s > self.window_s:
-            raise ConfigError(f"eeg.processing.hop_s: {self.hop_s} exceeds window_s {self.window_s}; "
-                              "use a hop no longer than the window")
+            raise SettingError("hop_s", f"must not exceed window_s ({self.window_s:g}), got {self.hop_s!r}; "
+                                        "use a hop no longer than the window")
 
     @classmethod
-    def from_mapping(cls, data: Mapping[str, Any] | None) -> "Processing":
-        """Validate ``eeg.processing``; unknown keys and wrong types raise ``ConfigError`` naming the key."""
-        data = dict(data or {})
-        known = {f.name: f for f in fields(cls)}
-        values: dict[str, Any] = {}
-        for key, value in data.items():
-            if key not in known:
-                raise ConfigError(f"eeg.processing.{key}: unknown key; known keys are {', '.join(known)}")
-            default = known[key].default
-            if isinstance(default, bool):
-                if not isinstance(value, bool):
-                    raise ConfigError(f"eeg.processing.{key}: must be true or false, got {value!r}")
-            elif isinstance(default, int):
-                if isinstance(value, bool) or not isinstance(value, int):
-                    raise ConfigError(f"eeg.processing.{key}: must be an integer, got {value!r}")
-            elif isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ConfigError(f"eeg.processing.{key}: must be a number, got {value!r}")
-            if isinstance(value, int) and not isinstance(value, bool) and abs(value) > 10**12:
-                raise ConfigError(f"eeg.processing.{key}: must be a number of sensible size, got one with "
-                                  f"{len(str(abs(value)))} digits")
-            if isinstance(value, float) and value != value:  # NaN fails every range check silently
-                raise ConfigError(f"eeg.processing.{key}: must be a finite number, got {value!r}")
-            values[key] = float(value) if isinstance(default, float) else value
-        return cls(**values)
+    def from_mapping(cls, data: Mapping[str, Any] | None, prefix: str = "eeg.processing") -> "Processing":
+        """Validate ``eeg.processing`` (``core.settings.build``); ``SettingError`` naming the key."""
+        return build(cls, dict(data or {}), prefix)

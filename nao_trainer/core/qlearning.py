@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 
 from nao_trainer.core import mdp, processes
+from nao_trainer.core.settings import SettingError, setting, settings
 
 METHODS: tuple[str, ...] = ("performance", "shaping", "qaug")
 METHOD_TEXT: dict[str, str] = {
@@ -66,39 +67,25 @@ def check_method(method: str) -> str:
     return method
 
 
-@dataclass(frozen=True)
+@settings
 class QConfig:
-    """Hyper-parameters (paper defaults; the temperature schedule is this project's, see module doc)."""
+    """Hyper-parameters (paper defaults; the temperature schedule is this project's, see module doc).
 
-    alpha: float = 0.08
-    gamma: float = 0.95
-    tau0: float = 5.0
-    tau_min: float = 0.1
-    n_half: float = 200.0
-    beta1: float = 7.5
-    beta2: float = 0.8
-    h_prior: float = 0.0
+    Each field carries its rule (``core.settings``): one validator and one message style, as for the
+    study configuration (``key 'alpha' must be <= 1, got 1.5``); a ``SettingError`` is a ``ValueError``."""
+
+    alpha: float = setting(0.08, kind=(int, float), above=0, max=1, doc="learning rate, (0, 1]")
+    gamma: float = setting(0.95, kind=(int, float), min=0, max=1, doc="discount factor, [0, 1]")
+    tau0: float = setting(5.0, kind=(int, float), above=0, doc="initial temperature, > 0")
+    tau_min: float = setting(0.1, kind=(int, float), above=0, doc="temperature floor, (0, tau0]")
+    n_half: float = setting(200.0, kind=(int, float), above=0, doc="visits that halve the temperature, > 0")
+    beta1: float = setting(7.5, kind=(int, float), doc="engagement weight of reward shaping (finite)")
+    beta2: float = setting(0.8, kind=(int, float), doc="engagement weight of Q-augmentation (finite)")
+    h_prior: float = setting(0.0, kind=(int, float), min=0, max=1, doc="prior engagement H, [0, 1]")
 
     def __post_init__(self) -> None:
-        ranges = {"alpha": "(0, 1]", "gamma": "[0, 1]", "tau0": "> 0", "tau_min": "(0, tau0]",
-                  "n_half": "> 0", "beta1": "finite", "beta2": "finite", "h_prior": "[0, 1]"}
-        for name in ranges:  # types first: the range checks below compare numbers
-            value = getattr(self, name)
-            if not isinstance(value, (int, float)) or isinstance(value, bool):
-                raise ValueError(f"QConfig.{name} must be a number in {ranges[name]}, got {value!r}")
-        checks = {
-            "alpha": 0 < self.alpha <= 1,
-            "gamma": 0 <= self.gamma <= 1,
-            "tau0": self.tau0 > 0,
-            "tau_min": 0 < self.tau_min <= self.tau0,
-            "n_half": self.n_half > 0,
-            "beta1": np.isfinite(self.beta1),
-            "beta2": np.isfinite(self.beta2),
-            "h_prior": 0 <= self.h_prior <= 1,
-        }
-        for name, ok in checks.items():
-            if not ok:
-                raise ValueError(f"QConfig.{name} must be {ranges[name]}, got {getattr(self, name)!r}")
+        if self.tau_min > self.tau0:
+            raise SettingError("tau_min", f"must be <= tau0 ({self.tau0:g}), got {self.tau_min!r}")
 
     def to_dict(self) -> dict[str, float]:
         return {k: float(v) for k, v in asdict(self).items()}

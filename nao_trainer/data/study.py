@@ -2,7 +2,8 @@
 
 Columns (:data:`STUDY_COLUMNS`): the session folder, pseudonym, start date, completed turns, total score
 (equation (1)), success rate per level (empty when the level was not played), mean listening-phase
-engagement (recomputed from the raw EEG, ``data/own.py``), the policy, the session's status and its
+engagement (recomputed from the raw EEG, ``data/own.py``), how many turns had an engagement value (EEG
+lost mid-session shows here), the policy, the session's status and its
 duration in seconds. Turns left out of the turn table (interrupted, invalid) do not count.
 """
 from __future__ import annotations
@@ -19,7 +20,8 @@ from nao_trainer.data import own
 from nao_trainer.errors import DataError
 
 STUDY_COLUMNS: tuple[str, ...] = ("session", "pseudonym", "date", "turns", "score", "success_L1", "success_L2",
-                                  "success_L3", "success_L4", "engagement", "policy", "status", "duration_s")
+                                  "success_L3", "success_L4", "engagement", "eeg_turns", "policy", "status",
+                                  "duration_s")
 
 
 @dataclass
@@ -72,6 +74,7 @@ def study_session(path: Path) -> StudySession:
         "date": started.date().isoformat() if started else "",
         "turns": len(rows), "score": sum(r["score"] for r in rows), **success,
         "engagement": round(sum(values) / len(values), 4) if values else None,
+        "eeg_turns": len(values),  # turns with an engagement value: EEG lost mid-session shows here
         "policy": policy if policy is not None else "",
         "status": sess.status,
         "duration_s": round((ended - started).total_seconds(), 1) if started and ended else None,

@@ -1,29 +1,28 @@
-"""The ``eeg`` section of a study config: validated once, here, for the config loader and the monitor.
+"""The ``eeg`` section of a study config, declared once: each field carries its rule (``core.settings``).
 
-``EEGSettings.from_mapping(data, mode, where=...)`` is the one validator of the section (the
-modes and LSL scopes are listed once, here and in ``eeg.lsl_scope``). Errors are one line naming
-the key; the config loader passes ``where`` (dotted key -> "file:line") so they also name the
-place in the study file. Light on purpose: no numpy, no pylsl (``--help`` stays fast).
+``EEGSettings`` is its own schema: the config loader validates the section with the same validator
+and message style as every other section (``key 'eeg.mode' must be one of ...``, with file:line);
+``EEGSettings.from_mapping(data, mode, where=...)`` is the same check for callers with a plain mapping
+(the monitor's factory). The modes and LSL scopes are listed once, here and in ``eeg.lsl_scope``.
+Light on purpose: no numpy, no pylsl (``--help`` stays fast).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import field
 from typing import Any, Callable, Mapping
 
 from nao_trainer.core.eeg import Processing
-from nao_trainer.errors import ConfigError
+from nao_trainer.core.settings import SettingError, build, setting, settings
 from nao_trainer.eeg.lsl_scope import SCOPES
+from nao_trainer.errors import ConfigError
 
 MODES = ("off", "simulated", "lsl")
-TEXT_KEYS = ("stream_type", "stream_name", "source_id")
 
 #: Maps a dotted key (``eeg.mode``, ``eeg.processing.window_s``) to where its value came from.
 Where = Callable[[str], Any]
 
 
-def _text_problem(value: Any) -> str | None:
-    if not isinstance(value, str):
-        return f"must be a text, got {value!r}"
+def _stream_property(value: str) -> str | None:
     if not value.strip():
         return f"must be a non-empty text, got {value!r}"
     # The EEG inlet resolves streams with an XPath predicate in single quotes (eeg/inlet.py refuses a quote).
@@ -32,64 +31,34 @@ def _text_problem(value: Any) -> str | None:
     return None
 
 
-@dataclass(frozen=True)
+@settings
 class EEGSettings:
     """The ``eeg`` section of a study config, validated."""
 
-    mode: str = "simulated"
-    required: bool = False
-    stream_type: str = "EEG"
-    stream_name: str | None = None
-    source_id: str | None = None
-    lsl_scope: str = "machine"
+    mode: str = setting("simulated", kind=str, choices=MODES, doc="off | simulated | lsl")
+    required: bool = setting(False, kind=bool, doc="refuse to start (exit 4) without a usable stream")
+    stream_type: str = setting("EEG", kind=str, check=_stream_property, doc="LSL stream type to resolve")
+    stream_name: str | None = setting(None, kind=str, nullable=True, check=_stream_property, doc="LSL stream name")
+    source_id: str | None = setting(None, kind=str, nullable=True, check=_stream_property, doc="LSL source_id")
+    lsl_scope: str = setting("machine", kind=str, choices=SCOPES, doc="LSL discovery scope")
     processing: Processing = field(default_factory=Processing)
-    xdf: bool = True  # also record session.xdf (EEG + markers) with LabRecorder's engine (eeg/xdf.py)
+    xdf: bool = setting(True, kind=bool, doc="also record session.xdf (eeg/xdf.py)")
+    missing_alert_turns: int = setting(3, kind=int, min=0, max=1000,
+                                       doc="tell the operator after this many turns in a row without EEG (0 = never)")
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any] | None, mode: str | None = None,
                      where: Where | None = None) -> "EEGSettings":
         """Validate the ``eeg`` section (``mode``, when given, overrides ``data["mode"]``).
 
-        Raises ``ConfigError``: ``[<where>: ]key 'eeg.<key>' <problem>``, or for ``eeg.processing``
-        ``[<where>: ]eeg.processing.<key>: <problem>``.
+        Raises ``ConfigError``: ``[<where>: ]key 'eeg.<key>' <problem>`` (``core.settings``'s one style).
         """
         data = dict(data or {})
-
-        def fail(dotted: str, message: str) -> ConfigError:
-            return ConfigError(f"{where(dotted)}: {message}" if where is not None else message)
-
-        known = [f.name for f in fields(cls)]
-        for key in data:
-            if key not in known:
-                raise fail(f"eeg.{key}", f"eeg.{key}: unknown key; known keys are {', '.join(sorted(known))}")
-        mode = mode or data.get("mode", "simulated")
-        if mode not in MODES:
-            raise fail("eeg.mode", f"key 'eeg.mode' must be one of {', '.join(MODES)}, got {mode!r}")
-        required = data.get("required", False)
-        if not isinstance(required, bool):
-            raise fail("eeg.required", f"key 'eeg.required' must be true/false, got {required!r}")
-        xdf = data.get("xdf", True)
-        if not isinstance(xdf, bool):
-            raise fail("eeg.xdf", f"key 'eeg.xdf' must be true/false, got {xdf!r}")
-        scope = data.get("lsl_scope", "machine")
-        if scope not in SCOPES:
-            raise fail("eeg.lsl_scope", f"key 'eeg.lsl_scope' must be one of {', '.join(SCOPES)}, got {scope!r}")
-        for key in TEXT_KEYS:
-            value = data.get(key)
-            if value is None and key == "stream_type" and key in data:
-                raise fail(f"eeg.{key}", f"key 'eeg.{key}' needs a value (a text), got nothing")
-            problem = None if value is None else _text_problem(value)
-            if problem:
-                raise fail(f"eeg.{key}", f"key 'eeg.{key}' {problem}")
-        processing = data.get("processing")
-        if processing is not None and not isinstance(processing, Mapping):
-            raise fail("eeg.processing", f"key 'eeg.processing' must be a mapping, got {processing!r}")
+        if mode is not None:
+            data["mode"] = mode
         try:
-            proc = Processing.from_mapping(processing)
-        except ConfigError as exc:
+            return build(cls, data, "eeg")
+        except SettingError as exc:
             if where is None:
                 raise
-            raise fail(str(exc).split(":", 1)[0], str(exc)) from None
-        return cls(mode=mode, required=required, stream_type=data.get("stream_type") or "EEG",
-                   stream_name=data.get("stream_name"), source_id=data.get("source_id"), lsl_scope=scope,
-                   processing=proc, xdf=xdf)
+            raise ConfigError(f"{where(exc.key)}: {exc}") from None

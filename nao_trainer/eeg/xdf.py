@@ -15,6 +15,10 @@ The engine runs in a child process (``python -m nao_trainer.eeg.xdf``), for thre
   engine writes in chunks), stops the recording and writes every stream's footer. If the child
   itself is killed, the file is readable by pyxdf up to the last chunk written (tested); the
   monitor's CSV files stay the crash-safe record either way.
+* the child never outlives the session: on Linux it asks the kernel for SIGTERM when its parent dies
+  (``PR_SET_PDEATHSIG``; while it still looks for the streams SIGTERM ends it at once, while it
+  records SIGTERM finishes the file), and :meth:`XdfRecorder.start` kills it when start-up itself is
+  interrupted (SIGTERM, Ctrl-C).
 
 The child pins the streams by source_id. A marker pushed before the recorder's inlet connects is
 not recorded: :meth:`XdfRecorder.start` returns once the marker outlet has a consumer.
@@ -36,6 +40,8 @@ from nao_trainer.eeg.lsl_scope import config_file
 from nao_trainer.errors import EEGUnavailable
 
 INSTALL_HINT = "pip install 'nao-trainer[xdf]'"
+#: ``prctl`` option: the signal a process gets when its parent dies (linux/prctl.h).
+PR_SET_PDEATHSIG = 1
 #: How long the child keeps recording after the stop request: the engine writes in chunks of ~0.5 s.
 FLUSH_S = 1.0
 
@@ -79,21 +85,29 @@ class XdfRecorder:
         log_path = Path(log_path) if log_path is not None else path.with_suffix(".log")
         env = dict(os.environ, LSLAPICFG=config_file(scope), PYTHONUNBUFFERED="1")
         cmd = [sys.executable, "-m", "nao_trainer.eeg.xdf", "--out", str(path), "--timeout", str(resolve_s),
-               "--flush", str(flush_s), *ids]
+               "--flush", str(flush_s), "--parent", str(os.getpid()), *ids]
         with open(log_path, "ab") as log:
             # own session: Ctrl-C in the terminal reaches the session, which then stops the recorder in order
             proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=log, stderr=subprocess.STDOUT, env=env,
                                     start_new_session=True, close_fds=True)
         rec = cls(path, log_path, proc, ids, flush_s)
+        try:
+            rec._wait_ready(ready, timeout_s)
+        except BaseException:  # SIGTERM/Ctrl-C (Interrupted) during start-up included: never leave the child behind
+            rec.kill()
+            raise
+        return rec
+
+    def _wait_ready(self, ready, timeout_s: float) -> None:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            if proc.poll() is not None:
-                raise XdfUnavailable(f"session.xdf not recorded: {rec.log_tail() or f'recorder exited ({proc.returncode})'}")
-            if rec._recording() and (ready is None or ready()):
-                rec.ready = True
-                break
+            if self.process.poll() is not None:
+                raise XdfUnavailable(f"session.xdf not recorded: "
+                                     f"{self.log_tail() or f'recorder exited ({self.process.returncode})'}")
+            if self._recording() and (ready is None or ready()):
+                self.ready = True
+                return
             time.sleep(0.02)
-        return rec
 
     def _recording(self) -> bool:
         """The child said it started the engine (its own line in the log)."""
@@ -163,19 +177,45 @@ def _resolve(source_ids: tuple[str, ...], timeout_s: float):
     raise XdfUnavailable(f"no LSL stream with source_id {', '.join(missing)} within {timeout_s:g} s")
 
 
+def _die_with_parent(parent: int | None) -> None:
+    """Linux: the kernel sends this process SIGTERM when the session's process dies (``prctl``
+    ``PR_SET_PDEATHSIG``), even by SIGKILL: the recorder never outlives its session. Elsewhere the
+    closed stdin does it once recording (and the parent kills it on every exit path of ``start``)."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+    except (OSError, AttributeError):
+        return
+    if parent is not None and os.getppid() != parent:  # it died before the request took effect
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
 def main(argv: list[str] | None = None) -> int:
     """The recorder: record until stdin says ``stop`` or closes (the session ended or died), then flush."""
     ap = argparse.ArgumentParser(prog="python -m nao_trainer.eeg.xdf")
     ap.add_argument("--out", required=True)
     ap.add_argument("--timeout", type=float, default=10.0)
     ap.add_argument("--flush", type=float, default=FLUSH_S)
+    ap.add_argument("--parent", type=int, default=None, help="the session's process id (the recorder dies with it)")
     ap.add_argument("source_ids", nargs="+")
     args = ap.parse_args(argv)
+    recording = threading.Event()
+    stop = threading.Event()
+
+    def on_term(*_: object) -> None:
+        if not recording.is_set():
+            raise SystemExit(143)  # still looking for the streams: nothing to save, end now
+        stop.set()  # recording: finish the file (flush, footers)
+
+    signal.signal(signal.SIGTERM, on_term)
+    _die_with_parent(args.parent)
     if not os.environ.get("LSLAPICFG"):  # the engine's liblsl would discover streams beyond this machine
         print("xdf: LSLAPICFG is not set; refusing to record", flush=True)
         return 2
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the session decides when the recording ends
     try:
         infos = _resolve(tuple(args.source_ids), args.timeout)
@@ -185,6 +225,7 @@ def main(argv: list[str] | None = None) -> int:
     import labrecorder
 
     rec = labrecorder.Recording(args.out, infos)
+    recording.set()
     print(f"xdf: recording {', '.join(args.source_ids)} to {args.out}", flush=True)
 
     def wait_stdin() -> None:

@@ -8,7 +8,9 @@ A failed *required* check carries the exit code of its kind (3 robot, 4 EEG, 2 d
 """
 from __future__ import annotations
 
+import os
 import shutil
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,7 +18,13 @@ from typing import Any, Callable
 
 import numpy as np
 
-from nao_trainer.errors import ConfigError, UserError
+from nao_trainer.core.engagement import window_quality
+from nao_trainer.eeg.inlet import EEGInlet, StreamQuery, resolve_eeg
+from nao_trainer.errors import ConfigError, RobotUnavailable, UserError
+from nao_trainer.ports import RobotCallFailed, RobotConnectionLost
+from nao_trainer.robot.address import redact_url
+from nao_trainer.robot.desktop import DesktopRobot
+from nao_trainer.session.record import WRITE_CAUSES
 
 #: Exit codes of failed required checks, by kind (as `nao-trainer run` would fail later).
 EXIT = {"robot": 3, "eeg": 4, "disk": 2}
@@ -74,6 +82,7 @@ class CheckPlan:
     eeg: Any  # eeg.settings.EEGSettings, or None when EEG is off
     output_dir: Path
     speed: float = 1.0
+    write_dirs: tuple[Path, ...] = ()  # other folders the session writes (the participant's learning state)
 
 
 def plan_from_config(config: Any) -> CheckPlan:
@@ -81,14 +90,22 @@ def plan_from_config(config: Any) -> CheckPlan:
     return CheckPlan(robot_url=config.robot.url, connect_deadline_s=float(config.robot.connect_deadline_s),
                      needs_buttons=config.answers.input in ("tactile", "simulated"),
                      eeg_mode=config.eeg.mode, eeg=config.eeg, output_dir=config.output_dir(),
-                     speed=float(config.timing.speed))
+                     speed=float(config.timing.speed), write_dirs=_state_dirs(config))
+
+
+def _state_dirs(config: Any) -> tuple[Path, ...]:
+    """The participant's folder when the policy keeps a learning state there (learned, personalised)."""
+    if config.policy.kind in ("schedule", "random"):
+        return ()
+    state = config.policy_state_file()
+    return () if state is None else (state.parent,)
 
 
 def run_checks(plan: CheckPlan, report: Callable[[CheckResult], None] | None = None,
                eeg_listen_s: float = EEG_LISTEN_S) -> list[CheckResult]:
     """Run every check of ``plan`` (disk, robot, EEG); ``report`` sees each result as it comes."""
     results = []
-    for check in (lambda: check_disk(plan.output_dir), lambda: check_robot(plan),
+    for check in (lambda: check_disk(plan.output_dir, write_dirs=plan.write_dirs), lambda: check_robot(plan),
                   lambda: check_eeg(plan, eeg_listen_s)):
         result = check()
         results.append(result)
@@ -107,12 +124,15 @@ def exit_code(results: list[CheckResult]) -> int:
 # ------------------------------------------------------------------------------------------------
 
 
-def check_disk(output_dir: Path, min_free_mb: float = MIN_FREE_MB) -> CheckResult:
-    """Free space where the session folders go (the nearest existing parent when not created yet)."""
+def check_disk(output_dir: Path, min_free_mb: float = MIN_FREE_MB, write_dirs: tuple[Path, ...] = ()) -> CheckResult:
+    """Free space where the session folders go, and that every folder the session writes (the output
+    folder, the participant's) can be written (the nearest existing parent when not created yet)."""
     folder = Path(output_dir)
-    probe = folder
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
+    for target in (folder, *write_dirs):
+        problem = _write_problem(Path(target))
+        if problem:
+            return CheckResult("disk", False, f"{target}: cannot write there ({problem[0]})", problem[1])
+    probe = _existing(folder)
     try:
         free_mb = shutil.disk_usage(probe).free / 1e6
     except OSError as exc:
@@ -122,6 +142,30 @@ def check_disk(output_dir: Path, min_free_mb: float = MIN_FREE_MB) -> CheckResul
         return CheckResult("disk", False, f"{folder}: {free_mb:.0f} MB free, a session needs {min_free_mb:.0f} MB",
                            "free some space or choose another output folder (--out)")
     return CheckResult("disk", True, f"{folder}: {free_mb / 1000:.1f} GB free")
+
+
+def _existing(folder: Path) -> Path:
+    probe = folder
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    return probe
+
+
+def _write_problem(folder: Path) -> tuple[str, str] | None:
+    """(cause, fix) when nothing can be written in ``folder`` (or where it will be created), else None.
+
+    Tried, not inferred from the permission bits: a probe file is created and removed (root passes
+    permission bits; a read-only file system, a full disk or a file in the way does not)."""
+    probe = _existing(folder)
+    if not probe.is_dir():
+        return f"{probe} is a file, not a folder", "remove it or choose another folder"
+    try:
+        fd, name = tempfile.mkstemp(prefix=".nao-trainer-probe-", dir=probe)
+        os.close(fd)
+        os.unlink(name)
+    except OSError as exc:
+        return WRITE_CAUSES.get(exc.errno or 0, (exc.strerror or str(exc), "choose another folder"))
+    return None
 
 
 # ------------------------------------------------------------------------------------------------
@@ -137,7 +181,7 @@ def check_robot(plan: CheckPlan) -> CheckResult:
     url = plan.robot_url
     try:
         if url == "mock":
-            from nao_trainer.robot.standin import StandIn
+            from nao_trainer.robot.standin import StandIn  # heavy: qi
 
             standin = StandIn.start("tcp://127.0.0.1:0", speed=max(plan.speed, 1.0))
             url = standin.url
@@ -148,9 +192,7 @@ def check_robot(plan: CheckPlan) -> CheckResult:
 
 
 def _check_naoqi(url: str, plan: CheckPlan, label: str | None) -> CheckResult:
-    from nao_trainer.errors import RobotUnavailable
-    from nao_trainer.ports import RobotCallFailed, RobotConnectionLost
-    from nao_trainer.robot.naoqi import NaoqiRobot, redact_url
+    from nao_trainer.robot.naoqi import NaoqiRobot  # heavy: qi
 
     where = label or redact_url(url)
     try:
@@ -178,8 +220,6 @@ def _check_naoqi(url: str, plan: CheckPlan, label: str | None) -> CheckResult:
 
 
 def _check_desktop() -> CheckResult:
-    from nao_trainer.robot.desktop import DesktopRobot
-
     try:
         robot = DesktopRobot.start()
     except UserError as exc:
@@ -203,7 +243,6 @@ def check_eeg(plan: CheckPlan, listen_s: float = EEG_LISTEN_S) -> CheckResult:
     if plan.eeg_mode == "simulated":
         return CheckResult("eeg", True, "a simulated Muse is started with the session (no electrodes to check)",
                            required=False)
-    from nao_trainer.eeg.inlet import EEGInlet, StreamQuery, resolve_eeg
 
     settings = plan.eeg
     required = bool(settings.required)
@@ -243,8 +282,6 @@ def _listen(inlet: Any, seconds: float) -> np.ndarray:
 
 def channel_quality(x: np.ndarray, fs: float, window_s: float, hop_s: float) -> tuple[np.ndarray, list[str]]:
     """Per channel: the fraction of analysis windows the monitor's rules call clean, and the commonest reason."""
-    from nao_trainer.core.engagement import window_quality
-
     n = int(round(window_s * fs))
     hop = max(1, int(round(hop_s * fs)))
     starts = range(0, max(1, len(x) - n + 1), hop)

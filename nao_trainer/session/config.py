@@ -1,5 +1,8 @@
-"""Study configuration: YAML files validated against the schema (``session.config_schema``), with
-file:line in every error.
+"""Study configuration: YAML files validated against the section dataclasses, with file:line in every error.
+
+Each key is declared once, as a field of its section's dataclass with its rule (``core.settings``:
+type, range, choices, an extra check from ``session.config_rules``, a doc line); ``SCHEMA`` is derived
+from them and ``config/default.yaml`` is checked against them by a test (tests/session/test_config.py).
 
 A study file (``config/studies/*.yaml``) overlays the documented defaults (``config/default.yaml``);
 command-line flags overlay both. Validation happens once, at load, so an invalid study never
@@ -10,19 +13,20 @@ NAOqi 2.9 credentials are never read from files: the robot client takes them fro
 """
 from __future__ import annotations
 
-import difflib
 import hashlib
 import os
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
+from nao_trainer.core.settings import (Rule, SettingError, UnknownKey, build, check_value, optional_keys, schema_of,
+                                       setting, settings)
 from nao_trainer.eeg.settings import EEGSettings
 from nao_trainer.errors import ConfigError
 from nao_trainer.files import PROJECT_ROOT, read_yaml
 from nao_trainer.policies.participant_state import state_file
-from nao_trainer.session.config_schema import (DESKTOP, INPUTS, MOCK, SCHEMA, Field,  # noqa: F401 (importable from here)
-                                               check_value, is_robot_address)
+from nao_trainer.session import config_rules as rules
+from nao_trainer.session.config_rules import DESKTOP, INPUTS, MOCK, is_robot_address  # noqa: F401 (importable from here)
 
 #: Repository root (parent of the package). Relative paths in configs resolve against it, so
 #: ``nao-trainer run`` works from any folder of a clone (installs are editable).
@@ -39,41 +43,50 @@ INPUT_PATHS = ("session.dialogue", "session.behaviors")
 # ----------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
+NUMBER = (int, float)
+
+
+@settings
 class StudySection:
-    name: str
-    description: str | None
+    name: str = setting(kind=str, doc="short name of the study")
+    description: str | None = setting(kind=str, nullable=True, doc="free text, copied into session.json")
 
 
-@dataclass(frozen=True)
+@settings
 class ParticipantSection:
-    pseudonym: str  # "simulated" when none was entered (session.participant refuses that when a person answers)
+    pseudonym: str = setting(kind=str, nullable=True, check=rules.pseudonym,
+                             doc="names the session folder; never a real name; null = entered per session")
 
     def __post_init__(self) -> None:
+        # "simulated" when none was entered (session.participant refuses that when a person answers)
         if self.pseudonym is None:
             object.__setattr__(self, "pseudonym", "simulated")
 
 
-@dataclass(frozen=True)
+@settings
 class RobotSection:
-    url: str
-    connect_deadline_s: float
-    max_reconnect_s: float
-    backoff_initial_s: float
-    backoff_max_s: float
-    posture_speed: float
+    url: str = setting(kind=str, check=rules.robot_url, doc="mock | desktop | tcp://IP:9559 | tcps://IP:9503")
+    connect_deadline_s: float = setting(kind=NUMBER, min=0.5, max=120, doc="give up connecting after this long")
+    max_reconnect_s: float = setting(kind=NUMBER, min=0, max=3600, doc="keep reconnecting this long")
+    backoff_initial_s: float = setting(kind=NUMBER, min=0.05, max=60, doc="first wait between attempts")
+    backoff_max_s: float = setting(kind=NUMBER, min=0.1, max=300, doc="longest wait between attempts")
+    posture_speed: float = setting(kind=NUMBER, min=0.05, max=1.0, doc="fraction of maximum joint speed")
+
+    def __post_init__(self) -> None:
+        if self.backoff_max_s < self.backoff_initial_s:
+            raise SettingError("backoff_max_s", "must be >= robot.backoff_initial_s")
 
 
-@dataclass(frozen=True)
+@settings
 class SessionSection:
-    turns: int
-    practice: bool
-    seed: int | None
-    language: str
-    dialogue: str
-    behaviors: str
-    output: str
-    max_duration_s: float | None
+    turns: int = setting(kind=int, min=1, max=500, doc="turns per session")
+    practice: bool = setting(kind=bool, doc="one practice sequence before the first turn")
+    seed: int | None = setting(kind=int, nullable=True, min=0, doc="null = drawn and recorded")
+    language: str = setting(kind=str, choices=("en",), doc="dialogue language")
+    dialogue: str = setting(kind=str, doc="dialogue file (relative: to the file that sets it)")
+    behaviors: str = setting(kind=str, doc="behaviors file (relative: to the file that sets it)")
+    output: str = setting(kind=str, doc="session folders are created under this folder")
+    max_duration_s: float | None = setting(kind=NUMBER, nullable=True, min=1, max=86400, doc="null = no limit")
 
     @property
     def dialogue_path(self) -> Path:
@@ -90,75 +103,76 @@ class SessionSection:
         return Path(os.path.expanduser(self.output)).resolve()
 
 
-@dataclass(frozen=True)
+@settings
 class TimingSection:
     """Durations in session seconds; ``speed`` divides them all (see ``session.stage.Clock``)."""
 
-    speed: float
-    pause_before_level_s: float
-    letter_gap_s: float
-    beep_hz: int
-    beep_s: float
-    beep_gain: float
-    response_timeout_base_s: float
-    response_timeout_per_letter_s: float
-    grace_s: float
-    listening_tail_s: float
+    speed: float = setting(kind=NUMBER, min=0.1, max=200, doc="divides every spoken/slept duration")
+    pause_before_level_s: float = setting(kind=NUMBER, min=0, max=30, doc="silence before the level")
+    letter_gap_s: float = setting(kind=NUMBER, min=0, max=10, doc="silence between two letters")
+    beep_hz: int = setting(kind=int, min=100, max=8000, doc="the beep that opens the answer window")
+    beep_s: float = setting(kind=NUMBER, min=0.05, max=3, doc="beep duration")
+    beep_gain: float = setting(kind=NUMBER, min=0.0, max=1.0, doc="beep volume")
+    response_timeout_base_s: float = setting(kind=NUMBER, min=1, max=300, doc="answer window base")
+    response_timeout_per_letter_s: float = setting(kind=NUMBER, min=0, max=60, doc="answer window per letter")
+    grace_s: float = setting(kind=NUMBER, min=0, max=5, doc="extra presses within this count as too many")
+    listening_tail_s: float = setting(kind=NUMBER, min=0, max=5, doc="listening phase ends this long after the beep")
 
     def response_timeout_s(self, length: int) -> float:
         """Answer window in session seconds: base + per-letter x length (10 s + 2.5 s x L by default)."""
         return float(self.response_timeout_base_s + self.response_timeout_per_letter_s * length)
 
 
-@dataclass(frozen=True)
+@settings
 class AnswersSection:
-    input: str
-    debounce_s: float
+    input: str = setting(kind=str, choices=INPUTS, doc="simulated | tactile | keyboard")
+    debounce_s: float = setting(kind=NUMBER, min=0, max=1, doc="presses closer than this count once")
 
 
-@dataclass(frozen=True)
+@settings
 class ParticipantModelSection:
-    success_by_level: tuple[float, ...]
-    engagement_by_level: tuple[float, ...]
-    user_model: str | None
+    success_by_level: tuple[float, ...] = setting(kind=list, item=NUMBER, length=4, check=rules.unit_values,
+                                                  doc="P(success) for levels 1-4")
+    engagement_by_level: tuple[float, ...] = setting(kind=list, item=NUMBER, length=4, check=rules.unit_values,
+                                                     doc="engagement per level, 0-1")
+    user_model: str | None = setting(kind=str, nullable=True, doc="cluster id or simulator JSON")
 
 
-@dataclass(frozen=True)
+@settings
 class PolicySection:
-    kind: str
-    schedule: tuple[str, ...]
-    learning: bool
-    state_path: str | None
-    guidance: float
-    assessment: tuple[int, ...]
-    kappa: float
-    margin: float
+    kind: str = setting(kind=str, check=rules.policy_spec, doc="schedule | random | usp:CLUSTER[:METHOD] | personalised")
+    schedule: tuple[str, ...] = setting(kind=list, item=str, check=rules.schedule, doc="actions, cycled")
+    learning: bool = setting(kind=bool, doc="learning policies keep learning during the session")
+    state_path: str | None = setting(kind=str, nullable=True, check=rules.state_path, doc="where learning state lives")
+    guidance: float = setting(kind=NUMBER, min=0, max=10, doc="preference for the supervisor's overrides")
+    # personalised (policies.personalised, docs/personalisation.md)
+    assessment: tuple[int, ...] = setting(kind=list, item=int, check=rules.assessment, doc="levels of the first turns")
+    kappa: float = setting(kind=NUMBER, min=0.01, doc="strength of the per-level Beta priors")
+    margin: float = setting(kind=NUMBER, min=0, doc="expected-value gain a new policy needs")
 
     def state_file(self, pseudonym: str, output: Path) -> Path | None:
         """Where a learning policy keeps its state across sessions: by default the participant's
-        folder (``policies.base.state_file``); None = the session folder."""
+        folder (``policies.participant_state.state_file``); None = the session folder."""
         return state_file(self.kind, self.state_path, pseudonym, output)
 
 
-@dataclass(frozen=True)
+@settings
 class ConsoleSection:
-    enabled: bool
-    port: int
-    bind: str
+    enabled: bool = setting(kind=bool, doc="serve the supervisor console")
+    port: int = setting(kind=int, min=0, max=65535, doc="0 = a free port")
+    bind: str = setting(kind=str, check=rules.host, doc="loopback unless --console-bind")
 
 
-#: The dataclass of each schema section (keys = field names, checked at import below).
+#: The sections of a study, in file order. Each dataclass is its own schema (``core.settings``).
 SECTIONS: dict[str, type] = {
     "study": StudySection, "participant": ParticipantSection, "robot": RobotSection, "session": SessionSection,
     "timing": TimingSection, "answers": AnswersSection, "participant_model": ParticipantModelSection,
     "policy": PolicySection, "console": ConsoleSection, "eeg": EEGSettings,
 }
-assert all(tuple(SCHEMA[name]) == tuple(f.name for f in fields(cls)) for name, cls in SECTIONS.items()), \
-    "config SECTIONS and SCHEMA disagree"
-
-
-def _frozen(value: Any) -> Any:
-    return tuple(value) if isinstance(value, list) else value
+#: section -> key -> ``core.settings.Rule`` (or a nested section's schema), derived from ``SECTIONS``.
+SCHEMA: dict[str, Any] = {name: schema_of(cls) for name, cls in SECTIONS.items()}
+#: Dotted keys that may be left out (the field has a default: ``eeg.processing.*``).
+OPTIONAL: frozenset[str] = frozenset(optional_keys(SECTIONS))
 
 
 @dataclass(frozen=True)
@@ -184,11 +198,11 @@ class StudyConfig:
 
     @classmethod
     def build(cls, values: dict[str, Any], sources: tuple[str, ...], text_sha256: str,
-              eeg: EEGSettings, overrides: dict[str, Any] | None = None) -> "StudyConfig":
-        """Typed sections from validated ``values`` (``eeg`` validated by its own settings class)."""
-        sections = {name: section(**{k: _frozen(v) for k, v in values[name].items()})
-                    for name, section in SECTIONS.items() if name != "eeg"}
-        return cls(values=values, sources=sources, text_sha256=text_sha256, eeg=eeg, overrides=overrides, **sections)
+              overrides: dict[str, Any] | None = None) -> "StudyConfig":
+        """Typed sections from ``values``; ``core.settings.SettingError`` (dotted key) for a value or a
+        relation between values that breaks a rule."""
+        sections = {name: build(section, values[name], name) for name, section in SECTIONS.items()}
+        return cls(values=values, sources=sources, text_sha256=text_sha256, overrides=overrides, **sections)
 
     def output_dir(self) -> Path:
         return self.session.output_dir
@@ -240,9 +254,7 @@ def _merge(base: dict, over: Mapping, schema: dict, prefix: str, locs: dict[str,
         dotted = f"{prefix}.{key}" if prefix else str(key)
         where = locs.get(dotted, _Loc(file, None))
         if key not in schema:
-            hint = difflib.get_close_matches(str(key), [str(k) for k in schema], n=1)
-            fix = f"did you mean '{(prefix + '.') if prefix else ''}{hint[0]}'?" if hint else f"valid keys here: {', '.join(schema)}"
-            raise ConfigError(f"{where}: unknown key '{dotted}'; {fix}")
+            raise ConfigError(f"{where}: {UnknownKey(prefix, str(key), [str(k) for k in schema])}")
         spec = schema[key]
         if isinstance(spec, dict):
             base.setdefault(key, {})
@@ -265,12 +277,23 @@ def _validate(values: dict, schema: dict, prefix: str, locs: dict[str, _Loc]) ->
             _validate(values[key], spec, dotted, locs)
             continue
         if key not in values:
+            if dotted in OPTIONAL:
+                continue
             raise ConfigError(f"{where}: key '{dotted}' is missing; add it (see {DEFAULT_CONFIG})")
         problem = check_value(values[key], spec)
         if problem:
             raise ConfigError(f"{where}: key '{dotted}' {problem}")
         if isinstance(spec.kind, tuple) and float in spec.kind and isinstance(values[key], int):
             values[key] = float(values[key])
+
+
+def _rule_at(dotted: str) -> Rule | None:
+    node: Any = SCHEMA
+    for part in dotted.split("."):
+        if not isinstance(node, dict) or part not in node:
+            return None
+        node = node[part]
+    return node if isinstance(node, Rule) else None
 
 
 def _set_dotted(values: dict, dotted: str, value: Any) -> None:
@@ -303,10 +326,10 @@ def load_config(study: str | Path | None = None, overrides: Mapping[str, Any] | 
         if value is None:
             continue
         flag_loc = _Loc(f"command line ({dotted})", None)
-        section, _, key = dotted.partition(".")
-        if section not in SCHEMA or key not in SCHEMA[section]:
+        spec = _rule_at(dotted)
+        if spec is None:
             raise ConfigError(f"command line: unknown configuration key '{dotted}'")
-        problem = check_value(value, SCHEMA[section][key])
+        problem = check_value(value, spec)
         if problem:
             raise ConfigError(f"{flag_loc}: key '{dotted}' {problem}")
         _set_dotted(values, dotted, value)
@@ -316,15 +339,19 @@ def load_config(study: str | Path | None = None, overrides: Mapping[str, Any] | 
     _resolve_input_paths(values, locs)
     _check_combination(values, locs)
 
-    def where(dotted: str) -> _Loc:
-        return locs.get(f"@{dotted}") or locs.get(dotted) or locs.get("@eeg.processing") or _Loc("configuration", None)
+    def where(dotted: str) -> _Loc:  # the key's place, else its section's (a relation between two keys)
+        while dotted:
+            loc = locs.get(f"@{dotted}") or locs.get(dotted)
+            if loc is not None:
+                return loc
+            dotted = dotted.rpartition(".")[0]
+        return _Loc("configuration", None)
 
-    eeg = EEGSettings.from_mapping(values["eeg"], where=where)
-    t = values["robot"]
-    if t["backoff_max_s"] < t["backoff_initial_s"]:
-        raise ConfigError(f"{locs.get('@robot.backoff_max_s')}: key 'robot.backoff_max_s' must be >= robot.backoff_initial_s")
-    return StudyConfig.build(values, tuple(sources), digest.hexdigest(), eeg,
-                             {k: v for k, v in (overrides or {}).items() if v is not None})
+    try:
+        return StudyConfig.build(values, tuple(sources), digest.hexdigest(),
+                                 {k: v for k, v in (overrides or {}).items() if v is not None})
+    except SettingError as exc:  # a relation between keys (e.g. robot.backoff_max_s >= robot.backoff_initial_s)
+        raise ConfigError(f"{where(exc.key)}: {exc}") from None
 
 
 def _resolve_input_paths(values: dict, locs: dict[str, _Loc]) -> None:

@@ -15,9 +15,11 @@ returns the next trigger. Interruptions are uniform:
 A turn (``core.mdp``): ``select_action`` (policy, new turn state and sequence), ``feedback`` (RF
 actions), ``announce``, ``speak_sequence``, ``beep`` (the answer window opens), ``await_answer``,
 ``score`` (equation (1)), ``record`` (turns.csv, fsynced; the policy observes the transition).
-The parts of ``Session`` in their own modules: ``session.operator`` (commands), ``session.checkpoint``
-(``--resume``), ``session.phases`` (EEG phases, the answer window), ``session.reporting`` (rows, events,
-progress). The engine imports no adapter: ``session.wiring`` builds them and hands them in.
+The parts ``Session`` composes, each in its own module and built with only what it touches:
+``session.operator.OperatorDesk`` (commands), ``session.checkpoint.Checkpointer`` (``--resume``),
+``session.phases.PhaseClock`` (EEG phases, the answer window), ``session.reporting.SessionLog`` (rows,
+events, progress). The ports come in as one ``SessionPorts``; the handlers of a turn's states get the
+turn in flight. The engine imports no adapter: ``session.wiring`` builds them and hands them in.
 """
 from __future__ import annotations
 
@@ -30,17 +32,17 @@ from transitions import Machine
 
 from nao_trainer.core import mdp, task
 from nao_trainer.errors import Interrupted, RobotUnavailable
-from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, NullObserver, Policy, Robot,
-                               RobotCallFailed, RobotConnectionLost, SessionObserver, Transition, TurnContext)
-from nao_trainer.session.behaviors import Behaviors
-from nao_trainer.session.checkpoint import Checkpoints
+from nao_trainer.ports import (Command, Press, RobotCallFailed, RobotConnectionLost, SessionObserver, Transition,
+                               TurnContext)
+from nao_trainer.session.checkpoint import Checkpointer, Standing
 from nao_trainer.session.config import StudyConfig
-from nao_trainer.session.dialogue import Dialogue
-from nao_trainer.session.machine import FINAL_STATES, INTRO_STATES, STATES, TRANSITIONS, TURN_STATES
-from nao_trainer.session.operator import OperatorCommands
-from nao_trainer.session.phases import EEGPhases
+from nao_trainer.session.machine import FINAL_STATES, IN_TURN, INTRO_STATES, STATES, TRANSITIONS, TURN_STATES
+from nao_trainer.session.operator import HOLD_STATES, OperatorDesk
+from nao_trainer.session.parts import Randomness, Script, SessionPorts
+from nao_trainer.session.phases import PhaseClock
+from nao_trainer.session.reconnect import Reconnector
 from nao_trainer.session.record import SessionRecorder, now_iso
-from nao_trainer.session.reporting import Reporting
+from nao_trainer.session.reporting import SessionLog
 from nao_trainer.session.stage import Clock, Stage
 from nao_trainer.session.turn import Turn, progress_line
 
@@ -49,56 +51,66 @@ EXIT_OK, EXIT_ROBOT_LOST, EXIT_INTERRUPTED = 0, RobotUnavailable.exit_code, Inte
 EXIT_OPERATOR_STOP = 5
 
 
-class Session(OperatorCommands, Checkpoints, EEGPhases, Reporting):
+class Session:
     """One training session: owns the machine and talks to the world only through the ports.
 
     Build it connected (``wiring.run_session`` does that); ``run()`` plays it to the end and
-    returns the exit code. Everything random comes from ``rng`` (sequences, dialogue variants) and
-    the policy's own generator, so a seed replays a session exactly.
+    returns the exit code. Everything random comes from ``random`` (sequences, dialogue variants) and
+    the policy's own generator, so a seed replays a session exactly. Its parts: ``log``
+    (``SessionLog``), ``phases`` (``PhaseClock``), ``desk`` (``OperatorDesk``), ``checkpoints``
+    (``Checkpointer``) and ``stage`` (``Stage``), each built with what it touches.
     """
 
-    def __init__(self, config: StudyConfig, robot: Robot, answers: AnswerSource, policy: Policy,
-                 recorder: SessionRecorder, dialogue: Dialogue, behaviors: Behaviors, rng: np.random.Generator,
-                 policy_rng: np.random.Generator, monitor: EngagementMonitor | None = None,
-                 progress: TextIO | None = sys.stderr, sleep: Callable[[float], None] = time.sleep,
-                 commands: CommandQueue | None = None, observer: SessionObserver | None = None,
-                 rngs: dict[str, np.random.Generator] | None = None, resume: dict[str, Any] | None = None,
-                 policy_state: dict[str, Any] | None = None) -> None:
+    def __init__(self, config: StudyConfig, ports: SessionPorts, recorder: SessionRecorder, script: Script,
+                 random: Randomness, *, progress: TextIO | None = sys.stderr, sleep: Callable[[float], None] = time.sleep,
+                 resume: dict[str, Any] | None = None, policy_state: dict[str, Any] | None = None) -> None:
         self.cfg = config
-        self.robot = robot
-        self.answers = answers
-        self.policy = policy
+        self.ports = ports
+        self.robot, self.answers, self.policy, self.monitor = ports.robot, ports.answers, ports.policy, ports.monitor
         self.rec = recorder
-        self.behaviors = behaviors
-        self.rng = rng
-        self.policy_rng = policy_rng
-        self.monitor = monitor or NullMonitor()
-        self.progress = progress
+        self.behaviors = script.behaviors
+        self.rng = random.session
+        self.policy_rng = random.policy
         self.clock = Clock(config.timing.speed, sleep)
-        self.stage = Stage(robot, dialogue, behaviors, rng, recorder, self.clock, config.timing,
-                           config.robot.posture_speed)
+        self.stage = Stage(ports.robot, script.dialogue, script.behaviors, random.session, recorder, self.clock,
+                           config.timing, config.robot.posture_speed)
+        self.log = SessionLog(recorder, ports.observer, progress, self.clock)
+        self.phases = PhaseClock(ports.monitor, self.stage, ports.answers, ports.robot, self.clock, config.timing,
+                                 recorder, self.log, config.eeg.missing_alert_turns)
+        self.desk = OperatorDesk(ports.commands, self.log, recorder, ports.monitor, ports.observer)
+        self.checkpoints = Checkpointer(recorder, ports.policy, random.by_name())
+        self.reconnector = Reconnector(ports.robot, config.robot, self.clock, recorder, self.log, self.stage)
         self.n_turns = config.session.turns
         self.mdp_state = mdp.START
         self.last_success: bool | None = None
-        self.turn: Turn | None = None
+        self.turn: Turn | None = None  # the turn in flight, or the last one played
         self.replay: Turn | None = None
-        self.rows: list[dict[str, Any]] = []
         self.total = 0
         self.completed = 0
         self.lost_in: str | None = None
         self.status = "running"
         self.error = ""
         self._beep_onset = 0.0
-        self.observer: SessionObserver = observer or NullObserver()
-        self._init_commands(commands)
-        # Generators a checkpoint must carry besides the session's and the policy's (the simulated participant's).
-        self._init_checkpoints({"session": rng, "policy": policy_rng, **(rngs or {})}, resume)
+        self._resume = resume  # the checkpoint to resume from, until it is used
+        self._elapsed_before = 0.0  # session seconds played before a resumption
         self._policy_state = policy_state  # which learning state the policy started from (events.jsonl)
         self._t0 = self.clock.now()
         self.max_duration_s = config.session.max_duration_s
         self.machine = Machine(model=self, states=STATES, transitions=TRANSITIONS, initial="greet",
                                auto_transitions=False, send_event=True, after_state_change="_log_transition")
         self.answers.watch(self._on_press)
+
+    @property
+    def rows(self) -> list[dict[str, Any]]:
+        """The rows this run wrote (those before a resumption included)."""
+        return self.log.rows
+
+    @property
+    def observer(self) -> SessionObserver:
+        return self.ports.observer
+
+    def _turn_number(self) -> int | None:
+        return self.turn.number if self.turn else None
 
     # -- driver ----------------------------------------------------------------------------------
 
@@ -118,11 +130,10 @@ class Session(OperatorCommands, Checkpoints, EEGPhases, Reporting):
                 if self._resume is not None:
                     trigger = self._resume_from_checkpoint()
                 else:
-                    trigger = self._between_states() or getattr(self, f"_do_{self.state}")()
+                    trigger = self._between_states() or self._handle(self.state)
             except RobotConnectionLost as exc:
                 self.lost_in = self.state
-                self.rec.event("robot_lost", state=self.state, error=str(exc),
-                               turn=self.turn.number if self.turn else None)
+                self.rec.event("robot_lost", state=self.state, error=str(exc), turn=self._turn_number())
                 self.observer.notify("robot", {"robot": "lost", "error": str(exc)})
                 self.trigger("robot_lost")
                 continue
@@ -134,6 +145,14 @@ class Session(OperatorCommands, Checkpoints, EEGPhases, Reporting):
                 break
             self.trigger(trigger)
         return self._exit_code()
+
+    def _handle(self, state: str) -> str:
+        """Run the handler of ``state``; the handlers of a turn's states get the turn in flight."""
+        handler = getattr(self, f"_do_{state}")
+        if state in IN_TURN:
+            assert self.turn is not None  # select_action made it
+            return handler(self.turn)
+        return handler()
 
     def _exit_code(self) -> int:
         if self.state == "done":
@@ -150,7 +169,7 @@ class Session(OperatorCommands, Checkpoints, EEGPhases, Reporting):
         self.rec.event("interrupted", state=self.state, by=by)
         self.stage.silence()  # the robot may be mid-sentence: before the safe posture
         if self.turn is not None and not self.turn.recorded:
-            self._abandon_turn(f"interrupted: {by}")
+            self._abandon_turn(self.turn, f"interrupted: {by}")
         if self.state not in FINAL_STATES:
             self.trigger("abort")
 
@@ -159,7 +178,7 @@ class Session(OperatorCommands, Checkpoints, EEGPhases, Reporting):
         self.error = str(exc)
         self.rec.event("robot_call_failed", state=self.state, error=str(exc), fatal=True)
         if self.turn is not None and not self.turn.recorded:
-            self._abandon_turn(f"interrupted: robot error ({exc})")
+            self._abandon_turn(self.turn, f"interrupted: robot error ({exc})")
         if self.state not in FINAL_STATES:
             self.trigger("abort")
 
@@ -167,19 +186,39 @@ class Session(OperatorCommands, Checkpoints, EEGPhases, Reporting):
         """Session seconds since the session started (across a resumption; pauses count)."""
         return self._elapsed_before + self.clock.session(self.clock.now() - self._t0)
 
+    # -- what the session writes down (session.reporting) ----------------------------------------
+
+    def _log_transition(self, event: Any) -> None:
+        self.log.transition(event.event.name, event.transition.source, event.transition.dest, self.state,
+                            self._turn_number(), self.elapsed_s())
+
+    def _on_press(self, press: Press) -> None:
+        self.log.press(press, self.turn.number if self.turn else 0)
+
+    def _abandon_turn(self, turn: Turn, why: str) -> None:
+        """Record the turn in flight as interrupted (never silently lost)."""
+        self.phases.end(turn.number)
+        self.answers.abandon()
+        turn.notes.append(why)
+        turn.success = None
+        row = self.log.row(turn, turn.row(None, None, self.clock.speed, self.monitor.records_eeg))
+        self.rec.event("turn_interrupted", turn=turn.number, reason=why)
+        self.observer.notify("row", {**row, "total": self.total, "elapsed_s": round(self.elapsed_s(), 2)})
+        self.log.say(f"turn {turn.number:3d}/{self.n_turns}  {why}")
+
     # -- intro -----------------------------------------------------------------------------------
 
     def _do_greet(self) -> str:
-        self._begin_phase("baseline", None)
+        self.phases.begin("baseline", None)
         self.stage.posture(self.behaviors.start_posture)
         self.stage.say("greeting", pseudonym=self.cfg.participant.pseudonym)
         return "explain"
 
     def _do_instructions(self) -> str:
-        if self._phase is None:
-            self._begin_phase("baseline", None)
+        if self.phases.phase is None:
+            self.phases.begin("baseline", None)
         self.stage.say("instructions", turns=self.n_turns)
-        self._end_phase()
+        self.phases.end(self._turn_number())
         return "practise" if self.cfg.session.practice else "begin_turns"
 
     def _do_practice(self) -> str:
@@ -189,7 +228,7 @@ class Session(OperatorCommands, Checkpoints, EEGPhases, Reporting):
         self.answers.prepare(context)
         self.stage.announce(1, length, look=False, turn=0)
         self.stage.letters(context.sequence, turn=0)
-        answer = self._collect(0, length, self._beep(0))
+        answer, _ = self.phases.collect(0, length, self.phases.beep(0))
         ok = not answer.timed_out and task.is_correct(context.sequence, answer.response)
         self.rec.event("practice", sequence="".join(context.sequence), response="".join(answer.response), success=ok)
         self.stage.say("practice_success" if ok else "practice_failure", behavior="practice")
@@ -204,7 +243,7 @@ class Session(OperatorCommands, Checkpoints, EEGPhases, Reporting):
             return Turn(turn.number, turn.previous_state, turn.action, turn.state, notes=["replay of interrupted turn"],
                         replay=True, phase=turn.phase)
         notes: list[str] = []
-        action = self._take_override()
+        action = self.desk.take_override(self.mdp_state)
         if action is not None:
             notes.append(f"operator chose {mdp.ACTION_NAMES[action]}")
             self.policy.guide(self.mdp_state, action)
@@ -239,46 +278,41 @@ class Session(OperatorCommands, Checkpoints, EEGPhases, Reporting):
             "action": mdp.ACTION_NAMES[turn.action], "sequence": "".join(turn.sequence), "state": mdp.state_label(turn.state),
             "chosen_in": mdp.state_label(turn.previous_state), "notes": "; ".join(turn.notes),
             "probabilities": None if probs is None else dict(zip(mdp.ACTION_NAMES, (round(float(p), 4) for p in probs)))})
-        self._begin_phase("listening", turn.number)
+        self.phases.begin("listening", turn.number)
         return "give_feedback" if turn.action in (mdp.ENCOURAGE, mdp.CHALLENGE) else "announce_level"
 
-    def _do_feedback(self) -> str:
-        assert self.turn is not None
-        st = self.turn.turn_state
-        self.stage.feedback(st.feedback, bool(self.last_success), st.level, self.turn.number)
+    def _do_feedback(self, turn: Turn) -> str:
+        st = turn.turn_state
+        self.stage.feedback(st.feedback, bool(self.last_success), st.level, turn.number)
         return "announce_level"
 
-    def _do_announce(self) -> str:
-        assert self.turn is not None
-        st = self.turn.turn_state
-        self.stage.announce(st.level, st.length, turn=self.turn.number)
+    def _do_announce(self, turn: Turn) -> str:
+        st = turn.turn_state
+        self.stage.announce(st.level, st.length, turn=turn.number)
         return "speak"
 
-    def _do_speak_sequence(self) -> str:
-        assert self.turn is not None
-        self.stage.letters(self.turn.sequence, turn=self.turn.number)
+    def _do_speak_sequence(self, turn: Turn) -> str:
+        self.stage.letters(turn.sequence, turn=turn.number)
         return "sound_beep"
 
-    def _do_beep(self) -> str:
-        assert self.turn is not None
-        self._beep_onset = self._beep(self.turn.number)
+    def _do_beep(self, turn: Turn) -> str:
+        self._beep_onset = self.phases.beep(turn.number)
         return "wait_answer"
 
-    def _do_await_answer(self) -> str:
-        assert self.turn is not None
-        self.turn.answer = self._collect(self.turn.number, len(self.turn.sequence), self._beep_onset)
+    def _do_await_answer(self, turn: Turn) -> str:
+        answer, listening = self.phases.collect(turn.number, len(turn.sequence), self._beep_onset)
+        turn.answer = answer
+        if listening is not None:
+            turn.listening = listening
         return "score_answer"
 
-    def _do_score(self) -> str:
-        turn = self.turn
-        assert turn is not None and turn.answer is not None
-        turn.answering = self._end_phase()
+    def _do_score(self, turn: Turn) -> str:
+        turn.answering = self.phases.end(turn.number)
         turn.judge()
         return "record_turn"
 
-    def _do_record(self) -> str:
-        turn = self.turn
-        assert turn is not None and turn.success is not None
+    def _do_record(self, turn: Turn) -> str:
+        assert turn.success is not None  # judged in score
         st = turn.turn_state
         score = task.score(st.level, turn.success)
         row = turn.row(score, task.signed_score(st.level, turn.success), self.clock.speed, self.monitor.records_eeg)
@@ -286,27 +320,39 @@ class Session(OperatorCommands, Checkpoints, EEGPhases, Reporting):
         self.total += score
         done = self.completed >= self.n_turns
         engagement = turn.listening.engagement if turn.listening else None
+        learn = None
         if turn.invalid:  # the operator marked it invalid: the learner does not see it
             self.rec.event("not_learned", turn=turn.number, reason="marked invalid")
         else:
-            self.policy.observe(Transition(turn.previous_state, turn.action, score, engagement, turn.state, done))
+            learn = Transition(turn.previous_state, turn.action, score, engagement, turn.state, done)
         self.mdp_state, self.last_success = turn.state, turn.success
-        # The checkpoint (with this row) first, then the row: a kill between the two loses nothing,
-        # as a resumption appends the checkpoint's row when turns.csv lacks it.
-        self._checkpoint(row)
-        self._write_row(turn, row)
+        # The answered turn is on disk before the participant's learning state is saved: the checkpoint
+        # (with this row and the transition not yet learned), then the row, then the policy learns and
+        # saves. A kill or a failed write in between loses nothing: a resumption appends the checkpoint's
+        # row when turns.csv lacks it, and hands the policy the transition.
+        self.checkpoints.write(self._standing(), row, self.elapsed_s(), self.desk.override, learn)
+        self.log.row(turn, row)
+        if learn is not None:
+            self.policy.observe(learn)
         self.rec.event("turn_end", turn=turn.number, success=turn.success, score=score, total=self.total)
         self.monitor.mark("turn_end", turn.number)
         self.observer.notify("row", {**row, "total": self.total, "elapsed_s": round(self.elapsed_s(), 2)})
-        self._say_progress(progress_line(row, self.n_turns, self.total))
+        self.log.say(progress_line(row, self.n_turns, self.total))
+        self.phases.note_signal(turn.number, turn.listening)
+        self._policy_status(turn.number)
+        return "finish_turns" if done else "next_turn"
+
+    def _policy_status(self, turn: int) -> None:
         status = self.policy.status()  # e.g. the posterior over user models after this turn
         if status:
             shown = {k: v for k, v in status.items() if k not in ("progress", "summary", "phase")}
-            self.rec.event("policy_status", turn=turn.number, **shown)
-            self.observer.notify("policy", {"turn": turn.number, **shown})
+            self.rec.event("policy_status", turn=turn, **shown)
+            self.observer.notify("policy", {"turn": turn, **shown})
             if status.get("progress"):
-                self._say_progress(status["progress"])
-        return "finish_turns" if done else "next_turn"
+                self.log.say(status["progress"])
+
+    def _standing(self) -> Standing:
+        return Standing(self.completed, self.total, self.mdp_state, self.last_success)
 
     # -- goodbye ---------------------------------------------------------------------------------
 
@@ -315,44 +361,124 @@ class Session(OperatorCommands, Checkpoints, EEGPhases, Reporting):
         self.monitor.mark("session_end")
         return "end"
 
+    # -- resumed (run --resume) ------------------------------------------------------------------
+
+    def _resume_from_checkpoint(self) -> str:
+        """A resumed session: restore the state of the last completed turn and go to the next turn."""
+        cp, self._resume = self._resume, None
+        assert cp is not None
+        restored = self.checkpoints.restore(cp)
+        st = restored.standing
+        self.completed, self.total, self.mdp_state, self.last_success = st.completed, st.total, st.mdp_state, st.last_success
+        self.desk.override = restored.override
+        self._elapsed_before = restored.elapsed_s
+        self._t0 = self.clock.now()
+        self.log.rows[:] = restored.rows
+        self.rec.event("resumed", after_turn=self.completed, total=self.total, elapsed_s=self._elapsed_before)
+        self.monitor.mark("session_resumed")
+        self.stage.posture(self.behaviors.start_posture)
+        # An utterance the uninterrupted session did not have: its own generator, not the session's.
+        self.stage.say("resumed", behavior="greeting", rng=np.random.default_rng(self.completed))
+        self.log.because(f"resumed after turn {self.completed}")
+        return "resume_session"
+
+    # -- operator commands (session.operator decides, the session acts) ---------------------------
+
+    def _time_up(self) -> bool:
+        return self.max_duration_s is not None and self.elapsed_s() >= self.max_duration_s
+
+    def _between_states(self) -> str | None:
+        """The defined point where commands act: drain the queue, then look at the clock.
+
+        Returns the trigger of a command that changes the state (stop wins over pause), else None.
+        """
+        if self.state == "operator_pause":
+            return None  # its handler says the pause line first, then takes the commands
+        trigger = self._apply_pending(hold=self.state in HOLD_STATES)
+        if trigger is None and self.state == "select_action" and self._time_up():
+            return self._end_for_time()
+        return trigger
+
+    def _apply_pending(self, hold: bool = False) -> str | None:
+        """Apply the due commands in order until one changes the state; the rest wait for the next point."""
+        pending = self.desk.due(hold)
+        for i, cmd in enumerate(pending):
+            trigger = self._apply(cmd)
+            if trigger is not None:
+                self.desk.hold(pending[i + 1:])
+                return trigger
+        return None
+
+    def _apply(self, cmd: Command) -> str | None:
+        """Carry out one command; returns a trigger that changes the state, or None."""
+        turn = self.turn
+        decision = self.desk.decide(cmd, self.state, set(self.machine.get_triggers(self.state)), turn)
+        if decision.trigger is None:
+            self.desk.record(cmd, False, decision.detail, self.state, self._turn_number())
+            return None
+        if decision.internal:
+            self.log.because(decision.by)
+            self.trigger(decision.trigger)
+            self.desk.record(cmd, True, decision.detail, self.state, self._turn_number())
+            return None
+        if decision.abandon and turn is not None:
+            if decision.silence:
+                self.stage.silence()
+            self._abandon_turn(turn, f"interrupted: {decision.by}")
+            if decision.replay:
+                self.replay = turn
+        if decision.status:
+            self.status = decision.status
+        self.log.because(decision.by)
+        self.desk.record(cmd, True, decision.detail, self.state, self._turn_number())
+        return decision.trigger
+
+    def _end_for_time(self) -> str:
+        self.status = "time limit"
+        self.log.because(f"session.max_duration_s = {self.max_duration_s:g} s reached")
+        self.rec.event("max_duration", elapsed_s=round(self.elapsed_s(), 2), max_duration_s=self.max_duration_s)
+        self.log.say(f"maximum session duration ({self.max_duration_s:g} s) reached: ending the session")
+        return "time_up"
+
+    def _do_operator_pause(self) -> str:
+        """Paused by the operator: say so, keep the EEG recording, wait for resume or stop."""
+        self.phases.end(self._turn_number())
+        self.monitor.mark("pause_start", self._turn_number())
+        self.observer.notify("pause", {"paused": True, "in": self.desk.paused_in})
+        self.log.say("paused by the operator: resume with r (or the console), stop with s")
+        self.stage.say("paused")
+        while True:
+            trigger = self._apply_pending()
+            if trigger is not None:
+                if trigger != "operator_stop":
+                    self.monitor.mark("pause_end", self._turn_number())
+                    self.observer.notify("pause", {"paused": False})
+                    self.log.say("resumed by the operator")
+                    self.stage.say("resumed", behavior="greeting")
+                return trigger
+            if self._time_up():
+                return self._end_for_time()
+            self.desk.wait()
+
     # -- robot lost --------------------------------------------------------------------------------
 
     def _do_paused(self) -> str:
         lost_in = self.lost_in or "select_action"
-        self._end_phase()
+        self.phases.end(self._turn_number())
         if self.turn is not None and not self.turn.recorded and lost_in in TURN_STATES:
-            self._abandon_turn(f"interrupted: robot lost during {lost_in}")
+            self._abandon_turn(self.turn, f"interrupted: robot lost during {lost_in}")
             self.replay = self.turn
-        self._say_progress(f"robot lost during {lost_in}: paused, reconnecting...")
-        if not self._reconnect():
+        self.log.say(f"robot lost during {lost_in}: paused, reconnecting...")
+        if not self.reconnector.reconnect():
             self.status = "robot lost"
             self.rec.event("give_up", after_s=self.cfg.robot.max_reconnect_s)
-            self._say_progress(f"robot not back within {self.cfg.robot.max_reconnect_s:g} s: ending the session")
+            self.log.say(f"robot not back within {self.cfg.robot.max_reconnect_s:g} s: ending the session")
             return "give_up"
         if lost_in in INTRO_STATES:
             return "resume_intro"
         if lost_in == "goodbye":
             return "resume_goodbye"
         return "resume_turn"
-
-    def _reconnect(self) -> bool:
-        """Reconnect with exponential backoff (wall seconds) until ``robot.max_reconnect_s``."""
-        r = self.cfg.robot
-        deadline = self.clock.now() + r.max_reconnect_s
-        backoff, attempt = r.backoff_initial_s, 0
-        while (remaining := deadline - self.clock.now()) > 0:
-            self.clock.sleep(min(backoff, remaining))
-            attempt += 1
-            try:
-                self.robot.reconnect(max(0.5, min(r.connect_deadline_s, deadline - self.clock.now())))
-                self.rec.event("reconnected", attempt=attempt)
-                self._say_progress(f"robot back after {attempt} attempt(s): resuming")
-                self.stage.say("resumed", behavior="greeting")
-                return True
-            except (RobotUnavailable, RobotConnectionLost, RobotCallFailed) as exc:
-                self.rec.event("reconnect_failed", attempt=attempt, error=str(exc), next_wait_s=min(backoff * 2, r.backoff_max_s))
-                backoff = min(backoff * 2, r.backoff_max_s)
-        return False
 
     # -- shutdown --------------------------------------------------------------------------------
 

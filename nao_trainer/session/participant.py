@@ -27,7 +27,7 @@ from typing import ContextManager, Iterator, TextIO
 from nao_trainer.errors import ConfigError, UserError
 from nao_trainer.files import PROJECT_ROOT
 from nao_trainer.session.config import StudyConfig
-from nao_trainer.session.config_schema import is_robot_address
+from nao_trainer.session.config_rules import is_robot_address
 
 #: The pseudonym of a simulated participant when none was given (``session.config.ParticipantSection``).
 SIMULATED = "simulated"

@@ -2,65 +2,90 @@
 
 The monitor records engagement per phase: ``baseline`` (greeting and instructions), ``listening``
 (from the turn's start to beep + ``timing.listening_tail_s``) and ``answer`` (to the score). A phase
-starts and ends with a marker in the EEG recording. ``EEGPhases`` is a part of
-``session.engine.Session``.
+starts and ends with a marker in the EEG recording. ``PhaseClock`` is a part of
+``session.engine.Session``, built with only the ports it touches.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from nao_trainer.ports import Answer, AnswerSource, EngagementMonitor, PhaseEngagement, Robot, RobotConnectionLost
+from nao_trainer.session.config import TimingSection
+from nao_trainer.session.record import SessionRecorder
+from nao_trainer.session.reporting import SessionLog
+from nao_trainer.session.stage import Clock, Stage
 
-from nao_trainer.ports import Answer, PhaseEngagement, RobotConnectionLost
 
-if TYPE_CHECKING:
-    from nao_trainer.session.turn import Turn
-
-
-class EEGPhases:
+class PhaseClock:
     """Begin and end EEG phases; open the answer window and collect the answer."""
 
-    _phase: str | None = None  # the EEG phase in progress
-    # the session's, used here
-    turn: Turn | None
-    cfg: Any
-    robot: Any
-    answers: Any
-    monitor: Any
-    stage: Any
-    clock: Any
-    rec: Any
+    def __init__(self, monitor: EngagementMonitor, stage: Stage, answers: AnswerSource, robot: Robot, clock: Clock,
+                 timing: TimingSection, recorder: SessionRecorder, log: SessionLog, missing_alert_turns: int = 3) -> None:
+        self.monitor = monitor
+        self.stage = stage
+        self.answers = answers
+        self.robot = robot
+        self.clock = clock
+        self.timing = timing
+        self.rec = recorder
+        self.log = log
+        self.missing_alert_turns = missing_alert_turns  # 0: never tell
+        self.phase: str | None = None  # the EEG phase in progress
+        self.missing = 0  # turns in a row without an engagement value while EEG is on
 
-    def _begin_phase(self, phase: str, turn: int | None) -> None:
-        if self._phase is not None:
-            self._end_phase()
+    def begin(self, phase: str, turn: int | None) -> None:
+        """Start ``phase`` (ending the one in progress) with a marker in the recording."""
+        if self.phase is not None:
+            self.end(turn)
         self.monitor.begin_phase(phase, turn)
         self.monitor.mark(f"{phase}_start", turn)
-        self._phase = phase
+        self.phase = phase
 
-    def _end_phase(self) -> PhaseEngagement | None:
-        if self._phase is None:
+    def end(self, turn: int | None) -> PhaseEngagement | None:
+        """End the phase in progress (None when there is none); ``turn`` numbers its end marker."""
+        if self.phase is None:
             return None
-        self.monitor.mark(f"{self._phase}_end", self.turn.number if self.turn else None)
-        self._phase = None
+        self.monitor.mark(f"{self.phase}_end", turn)
+        self.phase = None
         return self.monitor.end_phase()
 
-    def _beep(self, turn: int) -> float:
+    def beep(self, turn: int) -> float:
         """Open the answer window and beep; returns the beep onset (time 0 of the answer)."""
         self.stage.look("answer")
         self.answers.open_window()
         return self.stage.beep(turn)
 
-    def _collect(self, turn: int, length: int, onset: float) -> Answer:
-        """Close the listening phase at beep + tail (EEG), then wait for the answer."""
-        if self._phase == "listening":
-            self.clock.wait_until(onset + self.clock.wall(self.cfg.timing.listening_tail_s))
-            assert self.turn is not None
-            self.turn.listening = self._end_phase()
-            self._begin_phase("answer", turn)
+    def collect(self, turn: int, length: int, onset: float) -> tuple[Answer, PhaseEngagement | None]:
+        """Close the listening phase at beep + tail (EEG), then wait for the answer.
+
+        Returns the answer and the listening phase's engagement (None when no listening phase ran).
+        """
+        listening = None
+        if self.phase == "listening":
+            self.clock.wait_until(onset + self.clock.wall(self.timing.listening_tail_s))
+            listening = self.end(turn)
+            self.begin("answer", turn)
         # The window opened at the beep; the timeout counts from there (sources measure from open_window).
-        answer = self.answers.collect(length, self.clock.wall(self.cfg.timing.response_timeout_s(length)))
+        answer = self.answers.collect(length, self.clock.wall(self.timing.response_timeout_s(length)))
         self.rec.event("answer", turn=turn, timed_out=answer.timed_out,  # each press, seconds from the beep
                        presses=[{"key": p.key, "letter": p.letter, "t": round(self.clock.session(p.t), 3)}
                                 for p in answer.presses])
         if not self.robot.is_connected():  # an answer window does not talk to the robot: ask
             raise RobotConnectionLost("the robot dropped during the answer window")
-        return answer
+        return answer, listening
+
+    def note_signal(self, turn: int, listening: PhaseEngagement | None) -> None:
+        """After a recorded turn: count the turns in a row without EEG; at ``eeg.missing_alert_turns`` tell
+        the operator once (terminal line, console event, events.jsonl) so a lost headband is not found at the end."""
+        if not self.monitor.records_eeg:
+            return
+        if listening is not None and listening.engagement is not None:
+            if self.missing >= self.missing_alert_turns > 0:
+                self.rec.event("eeg_back", turn=turn, after_turns=self.missing)
+                self.log.observer.notify("eeg", {"missing_turns": 0, "turn": turn})
+            self.missing = 0
+            return
+        self.missing += 1
+        if self.missing == self.missing_alert_turns:
+            reason = (listening.reason if listening is not None else "") or "no value"
+            self.rec.event("eeg_missing", turn=turn, turns=self.missing, reason=reason)
+            self.log.observer.notify("eeg", {"missing_turns": self.missing, "turn": turn, "reason": reason})
+            self.log.say(f"warning: no EEG for the last {self.missing} turns ({reason}): check the headband and its stream")

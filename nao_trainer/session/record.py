@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import csv
 import datetime as dt
+import errno
+import io
 import json
 import os
 import platform
@@ -27,7 +29,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from nao_trainer.errors import ConfigError
+from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import write_text_atomic
 
 TURN_COLUMNS: tuple[str, ...] = (
@@ -64,6 +66,41 @@ def _fsync(f) -> None:
 
 
 _OUTPUT_FIX = "point session.output (or --out) at a folder you can write to"
+
+#: What a failed write means, by errno: (the cause, how to fix it).
+WRITE_CAUSES: dict[int, tuple[str, str]] = {
+    errno.ENOSPC: ("the disk is full", "free some space on it"),
+    errno.EDQUOT: ("the disk quota is used up", "free some space or raise the quota"),
+    errno.EROFS: ("the file system is read-only", "make it writable or choose another folder"),
+    errno.EACCES: ("no permission to write there", "make the folder writable for this user"),
+    errno.EPERM: ("no permission to write there", "make the folder writable for this user"),
+    errno.EMFILE: ("too many open files", "raise the limit (ulimit -n) or close other programs"),
+    errno.ENFILE: ("too many open files on this system", "close other programs"),
+    errno.EFBIG: ("the file is larger than this system allows", "raise the file size limit (ulimit -f)"),
+    errno.EIO: ("an input/output error of the disk", "check the disk"),
+}
+
+
+def os_error_in(exc: BaseException | None) -> OSError | None:
+    """The failed file write behind ``exc`` (itself, its cause or its context: a library may wrap it), or None.
+
+    Only an ``OSError`` naming a file, with an errno of ``WRITE_CAUSES``: a port in use or a refused
+    connection is not a write failure."""
+    seen = 0
+    while exc is not None and seen < 10:
+        if isinstance(exc, OSError) and exc.errno in WRITE_CAUSES and exc.filename is not None:
+            return exc
+        exc = exc.__cause__ or exc.__context__
+        seen += 1
+    return None
+
+
+def write_failure(exc: OSError, folder: Path | None) -> DataError:
+    """One line for a failed write: which file, the cause (full disk, read-only, too many open files) and the fix."""
+    cause, fix = WRITE_CAUSES.get(exc.errno or 0, (exc.strerror or type(exc).__name__, "check the disk"))
+    where = exc.filename or folder or "the session folder"
+    kept = f"; the completed turns are on disk: continue with nao-trainer run --resume {folder}" if folder else ""
+    return DataError(f"{where}: cannot write ({cause}); {fix}{kept}")
 
 
 def ensure_output_dir(out: Path) -> Path:
@@ -110,6 +147,7 @@ class SessionRecorder:
     _writer = None
     _events = None
     rows: int = 0
+    events_failed: OSError | None = None  # the first failed write of events.jsonl (later events are dropped)
     _lock: threading.Lock = field(default_factory=threading.Lock)  # events come from the console's thread too
 
     def open(self, info: dict[str, Any]) -> Path:
@@ -135,6 +173,7 @@ class SessionRecorder:
         self._info.update(status="running")
         for key in ("ended", "exit_code", "error"):
             self._info.pop(key, None)
+        torn = drop_torn_tail(self.path)  # a row cut by a kill: never append onto half a line
         self.rows = sum(1 for _ in read_turns(self.path))
         self._write_json()
         self._turns = open(self.path / "turns.csv", "a", newline="", encoding="utf-8")
@@ -143,6 +182,8 @@ class SessionRecorder:
         for ev in self._pending:
             self._write_event(ev)
         self._pending.clear()
+        if torn:
+            self.event("torn_row_dropped", bytes=torn, file="turns.csv")
         return self.path
 
     def checkpoint(self, data: dict[str, Any]) -> None:
@@ -167,9 +208,12 @@ class SessionRecorder:
     def _write_event(self, ev: dict[str, Any]) -> None:
         line = json.dumps(ev, default=str) + "\n"
         with self._lock:
-            if self._events is not None:
-                self._events.write(line)
-                self._events.flush()
+            if self._events is not None and self.events_failed is None:
+                try:
+                    self._events.write(line)
+                    self._events.flush()
+                except OSError as exc:  # the log must not end a session the turns can still be written in
+                    self.events_failed = exc
 
     def turn(self, row: dict[str, Any]) -> None:
         """Append one turn row and make it durable before returning."""
@@ -177,30 +221,75 @@ class SessionRecorder:
         unknown = set(row) - set(TURN_COLUMNS)
         if unknown:
             raise KeyError(f"unknown turns.csv columns: {sorted(unknown)}")
-        self._writer.writerow(clean)
-        _fsync(self._turns)
+        try:
+            self._writer.writerow(clean)
+            _fsync(self._turns)
+        except OSError as exc:  # name the file: the session's report says which write failed
+            raise OSError(exc.errno, exc.strerror, str(self.path / "turns.csv")) from exc
         self.rows += 1
 
     def _write_json(self) -> None:
         write_text_atomic(self.path / "session.json", json.dumps(self._info, indent=2, default=str) + "\n")
 
+    def _write_json_in_place(self) -> None:
+        """session.json rewritten in the blocks it has (no new file): the last resort on a full disk."""
+        with open(self.path / "session.json", "r+", encoding="utf-8") as f:
+            f.write(json.dumps(self._info, indent=2, default=str) + "\n")
+            f.truncate()
+            f.flush()
+            os.fsync(f.fileno())
+
     def close(self, status: str, exit_code: int, **info: Any) -> None:
-        """Final session.json (atomic rewrite) and close every file. Safe to call twice."""
+        """Final session.json (atomic rewrite) and close every file. Safe to call twice; never raises
+        ``OSError``: a session that failed to write already says why, and the clean-up must finish."""
         if self.path is None:
             return
         if self._turns is not None:
             self._info.update(info, status=status, exit_code=exit_code, ended=now_iso(), turns_recorded=self.rows)
-            self._write_json()
-            self._turns.close()
+            if self.events_failed is not None:
+                self._info["events_lost"] = f"events.jsonl stopped at a failed write ({self.events_failed.strerror})"
+            for write in (self._write_json, self._write_json_in_place):
+                try:
+                    write()
+                    break
+                except OSError:
+                    continue
             with self._lock:
-                self._events.close()
+                for f in (self._turns, self._events):
+                    try:
+                        f.close()
+                    except OSError:
+                        pass  # its buffer could not be flushed: the rows written before are fsynced
                 self._turns = self._events = None
 
 
-def read_turns(path: Path) -> list[dict[str, str]]:
-    """The rows of a session's turns.csv (a helper for tests and analysis)."""
+def read_turns(path: Path, complete_only: bool = False) -> list[dict[str, str]]:
+    """The rows of a session's turns.csv (a helper for tests and analysis); ``complete_only``: without
+    a torn last line (a row a kill cut short)."""
     with open(Path(path) / "turns.csv", newline="", encoding="utf-8") as f:
-        return list(csv.DictReader(f))
+        text = f.read()
+    if complete_only:
+        text = text[:_complete_length(text)]
+    return list(csv.DictReader(io.StringIO(text, newline="")))
+
+
+def _complete_length(text: str) -> int:
+    """Length of ``text`` up to its last line end (a complete file ends with one: csv writes ``\r\n``)."""
+    return 0 if "\n" not in text else text.rindex("\n") + 1
+
+
+def drop_torn_tail(folder: Path) -> int:
+    """Cut a torn last line off ``folder/turns.csv`` (fsynced); returns the bytes dropped (0: none)."""
+    path = Path(folder) / "turns.csv"
+    data = path.read_bytes()
+    keep = 0 if b"\n" not in data else data.rindex(b"\n") + 1
+    if keep == len(data):
+        return 0
+    with open(path, "r+b") as f:
+        f.truncate(keep)
+        f.flush()
+        os.fsync(f.fileno())
+    return len(data) - keep
 
 
 def read_events(path: Path) -> list[dict[str, Any]]:

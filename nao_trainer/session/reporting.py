@@ -1,74 +1,59 @@
-"""What the session writes down and shows: turns.csv rows (an interrupted turn too), transitions
-in ``events.jsonl``, observer messages (the console) and progress lines.
+"""What the session writes down and shows: turns.csv rows, transitions in ``events.jsonl``,
+observer messages (the console) and progress lines.
 
-``Reporting`` is a part of ``session.engine.Session``.
+``SessionLog`` is a part of ``session.engine.Session``: it owns the rows written so far and the
+reason of the next transition (an operator command, the clock), which the transition's event carries.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any, TextIO
 
-from nao_trainer.ports import Press
+from nao_trainer.ports import Press, SessionObserver
+from nao_trainer.session.record import SessionRecorder
+from nao_trainer.session.stage import Clock
+from nao_trainer.session.turn import Turn
 
-if TYPE_CHECKING:
-    from nao_trainer.session.turn import Turn
 
-
-class Reporting:
+class SessionLog:
     """Rows, transition events, press notices and progress lines."""
 
-    # the session's, used here
-    state: str
-    turn: Turn | None
-    rows: list[dict[str, Any]]
-    total: int
-    n_turns: int
-    _reason: str | None
-    progress: Any
-    rec: Any
-    observer: Any
-    monitor: Any
-    answers: Any
-    clock: Any
+    def __init__(self, recorder: SessionRecorder, observer: SessionObserver, progress: TextIO | None,
+                 clock: Clock) -> None:
+        self.rec = recorder
+        self.observer = observer
+        self.progress = progress
+        self.clock = clock
+        self.rows: list[dict[str, Any]] = []
+        self._reason: str | None = None
 
-    def _log_transition(self, event: Any) -> None:
+    def because(self, reason: str) -> None:
+        """Why the next transition happens (its event carries it)."""
+        self._reason = reason
+
+    def transition(self, trigger: str, source: str, dest: str | None, state: str, turn: int | None,
+                   elapsed_s: float) -> None:
+        """A state change (``dest`` None: an internal transition, an operator command that keeps the state)."""
         reason, self._reason = self._reason, None
-        turn = self.turn.number if self.turn else None
         extra: dict[str, Any] = {"reason": reason} if reason else {}
-        dest = event.transition.dest
-        if dest is None:  # an internal transition (an operator command that does not change the state)
-            dest, extra["internal"] = self.state, True
-        self.rec.event("transition", trigger=event.event.name, source=event.transition.source,
-                       dest=dest, turn=turn, **extra)
-        self.observer.notify("state", {"state": dest, "trigger": event.event.name, "turn": turn,
-                                       "elapsed_s": round(self.elapsed_s(), 2), **extra})
+        if dest is None:
+            dest, extra["internal"] = state, True
+        self.rec.event("transition", trigger=trigger, source=source, dest=dest, turn=turn, **extra)
+        self.observer.notify("state", {"state": dest, "trigger": trigger, "turn": turn,
+                                       "elapsed_s": round(elapsed_s, 2), **extra})
 
-    def _on_press(self, press: Press) -> None:
+    def press(self, press: Press, turn: int) -> None:
         """An answer source saw a press (called from its thread): tell the observer."""
-        self.observer.notify("press", {"turn": self.turn.number if self.turn else 0, "key": press.key,
-                                       "letter": press.letter, "t": round(self.clock.session(press.t), 3)})
+        self.observer.notify("press", {"turn": turn, "key": press.key, "letter": press.letter,
+                                       "t": round(self.clock.session(press.t), 3)})
 
-    def _say_progress(self, line: str) -> None:
+    def say(self, line: str) -> None:
+        """One progress line on the terminal (none when quiet)."""
         if self.progress is not None:
             print(line, file=self.progress, flush=True)
 
-    def _record_row(self, turn: Turn, score: int | None, signed: int | None) -> dict[str, Any]:
-        return self._write_row(turn, turn.row(score, signed, self.clock.speed, self.monitor.records_eeg))
-
-    def _write_row(self, turn: Turn, row: dict[str, Any]) -> dict[str, Any]:
+    def row(self, turn: Turn, row: dict[str, Any]) -> dict[str, Any]:
+        """Append ``turn``'s row to turns.csv (fsynced) and to the rows of this run."""
         self.rec.turn(row)
         turn.recorded = True
         self.rows.append(row)
         return row
-
-    def _abandon_turn(self, why: str) -> None:
-        """Record the turn in flight as interrupted (never silently lost)."""
-        turn = self.turn
-        assert turn is not None
-        self._end_phase()
-        self.answers.abandon()
-        turn.notes.append(why)
-        turn.success = None
-        self._record_row(turn, None, None)
-        self.rec.event("turn_interrupted", turn=turn.number, reason=why)
-        self.observer.notify("row", {**self.rows[-1], "total": self.total, "elapsed_s": round(self.elapsed_s(), 2)})
-        self._say_progress(f"turn {turn.number:3d}/{self.n_turns}  {why}")

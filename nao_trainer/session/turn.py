@@ -91,7 +91,13 @@ class SessionResult:
 
     @property
     def completed_rows(self) -> list[dict[str, Any]]:
-        return [r for r in self.rows if r["success"] in (True, False)]
+        """The turns that count: answered, and not marked invalid by the operator (as in ``nao-trainer study``)."""
+        return [r for r in self.rows if r["success"] in (True, False) and not r.get("invalid")]
+
+    @property
+    def invalid_rows(self) -> list[dict[str, Any]]:
+        """Answered turns the operator marked invalid: recorded, neither learned from nor counted."""
+        return [r for r in self.rows if r["success"] in (True, False) and r.get("invalid")]
 
     @property
     def total_score(self) -> int:
@@ -111,6 +117,16 @@ class SessionResult:
         values = [r["engagement"] for r in self.completed_rows if r["engagement"] is not None]
         return float(np.mean(values)) if values else None
 
+    @property
+    def eeg_on(self) -> bool:
+        """EEG was recorded (a turn says why it has no value otherwise than "EEG off")."""
+        return any(r.get("engagement_note") != "EEG off" for r in self.completed_rows)
+
+    @property
+    def eeg_turns(self) -> int:
+        """Counted turns with an engagement value (EEG present in the listening phase)."""
+        return sum(r["engagement"] is not None for r in self.completed_rows)
+
     def _no_engagement(self) -> str:
         """Why there is no mean engagement: EEG off, or the reason the turns give (EEG on, no value)."""
         notes = [r.get("engagement_note") or "no value" for r in self.completed_rows]
@@ -126,9 +142,12 @@ class SessionResult:
         for level, n, rate in self.level_table():
             lines.append(f"  {level}    {n:5d}    {'-' if rate is None else f'{rate:6.0%}'}")
         eng = self.mean_engagement
+        invalid = len(self.invalid_rows)
         lines += [
-            f"turns completed: {len(self.completed_rows)}   total score: {self.total_score}   "
-            f"mean engagement: {self._no_engagement() if eng is None else f'{eng:.2f}'}",
+            f"turns completed: {len(self.completed_rows)}" + (f" (+{invalid} marked invalid, not counted)" if invalid else "")
+            + f"   total score: {self.total_score}   "
+            f"mean engagement: {self._no_engagement() if eng is None else f'{eng:.2f}'}"
+            + (f" (EEG in {self.eeg_turns} of {len(self.completed_rows)} turns)" if self.eeg_on and eng is not None else ""),
             f"status: {self.status} (exit {self.exit_code})" + (f": {self.error}" if self.error else ""),
             *([self.summary_extra] if self.summary_extra else []),
             f"session folder: {self.path if self.path else '(none written)'}",
@@ -155,6 +174,7 @@ def summary_data(result: "SessionResult") -> dict[str, Any]:
     """The final summary as data (the console shows it)."""
     return {"status": result.status, "exit_code": result.exit_code, "total_score": result.total_score,
             "turns_completed": len(result.completed_rows), "mean_engagement": result.mean_engagement,
+            "eeg_turns": result.eeg_turns if result.eeg_on else None, "invalid_turns": len(result.invalid_rows),
             "levels": [{"level": lv, "played": n, "success_rate": rate} for lv, n, rate in result.level_table()],
             "error": result.error, "policy_summary": result.policy_summary}
 

@@ -10,7 +10,7 @@ import secrets
 import signal
 import sys
 import threading
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator, TextIO
@@ -19,22 +19,28 @@ import numpy as np
 
 from nao_trainer import __version__
 from nao_trainer.core.simulation import UserSimulator
-from nao_trainer.errors import ConfigError, DataError, Interrupted, RobotUnavailable, UserError
-from nao_trainer.files import PROJECT_ROOT, read_json, write_text_atomic
+from nao_trainer.answers.inputs import KeyboardAnswers, TactileAnswers
+from nao_trainer.answers.simulated import SimulatedParticipant, StandInButtons
+from nao_trainer.console.keys import KeyReader
+from nao_trainer.errors import ConfigError, EEGUnavailable, Interrupted, RobotUnavailable, UserError
+from nao_trainer.files import PROJECT_ROOT, write_text_atomic
 from nao_trainer.policies.factory import make_policy
-from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, Policy, Robot,
+from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, NullObserver, Policy, Robot,
                                RobotConnectionLost, SessionObserver)
+from nao_trainer.robot.address import redact_url
+from nao_trainer.robot.desktop import DesktopRobot
 from nao_trainer.session.behaviors import Behaviors, load_behaviors
-from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig, load_config
+from nao_trainer.session.check import check_disk, check_eeg, check_robot, plan_from_config
+from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig
 from nao_trainer.session.dialogue import Dialogue, load_dialogue
 from nao_trainer.session.participant import check_pseudonym, session_lock
 from nao_trainer.session.engine import EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session, who_stopped
-from nao_trainer.session.record import CHECKPOINT, CHECKPOINT_FORMAT, SessionRecorder, ensure_output_dir, read_turns, versions
+from nao_trainer.session.parts import Randomness, Script, SessionPorts
+from nao_trainer.session.record import SessionRecorder, ensure_output_dir, os_error_in, versions, write_failure
+from nao_trainer.session.resume import Resumption
 from nao_trainer.session.stage import leave_robot_safe
 from nao_trainer.session.turn import SessionResult, summary_data
 
-#: session.json statuses of a session that ended as planned: ``--resume`` refuses them.
-FINISHED = ("completed", "stopped", "time limit")
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 
@@ -122,7 +128,7 @@ def open_engagement_monitor(config: StudyConfig, session_dir: Path, rng: np.rand
 
 
 def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progress: TextIO | None = None,
-                resume: "Resumption | None" = None) -> SessionResult:
+                resume: Resumption | None = None) -> SessionResult:
     """Connect, play and record one session as the study says; returns its result.
 
     Raises ``UserError`` subclasses before anything is written (invalid files, robot unreachable:
@@ -148,6 +154,8 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
         # bound once the folder exists (_run_wired).
         policy = make_policy(config.policy, config.participant.pseudonym, config.output_dir(),
                              turns=config.session.turns, fresh=options.fresh_policy)
+        if resume is not None:
+            resume.check_policy(policy)  # a tampered learning state is refused before anything is written
         # Not closed on failure here: closing a learning policy saves it, and nothing is written before the robot answers.
         ensure_output_dir(config.output_dir())  # an unusable output folder is found before the robot moves
         preflight(config, progress)  # robot, disk and a required EEG stream, before any session folder exists
@@ -172,11 +180,8 @@ def preflight(config: StudyConfig, progress: TextIO | None) -> None:
     """The pre-session check (``session.check``) at the start of a run: a failed required check stops it
     with its own exit code before anything is written. EEG is judged here only when it is required (a
     missing optional stream is reported by the monitor, which then keeps looking)."""
-    from nao_trainer.errors import EEGUnavailable
-    from nao_trainer.session.check import check_disk, check_eeg, check_robot, plan_from_config
-
     plan = plan_from_config(config)
-    checks = [lambda: check_disk(plan.output_dir), lambda: check_robot(plan)]
+    checks = [lambda: check_disk(plan.output_dir, write_dirs=plan.write_dirs), lambda: check_robot(plan)]
     if config.eeg.mode == "lsl" and config.eeg.required:
         checks.append(lambda: check_eeg(plan, config.eeg.processing.window_s + 0.5))
     errors = {"robot": RobotUnavailable, "eeg": EEGUnavailable, "disk": UserError}
@@ -188,152 +193,233 @@ def preflight(config: StudyConfig, progress: TextIO | None) -> None:
             print(f"check: {result.line()}", file=progress, flush=True)
 
 
-def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue, behaviors: Behaviors, seed: int,
-               simulator: UserSimulator | None, policy: Policy, options: RunOptions, resume: "Resumption | None",
-               console_bind: str | None) -> SessionResult:
-    """``run_session`` once the files and the policy are loaded: connect, wire the ports, play, clean up."""
-    from nao_trainer.robot.naoqi import NaoqiRobot, redact_url
+@dataclass
+class _Outcome:
+    """How a wired session ended, filled in as it goes (the closers read it)."""
 
-    session_ss, policy_ss, participant_ss, eeg_ss = np.random.SeedSequence(seed).spawn(4)
-    input_kind = config.answers.input
-    speed = config.timing.speed
-    url = config.robot.url
-    standin = robot = recorder = monitor = answers = buttons = keys = console = None
-    policy_to_close: Policy | None = None  # closed (and a learning policy saved) only once the folder exists
+    seed: int
+    status: str = "error"
+    code: int = 1
+    error: str = ""
+    summary: str = ""  # what the policy concluded
     session: Session | None = None
-    status, code, error, summary = "error", 1, "", ""
-    commands = options.commands or CommandQueue()
-    result: SessionResult | None = None
+
+    def result(self, recorder: SessionRecorder) -> SessionResult:
+        session = self.session
+        return SessionResult(recorder.path, self.status, self.code, session.rows if session else [], self.seed,
+                             self.error, policy_summary=self.summary)
+
+
+def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue, behaviors: Behaviors, seed: int,
+               simulator: UserSimulator | None, policy: Policy, options: RunOptions, resume: Resumption | None,
+               console_bind: str | None) -> SessionResult:
+    """``run_session`` once the files and the policy are loaded: connect, wire the ports, play, clean up.
+
+    Every adapter is built inside one ``ExitStack``: it is closed in the reverse order of building,
+    whatever happens (the record is closed last but the stand-in, so every close is logged in it)."""
+    out = _Outcome(seed)
+    recorder = SessionRecorder(config.output_dir(), config.participant.pseudonym)
+    stack = ExitStack()
     try:
-        if url == MOCK:
-            from nao_trainer.robot.standin import StandIn
-
-            standin = StandIn.start("tcp://127.0.0.1:0", speed=speed)
-            connect_url = standin.url
-        else:
-            connect_url = url
-        if url == DESKTOP:
-            robot = _desktop_robot(input_kind, speed, progress)
-        else:
-            if progress:
-                print(f"connecting to the robot at {'the stand-in ' + connect_url if standin else redact_url(connect_url)} ...",
-                      file=progress, flush=True)
-            robot = NaoqiRobot.connect(connect_url, config.robot.connect_deadline_s, None,
-                                       debounce_s=config.answers.debounce_s / speed)
-        # Only now that the robot answered does anything get written.
-        recorder = SessionRecorder(config.output_dir(), config.participant.pseudonym)
-        if resume is None:
-            path = recorder.open({
-                "nao_trainer": __version__, "versions": versions(), "seed": seed,
-                "robot": "stand-in (in-process)" if standin else repr(robot) if url == DESKTOP else redact_url(url),
-                "input": input_kind, "policy": config.policy.kind,
-                "user_model": simulator.name if simulator else None,
-                "config": config.snapshot(), "argv": sys.argv[1:],
-            })
-        else:
-            path = recorder.reopen(resume.folder, {"after_turn": resume.checkpoint["completed"], "argv": sys.argv[1:]})
-            resume.recover_row(recorder)
-        if progress:
-            print(f"session folder: {path}" + (f" (resumed after turn {resume.checkpoint['completed']})" if resume else ""),
-                  file=progress, flush=True)
-        if url == DESKTOP:
-            robot.record_audio_to(path / "audio")
-        policy_state = _policy_state(policy, config, options.fresh_policy, progress)
-        observer = options.observer
-        if console_bind is not None:
-            try:
-                from nao_trainer.console.server import Console
-            except ImportError as exc:
-                raise ConfigError(f"--console needs the console extra ({exc}); install it with "
-                                  "pip install -e '.[console]'") from None
-
-            console = Console.start(commands, console_bind, options.console_port if options.console_port is not None
-                                    else config.console.port, recorder.event)
-            observer = console.hub if observer is None else _Both(console.hub, observer)
-            recorder.event("console", url=console.url, bind=console_bind)  # never the token
-            if progress:
-                if console_bind not in LOOPBACK:
-                    print(f"warning: the console listens on {console_bind}: anyone who can reach this address "
-                          "and has the link can steer the session", file=progress, flush=True)
-                print(f"console: {console.link} (open it in a browser on this machine)", file=progress, flush=True)
-        monitor = open_engagement_monitor(config, path, np.random.default_rng(eeg_ss))
-        if config.eeg.mode != "off" and progress:  # which headband this session listens to (events.jsonl too)
-            print(f"EEG ({config.eeg.mode}): {monitor.describe()}", file=progress, flush=True)
-        participant_rng = np.random.default_rng(participant_ss)
-        answers, buttons = _make_answers(config, robot, standin, connect_url, simulator, monitor, participant_rng,
-                                         progress)
-        policy_rng = np.random.default_rng(policy_ss)
-        policy.bind_state_dir(path)
-        policy_to_close = policy
-        if options.keys and input_kind != "keyboard":
-            from nao_trainer.console.keys import KeyReader
-
-            keys = KeyReader.start_if_terminal(commands, progress)
-        session = Session(config, robot, answers, policy, recorder, dialogue, behaviors, np.random.default_rng(session_ss),
-                          policy_rng, monitor, progress, commands=commands, observer=observer,
-                          rngs={"participant": participant_rng},
-                          resume=None if resume is None else dict(resume.checkpoint, rows_before=resume.rows),
-                          policy_state=policy_state)
-        if console is not None:
-            console.hub.set_sources(eeg=monitor.live, elapsed=session.elapsed_s)
-        try:
-            code = session.run()
-        except (KeyboardInterrupt, Interrupted) as exc:
-            session.interrupted_by_operator(who_stopped(exc))
-            code = EXIT_INTERRUPTED
-        status, error = session.status, session.error
+        _play(stack, out, recorder, config, progress, dialogue, behaviors, simulator, policy, options, resume,
+              console_bind)
     except (KeyboardInterrupt, Interrupted):
-        status, code = "interrupted", EXIT_INTERRUPTED
+        out.status, out.code = "interrupted", EXIT_INTERRUPTED
     except RobotConnectionLost as exc:  # dropped while setting up (buttons): nothing was played yet
-        status, code, error = "robot lost", EXIT_ROBOT_LOST, str(exc)
+        out.status, out.code, out.error = "robot lost", EXIT_ROBOT_LOST, str(exc)
         raise RobotUnavailable(f"lost the robot while starting the session: {exc}") from None
-    except UserError as exc:  # e.g. a required EEG stream missing: recorded, then reported by the CLI
-        status, code, error = "error", exc.exit_code, str(exc)
-        raise
     except Exception as exc:
-        error = f"{type(exc).__name__}: {exc}"
+        failed = os_error_in(exc)  # a write failed (full disk, read-only, too many open files), maybe wrapped
+        if failed is not None:
+            error = write_failure(failed, recorder.path)
+            out.status, out.code, out.error = "error", error.exit_code, str(error)
+            raise error from None
+        if isinstance(exc, UserError):  # e.g. a required EEG stream missing: recorded, then reported by the CLI
+            out.status, out.code, out.error = "error", exc.exit_code, str(exc)
+        else:
+            out.error = f"{type(exc).__name__}: {exc}"
         raise
     finally:
-        with _no_interrupts():
-            if keys is not None:
-                keys.close()  # the terminal is restored first, whatever happens next
-            if session is not None and status != "completed":
-                session.leave_safe()
-            elif session is None and robot is not None and status != "completed":
-                leave_robot_safe(robot, behaviors, config.robot.posture_speed, recorder)
-            for closer in (answers, policy_to_close, monitor, buttons):
-                _close_quietly(closer, recorder)
-            if robot is not None:
-                _close_quietly(robot, recorder)
-            if session is not None and session.completed:
-                summary = str(policy.status().get("summary", ""))  # e.g. the user model the participant matched
-            if recorder is not None and recorder.is_open:
-                if standin is not None:
-                    _write_transcript(recorder.path, standin.transcript(), append=resume is not None)
-                if summary:
-                    recorder.event("policy_summary", summary=summary)
-                recorder.close(status, code, total_score=session.total if session else 0, error=error,
-                               policy_summary=summary or None)
-            if standin is not None:
-                standin.stop()
-            result = SessionResult(recorder.path if recorder else None, status, code, session.rows if session else [],
-                                   seed, error, policy_summary=summary)
-            if console is not None:
-                console.hub.notify("summary", summary_data(result))
-                console.stop()
-    assert result is not None
-    return result
+        with _no_interrupts():  # shutdown must finish
+            stack.close()
+    return out.result(recorder)
 
 
-class _Both:
-    """Two observers (the console and a program's own)."""
+def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: StudyConfig, progress: TextIO | None,
+          dialogue: Dialogue, behaviors: Behaviors, simulator: UserSimulator | None, policy: Policy,
+          options: RunOptions, resume: Resumption | None, console_bind: str | None) -> None:
+    """Build the adapters in order, each one's closer pushed on ``stack`` as soon as it exists; play."""
+    session_ss, policy_ss, participant_ss, eeg_ss = np.random.SeedSequence(out.seed).spawn(4)
+    standin = _start_standin(stack, config)
+    stack.callback(_close_record, recorder, out, policy, standin, resume is not None)
+    connect_url = standin.url if standin else config.robot.url
+    robot = _connect_robot(config, connect_url, standin is not None, progress)
+    stack.callback(_close_quietly, robot, recorder, out)
+    stack.callback(_leave_robot_safe, out, robot, behaviors, config, recorder)
+    commands = options.commands if options.commands is not None else CommandQueue()  # an empty queue is falsy
+    # The console's port is taken before the folder exists: a port in use leaves no empty session folder.
+    observer = _start_console(stack, out, recorder, config, options, commands, console_bind, progress) \
+        if console_bind is not None else options.observer
+    # Only now that the robot answered (and the console listens) does anything get written.
+    path = _open_record(recorder, config, out.seed, robot, standin is not None, simulator, resume, progress)
+    if config.robot.url == DESKTOP:
+        robot.record_audio_to(path / "audio")
+    policy_state = _policy_state(policy, config, options.fresh_policy, progress)
+    monitor = open_engagement_monitor(config, path, np.random.default_rng(eeg_ss))
+    stack.callback(_close_quietly, monitor, recorder, out)
+    if config.eeg.mode != "off" and progress:  # which headband this session listens to (events.jsonl too)
+        print(f"EEG ({config.eeg.mode}): {monitor.describe()}", file=progress, flush=True)
+    participant_rng = np.random.default_rng(participant_ss)
+    answers, buttons = _make_answers(config, robot, standin, connect_url, simulator, monitor, participant_rng, progress)
+    stack.callback(_close_quietly, buttons, recorder, out)
+    stack.callback(_close_quietly, answers, recorder, out)
+    policy.bind_state_dir(path)
+    stack.callback(_close_policy, policy, out, recorder)  # closed (a learning policy saved) once the folder exists
+    ports = SessionPorts(robot, answers, policy, monitor, commands, observer or NullObserver())
+    session = Session(config, ports, recorder, Script(dialogue, behaviors),
+                      Randomness(np.random.default_rng(session_ss), np.random.default_rng(policy_ss),
+                                 {"participant": participant_rng}),
+                      progress=progress, resume=None if resume is None else dict(resume.checkpoint, rows_before=resume.rows),
+                      policy_state=policy_state)
+    out.session = session
+    stack.callback(_leave_session_safe, out)
+    if options.keys and config.answers.input != "keyboard":
+        keys = KeyReader.start_if_terminal(commands, progress)
+        stack.callback(_close_quietly, keys, recorder, out)  # the terminal is restored first, whatever happens next
+    if isinstance(observer, _ConsoleObserver):
+        observer.console.hub.set_sources(eeg=monitor.live, elapsed=session.elapsed_s)
+    try:
+        out.code = session.run()
+    except (KeyboardInterrupt, Interrupted) as exc:
+        session.interrupted_by_operator(who_stopped(exc))
+        out.code = EXIT_INTERRUPTED
+    out.status, out.error = session.status, session.error
 
-    def __init__(self, a: SessionObserver, b: SessionObserver) -> None:
-        self.a, self.b = a, b
+
+def _start_standin(stack: ExitStack, config: StudyConfig) -> Any:
+    """The in-process stand-in of ``--robot mock`` (None otherwise); stopped last of all."""
+    if config.robot.url != MOCK:
+        return None
+    from nao_trainer.robot.standin import StandIn  # heavy: qi
+
+    standin = StandIn.start("tcp://127.0.0.1:0", speed=config.timing.speed)
+    stack.callback(standin.stop)
+    return standin
+
+
+def _connect_robot(config: StudyConfig, url: str, standin: bool, progress: TextIO | None) -> Robot:
+    if config.robot.url == DESKTOP:
+        return _desktop_robot(config.answers.input, config.timing.speed, progress)
+    from nao_trainer.robot.naoqi import NaoqiRobot  # heavy: qi
+
+    if progress:
+        print(f"connecting to the robot at {'the stand-in ' + url if standin else redact_url(url)} ...",
+              file=progress, flush=True)
+    return NaoqiRobot.connect(url, config.robot.connect_deadline_s, None,
+                              debounce_s=config.answers.debounce_s / config.timing.speed)
+
+
+def _open_record(recorder: SessionRecorder, config: StudyConfig, seed: int, robot: Robot, standin: bool,
+                 simulator: UserSimulator | None, resume: Resumption | None, progress: TextIO | None) -> Path:
+    """Create the session folder (or reopen the resumed one); returns its path."""
+    url = config.robot.url
+    if resume is None:
+        if standin:
+            shown = "stand-in (in-process)"
+        elif url == DESKTOP:
+            shown = repr(robot)
+        else:
+            shown = redact_url(url)
+        path = recorder.open({
+            "nao_trainer": __version__, "versions": versions(), "seed": seed, "robot": shown,
+            "input": config.answers.input, "policy": config.policy.kind,
+            "user_model": simulator.name if simulator else None,
+            "config": config.snapshot(), "argv": sys.argv[1:],
+        })
+    else:
+        path = recorder.reopen(resume.folder, {"after_turn": resume.checkpoint["completed"], "argv": sys.argv[1:]})
+        resume.recover_row(recorder)
+    if progress:
+        print(f"session folder: {path}" + (f" (resumed after turn {resume.checkpoint['completed']})" if resume else ""),
+              file=progress, flush=True)
+    return path
+
+
+@dataclass
+class _ConsoleObserver:
+    """The console's hub, and a program's own observer when there is one."""
+
+    console: Any
+    other: SessionObserver | None
 
     def notify(self, kind: str, data: dict) -> None:
-        self.a.notify(kind, data)
-        self.b.notify(kind, data)
+        self.console.hub.notify(kind, data)
+        if self.other is not None:
+            self.other.notify(kind, data)
+
+
+def _start_console(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: StudyConfig,
+                   options: RunOptions, commands: CommandQueue, bind: str, progress: TextIO | None) -> _ConsoleObserver:
+    """Serve the supervisor console; at the end it shows the summary, then stops."""
+    try:
+        from nao_trainer.console.server import Console
+    except ImportError as exc:
+        raise ConfigError(f"--console needs the console extra ({exc}); install it with "
+                          "pip install -e '.[console]'") from None
+    port = options.console_port if options.console_port is not None else config.console.port
+    console = Console.start(commands, bind, port, recorder.event)
+    stack.callback(_stop_console, console, out, recorder)
+    recorder.event("console", url=console.url, bind=bind)  # never the token
+    if progress:
+        if bind not in LOOPBACK:
+            print(f"warning: the console listens on {bind}: anyone who can reach this address "
+                  "and has the link can steer the session", file=progress, flush=True)
+        print(f"console: {console.link} (open it in a browser on this machine)", file=progress, flush=True)
+    return _ConsoleObserver(console, options.observer)
+
+
+# -- closers (each pushed on the stack by the step that built its resource) -----------------------
+
+
+def _stop_console(console: Any, out: _Outcome, recorder: SessionRecorder) -> None:
+    console.hub.notify("summary", summary_data(out.result(recorder)))
+    console.stop()
+
+
+def _leave_session_safe(out: _Outcome) -> None:
+    if out.session is not None and out.status != "completed":
+        out.session.leave_safe()
+
+
+def _leave_robot_safe(out: _Outcome, robot: Robot, behaviors: Behaviors, config: StudyConfig,
+                      recorder: SessionRecorder) -> None:
+    """Safe posture when no session was built to do it (a failure while setting up)."""
+    if out.session is None and out.status != "completed":
+        leave_robot_safe(robot, behaviors, config.robot.posture_speed, recorder)
+
+
+def _close_policy(policy: Policy, out: _Outcome, recorder: SessionRecorder) -> None:
+    """Close the policy (a learning one saves its state), then read what it concluded."""
+    _close_quietly(policy, recorder, out)
+    if out.session is not None and out.session.completed:
+        out.summary = str(policy.status().get("summary", ""))  # e.g. the user model the participant matched
+
+
+def _close_record(recorder: SessionRecorder, out: _Outcome, policy: Policy, standin: Any, resumed: bool) -> None:
+    """The final session.json (status, exit code, why), after every other close was logged."""
+    if not recorder.is_open:
+        return
+    if standin is not None:
+        try:
+            _write_transcript(recorder.path, standin.transcript(), append=resumed)
+        except OSError as exc:  # the session's own failure (if any) is what gets reported
+            recorder.event("close_failed", what="robot_transcript.jsonl", error=str(exc))
+    if out.summary:
+        recorder.event("policy_summary", summary=out.summary)
+    result = out.result(recorder)
+    recorder.close(out.status, out.code, total_score=out.session.total if out.session else 0, error=out.error,
+                   policy_summary=out.summary or None,
+                   eeg_turns=result.eeg_turns if result.eeg_on else None)  # how many counted turns had EEG
 
 
 def _policy_state(policy: Policy, config: StudyConfig, fresh: bool, progress: TextIO | None) -> dict[str, Any] | None:
@@ -351,77 +437,8 @@ def _policy_state(policy: Policy, config: StudyConfig, fresh: bool, progress: Te
             "turns_learned": policy.payload["live"]["turns_learned"]}
 
 
-# ----------------------------------------------------------------------------------------------
-# Resuming an interrupted session (run --resume)
-# ----------------------------------------------------------------------------------------------
-
-
-@dataclass
-class Resumption:
-    """What ``prepare_resume`` found in an interrupted session folder."""
-
-    folder: Path
-    seed: int
-    checkpoint: dict[str, Any]
-    rows: list[dict[str, Any]]  # completed rows already on disk, typed like the session's own
-    missing_row: dict[str, Any] | None  # the checkpoint's row when a kill came between the two writes
-
-    def recover_row(self, recorder: SessionRecorder) -> None:
-        if self.missing_row is not None:
-            recorder.turn(self.missing_row)
-            recorder.event("row_recovered", turn=self.missing_row["turn"], source=CHECKPOINT)
-            self.rows.append(self.missing_row)
-
-
-def prepare_resume(folder: Path) -> tuple[StudyConfig, Resumption]:
-    """The configuration and state to continue ``folder``; ``DataError`` in one line when it cannot be resumed."""
-    folder = Path(folder).resolve()
-    fix = "start a new session instead"
-    if not (folder / "session.json").is_file():
-        raise DataError(f"{folder}: not a session folder (no session.json); give the folder a session wrote")
-    info = read_json(folder / "session.json", DataError)
-    status = info.get("status")
-    if status in FINISHED:
-        raise DataError(f"{folder}: the session is complete (status {status!r}); nothing to resume, {fix}")
-    if info.get("nao_trainer") != __version__:
-        raise DataError(f"{folder}: written by nao-trainer {info.get('nao_trainer')}, this is {__version__}; "
-                        f"resume it with that version or {fix}")
-    checkpoint = read_json(folder / CHECKPOINT, DataError,
-                           "no completed turn to resume from (no checkpoint)", fix)
-    if checkpoint.get("format") != CHECKPOINT_FORMAT:
-        raise DataError(f"{folder / CHECKPOINT}: unknown format {checkpoint.get('format')!r}; {fix}")
-    snap = info.get("config") or {}
-    sources = snap.get("sources") or []
-    if not sources:
-        raise DataError(f"{folder}/session.json: no configuration snapshot; {fix}")
-    config = load_config(sources[-1], snap.get("overrides") or {}, default=sources[0])
-    if config.text_sha256 != snap.get("sha256") or config.values != snap.get("values"):
-        changed = ", ".join(sources)
-        raise DataError(f"{folder}: the configuration changed since the session started (hash of {changed} "
-                        f"and the session's flags differs from session.json); restore those files or {fix}")
-    if int(checkpoint["completed"]) >= config.session.turns:
-        raise DataError(f"{folder}: all {config.session.turns} turns are recorded; nothing to resume, {fix}")
-    rows = [_typed_row(r) for r in read_turns(folder) if r["success"] in ("True", "False")]
-    last = max((int(r["turn"]) for r in rows), default=0)
-    missing = checkpoint["row"] if last < int(checkpoint["completed"]) else None
-    return config, Resumption(folder, int(info["seed"]), checkpoint, rows, missing)
-
-
-def _typed_row(row: dict[str, str]) -> dict[str, Any]:
-    """A turns.csv row read back with the types the session's own rows have (for its summary)."""
-    def num(v: str, kind: type) -> Any:
-        return None if v in ("", None) else kind(v)
-
-    out: dict[str, Any] = dict(row)
-    out.update(turn=int(row["turn"]), level=int(row["level"]), feedback=int(row["feedback"]),
-               success=row["success"] == "True", score=num(row["score"], int), engagement=num(row["engagement"], float))
-    return out
-
-
 def _desktop_robot(input_kind: str, speed: float, progress: TextIO | None) -> Robot:
     """The laptop as the robot (``--robot desktop``); refuses head-button answers it cannot give."""
-    from nao_trainer.robot.desktop import DesktopRobot
-
     if input_kind == "tactile":
         raise ConfigError("--robot desktop has no head buttons: answer with --input keyboard (or simulated)")
     robot = DesktopRobot.start(speed)
@@ -434,9 +451,6 @@ def _desktop_robot(input_kind: str, speed: float, progress: TextIO | None) -> Ro
 def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, simulator: UserSimulator | None,
                   monitor: EngagementMonitor, rng: np.random.Generator,
                   progress: TextIO | None = None) -> tuple[AnswerSource, Any]:
-    from nao_trainer.answers.inputs import KeyboardAnswers, TactileAnswers
-    from nao_trainer.answers.simulated import SimulatedParticipant, StandInButtons
-
     speed = config.timing.speed
     debounce, grace = config.answers.debounce_s / speed, config.timing.grace_s / speed
     kind = config.answers.input
@@ -457,13 +471,15 @@ def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, sim
                                 min_gap_s=max(0.3, 4 * config.answers.debounce_s)), buttons
 
 
-def _close_quietly(obj: Any, recorder: SessionRecorder | None) -> None:
+def _close_quietly(obj: Any, recorder: SessionRecorder | None, out: "_Outcome | None" = None) -> None:
+    """Close ``obj``; a failure is logged and (unless the session already failed, and says why) warned about."""
     if obj is None or not hasattr(obj, "close"):
         return
     try:
         obj.close()
     except Exception as exc:  # noqa: BLE001 - one failing close must not skip the others
-        print(f"nao-trainer: warning: closing {type(obj).__name__} failed: {exc}", file=sys.stderr)
+        if out is None or out.status != "error":
+            print(f"nao-trainer: warning: closing {type(obj).__name__} failed: {exc}", file=sys.stderr)
         if recorder is not None and recorder.is_open:
             recorder.event("close_failed", what=type(obj).__name__, error=str(exc))
 

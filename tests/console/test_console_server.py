@@ -132,3 +132,11 @@ def test_ctrl_c_still_reaches_the_session_with_the_console_running(tmp_path):
     finally:
         proc.kill()
     assert proc.returncode == 130 and "status: interrupted (exit 130)" in out
+
+
+def test_the_eeg_alert_is_kept_for_viewers_that_connect_later():
+    hub = ConsoleHub()
+    hub.notify("eeg", {"missing_turns": 3, "turn": 4, "reason": "EEG stream lost"})
+    assert hub.state["eeg_missing"] == {"missing_turns": 3, "turn": 4, "reason": "EEG stream lost"}
+    hub.notify("eeg", {"missing_turns": 0, "turn": 6})  # back
+    assert hub.state["eeg_missing"] is None

@@ -148,6 +148,10 @@ def test_study_table_and_figure(study, tmp_path, capsys):
             got = r[f"success_L{level}"]
             assert (got == "") if not played else abs(float(got) - sum(played) / len(played)) < 1e-4
     assert rows[2]["engagement"] == "" and float(rows[0]["engagement"]) > 0
+    # how many turns had EEG: as many as have an engagement value (0 for the session with EEG off)
+    for r in rows:
+        turns = _rows(study / r["session"] / "turns.csv")
+        assert int(r["eeg_turns"]) == (0 if r["engagement"] == "" else sum(t["engagement"] != "" for t in turns))
     assert (tmp_path / "study.png").stat().st_size > 10_000
 
 

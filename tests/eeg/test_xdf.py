@@ -89,3 +89,68 @@ def test_no_stream_or_no_engine_is_one_line(tmp_path, monkeypatch):
     monkeypatch.setattr(xdf, "available", lambda: False)
     with pytest.raises(xdf.XdfUnavailable, match=r"pip install 'nao-trainer\[xdf\]'"):
         xdf.XdfRecorder.start(tmp_path / "x.xdf", ["a"])
+
+
+def _recorders_of(out: str) -> list[int]:
+    """Process ids of recorder children writing ``out`` (read from /proc: no dependency on the parent's objects)."""
+    pids = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                cmd = open(f"/proc/{entry}/cmdline", "rb").read().split(b"\0")
+            except OSError:
+                continue
+            if b"nao_trainer.eeg.xdf" in cmd and out.encode() in cmd:
+                pids.append(int(entry))
+    return pids
+
+
+def _gone(out: str, limit_s: float = 60.0) -> bool:
+    """Wait (an event, with a generous limit) for every recorder of ``out`` to end."""
+    deadline = time.monotonic() + limit_s
+    while time.monotonic() < deadline:
+        if not _recorders_of(out):
+            return True
+        time.sleep(0.1)
+    return False
+
+
+def test_an_interrupted_start_up_never_leaves_the_recorder_behind(tmp_path):
+    """SIGTERM (Interrupted) while start() waits for the recorder: the child is killed before the exception goes on."""
+    from nao_trainer.errors import Interrupted
+
+    out = tmp_path / "session.xdf"
+    seen = []
+
+    def ready() -> bool:
+        raise Interrupted("SIGTERM")
+
+    original = xdf.XdfRecorder._recording
+    try:
+        xdf.XdfRecorder._recording = lambda self: seen.append(self.process.pid) or True  # ask ready() at once
+        with pytest.raises(Interrupted):
+            xdf.XdfRecorder.start(out, [_uid("absent")], ready=ready, resolve_s=600.0)
+    finally:
+        xdf.XdfRecorder._recording = original
+    assert seen and _gone(str(out))
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/cmdline"), reason="needs Linux /proc")
+def test_the_recorder_dies_with_a_session_killed_during_eeg_start_up(tmp_path):
+    """SIGKILL of the session while the recorder still looks for its streams (600 s): it ends with it."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "session.xdf"
+    code = ("import sys; from nao_trainer.eeg import xdf; "
+            f"xdf.XdfRecorder.start({str(out)!r}, ['absent-{uuid.uuid4().hex}'], timeout_s=600, resolve_s=600)")
+    session = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while not _recorders_of(str(out)) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert _recorders_of(str(out)), "the recorder did not start"
+    finally:
+        session.kill()
+        session.wait(10)
+    assert _gone(str(out)), "the recorder outlived its session"

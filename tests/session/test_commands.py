@@ -17,6 +17,7 @@ from nao_trainer.session.behaviors import load_behaviors
 from nao_trainer.session.config import load_config
 from nao_trainer.session.dialogue import load_dialogue
 from nao_trainer.session.engine import EXIT_OK, EXIT_OPERATOR_STOP, Session
+from nao_trainer.session.parts import Randomness, Script, SessionPorts
 from nao_trainer.session.machine import TRANSITIONS
 from nao_trainer.policies.fixed import FixedSchedule
 from nao_trainer.session.record import SessionRecorder, read_events, read_turns
@@ -78,10 +79,10 @@ def make(tmp_path: Path, robot=None, answers=None, turns=3, schedule=("L1", "L2"
     queue = CommandQueue()
     monitor = MarkingMonitor()
     clock = FakeTime()
-    s = Session(cfg, robot or HookedRobot(), answers or ScriptedAnswers(), policy or CountingSchedule(list(schedule)),
-                rec, load_dialogue(cfg.session.dialogue_path), load_behaviors(cfg.session.behaviors_path),
-                np.random.default_rng(1), np.random.default_rng(2), monitor=monitor, progress=None, sleep=clock.sleep,
-                commands=queue)
+    ports = SessionPorts(robot or HookedRobot(), answers or ScriptedAnswers(),
+                         policy or CountingSchedule(list(schedule)), monitor, queue)
+    s = Session(cfg, ports, rec, Script(load_dialogue(cfg.session.dialogue_path), load_behaviors(cfg.session.behaviors_path)),
+                Randomness(np.random.default_rng(1), np.random.default_rng(2)), progress=None, sleep=clock.sleep)
     s.clock.now = clock.now
     return s, rec, path, queue, monitor
 
@@ -138,7 +139,7 @@ def test_override_plays_the_chosen_action_and_the_policy_learns_from_it(tmp_path
     rows = read_turns(path)
     assert [r["action"] for r in rows] == ["L4", "L1", "L2"]  # the schedule goes on from where it was
     assert rows[0]["notes"] == "operator chose L4" and rows[0]["level"] == "4"
-    assert s.policy.observed[0].action == mdp.ACTION_NAMES.index("L4")  # off-policy: the played action is learned
+    assert s.ports.policy.observed[0].action == mdp.ACTION_NAMES.index("L4")  # off-policy: the played action is learned
 
 
 def test_an_override_not_allowed_in_the_state_is_refused_and_the_policy_plays(tmp_path):
@@ -159,7 +160,7 @@ def test_mark_invalid_keeps_the_row_and_the_learner_does_not_see_the_turn(tmp_pa
     rows = read_turns(path)
     assert [r["invalid"] for r in rows] == ["", "True", ""]
     assert rows[1]["success"] == "True" and "invalid (console): door opened" in rows[1]["notes"]
-    assert [t.action for t in s.policy.observed] == [0, 2]  # turns 1 and 3 only
+    assert [t.action for t in s.ports.policy.observed] == [0, 2]  # turns 1 and 3 only
     assert any(e["event"] == "not_learned" and e["turn"] == 2 for e in read_events(path))
 
 
@@ -176,7 +177,7 @@ def test_a_recorded_turn_cannot_be_marked_invalid(tmp_path):
 def test_repeat_between_turns_replays_the_last_action_and_mid_turn_replays_the_turn(tmp_path):
     robot = HookedRobot()
     s, rec, path, q, _ = make(tmp_path, robot, turns=4, schedule=("L1", "L2", "L3", "L4"))
-    answers = s.answers
+    answers = s.ports.answers
     answers.on_collect = lambda ctx: ctx.turn == 1 and q.submit("repeat")  # held until turn 1 is recorded
     robot.hooks["Level 2."] = [lambda: q.submit("repeat")]  # turn 3 (L2) in flight
     assert run(s, rec) == EXIT_OK

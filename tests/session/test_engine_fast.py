@@ -16,6 +16,7 @@ from nao_trainer.session.config import load_config
 from nao_trainer.session.dialogue import load_dialogue
 from nao_trainer.session.engine import EXIT_INTERRUPTED, EXIT_OK, EXIT_ROBOT_LOST, Session
 from nao_trainer.policies.fixed import FixedSchedule
+from nao_trainer.session.parts import Randomness, Script, SessionPorts
 from nao_trainer.session.record import SessionRecorder, read_events, read_turns
 
 
@@ -35,9 +36,9 @@ def make_session(tmp_path: Path, robot: FakeRobot, answers: ScriptedAnswers | No
     rec = SessionRecorder(tmp_path, "F")
     path = rec.open({})
     sleeps = Sleeps()
-    session = Session(cfg, robot, answers or ScriptedAnswers(), FixedSchedule(list(schedule)), rec,
-                      load_dialogue(cfg.session.dialogue_path), load_behaviors(cfg.session.behaviors_path),
-                      np.random.default_rng(1), np.random.default_rng(2), progress=None, sleep=sleeps)
+    session = Session(cfg, SessionPorts(robot, answers or ScriptedAnswers(), FixedSchedule(list(schedule))), rec,
+                      Script(load_dialogue(cfg.session.dialogue_path), load_behaviors(cfg.session.behaviors_path)),
+                      Randomness(np.random.default_rng(1), np.random.default_rng(2)), progress=None, sleep=sleeps)
     return session, rec, path, sleeps
 
 

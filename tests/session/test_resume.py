@@ -1,6 +1,8 @@
 """`nao-trainer run --resume SESSION_DIR`: a session killed with SIGKILL continues as if never interrupted."""
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 import shutil
@@ -10,11 +12,14 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from nao_trainer.errors import DataError
-from nao_trainer.session.record import read_events, read_turns
-from nao_trainer.session.wiring import prepare_resume
+from nao_trainer.errors import DataError, Interrupted
+from nao_trainer.session.config import DEFAULT_CONFIG, load_config
+from nao_trainer.session.record import CHECKPOINT, read_events, read_turns
+from nao_trainer.session.resume import prepare_resume
+from nao_trainer.session.wiring import RunOptions, run_session
 
 ROOT = Path(__file__).resolve().parents[2]
 TIMING = {"start_time", "reaction_time", "completion_time"}  # wall-clock columns differ between runs
@@ -110,3 +115,121 @@ def test_a_folder_without_a_completed_turn_or_session_json_is_refused(tmp_path):
     (tmp_path / "session.json").write_text(json.dumps({"status": "interrupted", "nao_trainer": __import__("nao_trainer").__version__}))
     with pytest.raises(DataError, match="no completed turn to resume from"):
         prepare_resume(tmp_path)
+
+
+# -- in-process: an interrupted session, then a torn row or a tampered checkpoint ---------------------------------
+
+
+class InterruptAfter:
+    """An observer that stops the session like SIGTERM once ``n`` turns are recorded (status "interrupted")."""
+
+    def __init__(self, n: int) -> None:
+        self.n, self.rows = n, 0
+
+    def notify(self, kind: str, data: dict) -> None:
+        if kind == "row" and data.get("success") is not None:
+            self.rows += 1
+            if self.rows == self.n:
+                raise Interrupted("SIGTERM")
+
+
+@pytest.fixture(scope="module")
+def interrupted(tmp_path_factory) -> Path:
+    """A usp:2 session of 6 turns interrupted after turn 3 (learning state per participant)."""
+    out = tmp_path_factory.mktemp("interrupted")
+    cfg = load_config(DEFAULT_CONFIG, {"session.turns": 6, "timing.speed": 50.0, "session.output": str(out),
+                                       "eeg.mode": "off", "session.practice": False, "participant.pseudonym": "T",
+                                       "policy.kind": "usp:2", "session.seed": 8})
+    result = run_session(cfg, RunOptions(quiet=True, observer=InterruptAfter(3)))
+    assert result.status == "interrupted" and len(read_turns(result.path)) == 3
+    return result.path
+
+
+def copy_of(folder: Path, tmp_path: Path) -> Path:
+    target = tmp_path / "session" / folder.name
+    shutil.copytree(folder, target)
+    shutil.copytree(folder.parent / "participants", tmp_path / "session" / "participants")
+    return target
+
+
+@pytest.mark.parametrize("cut", list(np.random.default_rng(17).integers(30, 91, size=3)))
+def test_resume_after_a_torn_last_row_drops_the_tail_before_appending(interrupted, tmp_path, cut):
+    folder = copy_of(interrupted, tmp_path)
+    data = (folder / "turns.csv").read_bytes()
+    (folder / "turns.csv").write_bytes(data[:-int(cut)])  # a kill in the middle of the last row
+    cfg, resumption = prepare_resume(folder)
+    assert resumption.missing_row is not None and resumption.missing_row["turn"] == 3  # from the checkpoint
+    result = run_session(cfg, RunOptions(quiet=True), resume=resumption)
+    assert result.exit_code == 0
+    rows = read_turns(folder)
+    assert [r["turn"] for r in rows] == ["1", "2", "3", "4", "5", "6"]
+    assert all(None not in r.values() and None not in r for r in rows)  # every row whole, none glued to another
+    assert any(e["event"] == "torn_row_dropped" for e in read_events(folder))
+
+
+#: Tampered checkpoint.json / session.json / turns.csv: each must be refused in one line (exit 2).
+TAMPER_KEYS = ("completed", "total", "mdp_state", "last_success", "elapsed_s", "row", "rng", "policy")
+BAD_VALUES = {
+    "completed": [0, 20, 999, "3", None, 2.5, 5], "total": [1000000, -1000000, "x", None],
+    "mdp_state": [999, -1, 108, "L1", None], "last_success": ["yes", None, 1], "elapsed_s": [-1, "x", None, float("nan")],
+    "row": [None, [], {"turn": 99}, "row"], "rng": [None, [], {"session": "garbage", "policy": {}}, {}],
+    "policy": [None, [], {}, {"q": "x"}, {"q": [[1]], "h": [], "h_counts": [], "visits": [], "live": {}, "guided": []}],
+    "override": [99, "L1", -1], "learn": ["x", {"state": 1}],
+}
+
+
+def tamper(folder: Path, rng: np.random.Generator) -> str:
+    cp_path, info_path = folder / CHECKPOINT, folder / "session.json"
+    cp = json.loads(cp_path.read_text())
+    kind = rng.choice(["drop", "value", "value", "value", "file"])
+    if kind == "drop":
+        key = str(rng.choice(TAMPER_KEYS))
+        del cp[key]
+        cp_path.write_text(json.dumps(cp))
+        return f"no {key}"
+    if kind == "value":
+        key = str(rng.choice(sorted(BAD_VALUES)))
+        value = BAD_VALUES[key][int(rng.integers(len(BAD_VALUES[key])))]
+        cp[key] = value
+        cp_path.write_text(json.dumps(cp))
+        return f"{key}={value!r}"
+    what = str(rng.choice(["no turns.csv", "checkpoint []", "seed x", "no config", "garbage row"]))
+    if what == "no turns.csv":
+        (folder / "turns.csv").unlink()
+    elif what == "checkpoint []":
+        cp_path.write_text("[]")
+    elif what == "garbage row":
+        lines = (folder / "turns.csv").read_text().splitlines(keepends=True)
+        lines.insert(2, "x,y,z,1,2\r\n")
+        (folder / "turns.csv").write_text("".join(lines))
+    else:
+        info = json.loads(info_path.read_text())
+        if what == "seed x":
+            info["seed"] = "x"
+        else:
+            info["config"] = []
+        info_path.write_text(json.dumps(info, indent=2))
+    return what
+
+
+def test_a_tampered_checkpoint_is_refused_in_one_line_and_the_session_keeps_its_status(interrupted, tmp_path):
+    """A seeded fuzz of checkpoints (like the config fuzz): exit 2, one line, no traceback, session.json untouched."""
+    from nao_trainer.cli import main
+
+    rng = np.random.default_rng(2026)
+    for i in range(30):
+        folder = copy_of(interrupted, tmp_path / str(i))
+        what = tamper(folder, rng)
+        before = (folder / "session.json").read_bytes()
+        err = io.StringIO()
+        try:
+            with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+                code = main(["run", "--resume", str(folder), "--quiet"])
+        except BaseException as exc:  # noqa: BLE001 - what the fuzz looks for
+            pytest.fail(f"{what}: {type(exc).__name__}: {exc}")
+        lines = err.getvalue().strip().splitlines()  # "resuming FOLDER after turn 3 of 6", then the refusal
+        errors = [ln for ln in lines if "error:" in ln]
+        assert code == 2 and len(errors) == 1 and lines[-1] == errors[0], (what, code, lines)
+        assert "Traceback" not in err.getvalue() and lines[-1].startswith("nao-trainer run: error: "), (what, lines)
+        assert (folder / "session.json").read_bytes() == before, what  # not marked "error"
+        assert not (folder / "turns.csv").exists() or "resumed" not in (folder / "events.jsonl").read_text()

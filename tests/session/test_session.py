@@ -10,6 +10,7 @@ import numpy as np
 from nao_trainer.policies.base import StatelessPolicy
 from nao_trainer.session import engine as sess
 from nao_trainer.session import machine
+from nao_trainer.session.parts import Randomness, Script, SessionPorts
 from nao_trainer.session.wiring import run_session
 from nao_trainer.session.behaviors import load_behaviors
 from nao_trainer.session.config import PROJECT_ROOT, load_config
@@ -148,9 +149,9 @@ def test_policy_gets_every_transition(tmp_path):
     sim = UserSimulator.from_level_rates("always", [1, 1, 1, 1])
     policy = RecordingPolicy()
     try:
-        s = sess.Session(cfg, robot, SimulatedParticipant(sim, np.random.default_rng(0), 50), policy, rec,
-                         load_dialogue(cfg.session.dialogue_path), load_behaviors(cfg.session.behaviors_path),
-                         np.random.default_rng(1), np.random.default_rng(2), progress=None)
+        s = sess.Session(cfg, SessionPorts(robot, SimulatedParticipant(sim, np.random.default_rng(0), 50), policy), rec,
+                         Script(load_dialogue(cfg.session.dialogue_path), load_behaviors(cfg.session.behaviors_path)),
+                         Randomness(np.random.default_rng(1), np.random.default_rng(2)), progress=None)
         assert s.run() == 0 and s.state == "done"
     finally:
         rec.close("completed", 0)
@@ -197,10 +198,10 @@ def test_a_refused_posture_is_logged_and_the_session_goes_on(tmp_path):
     rec = SessionRecorder(tmp_path, "R")
     path = rec.open({})
     try:
-        s = sess.Session(cfg, robot, SimulatedParticipant(UserSimulator.from_level_rates("x", [1, 1, 1, 1]),
-                                                          np.random.default_rng(0), 50),
-                         UniformRandom(), rec, load_dialogue(cfg.session.dialogue_path), behaviors,
-                         np.random.default_rng(1), np.random.default_rng(2), progress=None)
+        participant = SimulatedParticipant(UserSimulator.from_level_rates("x", [1, 1, 1, 1]), np.random.default_rng(0), 50)
+        s = sess.Session(cfg, SessionPorts(robot, participant, UniformRandom()), rec,
+                         Script(load_dialogue(cfg.session.dialogue_path), behaviors),
+                         Randomness(np.random.default_rng(1), np.random.default_rng(2)), progress=None)
         assert s.run() == 0
     finally:
         rec.close("completed", 0)
@@ -226,10 +227,10 @@ def test_after_a_reconnection_the_buttons_are_subscribed_once(tmp_path):
     subscribe = robot.subscribe_buttons
     robot.subscribe_buttons = lambda callback: (subscribed.append(callback), subscribe(callback))[1]
     try:
-        s = sess.Session(cfg, robot, tactile, UniformRandom(), rec, load_dialogue(cfg.session.dialogue_path),
-                         load_behaviors(cfg.session.behaviors_path), np.random.default_rng(1),
-                         np.random.default_rng(2), progress=None)
-        assert s._reconnect()
+        s = sess.Session(cfg, SessionPorts(robot, tactile, UniformRandom()), rec,
+                         Script(load_dialogue(cfg.session.dialogue_path), load_behaviors(cfg.session.behaviors_path)),
+                         Randomness(np.random.default_rng(1), np.random.default_rng(2)), progress=None)
+        assert s.reconnector.reconnect()
         assert len(subscribed) == 1  # NaoqiRobot.reconnect re-subscribes; nobody else does it again
         tactile.open_window()
         standin.press("A")

@@ -24,6 +24,9 @@ function renderHeader() {
   pill("status", status, S.summary ? (S.summary.exit_code === 0 ? "ok" : "warn") : (S.paused ? "warn" : "ok"));
   pill("machine", "state: " + (m.state || "–"));
   pill("robot", "robot: " + S.robot, S.robot === "connected" ? "ok" : "bad");
+  const lost = S.eeg_missing;
+  pill("eeg-alert", lost ? `no EEG for ${lost.missing_turns} turns (${lost.reason || "no value"})` : "", lost ? "bad" : "");
+  $("eeg-alert").hidden = !lost;
   const sess = S.session || {};
   $("policy-name").textContent = sess.policy || "";
 }
@@ -165,6 +168,7 @@ function connect() {
   on("robot", (d) => { S.robot = d.robot; renderHeader(); });
   on("summary", (d) => { S.summary = d; renderHeader(); renderSummary(); });
   on("policy", (d) => { S.policy_status = d; renderPolicyStatus(); });
+  on("eeg", (d) => { S.eeg_missing = d.missing_turns ? d : null; renderHeader(); });
   on("tick", renderTick);
   es.addEventListener("closed", () => { es.close(); pill("link", "stream: session ended"); });
 }

@@ -1,0 +1,56 @@
+"""session.turn: the run summary counts what `nao-trainer study` counts (invalid turns left out) and says how
+many turns had EEG."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from nao_trainer.data.study import study_session
+from nao_trainer.ports import CommandQueue
+from nao_trainer.session.config import DEFAULT_CONFIG, load_config
+from nao_trainer.session.turn import SessionResult, summary_data
+from nao_trainer.session.wiring import RunOptions, run_session
+
+
+def row(turn: int, level: int, success: bool | None, score: int | None, engagement: float | None,
+        note: str = "", invalid: bool | None = None) -> dict:
+    return {"turn": turn, "level": level, "success": success, "score": score, "engagement": engagement,
+            "engagement_note": note, "invalid": invalid}
+
+
+def test_the_summary_leaves_invalid_turns_out_and_says_how_many_turns_had_eeg():
+    rows = [row(1, 2, True, 2, 0.8), row(2, 3, True, 3, None, "EEG stream lost", invalid=True),
+            row(3, 3, False, -3, None, "EEG stream lost"), row(4, 1, None, None, None, "interrupted")]
+    result = SessionResult(Path("x"), "completed", 0, rows, 1)
+    assert len(result.completed_rows) == 2 and result.total_score == -1 and len(result.invalid_rows) == 1
+    line = next(ln for ln in result.summary().splitlines() if ln.startswith("turns completed"))
+    assert line.startswith("turns completed: 2 (+1 marked invalid, not counted)   total score: -1")
+    assert line.endswith("mean engagement: 0.80 (EEG in 1 of 2 turns)")
+    assert summary_data(result)["eeg_turns"] == 1 and summary_data(result)["invalid_turns"] == 1
+    off = SessionResult(Path("x"), "completed", 0, [row(1, 1, True, 1, None, "EEG off")], 1)
+    assert "EEG in" not in off.summary() and summary_data(off)["eeg_turns"] is None
+
+
+class MarkInvalid:
+    """An operator who marks turn ``n`` invalid while it is played."""
+
+    def __init__(self, commands: CommandQueue, n: int) -> None:
+        self.commands, self.n = commands, n
+
+    def notify(self, kind: str, data: dict) -> None:
+        if kind == "turn_start" and data["turn"] == self.n:
+            self.commands.submit("invalid", {"turn": self.n}, "test")
+
+
+def test_after_a_turn_marked_invalid_the_summary_and_the_study_table_agree(tmp_path):
+    cfg = load_config(DEFAULT_CONFIG, {"session.turns": 4, "timing.speed": 50.0, "session.output": str(tmp_path),
+                                       "eeg.mode": "off", "session.practice": False, "participant.pseudonym": "V",
+                                       "session.seed": 2})
+    commands = CommandQueue()
+    result = run_session(cfg, RunOptions(quiet=True, commands=commands, observer=MarkInvalid(commands, 2)))
+    assert result.exit_code == 0 and len(result.invalid_rows) == 1
+    table = study_session(result.path).row
+    assert (table["turns"], table["score"]) == (len(result.completed_rows), result.total_score)
+    assert table["turns"] == 3  # 4 played, 1 marked invalid
+    assert "(+1 marked invalid, not counted)" in result.summary()
+    assert json.loads((result.path / "session.json").read_text())["eeg_turns"] is None  # EEG off
