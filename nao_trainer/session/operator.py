@@ -79,7 +79,13 @@ class OperatorCommands:
             if hold and cmd.kind in ("pause", "stop", "repeat"):
                 self._held.append(cmd)
                 continue
-            trigger = self._apply(cmd)
+            try:
+                trigger = self._apply(cmd)
+            except (ValueError, TypeError, KeyError, AttributeError, OverflowError) as exc:
+                # issue 18: a malformed command (a program's, or one the console let through) is refused
+                # and logged; it never ends the session. The console checks arguments on arrival too.
+                self._log_command(cmd, False, f"malformed arguments ignored ({type(exc).__name__}: {str(exc)[:200]})")
+                continue
             if trigger is not None:
                 self._held += pending[i + 1:]
                 return trigger

@@ -44,6 +44,8 @@ class RunOptions:
     not come from the keyboard). ``console``: serve the supervisor console (also ``console.enabled``);
     ``console_bind`` given here is the explicit choice a non-loopback address needs. ``commands`` and
     ``observer`` let a program steer and watch the session (the keys and the console use the same queue).
+    A console beyond loopback is served over TLS (a self-signed certificate made at start) unless
+    ``console_insecure``; ``console_tls`` asks for TLS on loopback too.
     """
 
     quiet: bool = False
@@ -51,6 +53,8 @@ class RunOptions:
     console: bool = False
     console_port: int | None = None
     console_bind: str | None = None
+    console_insecure: bool = False
+    console_tls: bool = False
     resume: Path | None = None
     fresh_policy: bool = False
     commands: CommandQueue | None = None
@@ -246,15 +250,8 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
                 raise ConfigError(f"--console needs the console extra ({exc}); install it with "
                                   "pip install -e '.[console]'") from None
 
-            console = Console.start(commands, console_bind, options.console_port if options.console_port is not None
-                                    else config.console.port, recorder.event)
+            console = _start_console(commands, console_bind, options, config, recorder, progress)
             observer = console.hub if observer is None else _Both(console.hub, observer)
-            recorder.event("console", url=console.url, bind=console_bind)  # never the token
-            if progress:
-                if console_bind not in LOOPBACK:
-                    print(f"warning: the console listens on {console_bind}: anyone who can reach this address "
-                          "and has the link can steer the session", file=progress, flush=True)
-                print(f"console: {console.link} (open it in a browser on this machine)", file=progress, flush=True)
         monitor = open_engagement_monitor(config, path, np.random.default_rng(eeg_ss))
         if config.eeg.mode != "off" and progress:  # which headband this session listens to (events.jsonl too)
             print(f"EEG ({config.eeg.mode}): {monitor.describe()}", file=progress, flush=True)
@@ -322,6 +319,30 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
                 console.stop()
     assert result is not None
     return result
+
+
+def _start_console(commands: CommandQueue, bind: str, options: RunOptions, config: StudyConfig,
+                   recorder: SessionRecorder, progress: TextIO | None) -> Any:
+    """Serve the console; beyond loopback over TLS unless ``console_insecure``. Prints the link."""
+    from nao_trainer.console.guard import is_loopback
+    from nao_trainer.console.server import Console
+
+    local = is_loopback(bind)
+    tls = options.console_tls or (not local and not options.console_insecure)
+    console = Console.start(commands, bind, options.console_port if options.console_port is not None
+                            else config.console.port, recorder.event, tls=tls)
+    recorder.event("console", url=console.url, bind=bind, tls=tls, fingerprint=console.fingerprint)  # never the token
+    if progress:
+        if not local:
+            clear = "" if tls else " in clear text (--console-insecure): the token can be read on the network, and"
+            print(f"warning: the console listens on {bind}:{clear} anyone who can reach this address and has the "
+                  "link can steer the session", file=progress, flush=True)
+        if console.fingerprint:
+            print(f"console certificate (self-signed) SHA-256 fingerprint: {console.fingerprint} - check that the "
+                  "browser shows this before accepting it", file=progress, flush=True)
+        where = "on this machine" if local else "on this machine or another one of this network"
+        print(f"console: {console.link} (open it in a browser {where})", file=progress, flush=True)
+    return console
 
 
 class _Both:
