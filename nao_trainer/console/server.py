@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from nao_trainer.console.commands import MAX_BODY, CommandRejected, check_command, parse_body
-from nao_trainer.console.guard import (HostCheck, QuietServerLog, RejectLog, connection_limit, guarded_protocol,
+from nao_trainer.console.guard import (HEADER_TIMEOUT_S, HostCheck, QuietServerLog, RejectLog, connection_limit, guarded_protocol,
                                        is_loopback)
 from nao_trainer.ports import COMMAND_KINDS, CommandQueue
 
@@ -372,7 +372,7 @@ class Console:
     @classmethod
     def start(cls, commands: CommandQueue, bind: str = "127.0.0.1", port: int = 0,
               log: Callable[..., None] | None = None, hub: ConsoleHub | None = None, tls: bool = False,
-              max_connections: int | None = None) -> "Console":
+              max_connections: int | None = None, header_timeout_s: float = HEADER_TIMEOUT_S) -> "Console":
         """Serve the console on ``bind:port`` (0 = a free port); returns once it accepts connections.
 
         ``tls``: serve HTTPS with a self-signed certificate made now (``self.fingerprint``).
@@ -406,7 +406,7 @@ class Console:
 
             certificate = make_certificate(sorted(hosts.names))
         app = make_app(hub, commands, token, rejected, prefix, hosts)
-        protocol = guarded_protocol(H11Protocol, limit)
+        protocol = guarded_protocol(H11Protocol, limit, header_timeout_s)
         config = uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off", http=protocol,
                                 timeout_graceful_shutdown=1, timeout_keep_alive=5, backlog=min(64, limit),
                                 limit_concurrency=limit + MAX_STREAMS, h11_max_incomplete_event_size=16 * 1024,
