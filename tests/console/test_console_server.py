@@ -132,3 +132,124 @@ def test_ctrl_c_still_reaches_the_session_with_the_console_running(tmp_path):
     finally:
         proc.kill()
     assert proc.returncode == 130 and "status: interrupted (exit 130)" in out
+
+
+def _post_raw(console, body: bytes, headers: dict) -> tuple[int, bytes]:
+    conn = http.client.HTTPConnection(console.host, console.port, timeout=10)
+    conn.putrequest("POST", console.prefix + "command")
+    for k, v in {"x-console-token": console.token, "Content-Type": "application/json", **headers}.items():
+        conn.putheader(k, v)
+    conn.endheaders()
+    try:
+        conn.send(body)
+    except (BrokenPipeError, ConnectionResetError):
+        pass
+    r = conn.getresponse()
+    out = r.status, r.read()
+    conn.close()
+    return out
+
+
+def test_size_depth_and_nan_are_refused_at_the_door_and_nothing_reaches_the_queue(console):
+    # issue 18 items 1 and 4: each of these was queued (or a 500) before
+    huge = _post_raw(console, b"{" + b" " * 1024, {"Content-Length": str(300 * 1024 * 1024)})  # announced 300 MB
+    assert huge[0] == 413 and b"at most" in huge[1]
+    chunked = _post_raw(console, b"".join(b"%x\r\n%s\r\n" % (4096, b" " * 4096) for _ in range(8)) + b"0\r\n\r\n",
+                        {"Transfer-Encoding": "chunked"})
+    assert chunked[0] == 413
+    for body in (b"[" * 100_000, b'{"kind":"note","args":{"text":NaN}}', b'{"kind":"invalid","args":{"turn":"abc"}}',
+                 b'{"kind":"invalid","args":{"turn":1e400}}', b'{"kind":"note","args":{"text":"' + b"x" * 3000 + b'"}}'):
+        status, text = _post_raw(console, body, {"Content-Length": str(len(body))})
+        assert status in (400, 413) and json.loads(text)["error"].count("\n") == 0
+    assert len(console.queue) == 0
+
+
+def test_state_and_the_event_stream_never_carry_nan(console):
+    console.hub.notify("session", {"turns": 3, "state": "greet"})
+    console.hub.notify("row", {"turn": 1, "engagement": float("nan"), "success": True})
+    conn = http.client.HTTPConnection(console.host, console.port, timeout=10)
+    conn.request("GET", console.prefix + "state", headers={"x-console-token": console.token})
+    r = conn.getresponse()
+    text = r.read().decode()
+    assert r.status == 200 and "NaN" not in text
+    assert json.loads(text, parse_constant=lambda c: pytest.fail(c))["rows"][0]["engagement"] is None
+    assert "NaN" not in console.hub.snapshot()[1]  # what a new viewer's stream starts with
+    assert read_events(console, 1)[0][1]["rows"][0]["engagement"] is None
+
+
+def test_the_cookie_is_scoped_to_this_console_and_the_link_carries_its_path(console):
+    assert console.link.startswith(f"http://127.0.0.1:{console.port}/c/") and console.prefix.endswith("/")
+    conn = http.client.HTTPConnection(console.host, console.port, timeout=10)
+    conn.request("GET", f"{console.prefix}?token={console.token}")
+    r = conn.getresponse()
+    cookie = r.getheader("set-cookie")
+    assert r.status == 303 and r.getheader("location") == console.prefix
+    assert f"Path={console.prefix}" in cookie and "HttpOnly" in cookie and "SameSite=strict" in cookie
+    conn.close()
+
+
+def test_a_console_over_tls_prints_its_fingerprint_and_answers_only_over_tls(tmp_path):
+    # issue 18 item 7; TLS forced on loopback: tests never bind a real network interface
+    import ssl
+
+    from nao_trainer.console.tls import fingerprint
+
+    queue = CommandQueue()
+    c = Console.start(queue, "127.0.0.1", 0, hub=ConsoleHub(), tls=True)
+    try:
+        assert c.link.startswith("https://127.0.0.1:") and len(c.fingerprint.split(":")) == 32
+        ctx = ssl.create_default_context()
+        ctx.check_hostname, ctx.verify_mode = False, ssl.CERT_NONE  # self-signed: the fingerprint is the check
+        conn = http.client.HTTPSConnection(c.host, c.port, timeout=10, context=ctx)
+        conn.request("GET", c.prefix + "state", headers={"x-console-token": c.token})
+        assert conn.getresponse().status == 200
+        assert fingerprint(ssl.DER_cert_to_PEM_cert(conn.sock.getpeercert(binary_form=True))) == c.fingerprint
+        conn.close()
+        plain = http.client.HTTPConnection(c.host, c.port, timeout=10)
+        with pytest.raises((http.client.HTTPException, ConnectionError, OSError)):
+            plain.request("GET", c.prefix + "state", headers={"x-console-token": c.token})
+            plain.getresponse()
+    finally:
+        c.stop()
+
+
+def test_beyond_loopback_the_session_serves_tls_or_needs_the_insecure_flag(tmp_path, monkeypatch):
+    # The rule of session.wiring, checked with the server's start recorded instead of binding 0.0.0.0.
+    import io
+
+    from nao_trainer.console import server
+    from nao_trainer.session import wiring
+    from nao_trainer.session.record import SessionRecorder
+
+    started = []
+
+    class Fake:
+        hub, url, link, fingerprint = ConsoleHub(), "https://192.0.2.7:1/c/x/", "https://192.0.2.7:1/c/x/?token=t", "AB:CD"
+
+        @classmethod
+        def start(cls, commands, bind, port, log, tls):
+            started.append((bind, tls))
+            return cls()
+
+    monkeypatch.setattr(server, "Console", Fake)
+    rec = SessionRecorder(tmp_path, "T")
+    rec.open({})
+    cfg = load_config(None, {})
+    out = io.StringIO()
+    wiring._start_console(CommandQueue(), "0.0.0.0", RunOptions(console_bind="0.0.0.0"), cfg, rec, out)
+    wiring._start_console(CommandQueue(), "0.0.0.0", RunOptions(console_bind="0.0.0.0", console_insecure=True), cfg,
+                          rec, out)
+    wiring._start_console(CommandQueue(), "127.0.0.1", RunOptions(), cfg, rec, out)
+    rec.close("completed", 0)
+    assert started == [("0.0.0.0", True), ("0.0.0.0", False), ("127.0.0.1", False)]
+    text = out.getvalue()
+    assert "SHA-256 fingerprint: AB:CD" in text and "in clear text (--console-insecure)" in text
+    assert "console: https://192.0.2.7:1/c/x/?token=t (open it in a browser on this machine or another" in text
+
+
+def test_a_wildcard_bind_prints_an_address_another_machine_can_open():
+    from nao_trainer.console.server import reachable_address
+
+    assert reachable_address("127.0.0.1") == "127.0.0.1"
+    wide = reachable_address("0.0.0.0")
+    assert wide not in ("0.0.0.0", "", "127.0.0.1")
