@@ -7,6 +7,8 @@
   idle keep-alive) and a header deadline (uvicorn has none: a client that never finishes its
   headers would hold its socket forever). An event stream is a request in progress: not evicted
   (their number is capped by the application).
+* ``CappedListener``: the hard bound under both: the listening socket closes a new connection at
+  once while ``limit`` accepted sockets are open (whatever state they are in, a TLS handshake too).
 * ``HostCheck``: the DNS-rebinding defence, an allow-list of the names the console was started for.
 * ``RejectLog``: refused requests are logged (``events.jsonl``) at most ``burst`` at once and then
   one per ``every_s``, each field truncated; the rest are counted and the count logged later.
@@ -17,8 +19,11 @@ from __future__ import annotations
 import asyncio
 import collections
 import ipaddress
+import errno
 import logging
+import os
 import resource
+import socket
 import threading
 import time
 from typing import Any, Callable, Iterable
@@ -88,6 +93,51 @@ def guarded_protocol(base: type, max_connections: int, header_timeout_s: float =
     Guarded.__name__ = Guarded.__qualname__ = f"Guarded{base.__name__}"
     Guarded.open_connections = staticmethod(lambda: len(opened))  # type: ignore[attr-defined]
     return Guarded
+
+
+class CappedListener(socket.socket):
+    """A listening socket whose ``accept`` keeps at most ``limit`` accepted sockets open at once.
+
+    asyncio's server calls ``accept``; beyond the limit the new connection is closed at once and
+    ``ConnectionAbortedError`` tells asyncio to go on. Each accepted socket counts itself out when closed.
+    """
+
+    def __init__(self, family: int, kind: int, proto: int, limit: int) -> None:
+        super().__init__(family, kind, proto)
+        self.limit = limit
+        self.open = 0
+        self.accepted = 0
+        self.refused = 0
+        self._count_lock = threading.Lock()
+
+    def accept(self) -> tuple[socket.socket, Any]:
+        fd, addr = self._accept()  # type: ignore[attr-defined]
+        with self._count_lock:
+            if self.open >= self.limit:
+                self.refused += 1
+                os.close(fd)
+                raise ConnectionAbortedError(errno.ECONNABORTED, "the console holds as many sockets as it may")
+            self.open += 1
+            self.accepted += 1
+        sock = _Counted(self.family, self.type, self.proto, fileno=fd)
+        sock.listener = self
+        return sock, addr
+
+    def _closed_one(self) -> None:
+        with self._count_lock:
+            self.open -= 1
+
+
+class _Counted(socket.socket):
+    """An accepted socket that tells its listener when it is closed (once)."""
+
+    listener: CappedListener | None = None
+
+    def close(self) -> None:
+        listener, self.listener = self.listener, None
+        super().close()
+        if listener is not None:
+            listener._closed_one()
 
 
 def _bare_host(value: str) -> str:

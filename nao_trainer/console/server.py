@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import functools
 import hmac
 import json
 import logging
@@ -37,7 +38,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from nao_trainer.console.commands import MAX_BODY, CommandRejected, check_command, parse_body
-from nao_trainer.console.guard import (HEADER_TIMEOUT_S, HostCheck, QuietServerLog, RejectLog, connection_limit, guarded_protocol,
+from nao_trainer.console.guard import (HEADER_TIMEOUT_S, CappedListener, HostCheck, QuietServerLog, RejectLog, connection_limit, guarded_protocol,
                                        is_loopback)
 from nao_trainer.ports import COMMAND_KINDS, CommandQueue
 
@@ -50,6 +51,8 @@ TICK_S = 0.5  # how often viewers get elapsed time and the live EEG
 POLL_S = 0.1  # how often a viewer's stream looks for new events
 MAX_STREAMS = 16  # event streams at once (each viewer's page holds one)
 BODY_TIMEOUT_S = 5.0  # a command's body must arrive within this
+BACKLOG = 128  # connections the kernel queues before accept (they hold no file of this process)
+HANDSHAKE_TIMEOUT_S = 10.0  # a TLS handshake must be over within this (asyncio's default: 60 s)
 _QUIET = QuietServerLog()
 
 
@@ -334,6 +337,18 @@ def make_app(hub: ConsoleHub, commands: CommandQueue, token: str, log: Callable[
     ])
 
 
+def _serve(server: Any, sock: socket.socket, tls: bool) -> None:
+    """uvicorn's server on its own event loop; over TLS with a short handshake time-out (uvicorn sets none)."""
+    async def main() -> None:
+        if tls:
+            loop = asyncio.get_running_loop()
+            loop.create_server = functools.partial(loop.create_server,  # type: ignore[method-assign]
+                                                   ssl_handshake_timeout=HANDSHAKE_TIMEOUT_S)
+        await server.serve(sockets=[sock])
+
+    asyncio.run(main())
+
+
 def reachable_address(bind: str) -> str:
     """An address another machine can open for a console bound to ``bind`` (a wildcard is not one)."""
     if bind not in ("0.0.0.0", "::", ""):
@@ -358,6 +373,7 @@ class Console:
         self.host, self.port, self.token, self.prefix = host, port, token, prefix
         self.scheme, self.fingerprint = scheme, fingerprint
         self._rejected, self.protocol = rejected, protocol
+        self.listener: CappedListener | None = None  # its ``open`` and ``refused`` counts
 
     @property
     def url(self) -> str:
@@ -376,7 +392,9 @@ class Console:
         """Serve the console on ``bind:port`` (0 = a free port); returns once it accepts connections.
 
         ``tls``: serve HTTPS with a self-signed certificate made now (``self.fingerprint``).
-        ``max_connections``: sockets held at most (default ``guard.connection_limit()``).
+        ``max_connections``: connections without a request in progress held at most before the oldest
+        is evicted; the listener's hard bound on open sockets adds ``MAX_STREAMS`` and 8 to it (by
+        default the hard bound is ``guard.connection_limit()``, a quarter of the process's file limit).
         """
         import uvicorn
         from uvicorn.protocols.http.h11_impl import H11Protocol
@@ -386,16 +404,17 @@ class Console:
         hub = hub or ConsoleHub()
         token = secrets.token_urlsafe(24)
         prefix = f"/c/{secrets.token_hex(4)}/"
+        hard = connection_limit() if max_connections is None else max_connections + MAX_STREAMS + 8
+        limit = max(8, hard - MAX_STREAMS - 8) if max_connections is None else max_connections
         try:
             family, kind, proto, _, addr = socket.getaddrinfo(bind, port, type=socket.SOCK_STREAM)[0]
-            sock = socket.socket(family, kind, proto)
+            sock = CappedListener(family, kind, proto, hard)
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             sock.bind(addr)
         except OSError as exc:
             raise ConfigError(f"console: cannot listen on {bind}:{port} ({exc.strerror or exc}); "
                               "choose another --console-port (0 = any free port)") from None
-        limit = max_connections or connection_limit()
-        sock.listen(min(64, limit))
+        sock.listen(BACKLOG)
         actual = sock.getsockname()[1]
         public = reachable_address(bind)
         hosts = HostCheck.for_bind(bind, [public])
@@ -408,7 +427,7 @@ class Console:
         app = make_app(hub, commands, token, rejected, prefix, hosts)
         protocol = guarded_protocol(H11Protocol, limit, header_timeout_s)
         config = uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off", http=protocol,
-                                timeout_graceful_shutdown=1, timeout_keep_alive=5, backlog=min(64, limit),
+                                timeout_graceful_shutdown=1, timeout_keep_alive=5, backlog=BACKLOG,
                                 limit_concurrency=limit + MAX_STREAMS, h11_max_incomplete_event_size=16 * 1024,
                                 ssl_certfile=str(certificate.certfile) if certificate else None,
                                 ssl_keyfile=str(certificate.keyfile) if certificate else None)
@@ -416,7 +435,7 @@ class Console:
         if _QUIET not in server_log.filters:
             server_log.addFilter(_QUIET)
         server = uvicorn.Server(config)
-        thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, name="console", daemon=True)
+        thread = threading.Thread(target=_serve, args=(server, sock, tls), name="console", daemon=True)
         thread.start()
         deadline = time.monotonic() + 10
         while not server.started and thread.is_alive() and time.monotonic() < deadline:
@@ -425,8 +444,10 @@ class Console:
             certificate.remove()  # loaded by now (or never): the key stays in memory only
         if not server.started:
             raise RuntimeError("the console's server did not start")
-        return cls(hub, server, thread, public, actual, token, prefix, "https" if tls else "http",
-                   certificate.fingerprint if certificate else None, rejected, protocol)
+        console = cls(hub, server, thread, public, actual, token, prefix, "https" if tls else "http",
+                      certificate.fingerprint if certificate else None, rejected, protocol)
+        console.listener = sock
+        return console
 
     def stop(self) -> None:
         """End the viewers' streams (after the final events reach them) and stop the server."""

@@ -136,3 +136,42 @@ def test_a_host_not_on_the_list_gets_421_even_with_the_token(host):
         assert _state(console) == 200 and logged == ["console_wrong_host"]
     finally:
         console.stop()
+
+
+def _fds() -> int:
+    import os
+
+    return len(os.listdir("/proc/self/fd"))
+
+
+@pytest.mark.parametrize("tls", [False, True])
+def test_the_listener_never_holds_more_sockets_than_its_bound_even_in_tls_handshakes(tls):
+    # A TLS connection that never finishes its handshake does not reach the protocol's cap:
+    # the listener's hard bound counts every accepted socket.
+    console = Console.start(CommandQueue(), "127.0.0.1", 0, hub=ConsoleHub(), max_connections=8, tls=tls)
+    bound = console.listener.limit
+    socks = []
+    try:
+        before = _fds()
+        for _ in range(3 * bound):
+            s = socket.socket()
+            s.setblocking(False)
+            s.connect_ex((console.host, console.port))  # connect, then say nothing (no handshake, no request)
+            socks.append(s)
+        listener = console.listener
+        deadline = time.monotonic() + 20
+        while listener.accepted + listener.refused < len(socks) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert listener.accepted + listener.refused == len(socks)  # every connection came through accept
+        assert listener.open <= bound and _fds() - before - len(socks) <= bound  # the server side: at most the bound
+        if tls:  # no handshake: the protocol never sees them; the listener refuses beyond its bound
+            assert listener.refused >= len(socks) - bound
+        else:  # once the burst is through, the protocol's cap evicts the idle ones down to 8
+            deadline = time.monotonic() + 20
+            while listener.open > 8 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert listener.open <= 8
+    finally:
+        for s in socks:
+            s.close()
+        console.stop()
