@@ -457,5 +457,9 @@ class Console:
             time.sleep(0.02)
         self._server.should_exit = True
         self._thread.join(timeout=5)
+        self.log_rejections()
+
+    def log_rejections(self) -> None:
+        """Log the count of refused requests the rate limit kept out of the log (``guard.RejectLog.flush``)."""
         if self._rejected is not None:
             self._rejected.flush()

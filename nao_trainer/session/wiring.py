@@ -308,6 +308,8 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
                     _write_transcript(recorder.path, standin.transcript(), append=resume is not None)
                 if summary:
                     recorder.event("policy_summary", summary=summary)
+                if console is not None:
+                    console.log_rejections()  # how many refused requests were not logged one by one
                 recorder.close(status, code, total_score=session.total if session else 0, error=error,
                                policy_summary=summary or None)
             if standin is not None:

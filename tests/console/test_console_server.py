@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import http.client
 import json
+import shutil
 
 import pytest
 
@@ -11,6 +12,9 @@ from nao_trainer.errors import ConfigError
 from nao_trainer.ports import CommandQueue
 from nao_trainer.session.config import load_config
 from nao_trainer.session.wiring import RunOptions, _console_bind
+
+NEEDS_OPENSSL = pytest.mark.skipif(shutil.which("openssl") is None,
+                                   reason="no openssl command (apt-get install openssl): the console's TLS was not tested")
 
 
 def read_events(console: Console, n: int) -> list[tuple[str, dict]]:
@@ -188,6 +192,7 @@ def test_the_cookie_is_scoped_to_this_console_and_the_link_carries_its_path(cons
     conn.close()
 
 
+@NEEDS_OPENSSL
 def test_a_console_over_tls_prints_its_fingerprint_and_answers_only_over_tls(tmp_path):
     # issue 18 item 7; TLS forced on loopback: tests never bind a real network interface
     import ssl
