@@ -245,12 +245,14 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
         observer = options.observer
         if console_bind is not None:
             try:
-                from nao_trainer.console.server import Console
+                from nao_trainer.console.launch import open_console
             except ImportError as exc:
                 raise ConfigError(f"--console needs the console extra ({exc}); install it with "
                                   "pip install -e '.[console]'") from None
 
-            console = _start_console(commands, console_bind, options, config, recorder, progress)
+            console = open_console(commands, console_bind, options.console_port if options.console_port is not None
+                                   else config.console.port, recorder.event, progress, options.console_insecure,
+                                   options.console_tls)
             observer = console.hub if observer is None else _Both(console.hub, observer)
         monitor = open_engagement_monitor(config, path, np.random.default_rng(eeg_ss))
         if config.eeg.mode != "off" and progress:  # which headband this session listens to (events.jsonl too)
@@ -321,30 +323,6 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
                 console.stop()
     assert result is not None
     return result
-
-
-def _start_console(commands: CommandQueue, bind: str, options: RunOptions, config: StudyConfig,
-                   recorder: SessionRecorder, progress: TextIO | None) -> Any:
-    """Serve the console; beyond loopback over TLS unless ``console_insecure``. Prints the link."""
-    from nao_trainer.console.guard import is_loopback
-    from nao_trainer.console.server import Console
-
-    local = is_loopback(bind)
-    tls = options.console_tls or (not local and not options.console_insecure)
-    console = Console.start(commands, bind, options.console_port if options.console_port is not None
-                            else config.console.port, recorder.event, tls=tls)
-    recorder.event("console", url=console.url, bind=bind, tls=tls, fingerprint=console.fingerprint)  # never the token
-    if progress:
-        if not local:
-            clear = "" if tls else " in clear text (--console-insecure): the token can be read on the network, and"
-            print(f"warning: the console listens on {bind}:{clear} anyone who can reach this address and has the "
-                  "link can steer the session", file=progress, flush=True)
-        if console.fingerprint:
-            print(f"console certificate (self-signed) SHA-256 fingerprint: {console.fingerprint} - check that the "
-                  "browser shows this before accepting it", file=progress, flush=True)
-        where = "on this machine" if local else "on this machine or another one of this network"
-        print(f"console: {console.link} (open it in a browser {where})", file=progress, flush=True)
-    return console
 
 
 class _Both:

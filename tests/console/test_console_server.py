@@ -218,15 +218,13 @@ def test_a_console_over_tls_prints_its_fingerprint_and_answers_only_over_tls(tmp
         c.stop()
 
 
-def test_beyond_loopback_the_session_serves_tls_or_needs_the_insecure_flag(tmp_path, monkeypatch):
-    # The rule of session.wiring, checked with the server's start recorded instead of binding 0.0.0.0.
+def test_beyond_loopback_the_console_serves_tls_or_needs_the_insecure_flag(monkeypatch):
+    # The rule of console.launch, checked with the server's start recorded instead of binding 0.0.0.0.
     import io
 
-    from nao_trainer.console import server
-    from nao_trainer.session import wiring
-    from nao_trainer.session.record import SessionRecorder
+    from nao_trainer.console import launch
 
-    started = []
+    started, logged = [], []
 
     class Fake:
         hub, url, link, fingerprint = ConsoleHub(), "https://192.0.2.7:1/c/x/", "https://192.0.2.7:1/c/x/?token=t", "AB:CD"
@@ -236,20 +234,19 @@ def test_beyond_loopback_the_session_serves_tls_or_needs_the_insecure_flag(tmp_p
             started.append((bind, tls))
             return cls()
 
-    monkeypatch.setattr(server, "Console", Fake)
-    rec = SessionRecorder(tmp_path, "T")
-    rec.open({})
-    cfg = load_config(None, {})
+    monkeypatch.setattr(launch, "Console", Fake)
     out = io.StringIO()
-    wiring._start_console(CommandQueue(), "0.0.0.0", RunOptions(console_bind="0.0.0.0"), cfg, rec, out)
-    wiring._start_console(CommandQueue(), "0.0.0.0", RunOptions(console_bind="0.0.0.0", console_insecure=True), cfg,
-                          rec, out)
-    wiring._start_console(CommandQueue(), "127.0.0.1", RunOptions(), cfg, rec, out)
-    rec.close("completed", 0)
-    assert started == [("0.0.0.0", True), ("0.0.0.0", False), ("127.0.0.1", False)]
+    log = lambda event, **kw: logged.append((event, kw))  # noqa: E731
+    launch.open_console(CommandQueue(), "0.0.0.0", 0, log, out)
+    launch.open_console(CommandQueue(), "0.0.0.0", 0, log, out, insecure=True)
+    launch.open_console(CommandQueue(), "127.0.0.1", 0, log, out)
+    launch.open_console(CommandQueue(), "127.0.0.1", 0, log, out, force_tls=True)
+    assert started == [("0.0.0.0", True), ("0.0.0.0", False), ("127.0.0.1", False), ("127.0.0.1", True)]
     text = out.getvalue()
     assert "SHA-256 fingerprint: AB:CD" in text and "in clear text (--console-insecure)" in text
     assert "console: https://192.0.2.7:1/c/x/?token=t (open it in a browser on this machine or another" in text
+    assert [(e, kw["tls"], kw["fingerprint"]) for e, kw in logged][:2] == [("console", True, "AB:CD"),
+                                                                          ("console", False, "AB:CD")]
 
 
 def test_a_wildcard_bind_prints_an_address_another_machine_can_open():
