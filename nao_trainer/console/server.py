@@ -158,13 +158,9 @@ class ConsoleHub:
                 out[name] = {"error": str(exc)}
         return out
 
-    def viewer(self, delta: int, limit: int | None = None) -> bool:
-        """Count a viewer in (+1; False when ``limit`` are already connected) or out (-1)."""
+    def viewer(self, delta: int) -> None:
         with self._lock:
-            if delta > 0 and limit is not None and self._viewers >= limit:
-                return False
             self._viewers += delta
-            return True
 
     # -- ``commands.SessionView``: what a command may name ----------------------------------------------
 
@@ -256,11 +252,12 @@ def make_app(hub: ConsoleHub, commands: CommandQueue, token: str, log: Callable[
     async def events(request: Request) -> Response:
         if (no := refused(request)) is not None:
             return no
-        if not hub.viewer(+1, limit=MAX_STREAMS):
+        if hub.viewers >= MAX_STREAMS:
             return PlainTextResponse(f"too many live streams (at most {MAX_STREAMS}); close a console tab\n",
                                      status_code=503, headers={"Retry-After": "5"})
 
         async def stream():
+            hub.viewer(+1)  # counted here, not before: a stream that never starts never ends either
             try:
                 seq, text = hub.snapshot()
                 yield f"retry: 1000\nevent: snapshot\ndata: {text}\n\n"
