@@ -12,7 +12,7 @@
   console's path (``/c/<id>/``: two consoles in one browser keep their own) and redirects to a
   URL without it. A ``Host`` not on the console's list gets 421, a request without a valid token
   403; both are logged at a bounded rate (``guard.RejectLog``). Commands are checked when they
-  arrive (``commands``: body size, depth, finite numbers, each kind's arguments, existing turns);
+  arrive (``command_schema``: body size, depth, finite numbers, each kind's arguments, existing turns);
   sockets are capped and timed out (``guard.guarded_protocol``). Loopback only unless the operator
   asks otherwise (``session.wiring`` enforces that); beyond loopback over TLS (``tls``). The page
   holds no participant name and no credential; it loads nothing from elsewhere (uPlot is vendored).
@@ -37,7 +37,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from nao_trainer.console.commands import MAX_BODY, CommandRejected, check_command, parse_body
+from nao_trainer.console.command_schema import MAX_BODY, CommandRejected, check_command, parse_body
 from nao_trainer.console.guard import (HEADER_TIMEOUT_S, CappedListener, HostCheck, QuietServerLog, RejectLog, connection_limit, guarded_protocol,
                                        is_loopback)
 from nao_trainer.ports import COMMAND_KINDS, CommandQueue

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from nao_trainer.console.commands import (MAX_BODY, MAX_DEPTH, NOTE_MAX, SCHEMA, CommandRejected, check_command,
+from nao_trainer.console.command_schema import (MAX_BODY, MAX_DEPTH, NOTE_MAX, SCHEMA, CommandRejected, check_command,
                                           nesting_depth, parse_body)
 from nao_trainer.ports import COMMAND_KINDS
 
