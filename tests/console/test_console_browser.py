@@ -233,3 +233,28 @@ def test_two_consoles_in_one_browser_keep_their_own_cookie_and_a_completed_one_s
             if run.proc.poll() is None:
                 run.proc.terminate()
                 run.proc.wait(30)
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="no openssl command: the console's TLS was not tested")
+def test_over_tls_the_page_works_with_a_secure_cookie_and_the_printed_fingerprint_is_the_servers(browser, tmp_path):
+    """Issue 18 item 7, on loopback (--console-tls forces what a non-loopback --console-bind does)."""
+    import ssl
+
+    from nao_trainer.console.tls import fingerprint
+
+    run = Run(tmp_path / "out", "--console-tls")
+    context = browser.new_context(ignore_https_errors=True, bypass_csp=True)  # self-signed: checked by fingerprint
+    try:
+        assert run.link.startswith("https://127.0.0.1:")
+        printed = next(ln.split("fingerprint: ")[1].split()[0] for ln in run.lines if "SHA-256 fingerprint" in ln)
+        host, port = run.base.split("//")[1].split("/")[0].rsplit(":", 1)
+        assert fingerprint(ssl.get_server_certificate((host, int(port)))) == printed
+        page = context.new_page()
+        assert page.goto(run.link).status == 200 and page.url == run.base
+        cookie = next(c for c in context.cookies() if c["name"] == "nao_console")
+        assert cookie["secure"] and cookie["httpOnly"] and cookie["path"] == run.prefix
+        page.wait_for_function("document.querySelectorAll('#turns tbody tr').length >= 1", timeout=60000)
+    finally:
+        context.close()
+        run.proc.terminate()
+        run.proc.wait(30)
