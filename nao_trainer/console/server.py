@@ -420,7 +420,11 @@ class Console:
         if tls:
             from nao_trainer.console.tls import make_certificate
 
-            certificate = make_certificate(sorted(hosts.names))
+            try:
+                certificate = make_certificate(sorted(hosts.names))
+            except BaseException:
+                sock.close()
+                raise
         app = make_app(hub, commands, token, rejected, prefix, hosts)
         protocol = guarded_protocol(H11Protocol, limit, header_timeout_s)
         config = uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off", http=protocol,
@@ -440,6 +444,8 @@ class Console:
         if certificate is not None:
             certificate.remove()  # loaded by now (or never): the key stays in memory only
         if not server.started:
+            server.should_exit = True
+            sock.close()
             raise RuntimeError("the console's server did not start")
         console = cls(hub, server, thread, public, actual, token, prefix, "https" if tls else "http",
                       certificate.fingerprint if certificate else None, rejected, protocol)
