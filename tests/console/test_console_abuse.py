@@ -119,6 +119,7 @@ def test_the_attacks_of_issue_18_leave_a_running_session_complete_and_the_superv
             assert proc.poll() is None, "\n".join(lines[-20:])
             time.sleep(0.05)
         t = Target(next(ln.split()[1] for ln in lines if ln.startswith("console: ")))
+        attack_start = time.monotonic()
         state_answers: list[int] = []
         waits: list[float] = []  # printed (pytest -s), not asserted: a loaded machine may be slow
 
@@ -155,12 +156,14 @@ def test_the_attacks_of_issue_18_leave_a_running_session_complete_and_the_superv
         for th in floods:
             th.join(120)
         state_answers.append(state())
+        attack_s = time.monotonic() - attack_start
         assert proc.poll() is None, "the session ended during the attack:\n" + "\n".join(lines[-20:])
         status, body = t.request("GET", "state")
         assert status == 200 and json.loads(body)["session"]["turns"] == TURNS
         assert state_answers == [200, 200, 200]
         print(f"the token holder's /state during the attack answered in {waits} s")
         assert proc.wait(240) == 0, "\n".join(lines[-30:])
+        print(f"the attack lasted {attack_s:.1f} s of the session's {time.monotonic() - attack_start:.1f} s")
     finally:
         for s in socks:
             s.close()
