@@ -32,6 +32,7 @@ import logging
 import math
 import secrets
 import socket
+import sys
 import threading
 import time
 from pathlib import Path
@@ -53,6 +54,7 @@ MAX_STREAMS = 16  # event streams at once (each viewer's page holds one)
 BODY_TIMEOUT_S = 5.0  # a command's body must arrive within this
 BACKLOG = 128  # connections the kernel queues before accept (they hold no file of this process)
 HANDSHAKE_TIMEOUT_S = 10.0  # a TLS handshake must be over within this (asyncio's default: 60 s)
+START_TIMEOUT_S = 30.0  # the server must listen within this after its thread starts (generous: a loaded machine)
 _QUIET = QuietServerLog()
 
 
@@ -334,8 +336,12 @@ def make_app(hub: ConsoleHub, commands: CommandQueue, token: str, log: Callable[
     ])
 
 
-def _serve(server: Any, sock: socket.socket, tls: bool) -> None:
-    """uvicorn's server on its own event loop; over TLS with a short handshake time-out (uvicorn sets none)."""
+def _serve(server: Any, sock: socket.socket, tls: bool, failed: list[BaseException]) -> None:
+    """uvicorn's server on its own event loop; over TLS with a short handshake time-out (uvicorn sets none).
+
+    An exception (e.g. a certificate the TLS library refuses) is kept in ``failed`` for ``Console.start``
+    to report in one line, or printed in one line once the console has run: never a thread's traceback.
+    """
     async def main() -> None:
         if tls:
             loop = asyncio.get_running_loop()
@@ -343,7 +349,13 @@ def _serve(server: Any, sock: socket.socket, tls: bool) -> None:
                                                    ssl_handshake_timeout=HANDSHAKE_TIMEOUT_S)
         await server.serve(sockets=[sock])
 
-    asyncio.run(main())
+    try:
+        asyncio.run(main())
+    except Exception as exc:
+        failed.append(exc)
+        if server.started:
+            print(f"console: the server stopped ({type(exc).__name__}: {exc}); the session goes on without it",
+                  file=sys.stderr, flush=True)
 
 
 def reachable_address(bind: str) -> str:
@@ -436,17 +448,21 @@ class Console:
         if _QUIET not in server_log.filters:
             server_log.addFilter(_QUIET)
         server = uvicorn.Server(config)
-        thread = threading.Thread(target=_serve, args=(server, sock, tls), name="console", daemon=True)
+        failed: list[BaseException] = []
+        thread = threading.Thread(target=_serve, args=(server, sock, tls, failed), name="console", daemon=True)
         thread.start()
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + START_TIMEOUT_S
         while not server.started and thread.is_alive() and time.monotonic() < deadline:
             time.sleep(0.01)
         if certificate is not None:
             certificate.remove()  # loaded by now (or never): the key stays in memory only
         if not server.started:
             server.should_exit = True
+            thread.join(timeout=5)
             sock.close()
-            raise RuntimeError("the console's server did not start")
+            why = f"{type(failed[0]).__name__}: {failed[0]}" if failed else f"not listening after {START_TIMEOUT_S:g} s"
+            raise ConfigError(f"console: the server on {bind}:{actual} did not start ({why}); run again, "
+                              "or without --console")
         console = cls(hub, server, thread, public, actual, token, prefix, "https" if tls else "http",
                       certificate.fingerprint if certificate else None, rejected, protocol)
         console.listener = sock
