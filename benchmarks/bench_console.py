@@ -51,7 +51,7 @@ class TimedHub(ConsoleHub):
 
 def viewer(console: Console, stop: threading.Event, received: list[int]) -> None:
     conn = http.client.HTTPConnection(console.host, console.port, timeout=10)
-    conn.request("GET", "/events", headers={"Cookie": f"{COOKIE}={console.token}"})
+    conn.request("GET", console.prefix + "events", headers={"Cookie": f"{COOKIE}={console.token}"})
     resp = conn.getresponse()
     n = 0
     while not stop.is_set():

@@ -52,7 +52,11 @@ def register(sub) -> None:
     p.add_argument("--console", action="store_true", help="serve the supervisor console (a web page; the link is printed)")
     p.add_argument("--console-port", type=int, metavar="P", help="console port (default: console.port, 0 = a free port)")
     p.add_argument("--console-bind", metavar="ADDRESS",
-                   help="listen on ADDRESS instead of 127.0.0.1 (prints a warning: others could steer the session)")
+                   help="listen on ADDRESS instead of 127.0.0.1 (prints a warning: others could steer the session); "
+                        "beyond loopback the console is served over HTTPS with a self-signed certificate")
+    p.add_argument("--console-insecure", action="store_true",
+                   help="with --console-bind beyond loopback: plain HTTP (the token crosses the network in clear)")
+    p.add_argument("--console-tls", action="store_true", help="serve the console over HTTPS even on loopback")
     p.set_defaults(func=run)
 
 
@@ -86,6 +90,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--console-port {args.console_port}: a port is 0-65535 (0 = any free port)")
     options = RunOptions(quiet=args.quiet, keys=not args.no_keys, console=args.console or args.console_port is not None,
                          console_port=args.console_port, console_bind=args.console_bind,
+                         console_insecure=args.console_insecure, console_tls=args.console_tls,
                          fresh_policy=args.fresh_policy)
     resume = None
     if args.resume:

@@ -403,7 +403,14 @@ class Session:
         """Apply the due commands in order until one changes the state; the rest wait for the next point."""
         pending = self.desk.due(hold)
         for i, cmd in enumerate(pending):
-            trigger = self._apply(cmd)
+            try:
+                trigger = self._apply(cmd)
+            except (ValueError, TypeError, KeyError, AttributeError, OverflowError) as exc:
+                # A malformed command (a program's, or one the console let through) is refused and logged; it
+                # never ends the session. The console checks arguments on arrival too (console.command_schema).
+                self.desk.record(cmd, False, f"malformed arguments ignored ({type(exc).__name__}: {str(exc)[:200]})",
+                                 self.state, self._turn_number())
+                continue
             if trigger is not None:
                 self.desk.hold(pending[i + 1:])
                 return trigger

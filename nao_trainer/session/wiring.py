@@ -52,6 +52,8 @@ class RunOptions:
     not come from the keyboard). ``console``: serve the supervisor console (also ``console.enabled``);
     ``console_bind`` given here is the explicit choice a non-loopback address needs. ``commands`` and
     ``observer`` let a program steer and watch the session (the keys and the console use the same queue).
+    A console beyond loopback is served over TLS (a self-signed certificate made at start) unless
+    ``console_insecure``; ``console_tls`` asks for TLS on loopback too.
     """
 
     quiet: bool = False
@@ -59,6 +61,8 @@ class RunOptions:
     console: bool = False
     console_port: int | None = None
     console_bind: str | None = None
+    console_insecure: bool = False
+    console_tls: bool = False
     resume: Path | None = None
     fresh_policy: bool = False
     commands: CommandQueue | None = None
@@ -362,19 +366,13 @@ def _start_console(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, c
                    options: RunOptions, commands: CommandQueue, bind: str, progress: TextIO | None) -> _ConsoleObserver:
     """Serve the supervisor console; at the end it shows the summary, then stops."""
     try:
-        from nao_trainer.console.server import Console
+        from nao_trainer.console.launch import open_console
     except ImportError as exc:
         raise ConfigError(f"--console needs the console extra ({exc}); install it with "
                           "pip install -e '.[console]'") from None
     port = options.console_port if options.console_port is not None else config.console.port
-    console = Console.start(commands, bind, port, recorder.event)
+    console = open_console(commands, bind, port, recorder.event, progress, options.console_insecure, options.console_tls)
     stack.callback(_stop_console, console, out, recorder)
-    recorder.event("console", url=console.url, bind=bind)  # never the token
-    if progress:
-        if bind not in LOOPBACK:
-            print(f"warning: the console listens on {bind}: anyone who can reach this address "
-                  "and has the link can steer the session", file=progress, flush=True)
-        print(f"console: {console.link} (open it in a browser on this machine)", file=progress, flush=True)
     return _ConsoleObserver(console, options.observer)
 
 
@@ -382,6 +380,7 @@ def _start_console(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, c
 
 
 def _stop_console(console: Any, out: _Outcome, recorder: SessionRecorder) -> None:
+    console.log_rejections()  # how many refused requests were not logged one by one (the record is still open)
     console.hub.notify("summary", summary_data(out.result(recorder)))
     console.stop()
 

@@ -47,6 +47,7 @@ class Run:
         self.link = self.wait(lambda: next((ln.split()[1] for ln in self.lines if ln.startswith("console: ")), None),
                               60, "the console link")
         self.base = self.link.split("?")[0]
+        self.prefix = "/" + self.base.split("/", 3)[3]  # /c/<id>/: the console's own path
         self.folder = self.wait(lambda: next(iter(out.glob("C1_*")), None), 30, "the session folder")
 
     def _read(self) -> None:
@@ -149,6 +150,12 @@ def test_the_console_shows_the_session_live_and_steers_it(browser, tmp_path):
         assert run.proc.wait(60) == 5
         page.wait_for_function("document.getElementById('summary-card').className.indexOf('hidden') < 0", timeout=10000)
         assert "stopped" in page.inner_text("#summary")
+        # the page says the session ended, and how, and no control acts any more
+        page.wait_for_function("document.getElementById('status').textContent.includes('session ended')", timeout=10000)
+        assert page.inner_text("#status") == "session ended: stopped (exit 5)"
+        assert "session ended" in page.inner_text("#robot") and "session ended" in page.inner_text("#eeg")
+        assert "has ended: stopped (exit 5)" in page.inner_text("#ended")
+        assert page.locator("#controls button:enabled, #controls input:enabled, #controls select:enabled").count() == 0
     finally:
         context.close()
         if run.proc.poll() is None:
@@ -190,5 +197,64 @@ def test_a_wrong_token_gets_403_and_is_logged(browser, tmp_path):
         run.proc.terminate()
         run.proc.wait(30)
     forbidden = [e for e in read_events(run.folder) if e["event"] == "console_forbidden"]
-    assert len(forbidden) >= 4 and {e["path"] for e in forbidden} >= {"/", "/state", "/command"}
+    assert len(forbidden) >= 4 and {e["path"] for e in forbidden} >= {run.prefix + p for p in ("", "state", "command")}
     assert all(e["client"] == "127.0.0.1" for e in forbidden)
+
+
+def test_two_consoles_in_one_browser_keep_their_own_cookie_and_a_completed_one_says_so(browser, tmp_path):
+    """Issue 18 items 5 and 8: logging into a second console does not lock the first out; each
+    console's cookie is sent only to its own path; a session that completes disables the page."""
+    long = Run(tmp_path / "a")
+    short = Run(tmp_path / "b", "--turns", "2", "--speed", "20")
+    context = browser.new_context(bypass_csp=True)
+    try:
+        first, second = context.new_page(), context.new_page()
+        assert first.goto(long.link).status == 200
+        assert second.goto(short.link).status == 200
+        cookies = [c for c in context.cookies() if c["name"] == "nao_console"]
+        assert sorted(c["path"] for c in cookies) == sorted([long.prefix, short.prefix])
+        assert all(c["httpOnly"] and c["sameSite"] == "Strict" for c in cookies)
+        # the first console still answers its page (it was locked out before issue 18)
+        assert first.evaluate("fetch('state').then(r => r.status)") == 200
+        assert first.evaluate("fetch('command', {method: 'POST', headers: {'Content-Type': 'application/json'},"
+                              " body: JSON.stringify({kind: 'note', args: {text: 'from the first tab'}})})"
+                              ".then(r => r.status)") == 202
+        long.wait(lambda: any(e["event"] == "command" and e["kind"] == "note" for e in long.events()), 30, "the note")
+        # the short session completes: its page says so and disables its controls
+        assert short.proc.wait(120) == 0
+        second.wait_for_function("document.getElementById('status').textContent.includes('session ended')",
+                                 timeout=20000)
+        assert second.inner_text("#status") == "session ended: completed (exit 0)"
+        assert second.locator("#controls button:enabled").count() == 0
+        assert "session ended" not in first.inner_text("#status")  # the other console is still live
+    finally:
+        context.close()
+        for run in (long, short):
+            if run.proc.poll() is None:
+                run.proc.terminate()
+                run.proc.wait(30)
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="no openssl command: the console's TLS was not tested")
+def test_over_tls_the_page_works_with_a_secure_cookie_and_the_printed_fingerprint_is_the_servers(browser, tmp_path):
+    """Issue 18 item 7, on loopback (--console-tls forces what a non-loopback --console-bind does)."""
+    import ssl
+
+    from nao_trainer.console.tls import fingerprint
+
+    run = Run(tmp_path / "out", "--console-tls")
+    context = browser.new_context(ignore_https_errors=True, bypass_csp=True)  # self-signed: checked by fingerprint
+    try:
+        assert run.link.startswith("https://127.0.0.1:")
+        printed = next(ln.split("fingerprint: ")[1].split()[0] for ln in run.lines if "SHA-256 fingerprint" in ln)
+        host, port = run.base.split("//")[1].split("/")[0].rsplit(":", 1)
+        assert fingerprint(ssl.get_server_certificate((host, int(port)))) == printed
+        page = context.new_page()
+        assert page.goto(run.link).status == 200 and page.url == run.base
+        cookie = next(c for c in context.cookies() if c["name"] == "nao_console")
+        assert cookie["secure"] and cookie["httpOnly"] and cookie["path"] == run.prefix
+        page.wait_for_function("document.querySelectorAll('#turns tbody tr').length >= 1", timeout=60000)
+    finally:
+        context.close()
+        run.proc.terminate()
+        run.proc.wait(30)

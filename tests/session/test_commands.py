@@ -246,3 +246,16 @@ def test_commands_sent_together_act_one_state_change_at_a_time(tmp_path):
     assert [(c["kind"], c["state"], c["accepted"]) for c in cmds] == [
         ("pause", "speak_sequence", True), ("note", "operator_pause", True), ("resume", "operator_pause", True)]
     assert robot.said().count(PAUSE_LINE) == 1 and len([r for r in read_turns(path) if r["success"]]) == 3
+
+
+def test_a_malformed_command_is_refused_and_logged_and_the_session_goes_on(tmp_path):
+    # issue 18: {"turn": "abc"} reached int() in the session thread and ended the session (exit 1)
+    answers = ScriptedAnswers()
+    s, rec, path, q, _ = make(tmp_path, answers=answers, turns=3)
+    answers.on_collect = lambda ctx: ctx.turn == 2 and [q.submit("invalid", {"turn": bad}, "api")
+                                                         for bad in ("abc", [1], float("inf"))]
+    assert run(s, rec) == EXIT_OK
+    refused = commands(path)
+    assert [c["accepted"] for c in refused] == [False, False, False]
+    assert all("malformed arguments ignored" in c["detail"] for c in refused)
+    assert [r["turn"] for r in read_turns(path)] == ["1", "2", "3"] and all(r["invalid"] == "" for r in read_turns(path))

@@ -4,6 +4,7 @@ const $ = (id) => document.getElementById(id);
 const ACTIONS = ["L1", "L2", "L3", "L4", "RF1", "RF2"];
 const FEEDBACK = {0: "", 1: "encouraging", 2: "challenging"};
 let S = null;            // the snapshot, kept up to date by the events
+let ended = false;       // the session is over: nothing is live, no control acts
 let chart = null, eegChart = null;
 const eegSeries = [[], []];
 
@@ -19,6 +20,7 @@ function letters(el, text, cmp) {
 }
 
 function renderHeader() {
+  if (ended) { renderEnded(); return; }
   const m = S.machine || {};
   const status = S.summary ? S.summary.status : (S.paused ? "paused" : (m.state ? "running" : "starting"));
   pill("status", status, S.summary ? (S.summary.exit_code === 0 ? "ok" : "warn") : (S.paused ? "warn" : "ok"));
@@ -148,15 +150,33 @@ function renderSummary() {
    `mean engagement: ${fmt(s.mean_engagement)}`, lv].forEach((t) => { const d = document.createElement("div"); d.textContent = t; $("summary").appendChild(d); });
 }
 
+function endSession() {
+  // The session is over (its summary arrived, or the server said so): say how, and disable the controls.
+  ended = true;
+  renderEnded();
+}
+
+function renderEnded() {
+  const s = S && S.summary;
+  const how = s ? `${s.status} (exit ${s.exit_code})` : "ended";
+  pill("status", "session ended: " + how, s && s.exit_code === 0 ? "ok" : "warn");
+  pill("robot", "robot: session ended");
+  pill("eeg", "EEG: session ended");
+  pill("link", "stream: session ended");
+  $("ended").textContent = "The session has ended" + (s ? ": " + how : "") + ". The controls no longer act.";
+  $("ended").classList.remove("hidden");
+  document.querySelectorAll("#controls button, #controls input, #controls select").forEach((el) => { el.disabled = true; });
+}
+
 function renderAll() {
   renderHeader(); renderTurn(); renderRows(); $("log").innerHTML = ""; S.commands.forEach(logCommand); renderSummary(); renderPolicyStatus();
 }
 
 function connect() {
-  const es = new EventSource("/events");
+  const es = new EventSource("events");
   es.addEventListener("open", () => pill("link", "stream: live", "ok"));
-  es.addEventListener("error", () => pill("link", "stream: reconnecting…", "warn"));
-  es.addEventListener("snapshot", (e) => { S = JSON.parse(e.data); renderAll(); });
+  es.addEventListener("error", () => { if (!ended) pill("link", "stream: reconnecting…", "warn"); });
+  es.addEventListener("snapshot", (e) => { S = JSON.parse(e.data); renderAll(); if (S.summary) endSession(); });
   const on = (kind, fn) => es.addEventListener(kind, (e) => { if (S) { fn(JSON.parse(e.data)); } });
   on("session", (d) => { S.session = d; S.robot = d.robot; renderHeader(); });
   on("state", (d) => { S.machine = d; renderHeader(); });
@@ -166,15 +186,16 @@ function connect() {
   on("command", (d) => { S.commands.push(d); logCommand(d); });
   on("pause", (d) => { S.paused = d.paused; renderHeader(); });
   on("robot", (d) => { S.robot = d.robot; renderHeader(); });
-  on("summary", (d) => { S.summary = d; renderHeader(); renderSummary(); });
+  on("summary", (d) => { S.summary = d; renderSummary(); endSession(); });
   on("policy", (d) => { S.policy_status = d; renderPolicyStatus(); });
   on("eeg", (d) => { S.eeg_missing = d.missing_turns ? d : null; renderHeader(); });
-  on("tick", renderTick);
-  es.addEventListener("closed", () => { es.close(); pill("link", "stream: session ended"); });
+  on("tick", (d) => { if (!ended) renderTick(d); });
+  es.addEventListener("closed", () => { es.close(); endSession(); });
 }
 
 async function send(kind, args) {
-  const r = await fetch("/command", { method: "POST", headers: { "Content-Type": "application/json" },
+  if (ended) return;
+  const r = await fetch("command", { method: "POST", headers: { "Content-Type": "application/json" },
                                       body: JSON.stringify({ kind, args: args || {} }) });
   const body = await r.json().catch(() => ({}));
   $("command-feedback").textContent = r.ok ? `${kind} queued (#${body.id}); it acts at the next step of the session`
