@@ -108,15 +108,20 @@ def build_simulator(config: StudyConfig) -> UserSimulator:
     return UserSimulator.from_level_rates("config-levels", list(pm.success_by_level), list(pm.engagement_by_level))
 
 
-def open_engagement_monitor(config: StudyConfig, session_dir: Path, rng: np.random.Generator) -> EngagementMonitor:
-    """The EEG monitor of the study's ``eeg.mode`` ("off" -> ports.NullMonitor)."""
+def open_engagement_monitor(config: StudyConfig, session_dir: Path, rng: np.random.Generator,
+                            simulator: UserSimulator | None = None) -> EngagementMonitor:
+    """The EEG monitor of the study's ``eeg.mode`` ("off" -> ports.NullMonitor).
+
+    A simulated Muse starts at the simulated participant's resting engagement (``simulator``), so the
+    baseline phase shows what the participant model implies at rest."""
     eeg = config.eeg
     if eeg.mode == "off":
         return NullMonitor()  # without importing pylsl
     from nao_trainer.eeg.factory import open_monitor  # sets LSL's scope before its first stream object
 
+    rest = {} if simulator is None else {"rest_target": simulator.rest_engagement()}
     return open_monitor(eeg.mode, eeg, session_dir, rng, config.participant.pseudonym,
-                        record_xdf=True)  # session.xdf beside the session's files (eeg.xdf: false turns it off)
+                        record_xdf=True, **rest)  # session.xdf beside the session's files (eeg.xdf: false turns it off)
 
 
 def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progress: TextIO | None = None,
@@ -255,7 +260,7 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
                     print(f"warning: the console listens on {console_bind}: anyone who can reach this address "
                           "and has the link can steer the session", file=progress, flush=True)
                 print(f"console: {console.link} (open it in a browser on this machine)", file=progress, flush=True)
-        monitor = open_engagement_monitor(config, path, np.random.default_rng(eeg_ss))
+        monitor = open_engagement_monitor(config, path, np.random.default_rng(eeg_ss), simulator)
         if config.eeg.mode != "off" and progress:  # which headband this session listens to (events.jsonl too)
             print(f"EEG ({config.eeg.mode}): {monitor.describe()}", file=progress, flush=True)
         participant_rng = np.random.default_rng(participant_ss)
