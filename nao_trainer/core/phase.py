@@ -240,7 +240,7 @@ def summarise_phase(windows: Sequence[WindowResult], t0: float, t1: float, norma
     elif engagement is None and agg.index is not None:
         why = (f"baseline too short: {normaliser.baseline_n_} usable windows" if had_baseline
                else "no baseline phase")
-        reason = (f"no normalisation scale yet ({len(normaliser.history)} windows seen, "
+        reason = (f"no normalisation scale yet ({len(normaliser.history)} task windows seen, "
                   f"{normaliser.min_values} needed; {why})"
                   if not normaliser.scale_from_ else "normalisation scale is flat")
     return PhaseSummary(engagement, agg.index, agg.quality, "" if engagement is not None else reason, smooth, norm)

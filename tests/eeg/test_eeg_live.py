@@ -357,7 +357,7 @@ def test_no_scale_reason_says_baseline_too_short_and_phase_value_matches_core():
     now[0] = m._last_stamp = 0.75
     r = m.end_phase()
     assert r.engagement is None and r.index is not None
-    assert r.reason == "no normalisation scale yet (3 windows seen, 5 needed; baseline too short: 2 usable windows)"
+    assert r.reason == "no normalisation scale yet (1 task windows seen, 5 needed; baseline too short: 2 usable windows)"
     # the phase value is the core's (normalised once, not twice)
     m.begin_phase("listening", 2)
     m.windows += _windows(0.75, 3.0, 0.25, rng)
