@@ -20,9 +20,10 @@ from nao_trainer.core.engagement import WindowResult
 
 #: Smallest span of the scale, as a fraction of the median of the values it is taken from. The index is
 #: a power ratio whose noise grows with its level: at a constant engagement the 5th-95th percentile span
-#: of the smoothed index is ~10 % of its median with 2 s windows and ~22 % with the demo's 0.5 s windows
+#: of the smoothed index is ~9 % of its median with 2 s windows and ~18 % with the demo's 0.5 s windows
 #: (simulated Muse), while real sessions span 84-234 % over their listening phases (the 4 published raw
-#: sessions, band lines and raw EEG). Below this span the scale is widened around its centre, so a
+#: sessions, band lines and raw EEG; benchmarks/measure_engagement_scale.py prints these). Below this
+#: span the scale is widened around its centre, so a
 #: participant whose engagement does not change is shown near the middle, not as noise stretched to [0, 1].
 MIN_REL_SPAN = 0.3
 

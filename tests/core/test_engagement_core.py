@@ -192,7 +192,7 @@ def test_normaliser_scales_over_the_task_when_rest_sits_far_above():
 
 
 def test_normaliser_does_not_stretch_noise():
-    """An unchanging engagement (noise ~22 % of its level, the demo's short windows) stays near the middle."""
+    """An unchanging engagement (5-95 % noise span ~20 % of its level, like the demo's short windows) stays near the middle."""
     rng = np.random.default_rng(5)
     n = phase.EngagementNormaliser().fit_baseline(rng.normal(0.4, 0.026, 20))
     for _ in range(25):
