@@ -144,10 +144,13 @@ def test_the_demo_shows_engagement_spread_over_the_scale(tmp_path):
     result = sess.run_session(cfg, sess.RunOptions(quiet=True))
     assert result.status == "completed", result.error
     rows = read_turns(result.path)
-    assert len(rows) == 25 and all(r["engagement"] != "" for r in rows)
-    e = np.array([float(r["engagement"]) for r in rows])
-    index = np.array([float(r["engagement_index"]) for r in rows])
-    level = np.array([int(r["level"]) for r in rows])
+    # a loaded machine can starve the simulated stream during a phase of a few tenths of a second: such a
+    # turn has no value but says why (as in test_session_with_simulated_muse_records_engagement_per_turn)
+    got = [r for r in rows if r["engagement"] != ""]
+    assert len(rows) == 25 and len(got) >= 20 and all(r["engagement_note"] != "" for r in rows if r not in got)
+    e = np.array([float(r["engagement"]) for r in got])
+    index = np.array([float(r["engagement_index"]) for r in got])
+    level = np.array([int(r["level"]) for r in got])
     assert np.percentile(e, 90) - np.percentile(e, 10) >= 0.2 and e.std() >= 0.1
     assert ((e <= 0.01) | (e >= 0.99)).sum() < len(e) / 2
     # ordered as the participant model says: levels 2 and 3 (0.39, 0.28) engage more than level 4 (0.19)
