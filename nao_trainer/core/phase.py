@@ -18,57 +18,84 @@ from nao_trainer.core.engagement import WindowResult
 # ----------------------------------------------------------------------------------------------
 
 
+#: Smallest span of the scale, as a fraction of the median of the values it is taken from. The index is
+#: a power ratio whose noise grows with its level: at a constant engagement the 5th-95th percentile span
+#: of the smoothed index is ~9 % of its median with 2 s windows and ~18 % with the demo's 0.5 s windows
+#: (simulated Muse), while real sessions span 84-234 % over their listening phases (the 4 published raw
+#: sessions, band lines and raw EEG; benchmarks/measure_engagement_scale.py prints these). Below this
+#: span the scale is widened around its centre, so a
+#: participant whose engagement does not change is shown near the middle, not as noise stretched to [0, 1].
+MIN_REL_SPAN = 0.3
+
+
 @dataclass
 class EngagementNormaliser:
-    """Per-participant scaling of the engagement index to [0, 1].
+    """Per-participant scaling of the engagement index to [0, 1] over the task.
 
-    Rule: the bounds are the ``lo_q``-th and ``hi_q``-th percentiles (default 5th/95th) of every value
-    seen so far - the baseline (greeting and instructions, :meth:`fit_baseline`) plus each value passed
-    to :meth:`update` - and ``normalised = clip((v - lo) / (hi - lo), 0, 1)``. Percentiles rather than
-    min/max keep one artefact from squashing the whole scale. With fewer than ``min_values`` values
-    or ``hi - lo < min_span`` there is no scale yet and the result is NaN, never an invented number.
+    Rule: the bounds are the ``lo_q``-th and ``hi_q``-th percentiles (default 5th/95th) of the task
+    values seen so far (each value passed to :meth:`update` or :meth:`extend`), and
+    ``normalised = clip((v - lo) / (hi - lo), 0, 1)``: like the paper's per-user scaling of the session
+    to [0, 1], but causal (running). The baseline (greeting and instructions, :meth:`fit_baseline`) is
+    the reference, not part of the range: it supplies the scale until the task has ``min_values``
+    values, and :attr:`baseline_position` says where rest lies on the task's scale. A resting
+    baseline far above or below the task therefore cannot pin every task value at 0 or 1.
+    Percentiles rather than min/max keep one artefact from squashing the whole scale. A span below
+    ``min_rel_span`` x the median of the values is widened to it around its centre (noise is not
+    stretched over the scale). With fewer than ``min_values`` values (task, or else baseline), or
+    ``hi - lo < min_span``, there is no scale and the result is NaN, never an invented number.
     """
 
     lo_q: float = 5.0
     hi_q: float = 95.0
     min_values: int = 5
+    min_rel_span: float = MIN_REL_SPAN
     min_span: float = 1e-9
-    history: list[float] = field(default_factory=list, repr=False, init=False)
+    history: list[float] = field(default_factory=list, repr=False, init=False)  # task values
+    baseline: list[float] = field(default_factory=list, repr=False, init=False)  # the reference
     baseline_n_: int = field(default=0, init=False)
     lo_: float = field(default=float("nan"), init=False)
     hi_: float = field(default=float("nan"), init=False)
+    scale_from_: str = field(default="", init=False)  # "task", "baseline" or "" (no scale yet)
 
     def __post_init__(self) -> None:
         if not 0 <= self.lo_q < self.hi_q <= 100:
             raise ValueError(f"need 0 <= lo_q < hi_q <= 100, got {self.lo_q}, {self.hi_q}")
         if self.min_values < 2:
             raise ValueError(f"min_values must be >= 2, got {self.min_values}")
+        if self.min_rel_span < 0:
+            raise ValueError(f"min_rel_span must be >= 0, got {self.min_rel_span}")
 
     def _refresh(self) -> None:
-        if len(self.history) >= self.min_values:
-            lo, hi = np.percentile(np.asarray(self.history), [self.lo_q, self.hi_q])
-            self.lo_, self.hi_ = float(lo), float(hi)
+        for name, values in (("task", self.history), ("baseline", self.baseline)):
+            if len(values) >= self.min_values:
+                v = np.asarray(values)
+                lo, hi = (float(x) for x in np.percentile(v, [self.lo_q, self.hi_q]))
+                least = self.min_rel_span * abs(float(np.median(v)))
+                if hi - lo < least:
+                    mid = (lo + hi) / 2
+                    lo, hi = mid - least / 2, mid + least / 2
+                self.lo_, self.hi_, self.scale_from_ = lo, hi, name
+                return
+        self.lo_, self.hi_, self.scale_from_ = float("nan"), float("nan"), ""
 
     def fit_baseline(self, values: Iterable[float]) -> "EngagementNormaliser":
-        """Start the bounds from baseline values (non-finite ones are ignored). Returns self."""
+        """Set the reference (baseline) values (non-finite ones are ignored) and clear the task values.
+
+        Returns self. The baseline is the scale until the task has ``min_values`` values.
+        """
         v = np.asarray(list(values), dtype=float)
-        v = v[np.isfinite(v)]
-        self.history = [float(x) for x in v]
-        self.baseline_n_ = len(self.history)
-        self.lo_, self.hi_ = float("nan"), float("nan")
+        self.baseline = [float(x) for x in v[np.isfinite(v)]]
+        self.history = []
+        self.baseline_n_ = len(self.baseline)
         self._refresh()
         return self
 
     def update(self, value: float) -> float:
-        """Add a value to the running bounds and return it normalised with the updated bounds."""
-        value = float(value)
-        if np.isfinite(value):
-            self.history.append(value)
-            self._refresh()
-        return float(self.normalise(np.array([value]))[0])
+        """Add a task value to the running bounds and return it normalised with the updated bounds."""
+        return float(self.extend(np.array([float(value)]))[0])
 
     def extend(self, values: Iterable[float]) -> np.ndarray:
-        """Add a batch of values (e.g. one phase) to the running bounds, then return them normalised.
+        """Add a batch of task values (e.g. one phase) to the running bounds, then return them normalised.
 
         Same rule as calling :meth:`update` for each, but the bounds are refreshed once, after the batch.
         """
@@ -80,6 +107,16 @@ class EngagementNormaliser:
     @property
     def ready(self) -> bool:
         return bool(np.isfinite(self.lo_) and self.hi_ - self.lo_ >= self.min_span)
+
+    @property
+    def baseline_position(self) -> float | None:
+        """The baseline's median on the current scale, not clipped (e.g. 2.4 = far above the task's range).
+
+        None without a baseline or a scale.
+        """
+        if not self.baseline or not self.ready:
+            return None
+        return (float(np.median(self.baseline)) - self.lo_) / (self.hi_ - self.lo_)
 
     def normalise(self, values: np.ndarray) -> np.ndarray:
         """Scale with the current bounds (does not update them); NaN when not ready or v is NaN."""
@@ -177,7 +214,8 @@ def summarise_phase(windows: Sequence[WindowResult], t0: float, t1: float, norma
                     lost_s: float = 0.0, unavailable: str | None = None) -> PhaseSummary:
     """Summarise the windows of one phase and update ``normaliser`` with them.
 
-    A baseline phase starts the normaliser's bounds; any other phase joins their running history.
+    A baseline phase sets the normaliser's reference (its scale until the task has enough values); any
+    other phase joins the task values of the running bounds.
     The phase value is the mean normalised smoothed E of its usable windows, normalised once with
     the updated bounds. ``had_baseline``: a baseline phase was summarised (this one included);
     ``lost_s``: seconds of the phase without stream; ``unavailable``: why there is no stream at all.
@@ -203,7 +241,7 @@ def summarise_phase(windows: Sequence[WindowResult], t0: float, t1: float, norma
     elif engagement is None and agg.index is not None:
         why = (f"baseline too short: {normaliser.baseline_n_} usable windows" if had_baseline
                else "no baseline phase")
-        reason = (f"no normalisation scale yet ({len(normaliser.history)} windows seen, "
+        reason = (f"no normalisation scale yet ({len(normaliser.history)} task windows seen, "
                   f"{normaliser.min_values} needed; {why})"
-                  if normaliser.baseline_n_ < normaliser.min_values else "normalisation scale is flat")
+                  if not normaliser.scale_from_ else "normalisation scale is flat")
     return PhaseSummary(engagement, agg.index, agg.quality, "" if engagement is not None else reason, smooth, norm)

@@ -80,6 +80,9 @@ class UserSimulator:
             value = getattr(self, attr)
             if value.min() < 0 or np.any(np.diff(value, axis=1) < 0):
                 raise ValueError(f"{self.name}: {attr} must be non-negative and non-decreasing per level")
+        rest = self.metadata.get("rest_engagement")
+        if rest is not None and not (isinstance(rest, (int, float)) and not isinstance(rest, bool) and 0 <= rest <= 1):
+            raise ValueError(f"{self.name}: metadata.rest_engagement must be a number in [0, 1], got {rest!r}")
 
     # -- simulation ---------------------------------------------------------------------------
 
@@ -90,6 +93,17 @@ class UserSimulator:
     def engagement_of(self, state: int, success: bool) -> float:
         """Phi(state, outcome): the turn's expected normalised engagement."""
         return float(self.engagement[state, int(success)])
+
+    def rest_engagement(self) -> float:
+        """The engagement the participant shows at rest (greeting and instructions, before any turn).
+
+        ``metadata["rest_engagement"]`` when the model file gives one, else the model's lowest task
+        engagement (over every state and outcome): the index beta / (alpha + theta) rises with task
+        demands and alpha is strongest at rest (Pope et al. 1995), so rest sits at or below the least
+        engaging turn. A simulated Muse streams it during the baseline phase.
+        """
+        rest = self.metadata.get("rest_engagement")
+        return float(self.engagement.min()) if rest is None else float(rest)
 
     def sample_times(self, level: int, rng: np.random.Generator) -> tuple[float, float]:
         """(reaction, completion) seconds from the beep, drawn from the level's distributions."""

@@ -49,7 +49,7 @@ from nao_trainer.data import own, published
 from nao_trainer.errors import DataError, UserError
 from nao_trainer.files import read_text, write_text_atomic
 
-IMPORTER_VERSION = 2  # 2: pseudonym column; sessions written by `run`
+IMPORTER_VERSION = 3  # 2: pseudonym column; sessions written by `run`; 3: engagement scaled over the task (issue 22)
 COMPAT_MODES = (None, "authors2018")
 
 #: Column name -> kind (str, int, float). The CSV's header is exactly these names in this order.

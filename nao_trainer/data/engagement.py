@@ -18,8 +18,8 @@ Two definitions:
     ``i / fs``, with the live monitor's processing defaults (``core.eeg.Processing``: EWMA a = 0.75 per
     0.25 s window). ``engagement_index`` = mean raw E of the usable samples/windows, ``engagement`` = mean of
     their smoothed E normalised per participant (:class:`EngagementNormaliser`): baseline = the
-    ``intro`` recording (greeting and instructions) when present, then bounds widened turn by turn;
-    without ``intro`` the baseline is all listening-phase values of the session itself.
+    ``intro`` recording (greeting and instructions) as reference when present, then running bounds over the
+    task phases turn by turn; without ``intro`` the baseline is all listening-phase values of the session.
     A turn below ``min_quality`` usable signal is empty, with the reason.
 
 A missing, malformed or truncated recording empties only its turn (the reason names file and line).

@@ -44,13 +44,15 @@ def _no_stream_message(query: StreamQuery, settings: EEGSettings) -> str:
 
 
 def open_monitor(mode: str, eeg_cfg: EEGSettings | Mapping[str, Any] | None, session_dir: Path | None,
-                 rng: np.random.Generator, pseudonym: str | None = None, record_xdf: bool = False) -> EngagementMonitor:
+                 rng: np.random.Generator, pseudonym: str | None = None, record_xdf: bool = False,
+                 rest_target: float = 0.5) -> EngagementMonitor:
     """The session's engagement monitor for ``mode`` "lsl", "simulated" or "off".
 
     ``eeg_cfg`` is the study's ``eeg`` section: the typed settings the config validated at load, or a
     mapping (validated here: a wrong key raises ``ConfigError`` naming it). "lsl" without a stream: ``EEGUnavailable`` when ``required``, otherwise a monitor
     whose phases say "EEG unavailable" and that attaches if a stream appears later.
-    "simulated" starts a simulated Muse (seeded from ``rng``) that ``set_target`` drives.
+    "simulated" starts a simulated Muse (seeded from ``rng``) that ``set_target`` drives; it shows
+    ``rest_target`` until then (the simulated participant's resting engagement, for the baseline phase).
     ``record_xdf``: also record ``<session_dir>/session.xdf`` (``eeg.xdf`` can turn it off), started
     before this returns, so the session's first marker is in the file.
     """
@@ -69,7 +71,7 @@ def open_monitor(mode: str, eeg_cfg: EEGSettings | Mapping[str, Any] | None, ses
         sim_rng = np.random.default_rng(int(rng.integers(0, 2**63 - 1)))
         # pid + a counter keep source_ids unique across parallel processes and monitors (no cross-talk)
         source_id = f"Muse{fake_mac(sim_rng)}-sim{os.getpid()}-{next(_SIM_COUNTER)}"
-        simulator = SimulatedMuse.start(sim_rng, target=0.5, source_id=source_id, scope=settings.lsl_scope)
+        simulator = SimulatedMuse.start(sim_rng, target=rest_target, source_id=source_id, scope=settings.lsl_scope)
         query = StreamQuery("EEG", None, source_id)
     markers = None
     try:

@@ -7,9 +7,9 @@ A background thread pulls chunks, feeds ``core.engagement.OnlineEngagement`` (sl
 band powers, EWMA) and keeps the window results on the local LSL clock. Phases are delimited by
 ``local_clock()`` at ``begin_phase`` / ``end_phase``; ``end_phase`` aggregates the windows that end
 inside the phase (``core.engagement.aggregate_phase``). Normalisation: an ``EngagementNormaliser``
-fitted on the baseline phase (greeting and instructions), then updated with every phase's windows
-(running bounds). Without a baseline the running bounds alone apply, so the first phases have no
-normalised value until enough windows were seen (``engagement`` None, ``index`` still given).
+whose reference is the baseline phase (greeting and instructions) and whose running bounds are taken
+over the task phases' windows. Without a baseline the task's bounds alone apply, so the first phases
+have no normalised value until enough windows were seen (``engagement`` None, ``index`` still given).
 
 Nothing is invented: a phase without enough clean signal returns ``engagement=None`` with the
 reason. A stream that stops delivering for ``loss_timeout_s`` is marked lost (event, gap record);

@@ -120,15 +120,20 @@ def build_simulator(config: StudyConfig) -> UserSimulator:
     return UserSimulator.from_level_rates("config-levels", list(pm.success_by_level), list(pm.engagement_by_level))
 
 
-def open_engagement_monitor(config: StudyConfig, session_dir: Path, rng: np.random.Generator) -> EngagementMonitor:
-    """The EEG monitor of the study's ``eeg.mode`` ("off" -> ports.NullMonitor)."""
+def open_engagement_monitor(config: StudyConfig, session_dir: Path, rng: np.random.Generator,
+                            simulator: UserSimulator | None = None) -> EngagementMonitor:
+    """The EEG monitor of the study's ``eeg.mode`` ("off" -> ports.NullMonitor).
+
+    A simulated Muse starts at the simulated participant's resting engagement (``simulator``), so the
+    baseline phase shows what the participant model implies at rest."""
     eeg = config.eeg
     if eeg.mode == "off":
         return NullMonitor()  # without importing pylsl
     from nao_trainer.eeg.factory import open_monitor  # sets LSL's scope before its first stream object
 
+    rest = {} if simulator is None else {"rest_target": simulator.rest_engagement()}
     return open_monitor(eeg.mode, eeg, session_dir, rng, config.participant.pseudonym,
-                        record_xdf=True)  # session.xdf beside the session's files (eeg.xdf: false turns it off)
+                        record_xdf=True, **rest)  # session.xdf beside the session's files (eeg.xdf: false turns it off)
 
 
 def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progress: TextIO | None = None,
@@ -269,7 +274,7 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
     if config.robot.url == DESKTOP:
         robot.record_audio_to(path / "audio")
     policy_state = _policy_state(policy, config, options.fresh_policy, progress)
-    monitor = open_engagement_monitor(config, path, np.random.default_rng(eeg_ss))
+    monitor = open_engagement_monitor(config, path, np.random.default_rng(eeg_ss), simulator)
     stack.callback(_close_quietly, monitor, recorder, out)
     if config.eeg.mode != "off" and progress:  # which headband this session listens to (events.jsonl too)
         print(f"EEG ({config.eeg.mode}): {monitor.describe()}", file=progress, flush=True)

@@ -167,13 +167,43 @@ def test_normaliser_rule():
     n = phase.EngagementNormaliser()
     assert np.isnan(n.update(0.5))  # no scale yet: no invented number
     n.fit_baseline(np.linspace(0.0, 1.0, 101))
-    assert n.lo_ == pytest.approx(0.05) and n.hi_ == pytest.approx(0.95)
+    assert n.lo_ == pytest.approx(0.05) and n.hi_ == pytest.approx(0.95) and n.scale_from_ == "baseline"
     assert n.normalise(np.array([0.05, 0.5, 2.0])).tolist() == pytest.approx([0.0, 0.5, 1.0])
     for _ in range(200):
-        n.update(3.0)  # running bounds widen with what is seen
-    assert n.hi_ == pytest.approx(3.0)
+        n.update(3.0)  # the task's own values make the range: a constant 3 is widened, not the baseline's
+    assert n.scale_from_ == "task" and (n.lo_, n.hi_) == pytest.approx((3.0 - 0.45, 3.0 + 0.45))
     with pytest.raises(ValueError, match="lo_q"):
         phase.EngagementNormaliser(lo_q=90, hi_q=10)
+
+
+def test_normaliser_scales_over_the_task_when_rest_sits_far_above():
+    """A resting baseline far above the task (the demo's old collapse, or a real headband): the task's
+    values are spread over [0, 1] by their own range, and the baseline's position says where rest is."""
+    rng = np.random.default_rng(4)
+    n = phase.EngagementNormaliser().fit_baseline(rng.normal(0.78, 0.02, 40))
+    turns = [rng.normal(level, 0.02, 8) for level in (0.40, 0.59, 0.48, 0.40, 0.59, 0.40, 0.48, 0.40)]
+    means = np.array([n.extend(t).mean() for t in turns])
+    assert means[1:].max() - means[1:].min() >= 0.5 and ((means > 0.02) & (means < 0.98)).sum() >= 4
+    assert means[4] > means[6] > means[5]  # ordered like the engagement behind them
+    assert n.baseline_position > 1.5  # rest lies far above the task's range (reported, not in the range)
+    # the old rule (baseline in the range) would have pinned them near 0
+    old = np.percentile(np.concatenate([n.baseline, n.history]), [5, 95])
+    assert np.clip((np.concatenate(turns[1:]) - old[0]) / (old[1] - old[0]), 0, 1).mean() < 0.3 < means[1:].mean()
+
+
+def test_normaliser_does_not_stretch_noise():
+    """An unchanging engagement (5-95 % noise span ~20 % of its level, like the demo's short windows) stays near the middle."""
+    rng = np.random.default_rng(5)
+    n = phase.EngagementNormaliser().fit_baseline(rng.normal(0.4, 0.026, 20))
+    for _ in range(25):
+        v = n.extend(rng.normal(0.4, 0.026, 8))
+    assert n.hi_ - n.lo_ == pytest.approx(phase.MIN_REL_SPAN * np.median(n.history))
+    assert 0.25 < v.mean() < 0.75
+    wide = phase.EngagementNormaliser(min_rel_span=0.0).fit_baseline([0.4] * 5)
+    wide.extend(rng.normal(0.4, 0.026, 200))
+    assert wide.hi_ - wide.lo_ < 0.1  # without the floor the noise alone would fill [0, 1]
+    with pytest.raises(ValueError, match="min_rel_span"):
+        phase.EngagementNormaliser(min_rel_span=-1)
 
 
 def test_aggregate_phase_quality_and_reason():
@@ -199,7 +229,7 @@ def test_summarise_phase_normalises_with_the_baseline_and_says_why_not():
                                  had_baseline=True, **args)
     assert n.baseline_n_ == 8 and base.engagement == pytest.approx(float(np.mean(base.normalised)))
     listen = phase.summarise_phase(windows(3.0, [3.0, 3.0]), 3.0, 3.5, n, baseline=False, had_baseline=True, **args)
-    assert listen.engagement == 1.0 and listen.reason == "" and len(n.history) == 10
+    assert listen.engagement == 1.0 and listen.reason == "" and len(n.history) == 2  # baseline scale until 5
     lost = phase.summarise_phase([], 4.0, 5.0, n, baseline=False, had_baseline=True, lost_s=1.0, **args)
     assert lost.engagement is None and lost.reason.startswith("stream lost for 1.0 s of the phase (no clean signal")
     gone = phase.summarise_phase([], 5.0, 6.0, n, baseline=False, had_baseline=True, unavailable="", **args)

@@ -140,6 +140,21 @@ def test_shipped_models_load_and_match_a_fresh_fit(fit, data):
         np.testing.assert_allclose(shipped.engagement, c.simulator.engagement, atol=1e-6)
 
 
+def test_shipped_model_folders_record_the_fingerprint_the_importer_gives(dataset_root, tmp_path_factory, data):
+    """Each shipped folder of fitted models names the turn table it was fitted from. When the importer (or an
+    engagement rule behind it) changes that table, this fails until the folder is refitted, so a stale
+    ``dataset_fingerprint`` cannot ship again (issue 22)."""
+    fingerprints = {"authors2018": data[0].fingerprint()}
+    fingerprints[None] = import_published(dataset_root, tmp_path_factory, compat=None).table.fingerprint()
+    for folder in (artifacts.DEFAULT_MODELS_DIR, artifacts.DEFAULT_MODELS_DIR.parent / "models-tested"):
+        manifest = artifacts.load_manifest(folder)
+        want = fingerprints[manifest["compat"]]
+        fix = f"{folder} is stale: refit it as docs/results/make_results.sh does (nao-trainer fit DATA --out ...)"
+        assert manifest["dataset_fingerprint"] == want, fix
+        for spec in artifacts.available_models(folder):
+            assert artifacts.load_simulator(spec, folder).metadata["dataset_fingerprint"] == want, fix
+
+
 def test_unwritable_output_is_a_one_line_user_error(fit, tmp_path):
     from nao_trainer.errors import UserError
 

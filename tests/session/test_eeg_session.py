@@ -131,3 +131,33 @@ def _wait_for(probe, timeout_s: float):
             return value
         time.sleep(0.05)
     raise AssertionError("timed out waiting for the session")
+
+
+def test_the_demo_shows_engagement_spread_over_the_scale(tmp_path):
+    """`nao-trainer run` with no flags (the demo study: speed x25, the level-4 participant model, a simulated
+    Muse over real LSL on its own source_id, the personalised policy): the baseline shows the model's
+    resting engagement, and the turns' normalised engagement follows the model over the whole scale
+    instead of lying at 0 (issue 22: a baseline far above the task once pinned every turn near 0)."""
+    cfg = load_config(None, {"session.output": str(tmp_path), "participant.pseudonym": _uid("demo").replace("-", "_")})
+    assert cfg.eeg.mode == "simulated" and cfg.timing.speed == 25 and cfg.session.turns == 25
+    rest = sess.build_simulator(cfg).rest_engagement()
+    result = sess.run_session(cfg, sess.RunOptions(quiet=True))
+    assert result.status == "completed", result.error
+    rows = read_turns(result.path)
+    # a loaded machine can starve the simulated stream during a phase of a few tenths of a second: such a
+    # turn has no value but says why (as in test_session_with_simulated_muse_records_engagement_per_turn)
+    got = [r for r in rows if r["engagement"] != ""]
+    assert len(rows) == 25 and len(got) >= 20 and all(r["engagement_note"] != "" for r in rows if r not in got)
+    e = np.array([float(r["engagement"]) for r in got])
+    index = np.array([float(r["engagement_index"]) for r in got])
+    level = np.array([int(r["level"]) for r in got])
+    assert np.percentile(e, 90) - np.percentile(e, 10) >= 0.2 and e.std() >= 0.1
+    assert ((e <= 0.01) | (e >= 0.99)).sum() < len(e) / 2
+    # ordered as the participant model says: levels 2 and 3 (0.39, 0.28) engage more than level 4 (0.19)
+    low, high = level == 4, (level == 2) | (level == 3)
+    assert low.any() and high.any()
+    assert e[high].mean() > e[low].mean() + 0.2 and index[high].mean() > index[low].mean()
+    # the baseline streams the model's rest level (its lowest engagement, level 4's): the same index
+    baseline = next(p for p in _rows(result.path / "eeg" / "phases.csv") if p["phase"] == "baseline")
+    assert rest == pytest.approx(0.193, abs=1e-3)
+    assert float(baseline["engagement_index"]) == pytest.approx(index[low].mean(), rel=0.25)
