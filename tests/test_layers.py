@@ -21,6 +21,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("robot", "eeg", "answers", "console"),
     ("learn",),
     ("session",),
+    ("study",),
     ("plots",),
     ("cli", "__main__"),
 )

@@ -1,0 +1,201 @@
+"""``study next``: a participant's next session, with the arm's configuration and learning state.
+
+The pseudonym comes from the registry, never typed into a bare ``run``; the arm, the session number,
+the seed and the learning-state folder follow from it. The session itself is played by the session
+layer's public entry point (``session.wiring.run_session``), called in :func:`play` only.
+
+A per-participant lock file (``STUDY_DIR/locks/<pseudonym>.lock``, holding the pid and host) refuses a
+second ``study next`` while the first runs; a lock left by a process that no longer exists is stale and
+taken over, with a notice. With blinding on, the terminal shows a neutral label for the arm: lines naming
+the policy, its phase or what it concluded are filtered (:class:`BlindStream`), the summary leaves out the
+policy's conclusion, and the supervisor console (which shows the policy) is refused.
+"""
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import datetime as dt
+import hashlib
+import io
+import json
+import os
+import re
+import socket
+import sys
+from pathlib import Path
+from typing import Any, Iterator, TextIO
+
+from nao_trainer.errors import ConfigError, DataError
+from nao_trainer.session.config import StudyConfig
+from nao_trainer.study.registry import Study, now_iso, open_study, pid_alive, record_session
+
+BLIND_LABEL = "arm (blinded)"
+#: Sessions that count towards the protocol's number (the others are kept on record).
+DONE = ("completed", "time limit")
+_REVEALING = re.compile(r"policy|posterior|user model|assessment|personalis|matched|cluster", re.IGNORECASE)
+_PHASE_TAG = re.compile(r"\s+\[[^\]]*\]\s*$")
+
+
+@dataclasses.dataclass(frozen=True)
+class NextSession:
+    """What ``study next`` is about to run."""
+
+    pseudonym: str
+    arm: str
+    number: int
+    config: StudyConfig
+    warning: str  # outside the interval (empty when inside)
+
+    def label(self, blinded: bool) -> str:
+        return BLIND_LABEL if blinded else f"arm {self.arm}"
+
+
+def done_sessions(participant: dict[str, Any]) -> list[dict[str, Any]]:
+    return [s for s in participant["sessions"] if s["status"] in DONE]
+
+
+def session_seed(study: Study, pseudonym: str, number: int) -> int:
+    """A reproducible seed per participant and session (from the allocation seed)."""
+    text = f"{study.protocol.allocation.seed}:{pseudonym}:{number}"
+    return int(hashlib.sha256(text.encode()).hexdigest()[:8], 16) % 2**31
+
+
+def days_between(earlier: str, later: dt.datetime) -> float:
+    return (later - dt.datetime.fromisoformat(earlier)).total_seconds() / 86400.0
+
+
+def plan_next(study: Study, pseudonym: str, flags: dict[str, Any], now: dt.datetime | None = None) -> NextSession:
+    """The participant's next session; ``DataError`` for unknown, withdrawn or completed participants."""
+    study.check_study_config()
+    p = study.participant(pseudonym)
+    protocol = study.protocol
+    if p["withdrawn"]:
+        raise DataError(f"{pseudonym}: withdrew on {p['withdrawn']['time'][:10]}; no further sessions")
+    done = done_sessions(p)
+    if len(done) >= protocol.sessions.per_participant:
+        raise DataError(f"{pseudonym}: has completed all {protocol.sessions.per_participant} sessions of the protocol")
+    number = len(done) + 1
+    warning = ""
+    if done:
+        now = now or dt.datetime.now(dt.timezone.utc).astimezone()
+        gap = days_between(done[-1]["ended"], now)
+        lo, hi = protocol.sessions.min_days, protocol.sessions.max_days
+        if not lo <= gap <= hi:
+            warning = (f"{pseudonym}'s session {number} comes {gap:.1f} days after session {number - 1}; the protocol "
+                       f"allows {lo:g}-{hi:g} days (the session is recorded as outside the interval)")
+    arm = protocol.arm(p["arm"])
+    extra = {**{k: v for k, v in flags.items() if v is not None},
+             "participant.pseudonym": pseudonym, "session.output": str(study.sessions_dir.resolve()),
+             "session.seed": session_seed(study, pseudonym, number)}
+    if "policy.state_path" not in dict(arm.overrides):  # learning state per participant, across sessions
+        extra["policy.state_path"] = str(Path("{output}") / "participants" / "{pseudonym}" / "policy_state.json")
+    return NextSession(pseudonym, arm.name, number, protocol.arm_config(arm, extra), warning)
+
+
+@contextlib.contextmanager
+def participant_lock(study: Study, pseudonym: str, notice: TextIO | None = None) -> Iterator[None]:
+    """Exclusive per participant: a second ``study next`` is refused while the first one's process lives."""
+    folder = study.root / "locks"
+    folder.mkdir(exist_ok=True)
+    path = folder / f"{pseudonym}.lock"
+    mine = {"pid": os.getpid(), "host": socket.gethostname(), "started": now_iso()}
+    for _attempt in range(2):
+        try:
+            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                held = json.loads(path.read_text(encoding="utf-8"))
+                pid, host = int(held["pid"]), str(held["host"])
+            except (OSError, ValueError, KeyError, TypeError):
+                held, pid, host = {}, -1, mine["host"]  # torn lock (killed while writing it): stale
+            if host != mine["host"] or pid_alive(pid):
+                raise ConfigError(f"{path}: a session of {pseudonym} is running (pid {pid} on {host}, started "
+                                  f"{held.get('started', '?')}); wait for it to end") from None
+            if notice:
+                print(f"study next: a stale lock of {pseudonym} (pid {pid} no longer runs) is taken over",
+                      file=notice, flush=True)
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+            continue
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(json.dumps(mine))
+        break
+    else:
+        raise ConfigError(f"{path}: cannot take the lock of {pseudonym}; remove the file if no session runs")
+    try:
+        yield
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+
+
+class BlindStream(io.TextIOBase):
+    """Progress lines without the arm: lines about the policy are dropped, phase tags and arm names hidden."""
+
+    def __init__(self, out: TextIO, names: list[str]) -> None:
+        self.out, self._buf = out, ""
+        words = sorted({n for n in names if n}, key=len, reverse=True)
+        self._names = re.compile(r"\b(" + "|".join(map(re.escape, words)) + r")\b") if words else None
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, text: str) -> int:
+        self._buf += text
+        while "\n" in self._buf:
+            line, self._buf = self._buf.split("\n", 1)
+            shown = self.filter(line)
+            if shown is not None:
+                self.out.write(shown + "\n")
+        return len(text)
+
+    def flush(self) -> None:
+        self.out.flush()
+
+    def filter(self, line: str) -> str | None:
+        if _REVEALING.search(line):
+            return None
+        line = _PHASE_TAG.sub("", line) if line.lstrip().startswith("turn ") else line
+        return self._names.sub(BLIND_LABEL, line) if self._names else line
+
+
+def play(study: Study, plan: NextSession, options: Any, progress: TextIO) -> Any:
+    """Run the planned session through the session layer and record it in the registry."""
+    from nao_trainer.session.wiring import run_session
+
+    blinded = study.protocol.blinding
+    if blinded and (options.console or plan.config.console.enabled):
+        raise ConfigError("the supervisor console shows the policy, and this protocol is blinded (blinding: true); "
+                          "run without --console (or amend the protocol)")
+    names = [a.name for a in study.protocol.arms] + [a.policy for a in study.protocol.arms]
+    stream = BlindStream(progress, names) if blinded else progress
+    result = run_session(plan.config, options, progress=stream)
+    if result.path is not None:
+        info = _session_info(result.path)
+        record_session(study.root, plan.pseudonym, {
+            "number": plan.number, "folder": result.path.name, "status": result.status,
+            "exit_code": result.exit_code, "started": info.get("started"), "ended": info.get("ended") or now_iso(),
+            "outside_interval": bool(plan.warning), "protocol_sha256": study.protocol.sha256})
+    return dataclasses.replace(result, policy_summary="") if blinded else result
+
+
+def _session_info(folder: Path) -> dict[str, Any]:
+    try:
+        return json.loads((folder / "session.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+
+
+def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any,
+             progress: TextIO | None = None) -> tuple[NextSession, Any]:
+    """``study next``: plan, lock, warn, play, record. Returns the plan and the session result."""
+    progress = progress or sys.stderr
+    study = open_study(root)
+    plan = plan_next(study, pseudonym, flags)
+    with participant_lock(study, pseudonym, progress):
+        if plan.warning:
+            print(f"warning: {plan.warning}", file=progress, flush=True)
+        print(f"study {study.protocol.name}: {pseudonym}, session {plan.number} of "
+              f"{study.protocol.sessions.per_participant}, {plan.label(study.protocol.blinding)}",
+              file=progress, flush=True)
+        return plan, play(study, plan, options, progress)
