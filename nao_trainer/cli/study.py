@@ -220,7 +220,7 @@ def _analyse(args: argparse.Namespace) -> int:
     out = args.out or args.root / "analysis"
     report = analyse(study, out)
     print(report.text)
-    from nao_trainer.plots.study import plot_outcomes
+    from nao_trainer.plots.trial import plot_outcomes
 
     for outcome in report.outcomes:
         print(f"{plot_outcomes(report, outcome, out / f'{outcome}.png')}: figure saved", file=sys.stderr)
@@ -243,7 +243,7 @@ def _power(args: argparse.Namespace) -> int:
     report = power_study(protocol, ns, args.reps, args.seed, effect=args.effect, progress=sys.stderr)
     report.write(args.out)
     print(report.text())
-    from nao_trainer.plots.study import plot_power
+    from nao_trainer.plots.trial import plot_power
 
     print(f"{plot_power(report, args.out / 'power.png')}: figure saved", file=sys.stderr)
     return 0
