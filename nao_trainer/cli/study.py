@@ -78,8 +78,11 @@ def actions_parser() -> argparse.ArgumentParser:
     p.add_argument("--n", default="12,24,48,96", metavar="N1,N2,...", help="numbers of participants")
     p.add_argument("--reps", type=int, default=200, metavar="R", help="simulated studies per N")
     p.add_argument("--seed", type=int, default=1, metavar="S")
-    p.add_argument("--effect", choices=("data", "paper"), default="data",
-                   help="data: per-session users of the published data; paper: also the paper's claimed gain")
+    p.add_argument("--users", default="sessions", choices=("sessions", "clusters", "level-only"),
+                   help="simulated participants: one per real session (held out, needs --data), or the clusters")
+    p.add_argument("--data", type=Path, metavar="ROOT", help="the published dataset root (for --users sessions)")
+    p.add_argument("--drift", type=float, default=0.3, metavar="SD",
+                   help="session-to-session change of ability (logit SD; default 0.3)")
     p.add_argument("--out", "-o", type=Path, default=Path("power"), metavar="DIR")
     p = sub.add_parser("export", help="BIDS-EEG (--bids) or the published dataset's layout (--published)")
     p.add_argument("root", type=Path, metavar="STUDY_DIR")
@@ -238,9 +241,18 @@ def _power(args: argparse.Namespace) -> int:
         raise ConfigError(f"--n {args.n!r}: give whole numbers separated by commas, e.g. 12,24,48") from None
     if not ns or ns[0] < 2 or args.reps < 2:
         raise ConfigError("--n needs numbers >= 2 and --reps >= 2")
+    if not 0 <= args.drift <= 3:
+        raise ConfigError(f"--drift {args.drift}: give a logit SD between 0 and 3")
     protocol = load_protocol(args.protocol)
-    args.out.mkdir(parents=True, exist_ok=True)
-    report = power_study(protocol, ns, args.reps, args.seed, effect=args.effect, progress=sys.stderr)
+    from nao_trainer.learn.users import load_users
+
+    print(f"study power: loading the {args.users} users ...", file=sys.stderr, flush=True)
+    name, users = load_users(args.users, data=args.data, seed=args.seed)
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"{args.out}: cannot create ({exc.strerror}); give another --out") from None
+    report = power_study(protocol, ns, args.reps, args.seed, users, name, args.drift, progress=sys.stderr)
     report.write(args.out)
     print(report.text())
     from nao_trainer.plots.trial import plot_power
