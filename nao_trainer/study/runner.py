@@ -169,7 +169,11 @@ def play(study: Study, plan: NextSession, options: Any, progress: TextIO) -> Any
                           "run without --console (or amend the protocol)")
     names = [a.name for a in study.protocol.arms] + [a.policy for a in study.protocol.arms]
     stream = BlindStream(progress, names) if blinded else progress
-    result = run_session(plan.config, options, progress=stream)
+    with contextlib.ExitStack() as stack:
+        if blinded:  # policies print to stderr themselves (e.g. "returns after 1 session(s)"): filtered too
+            stack.enter_context(contextlib.redirect_stderr(BlindStream(sys.stderr, names)))
+            stack.enter_context(contextlib.redirect_stdout(BlindStream(sys.stdout, names)))
+        result = run_session(plan.config, options, progress=stream)
     if result.path is not None:
         info = _session_info(result.path)
         record_session(study.root, plan.pseudonym, {
