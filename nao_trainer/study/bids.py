@@ -144,7 +144,9 @@ def _write_eeg(mne: Any, mne_bids: Any, folder: Path, out: Path, sub: str, ses: 
     if started is not None:
         raw.set_meas_date(started)
     raw.info["line_freq"] = 50.0
-    notes = _annotations(folder, float(times[0]))
+    length = data.shape[1] / rate  # markers after the last sample (the goodbye) are left out
+    notes = [(o, min(d, length - o - 1.0 / rate), text) for o, d, text in _annotations(folder, float(times[0]))
+             if o < length - 1.0 / rate]
     if notes:
         raw.set_annotations(mne.Annotations([n[0] for n in notes], [n[1] for n in notes], [n[2] for n in notes]))
     path = mne_bids.BIDSPath(subject=sub, session=ses, task=TASK, datatype="eeg", root=out)
