@@ -192,6 +192,29 @@ def _z(q: float) -> float:
     return float(norm.ppf(q))
 
 
+def arm_tests(y: np.ndarray, arms: np.ndarray, n_arms: int, ref: int
+              ) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Wald tests of each arm against ``ref`` from participant means ``y`` (reps, n) and arm indices
+    (reps, n): {arm: (difference, standard error, two-sided normal p)} per rep (module docstring)."""
+    from scipy.stats import norm
+
+    groups = [(arms == a) for a in range(n_arms)]
+    counts = np.stack([g.sum(axis=1) for g in groups], axis=1)
+    mu = np.stack([(y * g).sum(axis=1) for g in groups], axis=1) / counts
+    resid = sum(((y - mu[:, [a]]) ** 2 * g).sum(axis=1) for a, g in enumerate(groups))
+    var = resid / (y.shape[1] - n_arms)
+    out = {}
+    for a in range(n_arms):
+        if a == ref:
+            continue
+        diff = mu[:, a] - mu[:, ref]
+        se = np.sqrt(var * (1 / counts[:, a] + 1 / counts[:, ref]))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pval = np.where(se > 0, 2 * norm.sf(np.abs(diff) / np.where(se > 0, se, 1)), np.where(diff != 0, 0.0, 1.0))
+        out[a] = (diff, se, pval)
+    return out
+
+
 def user_tables(users: list[Any]) -> tuple[np.ndarray, np.ndarray]:
     return (np.stack([u.truth.p_success for u in users]), np.stack([u.truth.engagement for u in users]))
 
@@ -199,8 +222,6 @@ def user_tables(users: list[Any]) -> tuple[np.ndarray, np.ndarray]:
 def power_study(protocol: Protocol, ns: list[int], reps: int, seed: int, users: list[Any], users_name: str,
                 drift: float = 0.3, progress: TextIO | None = None) -> PowerReport:
     """Simulate ``reps`` studies for every N in ``ns`` (module docstring)."""
-    from scipy.stats import norm
-
     if not users:
         raise ConfigError("study power: the user set is empty")
     if min(ns) < len(protocol.arms) * 2:
@@ -228,24 +249,12 @@ def power_study(protocol: Protocol, ns: list[int], reps: int, seed: int, users: 
         for o, outcome in enumerate(OUTCOMES):
             if outcome not in protocol.outcomes:
                 continue
-            y = means[:, :, o]
-            groups = [(arms == a) for a in range(len(policies))]
-            counts = np.stack([g.sum(axis=1) for g in groups], axis=1)  # (reps, arms)
-            mu = np.stack([(y * g).sum(axis=1) for g in groups], axis=1) / counts
-            resid = sum(((y - mu[:, [a]]) ** 2 * g).sum(axis=1) for a, g in enumerate(groups))
-            var = resid / (n - len(policies))
-            for a, arm in enumerate(protocol.arms):
-                if a == ref:
-                    continue
-                key = f"{outcome}: {arm.name} vs {protocol.arms[ref].name}"
-                diff = mu[:, a] - mu[:, ref]
-                se = np.sqrt(var * (1 / counts[:, a] + 1 / counts[:, ref]))
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    pval = 2 * norm.sf(np.abs(diff) / se)
-                pval = np.where(se > 0, pval, np.where(diff != 0, 0.0, 1.0))
+            for a, (diff, se, pval) in arm_tests(means[:, :, o], arms, len(policies), ref).items():
+                key = f"{outcome}: {protocol.arms[a].name} vs {protocol.arms[ref].name}"
                 report.power.setdefault(key, []).append(float(np.mean(pval < report.alpha)))
                 report.effect.setdefault(key, []).append(float(diff.mean()))
-                report.sd[key] = float(np.sqrt(var.mean()))
+                report.sd[key] = float(np.sqrt(np.mean((se / np.sqrt(
+                    1 / (arms == a).sum(axis=1) + 1 / (arms == ref).sum(axis=1))) ** 2)))
         if progress:
             print(f"study power: N={n}: {reps} studies simulated", file=progress, flush=True)
     return report
