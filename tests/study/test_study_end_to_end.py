@@ -147,6 +147,16 @@ def test_a_three_arm_study_from_init_to_bids(tmp_path):
     with open(bids / "sub-P003" / "ses-01" / "beh" / "sub-P003_ses-01_task-sequencelearning_beh.tsv") as fh:
         header = fh.readline().rstrip("\n").split("\t")
     assert all(c in beh and beh[c]["Description"] for c in header)
+    published = tmp_path / "published"  # the authors' layout: their tools (and ours) read it
+    res = _cli("study", "export", study, "--published", published)
+    assert res.returncode == 0 and "12 users, 24 sessions, 4 with raw EEG" in res.stdout, res.stderr
+    res = _cli("import", published, "--out", tmp_path / "turns.csv")
+    assert res.returncode == 0, res.stderr
+    with open(tmp_path / "turns.csv", newline="") as fh:
+        imported = list(csv.DictReader(fh))
+    assert len(imported) == 24 * 6 and {r["pseudonym"] for r in imported} == {f"user_{i}" for i in range(1, 13)}
+    assert (published / "user_1" / "session_2" / "robot_1").stat().st_size > 0  # raw EEG of the listening phase
+
     tool = validator()
     if tool is None:
         pytest.skip("the BIDS validator is not installed (.ci/run installs it with npm into .tools/)")
