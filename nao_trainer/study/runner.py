@@ -164,9 +164,7 @@ def play(study: Study, plan: NextSession, options: Any, progress: TextIO) -> Any
     from nao_trainer.session.wiring import run_session
 
     blinded = study.protocol.blinding
-    if blinded and (options.console or plan.config.console.enabled):
-        raise ConfigError("the supervisor console shows the policy, and this protocol is blinded (blinding: true); "
-                          "run without --console (or amend the protocol)")
+    check_blinding(study, plan, options)
     names = [a.name for a in study.protocol.arms] + [a.policy for a in study.protocol.arms]
     stream = BlindStream(progress, names) if blinded else progress
     with contextlib.ExitStack() as stack:
@@ -183,6 +181,12 @@ def play(study: Study, plan: NextSession, options: Any, progress: TextIO) -> Any
     return dataclasses.replace(result, policy_summary="") if blinded else result
 
 
+def check_blinding(study: Study, plan: NextSession, options: Any) -> None:
+    if study.protocol.blinding and (options.console or plan.config.console.enabled):
+        raise ConfigError("the supervisor console shows the policy, and this protocol is blinded (blinding: true); "
+                          "run without --console (or amend the protocol)")
+
+
 def _session_info(folder: Path) -> dict[str, Any]:
     try:
         return json.loads((folder / "session.json").read_text(encoding="utf-8"))
@@ -196,6 +200,7 @@ def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any,
     progress = progress or sys.stderr
     study = open_study(root)
     plan = plan_next(study, pseudonym, flags)
+    check_blinding(study, plan, options)
     with participant_lock(study, pseudonym, progress):
         if plan.warning:
             print(f"warning: {plan.warning}", file=progress, flush=True)

@@ -190,3 +190,11 @@ def test_a_second_study_next_for_a_running_participant_is_refused_and_a_stale_lo
     with participant_lock(study, "P001"):  # its process is gone: stale, taken over
         assert json.loads(lock.read_text())["pid"] == os.getpid()
     assert not lock.exists()
+
+
+def test_a_blinded_study_refuses_the_console_which_shows_the_policy(tmp_path, capsys):
+    study = _init(tmp_path, capsys, PROTOCOL.replace("blinding: false", "blinding: true"))
+    cli(capsys, "study", "enrol", study, "--consent-date", "2026-11-02", "--consent-version", "v1")
+    code, _, err = cli(capsys, "study", "next", study, "P001", "--console", "--no-keys")
+    assert code == 2 and "blinded" in err and len(err.strip().splitlines()) == 1
+    assert not any((study / "sessions").glob("P001_*")) and not open_study(study).participants[0]["sessions"]
