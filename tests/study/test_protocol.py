@@ -198,3 +198,20 @@ def test_a_blinded_study_refuses_the_console_which_shows_the_policy(tmp_path, ca
     code, _, err = cli(capsys, "study", "next", study, "P001", "--console", "--no-keys")
     assert code == 2 and "blinded" in err and len(err.strip().splitlines()) == 1
     assert not any((study / "sessions").glob("P001_*")) and not open_study(study).participants[0]["sessions"]
+
+
+def test_strata_have_their_own_balanced_sequences(tmp_path, capsys):
+    text = PROTOCOL.replace("seed: 7}", "seed: 7, strata: {age: [young, old]}}")
+    study = _init(tmp_path, capsys, text)
+    code, _, err = cli(capsys, "study", "enrol", study, "--consent-date", "2026-11-02", "--consent-version", "v1")
+    assert code == 2 and "--stratum age=young|old" in err
+    for level in ("young", "old") * 3:
+        code, _, err = cli(capsys, "study", "enrol", study, "--consent-date", "2026-11-02", "--consent-version", "v1",
+                           "--stratum", f"age={level}")
+        assert code == 0, err
+    people = open_study(study).participants
+    seqs = allocation_sequence(load_protocol(tmp_path / "protocol.yaml"))
+    for level in ("young", "old"):
+        mine = [p["arm"] for p in people if p["stratum"] == f"age={level}"]
+        assert mine == seqs[f"age={level}"][:3]
+    assert seqs["age=young"] != seqs["age=old"]
