@@ -46,16 +46,22 @@ def plot_outcomes(report: Any, outcome: str, path: Path) -> Path:
 def plot_power(report: Any, path: Path) -> Path:
     """Power of the pre-registered test per number of participants, one line per outcome and comparison."""
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(7.5, 4.5), constrained_layout=True)
-    for i, (key, values) in enumerate(sorted(report.power.items())):
+    fig, ax = plt.subplots(figsize=(9, 4.5), constrained_layout=True)
+    styles = {"score": "-", "engagement": "--", "success_rate": ":"}
+    comparisons = sorted({key.split(": ", 1)[1] for key in report.power})
+    for key, values in sorted(report.power.items()):
+        outcome, comparison = key.split(": ", 1)
+        color = COLORS[comparisons.index(comparison) % len(COLORS)]
         lo, hi = zip(*(report.interval(v) for v in values))
-        ax.plot(report.ns, values, "o-", color=COLORS[i % len(COLORS)], label=key)
-        ax.fill_between(report.ns, lo, hi, color=COLORS[i % len(COLORS)], alpha=0.15)
+        ax.plot(report.ns, values, marker="o", ls=styles.get(outcome, "-"), color=color, label=key)
+        ax.fill_between(report.ns, lo, hi, color=color, alpha=0.08)
     ax.axhline(0.8, color="grey", ls="--", lw=0.8)
-    ax.set(xscale="log", xticks=report.ns, xticklabels=[str(n) for n in report.ns], ylim=(-0.02, 1.02),
+    ax.set_xscale("log")
+    ax.minorticks_off()
+    ax.set(xticks=report.ns, xticklabels=[str(n) for n in report.ns], ylim=(-0.02, 1.02),
            xlabel="participants (total, all arms)", ylabel=f"power (alpha {report.alpha:g})",
-           title=f"{report.name}: {report.reps} simulated studies per N")
-    ax.legend(fontsize=7, loc="upper left")
+           title=f"{report.name}: {report.reps} simulated studies per N ({report.users} users)")
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return Path(path)
