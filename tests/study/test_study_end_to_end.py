@@ -2,7 +2,7 @@
 analyse, power and a BIDS export that the official validator accepts.
 
 Sessions run against the NAO stand-in (real qi on loopback) with simulated participants of four
-abilities, 6 turns sped up x50, EEG off except for two participants (a simulated Muse on LSL). Four
+abilities, 6 turns sped up x50, EEG off except for two participants (a simulated Muse on LSL). Six
 participants' sessions run side by side (different participants may; the registry is locked per write).
 """
 from __future__ import annotations
@@ -91,8 +91,8 @@ def test_a_three_arm_study_from_init_to_bids(tmp_path):
     people = [f"P{i:03d}" for i in range(1, 13)]
     outputs = []
     for session in (1, 2):
-        for batch in range(0, 12, 4):
-            procs = [(p, _next(study, p, people.index(p))) for p in people[batch:batch + 4]]
+        for batch in range(0, 12, 6):  # the sessions mostly wait (speech, answers): six run side by side
+            procs = [(p, _next(study, p, people.index(p))) for p in people[batch:batch + 6]]
             for p, proc in procs:
                 out, err = proc.communicate(timeout=240)
                 assert proc.returncode == 0, f"study next {p} session {session}: {err[-3000:]}"
