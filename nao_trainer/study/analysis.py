@@ -66,8 +66,11 @@ def session_table(study: Study) -> list[dict[str, Any]]:
 def fit_mixed(data: list[dict[str, Any]], outcome: str, terms: tuple[str, ...], reference: str,
               interaction: bool = False) -> tuple[list[dict[str, Any]], list[str]]:
     """Fixed effects of ``outcome ~ arm [+ session] [+ arm:session] + (1|participant)`` with 95 % CIs."""
-    import pandas as pd
-    import statsmodels.formula.api as smf
+    try:
+        import pandas as pd
+        import statsmodels.formula.api as smf
+    except ImportError as exc:
+        raise DataError(f"the analysis needs statsmodels and pandas ({exc}); pip install 'nao-trainer[study]'") from None
 
     frame = pd.DataFrame(data).dropna(subset=[outcome])
     notes: list[str] = []
