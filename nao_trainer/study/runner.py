@@ -25,7 +25,7 @@ import sys
 from pathlib import Path
 from typing import Any, Iterator, TextIO
 
-from nao_trainer.errors import ConfigError, DataError
+from nao_trainer.errors import ConfigError, DataError, UserError
 from nao_trainer.session.config import StudyConfig
 from nao_trainer.study.registry import Study, now_iso, open_study, pid_alive, record_session
 
@@ -171,14 +171,25 @@ def play(study: Study, plan: NextSession, options: Any, progress: TextIO) -> Any
         if blinded:  # policies print to stderr themselves (e.g. "returns after 1 session(s)"): filtered too
             stack.enter_context(contextlib.redirect_stderr(BlindStream(sys.stderr, names)))
             stack.enter_context(contextlib.redirect_stdout(BlindStream(sys.stdout, names)))
-        result = run_session(plan.config, options, progress=stream)
+        before = set(study.sessions_dir.glob(f"{plan.pseudonym}_*"))
+        try:
+            result = run_session(plan.config, options, progress=stream)
+        except UserError as exc:  # e.g. the robot lost for good: a folder written is still recorded
+            for folder in sorted(set(study.sessions_dir.glob(f"{plan.pseudonym}_*")) - before):
+                _record(study, plan, folder, "error", exc.exit_code)
+            raise
     if result.path is not None:
-        info = _session_info(result.path)
-        record_session(study.root, plan.pseudonym, {
-            "number": plan.number, "folder": result.path.name, "status": result.status,
-            "exit_code": result.exit_code, "started": info.get("started"), "ended": info.get("ended") or now_iso(),
-            "outside_interval": bool(plan.warning), "protocol_sha256": study.protocol.sha256})
+        _record(study, plan, result.path, result.status, result.exit_code)
     return dataclasses.replace(result, policy_summary="") if blinded else result
+
+
+def _record(study: Study, plan: NextSession, folder: Path, status: str, exit_code: int) -> None:
+    info = _session_info(folder)
+    record_session(study.root, plan.pseudonym, {
+        "number": plan.number, "folder": folder.name, "status": info.get("status") or status,
+        "exit_code": info.get("exit_code", exit_code), "started": info.get("started"),
+        "ended": info.get("ended") or now_iso(), "outside_interval": bool(plan.warning),
+        "protocol_sha256": study.protocol.sha256})
 
 
 def check_blinding(study: Study, plan: NextSession, options: Any) -> None:

@@ -215,3 +215,27 @@ def test_strata_have_their_own_balanced_sequences(tmp_path, capsys):
         mine = [p["arm"] for p in people if p["stratum"] == f"age={level}"]
         assert mine == seqs[f"age={level}"][:3]
     assert seqs["age=young"] != seqs["age=old"]
+
+
+def test_a_session_that_fails_after_writing_its_folder_is_recorded_and_not_counted(tmp_path, capsys, monkeypatch):
+    from nao_trainer.errors import RobotUnavailable
+    from nao_trainer.session import wiring
+
+    study = _init(tmp_path, capsys)
+    cli(capsys, "study", "enrol", study, "--consent-date", "2026-11-02", "--consent-version", "v1")
+
+    def lost(config, options, progress=None):  # the robot is lost for good after the folder exists
+        folder = config.output_dir() / f"{config.participant.pseudonym}_20261202-100000"
+        folder.mkdir(parents=True)
+        (folder / "session.json").write_text(json.dumps({"status": "robot lost", "exit_code": 3,
+                                                         "started": "2026-12-02T10:00:00+00:00"}))
+        raise RobotUnavailable("lost the robot at 192.0.2.1")
+
+    monkeypatch.setattr(wiring, "run_session", lost)
+    code, _, err = cli(capsys, "study", "next", study, "P001", "--no-keys")
+    assert code == 3 and "lost the robot" in err
+    (entry,) = open_study(study).participants[0]["sessions"]
+    assert entry["status"] == "robot lost" and entry["number"] == 1
+    assert not (study / "locks" / "P001.lock").exists()
+    code, out, _ = cli(capsys, "study", "status", study)
+    assert "complete 0" in out and "robot lost" in out
