@@ -69,6 +69,8 @@ def actions_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("next", help="run a participant's next session (run flags pass through)")
     p.add_argument("root", type=Path, metavar="STUDY_DIR")
     p.add_argument("pseudonym", metavar="PSEUDONYM")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the participant's interrupted last session (its folder, seed and learning state)")
     _run_flags(p)
     p = sub.add_parser("analyse", help="the protocol's mixed model: estimates, 95 %% CIs, figures")
     p.add_argument("root", type=Path, metavar="STUDY_DIR")
@@ -210,7 +212,7 @@ def _next(args: argparse.Namespace) -> int:
              "session.max_duration_s": args.max_duration}
     options = RunOptions(quiet=args.quiet, keys=not args.no_keys, console=args.console or args.console_port is not None,
                          console_port=args.console_port, console_bind=args.console_bind)
-    _plan, result = run_next(args.root, args.pseudonym, flags, options)
+    _plan, result = run_next(args.root, args.pseudonym, flags, options, resume=args.resume)
     print(result.summary())
     return result.exit_code
 

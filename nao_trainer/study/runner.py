@@ -45,6 +45,7 @@ class NextSession:
     number: int
     config: StudyConfig
     warning: str  # outside the interval (empty when inside)
+    resume: Any = None  # session.wiring.Resumption when an interrupted session is continued
 
     def label(self, blinded: bool) -> str:
         return BLIND_LABEL if blinded else f"arm {self.arm}"
@@ -90,6 +91,22 @@ def plan_next(study: Study, pseudonym: str, flags: dict[str, Any], now: dt.datet
     if "policy.state_path" not in dict(arm.overrides):  # learning state per participant, across sessions
         extra["policy.state_path"] = str(Path("{output}") / "participants" / "{pseudonym}" / "policy_state.json")
     return NextSession(pseudonym, arm.name, number, protocol.arm_config(arm, extra), warning)
+
+
+def plan_resume(study: Study, pseudonym: str) -> NextSession:
+    """Continue the participant's last session when it was interrupted (its folder, configuration, seed and
+    learning state, through ``session.wiring.prepare_resume``); ``DataError`` when there is none."""
+    from nao_trainer.session.wiring import prepare_resume
+
+    study.check_study_config()
+    p = study.participant(pseudonym)
+    if p["withdrawn"]:
+        raise DataError(f"{pseudonym}: withdrew on {p['withdrawn']['time'][:10]}; no further sessions")
+    last = p["sessions"][-1] if p["sessions"] else None
+    if last is None or last["status"] in DONE:
+        raise DataError(f"{pseudonym}: no interrupted session to resume; run the next one without --resume")
+    config, resumption = prepare_resume(study.sessions_dir / last["folder"])
+    return NextSession(pseudonym, p["arm"], int(last["number"]), config, "", resumption)
 
 
 @contextlib.contextmanager
@@ -173,7 +190,7 @@ def play(study: Study, plan: NextSession, options: Any, progress: TextIO) -> Any
             stack.enter_context(contextlib.redirect_stdout(BlindStream(sys.stdout, names)))
         before = set(study.sessions_dir.glob(f"{plan.pseudonym}_*"))
         try:
-            result = run_session(plan.config, options, progress=stream)
+            result = run_session(plan.config, options, progress=stream, resume=plan.resume)
         except UserError as exc:  # e.g. the robot lost for good: a folder written is still recorded
             for folder in sorted(set(study.sessions_dir.glob(f"{plan.pseudonym}_*")) - before):
                 _record(study, plan, folder, "error", exc.exit_code)
@@ -206,16 +223,22 @@ def _session_info(folder: Path) -> dict[str, Any]:
 
 
 def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any,
-             progress: TextIO | None = None) -> tuple[NextSession, Any]:
+             progress: TextIO | None = None, resume: bool = False) -> tuple[NextSession, Any]:
     """``study next``: plan, lock, warn, play, record. Returns the plan and the session result."""
     progress = progress or sys.stderr
     study = open_study(root)
-    plan = plan_next(study, pseudonym, flags)
+    if resume:
+        given = [k for k, v in flags.items() if v is not None]
+        if given:
+            raise ConfigError(f"--resume continues a session with its own configuration; drop the flags for "
+                              f"{', '.join(given)}")
+    plan = plan_resume(study, pseudonym) if resume else plan_next(study, pseudonym, flags)
     check_blinding(study, plan, options)
     with participant_lock(study, pseudonym, progress):
         if plan.warning:
             print(f"warning: {plan.warning}", file=progress, flush=True)
+        resumed = "" if plan.resume is None else " (resumed)"
         print(f"study {study.protocol.name}: {pseudonym}, session {plan.number} of "
-              f"{study.protocol.sessions.per_participant}, {plan.label(study.protocol.blinding)}",
+              f"{study.protocol.sessions.per_participant}{resumed}, {plan.label(study.protocol.blinding)}",
               file=progress, flush=True)
         return plan, play(study, plan, options, progress)

@@ -1,6 +1,7 @@
 """The study protocol, the registry and their bad input: one line each, exit 2, nothing written."""
 from __future__ import annotations
 
+import csv
 import json
 import os
 import subprocess
@@ -239,3 +240,37 @@ def test_a_session_that_fails_after_writing_its_folder_is_recorded_and_not_count
     assert not (study / "locks" / "P001.lock").exists()
     code, out, _ = cli(capsys, "study", "status", study)
     assert "complete 0" in out and "robot lost" in out
+
+
+def test_an_interrupted_session_is_resumed_through_the_study_and_then_counts(tmp_path, capsys):
+    import signal
+    import time
+
+    study = _init(tmp_path, capsys)
+    cli(capsys, "study", "enrol", study, "--consent-date", "2026-11-02", "--consent-version", "v1")
+    code, _, err = cli(capsys, "study", "next", study, "P001", "--resume")
+    assert code == 2 and "no interrupted session" in err
+    env = dict(os.environ, QI_LOG_LEVEL="silent")
+    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "study", "next", str(study), "P001", "--no-keys",
+                             "--speed", "10", "--turns", "12"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:  # wait for two completed turns, then stop it as a crash would
+        turns = list((study / "sessions").glob("P001_*/checkpoint.json"))
+        if turns and json.loads(turns[0].read_text()).get("completed", 0) >= 2:
+            break
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGTERM)
+    _out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err[-2000:]
+    (entry,) = open_study(study).participants[0]["sessions"]
+    assert entry["status"] == "interrupted"
+    code, _, err = cli(capsys, "study", "next", study, "P001", "--resume", "--speed", "9")
+    assert code == 2 and "drop the flags" in err
+    res = subprocess.run([sys.executable, "-m", "nao_trainer", "study", "next", str(study), "P001", "--resume",
+                          "--no-keys"], capture_output=True, text=True, env=env, timeout=240)
+    assert res.returncode == 0 and "session 1 of 2 (resumed)" in res.stderr, res.stderr[-2000:]
+    (entry,) = open_study(study).participants[0]["sessions"]
+    assert entry["status"] == "completed" and entry["number"] == 1
+    with open(study / "sessions" / entry["folder"] / "turns.csv", newline="") as fh:
+        assert len([r for r in csv.DictReader(fh) if r["success"] in ("True", "False")]) == 12
