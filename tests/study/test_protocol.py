@@ -274,3 +274,12 @@ def test_an_interrupted_session_is_resumed_through_the_study_and_then_counts(tmp
     assert entry["status"] == "completed" and entry["number"] == 1
     with open(study / "sessions" / entry["folder"] / "turns.csv", newline="") as fh:
         assert len([r for r in csv.DictReader(fh) if r["success"] in ("True", "False")]) == 12
+
+
+@pytest.mark.parametrize("order", ["before", "after"])
+def test_the_session_table_form_still_parses_with_its_options_anywhere(tmp_path, capsys, order):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    args = ["--out", tmp_path / "o", empty] if order == "before" else [empty, "--out", tmp_path / "o", "--no-figure"]
+    code, _, err = cli(capsys, "study", *args)
+    assert code == 2 and "no session folders written by `nao-trainer run`" in err  # read as a session table
