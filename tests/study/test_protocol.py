@@ -225,7 +225,7 @@ def test_a_session_that_fails_after_writing_its_folder_is_recorded_and_not_count
     study = _init(tmp_path, capsys)
     cli(capsys, "study", "enrol", study, "--consent-date", "2026-11-02", "--consent-version", "v1")
 
-    def lost(config, options, progress=None):  # the robot is lost for good after the folder exists
+    def lost(config, options, progress=None, resume=None):  # the robot is lost for good after the folder exists
         folder = config.output_dir() / f"{config.participant.pseudonym}_20261202-100000"
         folder.mkdir(parents=True)
         (folder / "session.json").write_text(json.dumps({"status": "robot lost", "exit_code": 3,
