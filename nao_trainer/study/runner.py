@@ -184,10 +184,13 @@ def play(study: Study, plan: NextSession, options: Any, progress: TextIO) -> Any
     check_blinding(study, plan, options)
     names = [a.name for a in study.protocol.arms] + [a.policy for a in study.protocol.arms]
     stream = BlindStream(progress, names) if blinded else progress
+    console = None
     with contextlib.ExitStack() as stack:
         if blinded:  # policies print to stderr themselves (e.g. "returns after 1 session(s)"): filtered too
             stack.enter_context(contextlib.redirect_stderr(BlindStream(sys.stderr, names)))
             stack.enter_context(contextlib.redirect_stdout(BlindStream(sys.stdout, names)))
+            if options.console:
+                options, console = stack.enter_context(blinded_console(plan, options, progress))
         before = set(study.sessions_dir.glob(f"{plan.pseudonym}_*"))
         try:
             result = run_session(plan.config, options, progress=stream, resume=plan.resume)
@@ -195,6 +198,10 @@ def play(study: Study, plan: NextSession, options: Any, progress: TextIO) -> Any
             for folder in sorted(set(study.sessions_dir.glob(f"{plan.pseudonym}_*")) - before):
                 _record(study, plan, folder, "error", exc.exit_code)
             raise
+        if console is not None:
+            from nao_trainer.session.turn import summary_data
+
+            console.hub.notify("summary", {**summary_data(result), "policy_summary": ""})
     if result.path is not None:
         _record(study, plan, result.path, result.status, result.exit_code)
     return dataclasses.replace(result, policy_summary="") if blinded else result
@@ -210,9 +217,58 @@ def _record(study: Study, plan: NextSession, folder: Path, status: str, exit_cod
 
 
 def check_blinding(study: Study, plan: NextSession, options: Any) -> None:
-    if study.protocol.blinding and (options.console or plan.config.console.enabled):
-        raise ConfigError("the supervisor console shows the policy, and this protocol is blinded (blinding: true); "
-                          "run without --console (or amend the protocol)")
+    """The session layer's own console shows the policy: a blinded study serves its own (``--console``)."""
+    if study.protocol.blinding and plan.config.console.enabled:
+        raise ConfigError(f"{plan.config.sources[-1]}: console.enabled is true, but that console shows the policy "
+                          "and this protocol is blinded; set console.enabled: false and give `study next --console` "
+                          "(a console without the arm)")
+
+
+class BlindObserver:
+    """Passes the session's events to the console without what names the arm: the policy's name, status,
+    probabilities, the turn's phase and the policy's conclusion."""
+
+    HIDDEN = ("phase", "probabilities", "policy_summary")
+
+    def __init__(self, inner: Any) -> None:
+        self.inner = inner
+
+    def notify(self, kind: str, data: dict) -> None:
+        if kind == "policy":
+            return
+        shown = {k: (BLIND_LABEL if k == "policy" else v) for k, v in data.items() if k not in self.HIDDEN}
+        self.inner.notify(kind, shown)
+
+
+@contextlib.contextmanager
+def blinded_console(plan: NextSession, options: Any, progress: TextIO) -> Iterator[tuple[Any, Any]]:
+    """A supervisor console fed through :class:`BlindObserver`; yields the run options that use it and
+    the console (stopped on leaving).
+
+    Steering (pause, resume, stop, override, repeat, mark invalid, notes) works as usual through the
+    command queue. The page lacks the live EEG contact panel (the monitor is inside the session layer).
+    """
+    from nao_trainer.ports import CommandQueue
+    from nao_trainer.session.wiring import LOOPBACK
+
+    try:
+        from nao_trainer.console.server import Console
+    except ImportError as exc:
+        raise ConfigError(f"--console needs the console extra ({exc}); pip install -e '.[console]'") from None
+    bind = options.console_bind or plan.config.console.bind
+    if bind not in LOOPBACK and not options.console_bind:
+        raise ConfigError(f"console.bind {bind!r}: the console serves only this machine unless --console-bind "
+                          "ADDRESS is given on the command line")
+    commands = options.commands or CommandQueue()
+    port = options.console_port if options.console_port is not None else plan.config.console.port
+    console = Console.start(commands, bind, port)
+    print(f"console: {console.link} (open it in a browser on this machine; the arm is not shown)",
+          file=progress, flush=True)
+    try:
+        yield dataclasses.replace(options, console=False, console_port=None, console_bind=None, commands=commands,
+                                  observer=BlindObserver(console.hub)), console
+    finally:
+        console.stop()
 
 
 def _session_info(folder: Path) -> dict[str, Any]:

@@ -193,12 +193,60 @@ def test_a_second_study_next_for_a_running_participant_is_refused_and_a_stale_lo
     assert not lock.exists()
 
 
-def test_a_blinded_study_refuses_the_console_which_shows_the_policy(tmp_path, capsys):
+def test_a_blinded_study_serves_a_console_without_the_arm(tmp_path, capsys):
+    import time
+    import urllib.parse
+    import urllib.request
+
+    from nao_trainer.console.server import HEADER
+
     study = _init(tmp_path, capsys, PROTOCOL.replace("blinding: false", "blinding: true"))
     cli(capsys, "study", "enrol", study, "--consent-date", "2026-11-02", "--consent-version", "v1")
-    code, _, err = cli(capsys, "study", "next", study, "P001", "--console", "--no-keys")
-    assert code == 2 and "blinded" in err and len(err.strip().splitlines()) == 1
-    assert not any((study / "sessions").glob("P001_*")) and not open_study(study).participants[0]["sessions"]
+    env = dict(os.environ, QI_LOG_LEVEL="silent")
+    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "study", "next", str(study), "P001", "--console",
+                             "--no-keys", "--speed", "10", "--turns", "8"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env)
+    lines = []
+    for line in proc.stderr:  # until the link is printed
+        lines.append(line)
+        if line.startswith("console: http"):
+            break
+    link = urllib.parse.urlsplit(lines[-1].split()[1])
+    token = urllib.parse.parse_qs(link.query)["token"][0]
+    request = urllib.request.Request(f"{link.scheme}://{link.netloc}/state", headers={HEADER: token})
+    state: dict = {}
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not state.get("rows"):  # the page's state once a turn is played
+        try:
+            state = json.loads(urllib.request.urlopen(request, timeout=10).read())
+        except OSError:
+            break  # the session (and its console) ended
+        time.sleep(0.2)
+    out, err = proc.communicate(timeout=240)
+    assert proc.returncode == 0, err[-2000:]
+    assert state.get("rows") and state["session"]["policy"] == "arm (blinded)"
+    page = json.dumps(state).lower()
+    assert not any(w in page for w in ("personalised", "assessment", "usp:", "probabilities"))
+    low = ("".join(lines) + out + err).lower()
+    assert "the arm is not shown" in low
+    assert not any(w in low for w in ("personalised", "level2", "random", "schedule", "assessment", "posterior"))
+
+
+def test_the_blind_observer_keeps_the_arm_out_of_the_console():
+    from nao_trainer.console.server import ConsoleHub
+    from nao_trainer.study.runner import BlindObserver
+
+    hub = ConsoleHub()
+    seen = BlindObserver(hub)
+    seen.notify("session", {"turns": 25, "policy": "personalised", "speed": 1.0})
+    seen.notify("turn_start", {"turn": 1, "level": 2, "probabilities": [0, 1, 0, 0, 0, 0], "phase": "assessment"})
+    seen.notify("policy", {"turn": 1, "posterior": [0.2, 0.3, 0.5], "following": "usp:2"})
+    seen.notify("row", {"turn": 1, "level": 2, "score": 2, "phase": "assessment"})
+    seen.notify("summary", {"total_score": 2, "policy_summary": "matched cluster 2"})
+    _seq, text = hub.snapshot()
+    assert "personalised" not in text and "assessment" not in text and "usp" not in text and "matched" not in text
+    assert hub.state["session"]["policy"] == "arm (blinded)" and hub.state["rows"][0]["score"] == 2
+    assert hub.state["policy_status"] is None and "probabilities" not in hub.state["turn"]
 
 
 def test_strata_have_their_own_balanced_sequences(tmp_path, capsys):
