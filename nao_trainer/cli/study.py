@@ -1,31 +1,130 @@
-"""`nao-trainer study STUDY_DIR`: one row per session (CSV) and a figure comparing the participants."""
+"""`nao-trainer study`: a controlled study (init, enrol, next, status, withdraw, amend, analyse, power, export)
+and, as before, `nao-trainer study STUDY_DIR`: one row per session (CSV) and a figure comparing the participants."""
 from __future__ import annotations
 
 import argparse
 import sys
 from pathlib import Path
 
+from nao_trainer.eeg.settings import MODES as EEG_MODES
 from nao_trainer.errors import DataError
 from nao_trainer.files import write_text_atomic
+from nao_trainer.session.config import INPUTS
+
+ACTIONS = ("init", "enrol", "withdraw", "amend", "status", "next", "analyse", "power", "export", "table")
+DESCRIPTION = """\
+A controlled study (docs/study.md), in order:
+  study init PROTOCOL --out STUDY_DIR        freeze the protocol, draw the concealed allocation
+  study power PROTOCOL [--n 10,20,40]        simulated power of the pre-registered test per N
+  study enrol STUDY_DIR --consent-date D --consent-version V    the next pseudonym and its arm
+  study next STUDY_DIR PSEUDONYM [run flags] that participant's next session
+  study status STUDY_DIR                     enrolment, sessions, overdue, withdrawals, data quality
+  study withdraw STUDY_DIR PSEUDONYM --data keep|delete
+  study amend STUDY_DIR PROTOCOL --reason R  a recorded change of the frozen protocol
+  study analyse STUDY_DIR                    the protocol's mixed model, estimates, figures
+  study export STUDY_DIR --bids OUT | --published OUT
+And the session table: study STUDY_DIR [--out DIR] [--no-figure] (also `study table STUDY_DIR`):
+study.csv (session, pseudonym, date, turns, score, success per level, mean engagement, turns with EEG,
+policy, status, duration) and study.png. Sessions that cannot be read are reported one line each and left out."""
 
 
 def register(sub) -> None:
-    p = sub.add_parser(
-        "study",
-        help="a study table: one row per session written by `run` (CSV + figure)",
-        description="Read every session folder written by `nao-trainer run` under STUDY_DIR and write "
-        "study.csv (session, pseudonym, date, turns, score, success per level, mean engagement, turns with EEG, "
-        "policy, status, duration) and study.png (score and engagement per session, level over turns). Sessions that cannot "
-        "be read are reported one line each and left out.",
-    )
+    p = sub.add_parser("study", help="a controlled study (init, enrol, next, status, analyse, power, export) "
+                                     "or the table of the sessions under STUDY_DIR",
+                       description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", "-o", type=Path, default=None, metavar="DIR", help=argparse.SUPPRESS)
+    p.add_argument("--no-figure", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("words", nargs=argparse.REMAINDER, metavar="ACTION|STUDY_DIR ...",
+                   help=f"one of {', '.join(ACTIONS)} and its arguments, or a folder of sessions")
+    p.set_defaults(func=run)
+
+
+def actions_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="nao-trainer study", description=DESCRIPTION,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    p = sub.add_parser("table", help="one row per session written by `run` (CSV + figure)")
     p.add_argument("root", metavar="STUDY_DIR", type=Path, help="folder holding session folders (session.output)")
     p.add_argument("--out", "-o", type=Path, default=None, metavar="DIR",
                    help="where study.csv and study.png go (default: STUDY_DIR)")
     p.add_argument("--no-figure", action="store_true", help="only the CSV")
-    p.set_defaults(func=run)
+    p = sub.add_parser("init", help="freeze a protocol in a new study folder and draw the allocation")
+    p.add_argument("protocol", type=Path, metavar="PROTOCOL")
+    p.add_argument("--out", "-o", type=Path, required=True, metavar="STUDY_DIR")
+    p = sub.add_parser("enrol", help="enrol the next participant: pseudonym and arm")
+    p.add_argument("root", type=Path, metavar="STUDY_DIR")
+    p.add_argument("--consent-date", required=True, metavar="YYYY-MM-DD")
+    p.add_argument("--consent-version", required=True, metavar="V")
+    p.add_argument("--stratum", action="append", default=[], metavar="NAME=LEVEL",
+                   help="the participant's level of a stratum of the protocol (repeat per stratum)")
+    p = sub.add_parser("withdraw", help="record a participant's withdrawal and what happens to the data")
+    p.add_argument("root", type=Path, metavar="STUDY_DIR")
+    p.add_argument("pseudonym", metavar="PSEUDONYM")
+    p.add_argument("--data", required=True, choices=("keep", "delete"))
+    p.add_argument("--reason", default="", help="optional; never personal details")
+    p = sub.add_parser("amend", help="replace the frozen protocol, recorded with time, reason and hash")
+    p.add_argument("root", type=Path, metavar="STUDY_DIR")
+    p.add_argument("protocol", type=Path, metavar="PROTOCOL")
+    p.add_argument("--reason", required=True)
+    p = sub.add_parser("status", help="enrolment, sessions per arm, overdue, withdrawals, data quality")
+    p.add_argument("root", type=Path, metavar="STUDY_DIR")
+    p = sub.add_parser("next", help="run a participant's next session (run flags pass through)")
+    p.add_argument("root", type=Path, metavar="STUDY_DIR")
+    p.add_argument("pseudonym", metavar="PSEUDONYM")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the participant's interrupted last session (its folder, seed and learning state)")
+    _run_flags(p)
+    p = sub.add_parser("analyse", help="the protocol's mixed model: estimates, 95 %% CIs, figures")
+    p.add_argument("root", type=Path, metavar="STUDY_DIR")
+    p.add_argument("--out", "-o", type=Path, default=None, metavar="DIR", help="default: STUDY_DIR/analysis")
+    p = sub.add_parser("power", help="simulated power of the pre-registered test per number of participants")
+    p.add_argument("protocol", type=Path, metavar="PROTOCOL")
+    p.add_argument("--n", default="12,24,48,96", metavar="N1,N2,...", help="numbers of participants")
+    p.add_argument("--reps", type=int, default=200, metavar="R", help="simulated studies per N")
+    p.add_argument("--seed", type=int, default=1, metavar="S")
+    p.add_argument("--users", default="sessions", choices=("sessions", "clusters", "level-only"),
+                   help="simulated participants: one per real session (held out, needs --data), or the clusters")
+    p.add_argument("--data", type=Path, metavar="ROOT", help="the published dataset root (for --users sessions)")
+    p.add_argument("--drift", type=float, default=0.3, metavar="SD",
+                   help="session-to-session change of ability (logit SD; default 0.3)")
+    p.add_argument("--out", "-o", type=Path, default=Path("power"), metavar="DIR")
+    p = sub.add_parser("export", help="BIDS-EEG (--bids) or the published dataset's layout (--published)")
+    p.add_argument("root", type=Path, metavar="STUDY_DIR")
+    p.add_argument("--bids", type=Path, metavar="OUT")
+    p.add_argument("--published", type=Path, metavar="OUT")
+    return parser
+
+
+def _run_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--robot", metavar="mock|desktop|URL")
+    p.add_argument("--input", choices=INPUTS)
+    p.add_argument("--eeg", choices=EEG_MODES)
+    p.add_argument("--eeg-source-id", metavar="ID")
+    p.add_argument("--speed", type=float, metavar="X")
+    p.add_argument("--turns", type=int, metavar="N")
+    p.add_argument("--user-model", metavar="CLUSTER|FILE", help="a simulated participant (pilots and tests)")
+    p.add_argument("--no-practice", action="store_true")
+    p.add_argument("--max-duration", type=float, metavar="S")
+    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--no-keys", action="store_true")
+    p.add_argument("--console", action="store_true")
+    p.add_argument("--console-port", type=int, metavar="P")
+    p.add_argument("--console-bind", metavar="ADDRESS")
 
 
 def run(args: argparse.Namespace) -> int:
+    words = list(args.words)
+    if not words:
+        actions_parser().print_help()
+        return 2
+    if words[0] not in ACTIONS:  # `nao-trainer study STUDY_DIR [--out DIR] [--no-figure]`, as before
+        words = ["table", *words] + (["--out", str(args.out)] if args.out else []) \
+            + (["--no-figure"] if args.no_figure else [])
+    sub = actions_parser().parse_args(words)
+    return int(globals()[f"_{sub.action}"](sub) or 0)
+
+
+def _table(args: argparse.Namespace) -> int:
     from nao_trainer.data.study import read_study
 
     out = args.out or args.root
@@ -42,4 +141,142 @@ def run(args: argparse.Namespace) -> int:
         from nao_trainer.plots.study import plot_study
 
         print(f"{plot_study(study, out / 'study.png')}: figure saved", file=sys.stderr)
+    return 0
+
+
+def _init(args: argparse.Namespace) -> int:
+    from nao_trainer.study.registry import init_study
+
+    study = init_study(args.protocol, args.out)
+    p = study.protocol
+    print(f"{args.out}: study {p.name} initialised (protocol sha256 {p.sha256}; {len(p.arms)} arms, target "
+          f"{p.target_n}, blocks of {p.allocation.block_size}, seed {p.allocation.seed}); the allocation is "
+          "concealed until enrolment")
+    return 0
+
+
+def _enrol(args: argparse.Namespace) -> int:
+    from nao_trainer.errors import ConfigError
+    from nao_trainer.study.registry import enrol, open_study
+
+    strata = {}
+    for item in args.stratum:
+        name, sep, level = item.partition("=")
+        if not sep:
+            raise ConfigError(f"--stratum {item!r}: write NAME=LEVEL")
+        strata[name] = level
+    entry = enrol(args.root, args.consent_date, args.consent_version, strata)
+    blinded = open_study(args.root).protocol.blinding
+    arm = "arm concealed from the operator (blinding on; in the registry)" if blinded else f"arm {entry['arm']}"
+    print(f"{entry['pseudonym']}: enrolled ({arm}; consent {entry['consent_date']} version "
+          f"{entry['consent_version']}). Run the sessions with: nao-trainer study next {args.root} {entry['pseudonym']}")
+    return 0
+
+
+def _withdraw(args: argparse.Namespace) -> int:
+    from nao_trainer.study.registry import withdraw
+
+    _entry, deleted = withdraw(args.root, args.pseudonym, args.data, args.reason)
+    print(f"{args.pseudonym}: withdrawal recorded (data {args.data}" +
+          (f"; {len(deleted)} folder(s) deleted)" if args.data == "delete" else ")"))
+    return 0
+
+
+def _amend(args: argparse.Namespace) -> int:
+    from nao_trainer.study.registry import amend
+
+    entry = amend(args.root, args.protocol, args.reason)
+    print(f"{args.root}: amendment recorded {entry['time']}: {entry['old_sha256'][:12]} -> {entry['new_sha256'][:12]} "
+          f"({entry['reason']})")
+    return 0
+
+
+def _status(args: argparse.Namespace) -> int:
+    from nao_trainer.study.progress import study_status
+    from nao_trainer.study.registry import open_study
+
+    print("\n".join(study_status(open_study(args.root)).lines))
+    return 0
+
+
+def _next(args: argparse.Namespace) -> int:
+    from nao_trainer.errors import ConfigError
+    from nao_trainer.session.wiring import RunOptions
+    from nao_trainer.study.runner import run_next
+
+    if args.console_port is not None and not 0 <= args.console_port <= 65535:
+        raise ConfigError(f"--console-port {args.console_port}: a port is 0-65535 (0 = any free port)")
+    flags = {"robot.url": args.robot, "answers.input": args.input, "eeg.mode": args.eeg,
+             "eeg.source_id": args.eeg_source_id, "timing.speed": args.speed, "session.turns": args.turns,
+             "participant_model.user_model": args.user_model, "session.practice": False if args.no_practice else None,
+             "session.max_duration_s": args.max_duration}
+    options = RunOptions(quiet=args.quiet, keys=not args.no_keys, console=args.console or args.console_port is not None,
+                         console_port=args.console_port, console_bind=args.console_bind)
+    _plan, result = run_next(args.root, args.pseudonym, flags, options, resume=args.resume)
+    print(result.summary())
+    return result.exit_code
+
+
+def _analyse(args: argparse.Namespace) -> int:
+    from nao_trainer.study.analysis import analyse
+    from nao_trainer.study.registry import open_study
+
+    study = open_study(args.root)
+    out = args.out or args.root / "analysis"
+    report = analyse(study, out)
+    print(report.text)
+    from nao_trainer.plots.trial import plot_outcomes
+
+    for outcome in report.outcomes:
+        print(f"{plot_outcomes(report, outcome, out / f'{outcome}.png')}: figure saved", file=sys.stderr)
+    return 0
+
+
+def _power(args: argparse.Namespace) -> int:
+    from nao_trainer.errors import ConfigError
+    from nao_trainer.study.power import power_study
+    from nao_trainer.study.protocol import load_protocol
+
+    try:
+        ns = sorted({int(x) for x in args.n.split(",") if x.strip()})
+    except ValueError:
+        raise ConfigError(f"--n {args.n!r}: give whole numbers separated by commas, e.g. 12,24,48") from None
+    if not ns or ns[0] < 2 or args.reps < 2:
+        raise ConfigError("--n needs numbers >= 2 and --reps >= 2")
+    if not 0 <= args.drift <= 3:
+        raise ConfigError(f"--drift {args.drift}: give a logit SD between 0 and 3")
+    protocol = load_protocol(args.protocol)
+    from nao_trainer.learn.users import load_users
+
+    print(f"study power: loading the {args.users} users ...", file=sys.stderr, flush=True)
+    name, users = load_users(args.users, data=args.data, seed=args.seed)
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"{args.out}: cannot create ({exc.strerror}); give another --out") from None
+    report = power_study(protocol, ns, args.reps, args.seed, users, name, args.drift, progress=sys.stderr)
+    report.write(args.out)
+    print(report.text())
+    from nao_trainer.plots.trial import plot_power
+
+    print(f"{plot_power(report, args.out / 'power.png')}: figure saved", file=sys.stderr)
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from nao_trainer.errors import ConfigError
+    from nao_trainer.study.registry import open_study
+
+    if (args.bids is None) == (args.published is None):
+        raise ConfigError("study export: give --bids OUT or --published OUT")
+    study = open_study(args.root)
+    if args.bids is not None:
+        from nao_trainer.study.bids import export_bids
+
+        summary = export_bids(study, args.bids)
+    else:
+        from nao_trainer.study.published import export_published
+
+        summary = export_published(study, args.published)
+    print(summary)
     return 0

@@ -1,0 +1,260 @@
+"""``study power``: the power of the pre-registered test, by simulating the whole study many times.
+
+One simulated study of N participants: N users drawn with replacement from a user set
+(``learn.users``: by default one user per real session of the published data, success shrunk toward
+its cluster), allocated to the arms by blocked randomisation as the protocol says, each playing the
+protocol's sessions with its arm's policy. Every session is a simulated episode of ``session.turns``
+turns (``core.processes`` transitions, success drawn per turn), so the turn-to-turn randomness of a real
+session is in the outcomes; on top of it, a participant's ability moves from session to session
+(``drift``: a shift of every level's success probability on the logit scale, N(0, drift^2), drawn per
+participant and session; 0.3 by default, an assumption: the published data hold too few repeated
+sessions of one person to estimate it).
+
+Policies: ``schedule`` and ``random`` exactly as the live ones choose; ``usp:C`` as its trained
+table (no learning within the simulated sessions); ``personalised`` as ``core.assessment.Personaliser``
+with the shipped user models and policies, the assessment in session 1 and the posterior carried to
+the next session (its candidate learners do not keep learning: the live policy's small in-session
+updates are left out). The shipped models were fitted on all 50 sessions, the users included, which
+favours the personalised arm: its power is an upper bound.
+
+The test: the protocol's model ``outcome ~ arm + session + (1|participant)``, Wald test of each arm
+against the reference arm. With every participant playing the same sessions (balanced), the REML
+estimate of an arm effect is the difference of the arms' means of participant means, and its
+standard error the pooled between-participant variance of those means (df N - arms); that closed
+form is used here (thousands of fits per second), and the p-value is normal like MixedLM's Wald test.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from nao_trainer.core import evaluation, mdp, processes
+from nao_trainer.errors import ConfigError
+from nao_trainer.files import write_json_atomic, write_text_atomic
+from nao_trainer.study.protocol import OUTCOMES, Arm, Protocol
+
+Z80 = 0.8416212335729143  # standard normal quantile of 0.8
+
+
+def schedule_table(actions: tuple[str, ...], turns: int) -> np.ndarray:
+    """The live ``FixedSchedule`` as a per-turn table: turn t plays actions[t mod len], or where it is not
+    allowed, the first allowed action of the schedule."""
+    idx = [mdp.ACTION_NAMES.index(a) for a in actions]
+    table = np.zeros((turns, mdp.N_STATES, mdp.N_ACTIONS))
+    for t in range(turns):
+        a = idx[t % len(idx)]
+        for s in range(mdp.N_STATES):
+            ok = a if mdp.ACTION_MASK[s, a] else next(b for b in idx if mdp.ACTION_MASK[s, b])
+            table[t, s, ok] = 1.0
+    return table
+
+
+class SessionPolicies:
+    """The arm's policy for a batch of ``n`` participants, session after session."""
+
+    def __init__(self, protocol: Protocol, arm: Arm) -> None:
+        config = protocol.arm_config(arm)
+        self.turns = config.session.turns
+        self.kind = arm.policy
+        self._pers: Any = None
+        if arm.policy == "schedule":
+            self.table = schedule_table(tuple(config.policy.schedule), self.turns)
+        elif arm.policy == "random":
+            self.table = evaluation.uniform_policy()
+        elif arm.policy.startswith("usp:"):
+            from nao_trainer.policies.learned import load_policy
+
+            live = load_policy(arm.policy, False, None)
+            self.table = np.array([live.probabilities(s) for s in range(mdp.N_STATES)])
+        else:
+            from nao_trainer.policies.personalised import load_personalised
+
+            pol = config.policy
+            live = load_personalised(None, "power", self.turns, pol.assessment, pol.kappa, pol.margin, False, False)
+            self._pers = live.pers
+            self._assessment = tuple(live.pers.schedule)
+
+    def start(self, n: int, session: int) -> Any:
+        """The ``EpisodePolicy`` of session ``session`` (1-based) for the same ``n`` participants."""
+        if self._pers is None:
+            table = evaluation.TablePolicy(self.table)
+            table.reset(n, processes.get("paper"))
+            return table
+        pers = self._pers
+        carried = None if session == 1 else (pers.log_w.copy(), pers.map_log_w.copy(), pers.wins.copy(),
+                                             pers.played.copy())
+        pers.schedule = self._assessment if session == 1 else ()  # a returning participant is not assessed again
+        pers.reset(n, "paper")
+        if carried is not None:
+            pers.log_w, pers.map_log_w, pers.wins, pers.played = carried
+        return pers
+
+
+def play_sessions(policy: Any, p: np.ndarray, e: np.ndarray, turns: int, rng: np.random.Generator) -> np.ndarray:
+    """Episodes with one user per episode (``p`` (n, 108), ``e`` (n, 108, 2)): (n, 3) score, mean engagement,
+    success rate (the columns of ``OUTCOMES``)."""
+    proc = processes.get("paper")
+    n = len(p)
+    rows = np.arange(n)
+    full = np.full(n, processes.START_FULL)
+    out = np.zeros((n, 3))
+    for t in range(turns):
+        obs = proc.obs[full]
+        a = np.asarray(policy.act(obs, t, rng), dtype=np.int64)
+        s2 = processes.NEXT_TURN[full, a]
+        o2 = (rng.random(n) < p[rows, s2]).astype(np.int64)
+        r = mdp.SCORE[s2, o2].astype(float)
+        en = e[rows, s2, o2]
+        out += np.column_stack([r, en, o2])
+        full = s2 * 2 + o2
+        policy.observe(obs, a, r, en, proc.obs[full], t == turns - 1)
+    out[:, 1:] /= turns
+    return out
+
+
+def _drifted(p: np.ndarray, sd: float, rng: np.random.Generator) -> np.ndarray:
+    if sd <= 0:
+        return p
+    logit = np.log(np.clip(p, 1e-4, 1 - 1e-4) / (1 - np.clip(p, 1e-4, 1 - 1e-4)))
+    return 1.0 / (1.0 + np.exp(-(logit + rng.normal(0.0, sd, (len(p), 1)))))
+
+
+def blocked_arms(protocol: Protocol, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Arm index of n participants by the protocol's blocked randomisation (strata ignored)."""
+    rounds = protocol.allocation.block_size // sum(a.ratio for a in protocol.arms)
+    block = np.array([i for i, a in enumerate(protocol.arms) for _ in range(a.ratio * rounds)])
+    return np.concatenate([block[rng.permutation(len(block))] for _ in range(-(-n // len(block)))])[:n]
+
+
+@dataclass
+class PowerReport:
+    name: str
+    protocol_sha256: str
+    ns: list[int]
+    reps: int
+    alpha: float
+    users: str
+    drift: float
+    power: dict[str, list[float]] = field(default_factory=dict)  # "outcome: arm vs ref" -> power per N
+    effect: dict[str, list[float]] = field(default_factory=dict)  # mean estimated effect per N
+    sd: dict[str, float] = field(default_factory=dict)  # SD of participant means (pooled), largest N
+    primary: str = ""
+    arms: int = 2
+
+    def interval(self, p: float) -> tuple[float, float]:
+        half = 1.96 * math.sqrt(max(p * (1 - p), 1e-12) / self.reps)
+        return max(0.0, p - half), min(1.0, p + half)
+
+    def n_for_80(self, key: str) -> str:
+        """The smallest simulated N with power >= 0.8, else the normal-approximation N from the effect."""
+        for n, p in zip(self.ns, self.power[key]):
+            if p >= 0.8:
+                return str(n)
+        delta, sd = abs(self.effect[key][-1]), self.sd[key]
+        if delta < 1e-9:
+            return "none (no effect)"
+        return f"about {self.n_needed(delta, sd)} (extrapolated)"
+
+    def n_needed(self, delta: float, sd: float, arms: int = 0) -> int:
+        """Total N for 80 % power of a two-arm contrast of participant means (normal approximation)."""
+        z = 1.959963984540054 if abs(self.alpha - 0.05) < 1e-12 else _z(1 - self.alpha / 2)
+        per_arm = 2 * ((z + Z80) * sd / delta) ** 2
+        return int(math.ceil(per_arm)) * (arms or self.arms)
+
+    def text(self) -> str:
+        lines = [f"power of the pre-registered test (protocol {self.name}, sha256 {self.protocol_sha256[:12]}); "
+                 f"{self.reps} simulated studies per N; users: {self.users}; session drift {self.drift:g} (logit SD); "
+                 f"alpha {self.alpha:g}",
+                 f"{'outcome: comparison':<42} " + " ".join(f"N={n:<6}" for n in self.ns) + "  N for 80 %"]
+        for key in sorted(self.power, key=lambda k: (not k.startswith(self.primary + ":"), k)):
+            lines.append(f"{key:<42} " + " ".join(f"{p:<8.2f}" for p in self.power[key])
+                         + f"  {self.n_for_80(key)}")
+        lines.append("mean estimated effect at the largest N (arm minus reference), SD of participant means:")
+        for key in sorted(self.effect):
+            lines.append(f"  {key:<40} {self.effect[key][-1]:+.3f}   sd {self.sd[key]:.3f}")
+        return "\n".join(lines)
+
+    def write(self, out: Path) -> None:
+        write_text_atomic(out / "power.txt", self.text() + "\n")
+        write_json_atomic(out / "power.json", {"protocol": self.name, "protocol_sha256": self.protocol_sha256,
+                                               "ns": self.ns, "reps": self.reps, "alpha": self.alpha,
+                                               "users": self.users, "drift": self.drift, "power": self.power,
+                                               "effect": self.effect, "sd": self.sd})
+
+
+def _z(q: float) -> float:
+    from scipy.stats import norm
+
+    return float(norm.ppf(q))
+
+
+def arm_tests(y: np.ndarray, arms: np.ndarray, n_arms: int, ref: int
+              ) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Wald tests of each arm against ``ref`` from participant means ``y`` (reps, n) and arm indices
+    (reps, n): {arm: (difference, standard error, two-sided normal p)} per rep (module docstring)."""
+    from scipy.stats import norm
+
+    groups = [(arms == a) for a in range(n_arms)]
+    counts = np.stack([g.sum(axis=1) for g in groups], axis=1)
+    mu = np.stack([(y * g).sum(axis=1) for g in groups], axis=1) / counts
+    resid = sum(((y - mu[:, [a]]) ** 2 * g).sum(axis=1) for a, g in enumerate(groups))
+    var = resid / (y.shape[1] - n_arms)
+    out = {}
+    for a in range(n_arms):
+        if a == ref:
+            continue
+        diff = mu[:, a] - mu[:, ref]
+        se = np.sqrt(var * (1 / counts[:, a] + 1 / counts[:, ref]))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pval = np.where(se > 0, 2 * norm.sf(np.abs(diff) / np.where(se > 0, se, 1)), np.where(diff != 0, 0.0, 1.0))
+        out[a] = (diff, se, pval)
+    return out
+
+
+def user_tables(users: list[Any]) -> tuple[np.ndarray, np.ndarray]:
+    return (np.stack([u.truth.p_success for u in users]), np.stack([u.truth.engagement for u in users]))
+
+
+def power_study(protocol: Protocol, ns: list[int], reps: int, seed: int, users: list[Any], users_name: str,
+                drift: float = 0.3, progress: TextIO | None = None) -> PowerReport:
+    """Simulate ``reps`` studies for every N in ``ns`` (module docstring)."""
+    if not users:
+        raise ConfigError("study power: the user set is empty")
+    if min(ns) < len(protocol.arms) * 2:
+        raise ConfigError(f"--n {min(ns)}: each of the {len(protocol.arms)} arms needs at least 2 participants; "
+                          f"give N >= {2 * len(protocol.arms)}")
+    p_users, e_users = user_tables(users)
+    policies = [SessionPolicies(protocol, arm) for arm in protocol.arms]
+    ref = [a.name for a in protocol.arms].index(protocol.analysis.reference_arm)
+    report = PowerReport(protocol.name, protocol.sha256, list(ns), reps, protocol.analysis.alpha, users_name, drift,
+                         primary=protocol.primary)
+    report.arms = len(protocol.arms)
+    rng = np.random.default_rng(seed)
+    S = protocol.sessions.per_participant
+    for n in ns:
+        arms = np.stack([blocked_arms(protocol, n, rng) for _ in range(reps)])  # (reps, n)
+        who = rng.integers(len(users), size=(reps, n))
+        means = np.zeros((reps, n, 3))
+        for a, pol in enumerate(policies):
+            sel = np.flatnonzero(arms.ravel() == a)
+            idx = who.ravel()[sel]
+            for s in range(1, S + 1):
+                episode = pol.start(len(sel), s)
+                p = _drifted(p_users[idx], drift, rng)
+                means.reshape(-1, 3)[sel] += play_sessions(episode, p, e_users[idx], pol.turns, rng) / S
+        for o, outcome in enumerate(OUTCOMES):
+            if outcome not in protocol.outcomes:
+                continue
+            for a, (diff, se, pval) in arm_tests(means[:, :, o], arms, len(policies), ref).items():
+                key = f"{outcome}: {protocol.arms[a].name} vs {protocol.arms[ref].name}"
+                report.power.setdefault(key, []).append(float(np.mean(pval < report.alpha)))
+                report.effect.setdefault(key, []).append(float(diff.mean()))
+                report.sd[key] = float(np.sqrt(np.mean((se / np.sqrt(
+                    1 / (arms == a).sum(axis=1) + 1 / (arms == ref).sum(axis=1))) ** 2)))
+        if progress:
+            print(f"study power: N={n}: {reps} studies simulated", file=progress, flush=True)
+    return report

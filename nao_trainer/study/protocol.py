@@ -1,0 +1,282 @@
+"""A study protocol: arms, sessions, allocation, blinding, outcomes and the analysis, fixed before the data.
+
+A protocol is a YAML file (``config/protocols/example-3arm.yaml`` documents every key) validated once, at
+load, into frozen dataclasses; every error is one line ``file:line: key 'x': what; how to fix``. Each arm
+is a policy plus dotted overrides of the study configuration it starts from (``study_config``); every arm's
+configuration is loaded through ``session.config.load_config`` here, so an arm that could not run is
+refused before any participant is enrolled.
+
+Balance: blocked randomisation draws each block as a random permutation of the arms repeated
+``ratio`` times; a block must therefore hold a whole number of rounds (``block_size`` a multiple of the
+sum of the ratios), and ``target_n`` must give every arm at least one participant.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from nao_trainer.errors import ConfigError
+from nao_trainer.files import read_yaml
+from nao_trainer.session.config import SCHEMA, StudyConfig, check_value, load_config
+
+#: Outcomes per session the analysis and the power simulation know.
+OUTCOMES: tuple[str, ...] = ("score", "engagement", "success_rate")
+#: Fixed effects a model may name besides the intercept.
+TERMS: tuple[str, ...] = ("arm", "session")
+_MODEL = re.compile(r"^\s*(\w+)\s*~\s*(.+?)\s*\+\s*\(\s*1\s*\|\s*participant\s*\)\s*$")
+_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9]*$")  # arm names become BIDS-safe labels (letters and digits)
+_KEYS = {"protocol", "study_config", "arms", "sessions", "target_n", "allocation", "blinding", "outcomes",
+         "analysis", "pseudonym_prefix"}
+
+
+@dataclass(frozen=True)
+class Arm:
+    name: str
+    policy: str
+    overrides: tuple[tuple[str, Any], ...]  # dotted study-configuration keys, in file order
+    ratio: int  # allocation weight within a block
+
+    def config_overrides(self) -> dict[str, Any]:
+        return {"policy.kind": self.policy, **dict(self.overrides)}
+
+
+@dataclass(frozen=True)
+class Sessions:
+    per_participant: int
+    min_days: float
+    max_days: float
+
+
+@dataclass(frozen=True)
+class Stratum:
+    name: str
+    levels: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Allocation:
+    block_size: int
+    seed: int
+    strata: tuple[Stratum, ...]
+
+    def stratum_keys(self) -> list[str]:
+        """Every combination of stratum levels, as ``"age=young,sex=f"`` ("" without strata)."""
+        keys = [""]
+        for s in self.strata:
+            keys = [",".join(filter(None, (k, f"{s.name}={lv}"))) for k in keys for lv in s.levels]
+        return keys
+
+
+@dataclass(frozen=True)
+class Analysis:
+    model: str  # as written, e.g. "outcome ~ arm + session + (1|participant)"
+    terms: tuple[str, ...]  # fixed effects in the model (arm, session)
+    reference_arm: str
+    alpha: float
+
+
+@dataclass(frozen=True)
+class Protocol:
+    name: str
+    description: str
+    study_config: Path
+    arms: tuple[Arm, ...]
+    sessions: Sessions
+    target_n: int
+    allocation: Allocation
+    blinding: bool
+    primary: str
+    secondary: tuple[str, ...]
+    analysis: Analysis
+    pseudonym_prefix: str
+    source: str
+    text: str
+
+    @property
+    def sha256(self) -> str:
+        return protocol_hash(self.text)
+
+    @property
+    def outcomes(self) -> tuple[str, ...]:
+        return (self.primary, *self.secondary)
+
+    def arm(self, name: str) -> Arm:
+        return next(a for a in self.arms if a.name == name)
+
+    def arm_config(self, arm: Arm, extra: dict[str, Any] | None = None) -> StudyConfig:
+        """The study configuration one arm runs with (``extra``: the session's own keys and run flags)."""
+        return load_config(self.study_config, {**arm.config_overrides(), **(extra or {})})
+
+
+def protocol_hash(text: str) -> str:
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+class _Where:
+    """file:line of dotted keys, for one-line errors."""
+
+    def __init__(self, path: Path, lines: dict[str, int]) -> None:
+        self.path, self.lines = path, lines
+
+    def error(self, key: str, problem: str) -> ConfigError:
+        line = self.lines.get(key)
+        while line is None and "." in key:
+            key_up = key.rsplit(".", 1)[0]
+            line, key = self.lines.get(key_up), key_up
+        return ConfigError(f"{self.path}{f':{line}' if line else ''}: key '{key}': {problem}")
+
+
+def _get(d: Any, key: str, where: _Where, dotted: str, kind: type | tuple[type, ...], default: Any = ...) -> Any:
+    if not isinstance(d, dict) or key not in d:
+        if default is ...:
+            raise where.error(dotted, "is missing; add it (see config/protocols/example-3arm.yaml)")
+        return default
+    value = d[key]
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+    if not isinstance(value, kind) or (isinstance(value, bool) and kind is not bool):
+        raise where.error(dotted, f"must be {getattr(kind, '__name__', kind)}, got {value!r}")
+    return value
+
+
+def load_protocol(path: str | os.PathLike, base: Path | None = None) -> Protocol:
+    """Read and validate a protocol file; ``ConfigError`` (one line, file:line) for the first problem.
+
+    ``base``: the folder a relative ``study_config`` resolves against (default: the protocol's own folder;
+    a study folder's frozen copy passes the folder of the file it was copied from).
+    """
+    path = Path(os.path.abspath(os.path.expanduser(path)))
+    data, lines, text = read_yaml(path, fix="give a protocol file (see config/protocols/example-3arm.yaml)")
+    where = _Where(path, lines)
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: a protocol is a mapping of keys (see config/protocols/example-3arm.yaml)")
+    for key in data:
+        if key not in _KEYS:
+            raise where.error(str(key), f"unknown key; valid keys: {', '.join(sorted(_KEYS))}")
+    head = _get(data, "protocol", where, "protocol", dict)
+    name = _get(head, "name", where, "protocol.name", str)
+    description = _get(head, "description", where, "protocol.description", str, "")
+    config_path = Path(_get(data, "study_config", where, "study_config", str)).expanduser()
+    config_path = config_path if config_path.is_absolute() else ((base or path.parent) / config_path).resolve()
+    if not config_path.is_file():
+        raise where.error("study_config", f"{config_path} is not a file (relative paths resolve against the "
+                                          "protocol's folder); fix the path")
+    arms = _arms(_get(data, "arms", where, "arms", list), where)
+    s = _get(data, "sessions", where, "sessions", dict)
+    per = _get(s, "per_participant", where, "sessions.per_participant", int)
+    if per < 1:
+        raise where.error("sessions.per_participant", f"must be >= 1, got {per}")
+    interval = _get(s, "interval_days", where, "sessions.interval_days", dict)
+    lo = _get(interval, "min", where, "sessions.interval_days.min", float)
+    hi = _get(interval, "max", where, "sessions.interval_days.max", float)
+    if not 0 <= lo <= hi:
+        raise where.error("sessions.interval_days", f"needs 0 <= min <= max, got min {lo}, max {hi}")
+    target = _get(data, "target_n", where, "target_n", int)
+    allocation = _allocation(_get(data, "allocation", where, "allocation", dict), where)
+    _check_balance(arms, allocation, target, where)
+    blinding = _get(data, "blinding", where, "blinding", bool)
+    outcomes = _get(data, "outcomes", where, "outcomes", dict)
+    primary = _get(outcomes, "primary", where, "outcomes.primary", str)
+    secondary = tuple(_get(outcomes, "secondary", where, "outcomes.secondary", list, []))
+    for i, o in enumerate((primary, *secondary)):
+        if o not in OUTCOMES:
+            raise where.error("outcomes.primary" if i == 0 else "outcomes.secondary",
+                              f"unknown outcome {o!r}; use one of {', '.join(OUTCOMES)}")
+    analysis = _analysis(_get(data, "analysis", where, "analysis", dict), where, arms)
+    prefix = _get(data, "pseudonym_prefix", where, "pseudonym_prefix", str, "P")
+    if not _NAME.match(prefix):
+        raise where.error("pseudonym_prefix", f"{prefix!r} must be letters and digits, starting with a letter")
+    protocol = Protocol(name, description, config_path, arms, Sessions(per, lo, hi), target, allocation, blinding,
+                        primary, secondary, analysis, prefix, str(path), text)
+    for i, arm in enumerate(arms):  # every arm's configuration must load (overrides, policy, files)
+        try:
+            protocol.arm_config(arm)
+        except ConfigError as exc:
+            raise where.error(f"arms[{i}]", f"arm {arm.name!r} does not load: {exc}") from None
+    return protocol
+
+
+def _arms(items: list, where: _Where) -> tuple[Arm, ...]:
+    arms = []
+    for i, item in enumerate(items):
+        key = f"arms[{i}]"
+        if not isinstance(item, dict):
+            raise where.error("arms", f"arm {i + 1} must be a mapping with name and policy")
+        unknown = set(item) - {"name", "policy", "overrides", "ratio"}
+        if unknown:
+            raise where.error("arms", f"arm {i + 1}: unknown key(s) {', '.join(sorted(unknown))}; "
+                                      "valid: name, policy, overrides, ratio")
+        name = _get(item, "name", where, key, str)
+        if not _NAME.match(name):
+            raise where.error("arms", f"arm name {name!r} must be letters and digits, starting with a letter "
+                                      "(it becomes a BIDS label)")
+        policy = _get(item, "policy", where, key, str)
+        problem = check_value(policy, SCHEMA["policy"]["kind"])
+        if problem:
+            raise where.error("arms", f"arm {name!r}: unknown policy {policy!r}: {problem}")
+        overrides = _get(item, "overrides", where, key, dict, {})
+        for k in overrides:
+            section, _, sub = str(k).partition(".")
+            if section not in SCHEMA or sub not in SCHEMA[section]:
+                raise where.error("arms", f"arm {name!r}: override {k!r} is not a study configuration key "
+                                          "(SECTION.KEY, see config/default.yaml)")
+            if k in ("policy.kind", "participant.pseudonym", "session.output"):
+                raise where.error("arms", f"arm {name!r}: override {k!r} is set by the study itself; remove it")
+        ratio = _get(item, "ratio", where, key, int, 1)
+        if ratio < 1:
+            raise where.error("arms", f"arm {name!r}: ratio {ratio}: an arm with no participants possible; "
+                                      "give ratio >= 1 or remove the arm")
+        arms.append(Arm(name, policy, tuple(overrides.items()), ratio))
+    if len(arms) < 2:
+        raise where.error("arms", f"a controlled study needs at least 2 arms, got {len(arms)}")
+    names = [a.name for a in arms]
+    if len(set(names)) != len(names):
+        raise where.error("arms", f"arm names must differ, got {names}")
+    return tuple(arms)
+
+
+def _allocation(a: dict, where: _Where) -> Allocation:
+    method = _get(a, "method", where, "allocation.method", str, "blocked")
+    if method != "blocked":
+        raise where.error("allocation.method", f"{method!r}: only 'blocked' randomisation is supported")
+    size = _get(a, "block_size", where, "allocation.block_size", int)
+    seed = _get(a, "seed", where, "allocation.seed", int)
+    strata = []
+    for name, levels in _get(a, "strata", where, "allocation.strata", dict, {}).items():
+        if not isinstance(levels, list) or len(levels) < 2 or not all(isinstance(v, str) and v for v in levels):
+            raise where.error(f"allocation.strata.{name}", "must list at least 2 levels (strings)")
+        strata.append(Stratum(str(name), tuple(levels)))
+    return Allocation(size, seed, tuple(strata))
+
+
+def _check_balance(arms: tuple[Arm, ...], allocation: Allocation, target: int, where: _Where) -> None:
+    round_size = sum(a.ratio for a in arms)
+    if allocation.block_size < round_size or allocation.block_size % round_size:
+        raise where.error("allocation.block_size", f"{allocation.block_size} cannot balance {len(arms)} arms with "
+                                                   f"ratios {[a.ratio for a in arms]}: use a multiple of {round_size}")
+    if target < round_size:
+        raise where.error("target_n", f"{target} participants leave an arm with no participants possible; "
+                                      f"give at least {round_size}")
+
+
+def _analysis(a: dict, where: _Where, arms: tuple[Arm, ...]) -> Analysis:
+    model = _get(a, "model", where, "analysis.model", str)
+    m = _MODEL.match(model)
+    fix = "write it as 'outcome ~ arm + session + (1|participant)'"
+    if not m or m.group(1) != "outcome":
+        raise where.error("analysis.model", f"{model!r} is not a model this analysis fits; {fix}")
+    terms = tuple(t.strip() for t in m.group(2).split("+"))
+    if "arm" not in terms or any(t not in TERMS for t in terms) or len(set(terms)) != len(terms):
+        raise where.error("analysis.model", f"fixed effects {terms}: use arm and optionally session; {fix}")
+    ref = _get(a, "reference_arm", where, "analysis.reference_arm", str, arms[0].name)
+    if ref not in [x.name for x in arms]:
+        raise where.error("analysis.reference_arm", f"{ref!r} is not an arm; use one of "
+                                                    f"{', '.join(x.name for x in arms)}")
+    alpha = _get(a, "alpha", where, "analysis.alpha", float, 0.05)
+    if not 0 < alpha < 0.5:
+        raise where.error("analysis.alpha", f"{alpha} must be in (0, 0.5)")
+    return Analysis(model, terms, ref, alpha)

@@ -1,0 +1,33 @@
+"""A small three-arm protocol for the study tests (tests/study/)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+BASE = """\
+study: {name: unit}
+robot: {url: mock}
+session: {turns: 4, practice: false}
+timing: {speed: 50}
+answers: {input: simulated}
+eeg: {mode: "off"}
+"""
+PROTOCOL = """\
+protocol: {name: unit-3arm, description: three arms}
+study_config: base.yaml
+arms:
+  - {name: personalised, policy: personalised}
+  - {name: level2, policy: schedule, overrides: {policy.schedule: [L2]}}
+  - {name: random, policy: random}
+sessions: {per_participant: 2, interval_days: {min: 0, max: 7}}
+target_n: 12
+allocation: {method: blocked, block_size: 6, seed: 7}
+blinding: false
+outcomes: {primary: score, secondary: [engagement, success_rate]}
+analysis: {model: "outcome ~ arm + session + (1|participant)", reference_arm: level2}
+"""
+
+
+def write_protocol(folder: Path, text: str = PROTOCOL, name: str = "protocol.yaml") -> Path:
+    (folder / "base.yaml").write_text(BASE)
+    (folder / name).write_text(text)
+    return folder / name

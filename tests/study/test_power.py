@@ -1,0 +1,89 @@
+"""The power simulation's parts: the schedule as the live policy plays it, the closed-form test against
+statsmodels' MixedLM, power that grows with N and detects a planted difference, the interval warning."""
+from __future__ import annotations
+
+import datetime as dt
+
+import numpy as np
+import pytest
+
+from _study_data import PROTOCOL, write_protocol
+from nao_trainer.core import mdp
+from nao_trainer.policies.fixed import FixedSchedule
+from nao_trainer.study.analysis import fit_mixed
+from nao_trainer.study.power import arm_tests, power_study, schedule_table
+from nao_trainer.study.protocol import load_protocol
+from nao_trainer.study.registry import enrol, init_study, open_study, record_session
+from nao_trainer.study.runner import plan_next
+
+
+def test_the_schedule_table_plays_what_the_live_schedule_plays():
+    actions = ("L2", "RF1", "L3", "L1")
+    table = schedule_table(actions, 12)
+    live = FixedSchedule(actions)
+    rng = np.random.default_rng(0)
+    state = mdp.START
+    for t in range(12):
+        chosen = live.act(state, rng)
+        assert table[t, state, chosen] == 1.0
+        state = mdp.next_state(state, chosen, bool(rng.random() < 0.6))
+
+
+def test_the_closed_form_test_is_the_mixed_models_wald_test_on_balanced_data():
+    rng = np.random.default_rng(3)
+    n, sessions = 18, 2
+    arms = np.repeat([0, 1, 2], 6)
+    u = rng.normal(0, 3, n)  # participants differ a lot (the variance component is well away from 0)
+    data = [{"participant": f"P{i}", "arm": ("a", "b", "c")[arms[i]], "session": s + 1,
+             "score": 10 + 2.5 * (arms[i] == 1) + u[i] + 0.5 * s + rng.normal(0, 1.0)}
+            for i in range(n) for s in range(sessions)]
+    rows, notes = fit_mixed(data, "score", ("arm", "session"), "a")
+    assert not notes, notes
+    fitted = {r["term"]: r for r in rows}
+    means = np.array([[np.mean([d["score"] for d in data if d["participant"] == f"P{i}"]) for i in range(n)]])
+    tests = arm_tests(means, arms[None, :], 3, 0)
+    for a, name in ((1, "b"), (2, "c")):
+        diff, se, p = (float(x[0]) for x in tests[a])
+        assert diff == pytest.approx(fitted[f"arm[{name}]"]["estimate"], abs=1e-6)
+        half = (fitted[f"arm[{name}]"]["ci_high"] - fitted[f"arm[{name}]"]["ci_low"]) / 2
+        assert se == pytest.approx(half / 1.959964, rel=0.02)
+        assert p == pytest.approx(fitted[f"arm[{name}]"]["p"], rel=0.05, abs=1e-4)
+
+
+def test_power_finds_a_large_difference_and_grows_with_n(tmp_path):
+    from nao_trainer.learn.users import cluster_user_set
+
+    protocol = load_protocol(write_protocol(tmp_path, PROTOCOL.replace("policy: random}", "policy: schedule, "
+                                                                       "overrides: {policy.schedule: [L4]}}")))
+    users = cluster_user_set()
+    report = power_study(protocol, [6, 24], 60, 1, users, "clusters", drift=0.3)
+    key = "success_rate: random vs level2"  # the arm named random plays level 4 here: far worse than level 2
+    assert report.power[key][1] >= 0.95 and report.effect[key][1] < -0.3
+    score = "score: random vs level2"
+    assert report.effect[score][1] < -3 and report.power[score][1] > report.power[score][0]
+    again = power_study(protocol, [6, 24], 60, 1, users, "clusters", drift=0.3)
+    assert again.power == report.power  # seeded
+    assert "N for 80 %" in report.text()
+
+
+def test_two_arms_playing_the_same_policy_are_found_different_about_alpha_of_the_time(tmp_path):
+    from nao_trainer.learn.users import cluster_user_set
+
+    same = PROTOCOL.replace("policy: random}", "policy: schedule, overrides: {policy.schedule: [L2]}}")
+    protocol = load_protocol(write_protocol(tmp_path, same))
+    report = power_study(protocol, [30], 200, 2, cluster_user_set(), "clusters", drift=0.3)
+    for outcome in ("score", "success_rate"):
+        assert report.power[f"{outcome}: random vs level2"][0] <= 0.12  # alpha 0.05, 200 studies
+
+
+def test_study_next_warns_outside_the_interval(tmp_path):
+    init_study(write_protocol(tmp_path, PROTOCOL.replace("min: 0", "min: 2")), tmp_path / "study")
+    enrol(tmp_path / "study", "2026-11-02", "v1")
+    ended = dt.datetime(2026, 11, 10, 12, 0, tzinfo=dt.timezone.utc)
+    record_session(tmp_path / "study", "P001", {"number": 1, "folder": "P001_x", "status": "completed",
+                                                "ended": ended.isoformat()})
+    study = open_study(tmp_path / "study")
+    soon = plan_next(study, "P001", {}, now=ended + dt.timedelta(days=1))
+    assert soon.number == 2 and "1.0 days after session 1" in soon.warning and "2-7 days" in soon.warning
+    assert plan_next(study, "P001", {}, now=ended + dt.timedelta(days=3)).warning == ""
+    assert "8.0 days" in plan_next(study, "P001", {}, now=ended + dt.timedelta(days=8)).warning
