@@ -303,6 +303,22 @@ def test_urls_with_credentials_are_refused_and_never_echoed():
         normalize_url("tcp://10.0.0.5:70000")
 
 
+LEAKY = [("tcps://nao:S3c/retPW@127.0.0.1:9503", "tcps://***@127.0.0.1:9503", ("S3c", "retPW")),
+         ("tcps://nao:S3c@retPW@127.0.0.1:9503", "tcps://***@127.0.0.1:9503", ("S3c", "retPW")),
+         ("nao:S3cretPW@127.0.0.1", "***@127.0.0.1", ("S3cretPW", "nao:")),
+         ("tcp://a@b:pw@10.0.0.5", "tcp://***@10.0.0.5", ("pw", "a@b"))]
+
+
+@pytest.mark.parametrize("url, shown, secrets", LEAKY)
+def test_no_part_of_a_password_survives_redaction_or_the_refusal(url, shown, secrets):
+    assert redact_url(url) == shown
+    with pytest.raises(ConfigError) as info:
+        normalize_url(url)
+    assert "NAO_PASSWORD" in str(info.value)
+    for secret in secrets:
+        assert secret not in str(info.value)
+
+
 def test_credentials_from_env():
     assert credentials_from_env({}) is None
     creds = credentials_from_env({"NAO_USER": "nao", "NAO_PASSWORD": "pw"})
