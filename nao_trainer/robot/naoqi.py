@@ -473,6 +473,7 @@ def _connect_session(session: Any, url: str, deadline_s: float) -> None:
     if future.hasError():
         error = future.error()
         session.close()
-        raise RobotUnavailable(f"cannot reach the robot at {where}: {_explain(error)} {STANDIN_HINT}")
+        raise RobotUnavailable(f"cannot reach the robot at {where}: {_explain(error, url.startswith('tcps://'))} "
+                               f"{STANDIN_HINT}")
 
 

@@ -50,9 +50,14 @@ def is_connection_lost(error: BaseException | str) -> bool:
 #: deliver Ctrl-C/SIGTERM; waiting in slices lets an operator interrupt a long utterance at once.
 
 
-def _explain(error: str) -> str:
-    """A short, user-facing reading of a qi connect error."""
+def _explain(error: str, tls: bool = False) -> str:
+    """A short, user-facing reading of a qi connect error (``tls``: a NAOqi 2.9 ``tcps://`` login was sent)."""
     text = error.lower()
+    if tls and ("auth" in text or "disconnected" in text):
+        # qi 3.1.5 (libqi 4.0.5) clients do not enforce authentication, so a server's "Authentication
+        # failed" reply is not reported as such: the server then closes the link, seen as "disconnected".
+        return (f"the robot closed the connection at login ({error.strip()}): NAOqi 2.9 refused the user or "
+                f"password - check {USER_ENV} / {PASSWORD_ENV}")
     if "refused" in text:
         return "connection refused - is the robot on, is the address right, is NAOqi running on that port?"
     if "auth" in text:

@@ -80,8 +80,9 @@ def test_say_beep_leds_posture_reach_the_robot_with_naoqi_signatures(standin, ro
     robot.say("Listen.", animated=True, mode="disabled")
     robot.beep(880, 0.2, gain=0.3)
     robot.set_eye_leds(0x0000FF, 0.1)
-    assert robot.go_to_posture("Stand", 0.6) is True
+    assert robot.go_to_posture("Stand", 0.6) is False  # motors off: a NAO's joints do not move
     robot.wake_up()
+    assert robot.go_to_posture("Stand", 0.6) is True
     robot.rest()
     assert _calls(standin) == [
         ("ALTextToSpeech", "say", ["Hello, let us play."]),
@@ -91,6 +92,7 @@ def test_say_beep_leds_posture_reach_the_robot_with_naoqi_signatures(standin, ro
         ("ALLeds", "fadeRGB", ["FaceLeds", 0x0000FF, 0.1]),
         ("ALRobotPosture", "goToPosture", ["Stand", 0.6]),
         ("ALMotion", "wakeUp", []),
+        ("ALRobotPosture", "goToPosture", ["Stand", 0.6]),
         ("ALMotion", "rest", []),
     ]
 
