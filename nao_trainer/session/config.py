@@ -57,6 +57,10 @@ class RobotSection:
     backoff_initial_s: float
     backoff_max_s: float
     posture_speed: float
+    autonomous_life: str  # the ALAutonomousLife state during a session ("unchanged": leave it as found)
+    rest_at_end: bool  # ALMotion.rest() at the end (motors off)
+    link_check_s: float  # during an answer window, a cheap call this often (wall seconds) ...
+    link_deadline_s: float  # ... and its deadline: no answer = a frozen link, the turn is replayed
 
 
 @dataclass(frozen=True)

@@ -95,6 +95,10 @@ SCHEMA: dict[str, Any] = {
         "backoff_initial_s": Field((int, float), min=0.05, max=60),
         "backoff_max_s": Field((int, float), min=0.1, max=300),
         "posture_speed": Field((int, float), min=0.05, max=1.0),
+        "autonomous_life": Field(str, choices=("disabled", "solitary", "interactive", "unchanged")),
+        "rest_at_end": Field(bool),
+        "link_check_s": Field((int, float), min=0.2, max=10),
+        "link_deadline_s": Field((int, float), min=0.2, max=30),
     },
     "session": {
         "turns": Field(int, min=1, max=500),

@@ -7,9 +7,10 @@ starts and ends with a marker in the EEG recording. ``EEGPhases`` is a part of
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
-from nao_trainer.ports import Answer, PhaseEngagement, RobotConnectionLost
+from nao_trainer.ports import Answer, PhaseEngagement, RobotConnectionLost, watch_link
 
 if TYPE_CHECKING:
     from nao_trainer.session.turn import Turn
@@ -44,10 +45,17 @@ class EEGPhases:
         return self.monitor.end_phase()
 
     def _beep(self, turn: int) -> float:
-        """Open the answer window and beep; returns the beep onset (time 0 of the answer)."""
+        """Open the answer window and beep; returns the beep onset (time 0 of the answer).
+
+        Answer sources time presses from ``open_window``, made just before the beep call; the
+        press times are later shifted by ``_onset_shift``, so reaction times count from the onset.
+        """
         self.stage.look("answer")
+        opened = self.clock.now()
         self.answers.open_window()
-        return self.stage.beep(turn)
+        onset = self.stage.beep(turn)
+        self._onset_shift = max(0.0, onset - opened)
+        return onset
 
     def _collect(self, turn: int, length: int, onset: float) -> Answer:
         """Close the listening phase at beep + tail (EEG), then wait for the answer."""
@@ -57,10 +65,18 @@ class EEGPhases:
             self.turn.listening = self._end_phase()
             self._begin_phase("answer", turn)
         # The window opened at the beep; the timeout counts from there (sources measure from open_window).
-        answer = self.answers.collect(length, self.clock.wall(self.cfg.timing.response_timeout_s(length)))
+        # Nothing else talks to the robot meanwhile: a watchdog does (a frozen link goes unnoticed ~60 s).
+        with watch_link(self.robot) as link:
+            answer = self.answers.collect(length, self.clock.wall(self.cfg.timing.response_timeout_s(length)))
+        shift = getattr(self, "_onset_shift", 0.0)
+        if shift:
+            answer = Answer(tuple(replace(p, t=p.t - shift) for p in answer.presses), answer.timed_out)
         self.rec.event("answer", turn=turn, timed_out=answer.timed_out,  # each press, seconds from the beep
                        presses=[{"key": p.key, "letter": p.letter, "t": round(self.clock.session(p.t), 3)}
                                 for p in answer.presses])
+        if link.lost is not None:
+            self.rec.event("link_frozen", turn=turn, error=link.lost)
+            raise RobotConnectionLost(f"the link to the robot froze during the answer window ({link.lost})")
         if not self.robot.is_connected():  # an answer window does not talk to the robot: ask
             raise RobotConnectionLost("the robot dropped during the answer window")
         return answer

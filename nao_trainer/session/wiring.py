@@ -197,7 +197,9 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
     input_kind = config.answers.input
     speed = config.timing.speed
     url = config.robot.url
-    standin = robot = recorder = monitor = answers = buttons = keys = console = None
+    standin = robot = recorder = monitor = answers = buttons = keys = console = life = None
+    robot_status: dict[str, Any] | None = None
+    early_events: list[tuple[str, dict[str, Any]]] = []  # robot set-up before the session folder exists (session.json)
     policy_to_close: Policy | None = None  # closed (and a learning policy saved) only once the folder exists
     session: Session | None = None
     status, code, error, summary = "error", 1, "", ""
@@ -219,12 +221,17 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
                       file=progress, flush=True)
             robot = NaoqiRobot.connect(connect_url, config.robot.connect_deadline_s, None,
                                        debounce_s=config.answers.debounce_s / speed)
+            life, robot_status = _prepare_robot(robot, config, lambda name, **data: (
+                recorder.event(name, **data) if recorder is not None and recorder.is_open
+                else early_events.append((name, data))))
         # Only now that the robot answered does anything get written.
         recorder = SessionRecorder(config.output_dir(), config.participant.pseudonym)
         if resume is None:
             path = recorder.open({
                 "nao_trainer": __version__, "versions": versions(), "seed": seed,
                 "robot": "stand-in (in-process)" if standin else repr(robot) if url == DESKTOP else redact_url(url),
+                "robot_status": robot_status,  # name, NAOqi version, volume, battery, Autonomous Life found
+                "robot_setup": [{"event": name, **data} for name, data in early_events],  # before session_start
                 "input": input_kind, "policy": config.policy.kind,
                 "user_model": simulator.name if simulator else None,
                 "config": config.snapshot(), "argv": sys.argv[1:],
@@ -300,6 +307,8 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
                 session.leave_safe()
             elif session is None and robot is not None and status != "completed":
                 leave_robot_safe(robot, behaviors, config.robot.posture_speed, recorder)
+            if life is not None:
+                life.leave()  # motors off (ALMotion.rest) and Autonomous Life as found
             for closer in (answers, policy_to_close, monitor, buttons):
                 _close_quietly(closer, recorder)
             if robot is not None:
@@ -415,6 +424,19 @@ def _typed_row(row: dict[str, str]) -> dict[str, Any]:
     out.update(turn=int(row["turn"]), level=int(row["level"]), feedback=int(row["feedback"]),
                success=row["success"] == "True", score=num(row["score"], int), engagement=num(row["engagement"], float))
     return out
+
+
+def _prepare_robot(robot: Any, config: StudyConfig, report: Any) -> tuple[Any, dict[str, Any]]:
+    """Autonomous Life to the study's state, motors on (``robot.lifecycle.TaskLife``), the link watchdog's pace;
+    returns the TaskLife to ``leave()`` at the end and the robot's status for session.json."""
+    from nao_trainer.robot.lifecycle import TaskLife
+
+    r = config.robot
+    robot.link_check_s, robot.link_deadline_s = float(r.link_check_s), float(r.link_deadline_s)
+    life = TaskLife(robot, r.autonomous_life, r.rest_at_end, report)
+    status = life.enter()
+    robot.after_reconnect.append(life.reapply)
+    return life, status.as_dict()
 
 
 def _desktop_robot(input_kind: str, speed: float, progress: TextIO | None) -> Robot:
