@@ -141,3 +141,35 @@ def test_a_killed_session_leaves_a_mark_that_check_reports_and_the_next_run_rest
     info = json.loads((folder / "session.json").read_text())
     assert info["robot_status"]["left_by_earlier_session"] == "solitary"
     assert info["robot_status"]["autonomous_life"] == "disabled"
+
+
+def test_a_link_frozen_8_s_in_an_answer_window_gives_an_interrupted_replayed_turn_not_a_failure(tmp_path):
+    """The stand-in stays alive but its link goes silent for 8 s right after turn 1's beep (a dropped
+    Wi-Fi: libqi would notice only after ~60 s). The watchdog's cheap call gets no answer within its
+    deadline: the turn is recorded as interrupted and replayed, and never scored."""
+    from nao_trainer.robot.standin import StandIn
+
+    standin = StandIn.start(speed=20)
+    try:
+        standin.freeze_after("ALAudioPlayer.playSine", 8.0)  # the first beep: turn 1 (no practice)
+        res = subprocess.run(
+            [sys.executable, "-m", "nao_trainer", "run", "--config", STUDY, "--robot", standin.url, "--eeg", "off",
+             "--out", str(tmp_path / "out"), "--speed", "20", "--policy", "schedule", "--input", "simulated",
+             "--seed", "5", "--turns", "2", "--no-practice"],
+            capture_output=True, text=True, env=dict(os.environ, QI_LOG_LEVEL="silent"), timeout=180)
+    finally:
+        standin.stop()
+    assert res.returncode == 0, res.stderr
+    (folder,) = (tmp_path / "out").glob("*_*")
+    rows = read_turns(folder)
+    assert [(r["turn"], r["replay"]) for r in rows] == [("1", ""), ("1", "True"), ("2", "")]
+    frozen = rows[0]
+    assert frozen["success"] == "" and frozen["score"] == "" and "interrupted: robot lost" in frozen["notes"]
+    assert all(r["success"] in ("True", "False") for r in rows[1:])
+    events = read_events(folder)
+    assert [e["turn"] for e in events if e["event"] == "link_frozen"] == [1]
+    lost = [e for e in events if e["event"] == "robot_lost"]
+    assert len(lost) == 1 and "froze during the answer window" in lost[0]["error"]
+    info = json.loads((folder / "session.json").read_text())
+    assert info["status"] == "completed"
+    assert info["total_score"] == sum(int(r["score"]) for r in rows[1:])  # the frozen attempt counts nothing
