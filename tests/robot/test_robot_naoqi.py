@@ -387,3 +387,16 @@ def test_close_is_idempotent_and_final(standin):
     assert not robot.is_connected()
     with pytest.raises(RobotCallFailed, match="is closed"):
         robot.say("hi")
+
+
+def test_beep_reports_its_round_trip_and_an_onset_inside_the_call():
+    """Network round trip 0.2 s, audio latency 0.1 s, tone 0.3 s (speed 1): lower bounds only (a loaded
+    machine can only add time); the onset estimate lies between the call and its return minus the tone."""
+    with StandIn.start(speed=1.0) as standin:
+        standin.set_latency(round_trip_s=0.2, beep_s=0.1)
+        with NaoqiRobot.connect(standin.url, 10.0) as robot:
+            timing = robot.beep(880, 0.3)
+    assert timing.rtt_s >= 0.2 * 0.99
+    assert timing.returned - timing.start >= (0.2 + 0.1 + 0.3) * 0.99
+    assert timing.start <= timing.onset <= timing.returned - timing.duration_s
+    assert timing.duration_s == 0.3
