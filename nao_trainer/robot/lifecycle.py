@@ -98,8 +98,9 @@ class TaskLife:
     """
 
     def __init__(self, robot: Any, task_state: str = "disabled", rest_at_end: bool = True,
-                 report: Callable[..., None] | None = None) -> None:
+                 report: Callable[..., None] | None = None, wake: bool = True) -> None:
         self.robot = robot
+        self.wake = wake
         self.task_state = task_state
         self.rest_at_end = rest_at_end
         self.report = report or (lambda name, **data: None)
@@ -123,7 +124,8 @@ class TaskLife:
         if self.task_state != UNCHANGED and self.found is not None:
             self._do("set_autonomous_life", lambda: self.robot.call("ALAutonomousLife", "setState", self.task_state),
                      state=self.task_state)
-        self._do("wake_up", lambda: self.robot.call("ALMotion", "wakeUp", timeout_s=60.0))
+        if self.wake:
+            self._do("wake_up", lambda: self.robot.call("ALMotion", "wakeUp", timeout_s=60.0))
 
     def reapply(self) -> None:
         """After a reconnection (the robot may have rebooted into "solitary"): the task's state again."""
