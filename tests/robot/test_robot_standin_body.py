@@ -131,3 +131,51 @@ def test_a_bouncing_sensor_emits_several_contacts(standin, client):
     while len(values) < 6 and time.monotonic() < deadline:
         time.sleep(0.01)
     assert values == [1.0, 0.0] * 3
+
+
+# -- the command line: tcps with the login from the environment, SIGUSR1 freezes the link ----------
+
+
+def _mock_robot(*args: str, **env: str):
+    import os
+    import subprocess
+    import sys
+
+    return subprocess.Popen([sys.executable, "-m", "nao_trainer", "mock-robot", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            env={k: v for k, v in dict(os.environ, QI_LOG_LEVEL="silent", **env).items()
+                                 if k not in ("NAO_USER", "NAO_PASSWORD") or k in env})
+
+
+def test_mock_robot_serves_tcps_with_the_login_from_the_environment_and_freezes_on_sigusr1():
+    import signal
+
+    from nao_trainer.errors import RobotUnavailable
+    from nao_trainer.robot.naoqi import Credentials, NaoqiRobot
+    from nao_trainer.robot.standin import READY_PREFIX
+
+    proc = _mock_robot("--listen", "tcps://127.0.0.1:0", "--speed", "50", NAO_USER="lab", NAO_PASSWORD="pw-1")
+    try:
+        url = proc.stdout.readline()[len(READY_PREFIX):].strip()
+        assert url.startswith("tcps://127.0.0.1:")
+        with pytest.raises(RobotUnavailable, match="NAO_USER / NAO_PASSWORD"):
+            NaoqiRobot.connect(url, 10.0, Credentials("lab", "not-it"))
+        with NaoqiRobot.connect(url, 10.0, Credentials("lab", "pw-1")) as robot:
+            robot.ping(10.0)
+            proc.send_signal(signal.SIGUSR1)  # frozen for --freeze-s (10 s): the next ping gets no answer
+            time.sleep(0.2)
+            with pytest.raises(Exception, match="did not answer within 0.5 s"):
+                robot.ping(0.5)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+
+
+def test_mock_robot_tcps_without_a_login_is_refused_in_one_line():
+    proc = _mock_robot("--listen", "tcps://127.0.0.1:0")
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2 and "set NAO_USER and NAO_PASSWORD" in err and "Traceback" not in err
