@@ -20,6 +20,7 @@ class EEGPhases:
     """Begin and end EEG phases; open the answer window and collect the answer."""
 
     _phase: str | None = None  # the EEG phase in progress
+    _onset_shift: float = 0.0  # beep onset minus the answer window's opening (wall seconds)
     # the session's, used here
     turn: Turn | None
     cfg: Any
@@ -68,9 +69,8 @@ class EEGPhases:
         # Nothing else talks to the robot meanwhile: a watchdog does (a frozen link goes unnoticed ~60 s).
         with watch_link(self.robot) as link:
             answer = self.answers.collect(length, self.clock.wall(self.cfg.timing.response_timeout_s(length)))
-        shift = getattr(self, "_onset_shift", 0.0)
-        if shift:
-            answer = Answer(tuple(replace(p, t=p.t - shift) for p in answer.presses), answer.timed_out)
+        if self._onset_shift:
+            answer = Answer(tuple(replace(p, t=p.t - self._onset_shift) for p in answer.presses), answer.timed_out)
         self.rec.event("answer", turn=turn, timed_out=answer.timed_out,  # each press, seconds from the beep
                        presses=[{"key": p.key, "letter": p.letter, "t": round(self.clock.session(p.t), 3)}
                                 for p in answer.presses])

@@ -5,6 +5,7 @@ import ipaddress
 import os
 import re
 import selectors
+import shutil
 import signal
 import subprocess
 import sys
@@ -199,7 +200,11 @@ def _start_link(scheme: str, host: str, port: int, login: Login | None) -> Link:
     if scheme == "tcps":
         from nao_trainer.robot.standin.tls import server_context
 
-        tls = server_context(Path(tempfile.mkdtemp(prefix="nao-standin-tls-")))
+        folder = Path(tempfile.mkdtemp(prefix="nao-standin-tls-"))
+        try:
+            tls = server_context(folder)  # the key is loaded: it need not stay on disk
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
     return Link(0, host, port, tls=tls, login=login if scheme == "tcps" else None).start()
 
 
