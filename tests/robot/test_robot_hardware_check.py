@@ -103,3 +103,9 @@ def test_a_hand_held_3_s_on_the_head_during_the_check_does_not_put_the_robot_to_
     assert held == ["nothing"]
     assert res.returncode == 0, res.stdout + res.stderr
     assert not standin.body()["asleep"]
+
+
+def test_without_a_robot_address_it_says_so_in_one_line():
+    res = subprocess.run([sys.executable, "-m", "nao_trainer", "hardware-check"], capture_output=True, text=True,
+                         timeout=60, env=dict(os.environ, QI_LOG_LEVEL="silent"))
+    assert res.returncode == 2 and "needs a robot address" in res.stderr and "Traceback" not in res.stderr

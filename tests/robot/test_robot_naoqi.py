@@ -21,7 +21,7 @@ from nao_trainer.robot.naoqi import (
     normalize_url,
     redact_url,
 )
-from nao_trainer.robot.standin import StandIn
+from nao_trainer.robot.standin import StandIn, StandInClient
 
 
 @pytest.fixture
@@ -207,6 +207,22 @@ def test_debounce_drops_a_quick_second_press_of_the_same_button(robot, memory):
     time.sleep(0.2)
     memory.raiseEvent("FrontTactilTouched", 1.0)  # after the debounce interval
     assert presses.wait_for(3) == ["A", "B", "A"]
+
+
+def test_a_bouncing_sensor_counts_as_one_press(standin):
+    """The stand-in's worn sensor: three contacts for one touch; the adapter's debounce keeps one."""
+    robot = NaoqiRobot.connect(standin.url, 3.0, debounce_s=5.0)  # wide: a loaded machine cannot split it
+    try:
+        presses = Presses()
+        robot.subscribe_buttons(presses)
+        with StandInClient.connect(standin.url) as control:
+            control.bounce("C", 3)
+            control.press("A")  # another button is not held back
+        assert presses.wait_for(2) == ["C", "A"]
+        time.sleep(0.1)
+        assert len(presses.items) == 2
+    finally:
+        robot.close()
 
 
 def test_debounce_is_configurable(standin, memory):
