@@ -173,3 +173,33 @@ def test_a_link_frozen_8_s_in_an_answer_window_gives_an_interrupted_replayed_tur
     info = json.loads((folder / "session.json").read_text())
     assert info["status"] == "completed"
     assert info["total_score"] == sum(int(r["score"]) for r in rows[1:])  # the frozen attempt counts nothing
+
+
+@pytest.mark.parametrize("life, ends", [("unchanged", 3), ("disabled", 0)])
+def test_a_hand_held_3_s_on_the_head_mid_session_only_matters_with_life_left_on(tmp_path, life, ends):
+    """Why the session disables Autonomous Life: left on ("unchanged"), a hand resting 3 s on the answer
+    buttons puts NAO to sleep and the task cannot go on (a robot error, every turn kept); disabled, it
+    is only a press."""
+    from nao_trainer.robot.standin import StandIn
+
+    study = tmp_path / "study.yaml"
+    study.write_text(f"robot: {{autonomous_life: {life}}}\n", encoding="utf-8")
+    standin = StandIn.start(speed=50)
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "nao_trainer", "run", "--config", str(study), "--robot", standin.url,
+             "--eeg", "off", "--out", str(tmp_path / "out"), "--speed", "50", "--policy", "schedule",
+             "--input", "simulated", "--seed", "2", "--turns", "8", "--no-practice"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ, QI_LOG_LEVEL="silent"))
+        folder = wait_first_row(tmp_path / "out", proc)
+        held = standin.hold("B", 3.0)
+        _, err = proc.communicate(timeout=180)
+    finally:
+        standin.stop()
+    assert held == ("asleep" if life == "unchanged" else "nothing")
+    assert proc.returncode == ends, err
+    info = json.loads((folder / "session.json").read_text())
+    assert info["status"] == ("robot error" if ends else "completed")
+    if ends:
+        assert "NAO is asleep" in info["error"]
+    assert all(r["success"] in ("True", "False", "") for r in read_turns(folder))
