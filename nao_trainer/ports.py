@@ -48,6 +48,49 @@ def check_beep(frequency_hz: float, duration_s: float, gain: float) -> None:
         raise ValueError(f"beep gain must be in [0, 1], got {gain!r}")
 
 
+@dataclass(frozen=True)
+class BeepTiming:
+    """When a beep sounded, as a robot that can tell returns it from ``beep`` (monotonic seconds).
+
+    ``onset`` is the estimate reaction times are measured from: ``returned - duration - rtt/2``
+    (assumes the call returns when the tone ends and the network is symmetric; see docs/robot.md).
+    """
+
+    start: float  # the call was sent
+    returned: float  # its reply arrived
+    rtt_s: float  # round trip of a cheap call just before
+    duration_s: float
+    onset: float
+
+
+class LinkWatch(Protocol):
+    """A watchdog on the link while nothing else talks to the robot (an answer window)."""
+
+    lost: str | None  # why the link is considered lost, None while it answers
+
+    def __enter__(self) -> "LinkWatch": ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+
+class NullLinkWatch:
+    """A robot without a link to watch (the laptop, test fakes)."""
+
+    lost: str | None = None
+
+    def __enter__(self) -> "NullLinkWatch":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        pass
+
+
+def watch_link(robot: Any) -> LinkWatch:
+    """The robot's link watchdog (``robot.watch_link()``) when it has one, else a ``NullLinkWatch``."""
+    factory = getattr(robot, "watch_link", None)
+    return factory() if callable(factory) else NullLinkWatch()
+
+
 @runtime_checkable
 class Robot(Protocol):
     """What the session asks of a robot. ``nao_trainer.robot.naoqi.NaoqiRobot`` implements it."""
@@ -55,8 +98,8 @@ class Robot(Protocol):
     def say(self, text: str, animated: bool = False, mode: str = "contextual") -> None:
         """Speak ``text`` and return when done (ALTextToSpeech / ALAnimatedSpeech)."""
 
-    def beep(self, frequency_hz: int, duration_s: float, gain: float = 0.5) -> None:
-        """Play a sine beep (ALAudioPlayer.playSine); returns when it has been played."""
+    def beep(self, frequency_hz: int, duration_s: float, gain: float = 0.5) -> "BeepTiming | None":
+        """Play a sine beep (ALAudioPlayer.playSine); returns when it has been played, with its timing when known."""
 
     def set_eye_leds(self, rgb: int, duration_s: float) -> None:
         """Fade the eye LEDs to 0xRRGGBB (ALLeds.fadeRGB)."""

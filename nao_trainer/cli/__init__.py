@@ -15,8 +15,8 @@ from nao_trainer import __version__
 from nao_trainer.errors import Interrupted, UserError
 
 #: Subcommand modules, in the order ``--help`` lists them.
-COMMANDS = ("run", "check", "mock_robot", "simulate_muse", "engagement", "import_data", "fit", "train", "evaluate",
-            "sweep", "study")
+COMMANDS = ("run", "check", "hardware_check", "mock_robot", "simulate_muse", "engagement", "import_data", "fit",
+            "train", "evaluate", "sweep", "study")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -13,8 +13,9 @@ def register(sub) -> None:
     p = sub.add_parser(
         "check",
         help="check the robot, the EEG headband and the disk before a session",
-        description="Check what a session of the study needs: the robot answers with the services the task uses "
-                    "and an audible speech volume; the EEG stream is found and each electrode is in contact "
+        description="Check what a session of the study needs: the robot answers with the services the task uses, "
+                    "its system volume is up and not muted and its battery charged; the EEG stream is found and "
+                    "each electrode is in contact "
                     "(judged over a few seconds with the session's quality rules); there is disk space. One line "
                     "per check, OK or FAIL with the fix. Exit code: 0 when every required check passed, else "
                     "3 (robot), 4 (required EEG) or 2 (disk).",

@@ -26,8 +26,17 @@ _URL_RE = re.compile(r"^(?P<scheme>[a-zA-Z][a-zA-Z0-9+.-]*)://(?:(?P<userinfo>[^
 
 
 def redact_url(url: str) -> str:
-    """``url`` with any user-info (``user:password@``) replaced by ``***@``; safe to print or log."""
-    return re.sub(r"^([a-zA-Z][a-zA-Z0-9+.-]*://)[^@/]*@", r"\1***@", url.strip())
+    """``url`` with any user-info (``user:password@``) replaced by ``***@``; safe to print or log.
+
+    A host never holds ``@``, so everything up to the *last* ``@`` is hidden, with or without a
+    scheme: a password holding ``/`` or ``@`` must not leak either.
+    """
+    text = url.strip()
+    if "@" not in text:
+        return text
+    scheme, sep, rest = text.partition("://")
+    prefix = f"{scheme}{sep}" if sep and "@" not in scheme else ""
+    return f"{prefix}***@{text.rsplit('@', 1)[1]}"
 
 
 def parse_url(url: str) -> tuple[str | None, str | None]:
@@ -37,6 +46,9 @@ def parse_url(url: str) -> tuple[str | None, str | None]:
     problem is a phrase that follows the address or key it is about ("has port 0, out of range ...").
     """
     text = url.strip()
+    if "@" in text:  # user-info, whatever it holds (a password may contain "/" or "@")
+        return None, (f"contains credentials: remove them from the address and set {USER_ENV} and {PASSWORD_ENV} "
+                      "in the environment instead")
     if "://" not in text:
         text = f"tcp://{text}"
     m = _URL_RE.match(text)

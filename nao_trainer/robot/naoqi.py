@@ -20,36 +20,22 @@ os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise; mu
 import qi  # noqa: E402
 
 from nao_trainer.errors import ConfigError, RobotUnavailable  # noqa: E402
-from nao_trainer.ports import BUTTON_LETTERS, RobotCallFailed, RobotConnectionLost, check_beep  # noqa: E402
+from nao_trainer.ports import (BUTTON_LETTERS, BeepTiming, RobotCallFailed, RobotConnectionLost,  # noqa: E402
+                               check_beep)
 from nao_trainer.robot.qi_calls import (  # noqa: E402,F401
-    CallTimeouts, _explain, is_connection_lost)
+    STANDIN_HINT, CallTimeouts, _connect_session, _explain, _new_session, _wait, is_connection_lost)
 from nao_trainer.robot.address import (  # noqa: E402,F401 - re-exported: the client's public names
     PASSWORD_ENV, USER_ENV, Credentials, _AuthenticatorFactory, _resolve_host, credentials_from_env, normalize_url,
     redact_url)
+from nao_trainer.robot.watchdog import LinkWatchdog  # noqa: E402
 
 log = logging.getLogger(__name__)
 
 BODY_LANGUAGE_MODES = ("disabled", "random", "contextual")
-STANDIN_HINT = "(no robot at hand? start `nao-trainer mock-robot` and use tcp://127.0.0.1:9559)"
 
 
 class MissingService(RobotUnavailable):
     """The robot is connected but does not offer a NAOqi service the project needs."""
-
-
-_WAIT_SLICE_S = 0.1
-
-
-def _wait(future: Any, timeout_s: float) -> bool:
-    """Wait for a qi future; True when it finished within ``timeout_s`` (interruptible by signals)."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        remaining = deadline - time.monotonic()
-        state = future.wait(max(1, int(min(remaining, _WAIT_SLICE_S) * 1000)))
-        if state != qi.FutureState.Running:
-            return True
-        if remaining <= _WAIT_SLICE_S:
-            return False
 
 
 # ------------------------------------------------------------------------------------------------
@@ -86,6 +72,10 @@ class NaoqiRobot:
         self._subscriptions: list[tuple[str, Any, Any]] = []  # (key, subscriber proxy, link id)
         self._last_press: dict[str, float] = {}
         self._closed = False
+        #: Called after each successful ``reconnect`` (e.g. put Autonomous Life back in the task's state).
+        self.after_reconnect: list[Callable[[], None]] = []
+        #: The watchdog's pace during answer windows (wall seconds); the session sets them from the study.
+        self.link_check_s, self.link_deadline_s = 1.0, 2.0
         _LIVE.add(self)
 
     # -- connection ------------------------------------------------------------------------------
@@ -158,6 +148,8 @@ class NaoqiRobot:
             self._wait_for_service("ALMemory", max(0.5, deadline - time.monotonic()))
             self.subscribe_buttons(callback)
         log.info("reconnected to the robot at %s", self.url)
+        for hook in list(self.after_reconnect):
+            hook()
 
     def close(self) -> None:
         """Unsubscribe the buttons and close the qi session. Idempotent."""
@@ -197,9 +189,16 @@ class NaoqiRobot:
         else:
             self._call("ALTextToSpeech", "say", text, timeout_s=self.timeouts.say(text))
 
-    def beep(self, frequency_hz: int, duration_s: float, gain: float = 0.5) -> None:
-        """Play a sine beep and return once played (gain 0..1, centred)."""
+    def beep(self, frequency_hz: int, duration_s: float, gain: float = 0.5) -> BeepTiming:
+        """Play a sine beep and return once played (gain 0..1, centred), with when it sounded.
+
+        A cheap call first measures the round trip; the onset is estimated as the reply's arrival
+        minus the duration minus half that round trip (docs/robot.md says what is assumed).
+        """
         check_beep(frequency_hz, duration_s, gain)
+        self._service("ALAudioPlayer")  # looked up before timing: the lookup is not part of the beep
+        rtt = self.ping(self.timeouts.default_s)
+        start = time.monotonic()
         self._call(
             "ALAudioPlayer",
             "playSine",
@@ -209,6 +208,26 @@ class NaoqiRobot:
             float(duration_s),
             timeout_s=self.timeouts.default_s + float(duration_s),
         )
+        returned = time.monotonic()
+        onset = max(start, returned - float(duration_s) - rtt / 2)
+        return BeepTiming(start, returned, rtt, float(duration_s), onset)
+
+    def ping(self, deadline_s: float) -> float:
+        """One cheap call (ALMemory.getData of a head button); its round trip in seconds.
+
+        ``RobotConnectionLost`` when no answer comes within ``deadline_s``.
+        """
+        t0 = time.monotonic()
+        self._call("ALMemory", "getData", "FrontTactilTouched", timeout_s=deadline_s)
+        return time.monotonic() - t0
+
+    def watch_link(self) -> LinkWatchdog:
+        """A watchdog for a quiet stretch (``with robot.watch_link() as w: ...``; then ``w.lost``)."""
+        return LinkWatchdog(self.ping, self.link_check_s, self.link_deadline_s)
+
+    def call(self, service: str, method: str, *args: Any, timeout_s: float | None = None) -> Any:
+        """Any NAOqi call, with a deadline (default ``timeouts.default_s``); for status and set-up calls."""
+        return self._call(service, method, *args, timeout_s=self.timeouts.default_s if timeout_s is None else timeout_s)
 
     def set_eye_leds(self, rgb: int, duration_s: float) -> None:
         """Fade the face LEDs to ``0xRRGGBB`` over ``duration_s`` seconds."""
@@ -447,32 +466,3 @@ class _ButtonHandler:
 
     def __call__(self, value: Any) -> None:
         self._robot._on_button(self._key, value)
-
-
-def _new_session(creds: Credentials | None) -> Any:
-    session = qi.Session()
-    if creds is not None:
-        session.setClientAuthenticatorFactory(_AuthenticatorFactory(creds))
-    return session
-
-
-def _connect_session(session: Any, url: str, deadline_s: float) -> None:
-    """Connect ``session`` to ``url`` within ``deadline_s``; close it and raise RobotUnavailable otherwise.
-
-    ``Session.connect`` has no timeout of its own against a port that accepts TCP but never
-    speaks qi, hence the future and the close on deadline.
-    """
-    where = redact_url(url)
-    future = session.connect(url, _async=True)
-    if not _wait(future, deadline_s):
-        session.close()
-        raise RobotUnavailable(
-            f"no answer from the robot at {where} within {deadline_s:g} s (something listens there but does not "
-            f"speak NAOqi): is the address right and NAOqi running? {STANDIN_HINT}"
-        )
-    if future.hasError():
-        error = future.error()
-        session.close()
-        raise RobotUnavailable(f"cannot reach the robot at {where}: {_explain(error)} {STANDIN_HINT}")
-
-

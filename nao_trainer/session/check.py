@@ -30,8 +30,10 @@ from nao_trainer.session.record import WRITE_CAUSES
 EXIT = {"robot": 3, "eeg": 4, "disk": 2}
 #: Services every session calls; ALMemory is added for head-button answers.
 TASK_SERVICES = ("ALTextToSpeech", "ALAnimatedSpeech", "ALAudioPlayer", "ALLeds", "ALRobotPosture", "ALMotion")
-#: Below this text-to-speech volume (0..1) a participant may not hear the letters.
-MIN_SPEECH_VOLUME = 0.3
+#: Below this system output volume (ALAudioDevice, 0-100) a participant may not hear the letters.
+MIN_OUTPUT_VOLUME = 30
+#: Below this battery charge (percent) a session may not last (a NAO runs roughly an hour on a charge).
+MIN_BATTERY = 30
 #: Free space a session needs with room to spare (raw EEG is ~15 MB an hour; logs are small).
 MIN_FREE_MB = 200
 #: How long the EEG check listens (seconds; at least one analysis window plus a second).
@@ -192,7 +194,8 @@ def check_robot(plan: CheckPlan) -> CheckResult:
 
 
 def _check_naoqi(url: str, plan: CheckPlan, label: str | None) -> CheckResult:
-    from nao_trainer.robot.naoqi import NaoqiRobot  # heavy: qi
+    from nao_trainer.robot.lifecycle import read_status  # heavy: qi
+    from nao_trainer.robot.naoqi import NaoqiRobot
 
     where = label or redact_url(url)
     try:
@@ -207,16 +210,26 @@ def _check_naoqi(url: str, plan: CheckPlan, label: str | None) -> CheckResult:
         if missing:
             return CheckResult("robot", False, f"{where}: no {', '.join(missing)} service",
                                "check the robot's NAOqi version (2.8 or 2.9) and that it has finished booting")
-        volume = robot.speech_volume()
-        if volume < MIN_SPEECH_VOLUME:
-            return CheckResult("robot", False, f"{where}: speech volume {volume:.0%} is too low to hear the letters",
-                               f"raise it to {MIN_SPEECH_VOLUME:.0%} or more (the robot's web page, or "
-                               "ALTextToSpeech.setVolume)")
-        return CheckResult("robot", True, f"{where}: {len(needed)} services the task needs, speech volume {volume:.0%}")
+        return _robot_status_result(where, len(needed), read_status(robot))
     except (RobotConnectionLost, RobotUnavailable, RobotCallFailed) as exc:
         return CheckResult("robot", False, f"{where}: {exc}", "check the robot and its network, then try again")
     finally:
         robot.close()
+
+
+def _robot_status_result(where: str, n_services: int, status: Any) -> CheckResult:
+    """The robot's system volume and mute (ALAudioDevice, not the speech gain, which stays 1.0 when the
+    robot is muted), its battery, Autonomous Life and NAOqi version in one line; FAIL on what a session cannot fix."""
+    detail = f"{where}: {n_services} services the task needs; {status.describe()}"
+    if status.muted:
+        return CheckResult("robot", False, detail, "unmute the robot (ALAudioDevice.muteAudioOut(false), or its web "
+                           "page), then check again")
+    if status.output_volume is not None and status.output_volume < MIN_OUTPUT_VOLUME:
+        return CheckResult("robot", False, detail, f"raise the robot's volume to {MIN_OUTPUT_VOLUME}% or more "
+                           "(ALAudioDevice.setOutputVolume, its web page, or the head buttons' volume gesture)")
+    if status.battery is not None and status.battery < MIN_BATTERY:
+        return CheckResult("robot", False, detail, f"charge the robot to {MIN_BATTERY}% or more before a session")
+    return CheckResult("robot", True, detail)
 
 
 def _check_desktop() -> CheckResult:

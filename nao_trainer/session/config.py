@@ -71,6 +71,13 @@ class RobotSection:
     backoff_initial_s: float = setting(kind=NUMBER, min=0.05, max=60, doc="first wait between attempts")
     backoff_max_s: float = setting(kind=NUMBER, min=0.1, max=300, doc="longest wait between attempts")
     posture_speed: float = setting(kind=NUMBER, min=0.05, max=1.0, doc="fraction of maximum joint speed")
+    autonomous_life: str = setting(kind=str, choices=("disabled", "solitary", "interactive", "unchanged"),
+                                   doc="the ALAutonomousLife state during a session (unchanged: leave it as found)")
+    rest_at_end: bool = setting(kind=bool, doc="ALMotion.rest() at the end (motors off)")
+    link_check_s: float = setting(kind=NUMBER, min=0.2, max=10,
+                                  doc="during an answer window, a cheap call this often (wall seconds)")
+    link_deadline_s: float = setting(kind=NUMBER, min=0.2, max=30,
+                                     doc="the watchdog call's deadline: no answer = a frozen link, the turn is replayed")
 
     def __post_init__(self) -> None:
         if self.backoff_max_s < self.backoff_initial_s:

@@ -7,7 +7,10 @@ starts and ends with a marker in the EEG recording. ``PhaseClock`` is a part of
 """
 from __future__ import annotations
 
-from nao_trainer.ports import Answer, AnswerSource, EngagementMonitor, PhaseEngagement, Robot, RobotConnectionLost
+from dataclasses import replace
+
+from nao_trainer.ports import (Answer, AnswerSource, EngagementMonitor, PhaseEngagement, Robot, RobotConnectionLost,
+                               watch_link)
 from nao_trainer.session.config import TimingSection
 from nao_trainer.session.record import SessionRecorder
 from nao_trainer.session.reporting import SessionLog
@@ -29,6 +32,7 @@ class PhaseClock:
         self.log = log
         self.missing_alert_turns = missing_alert_turns  # 0: never tell
         self.phase: str | None = None  # the EEG phase in progress
+        self.onset_shift = 0.0  # beep onset minus the answer window's opening (wall seconds)
         self.missing = 0  # turns in a row without an engagement value while EEG is on
 
     def begin(self, phase: str, turn: int | None) -> None:
@@ -48,10 +52,17 @@ class PhaseClock:
         return self.monitor.end_phase()
 
     def beep(self, turn: int) -> float:
-        """Open the answer window and beep; returns the beep onset (time 0 of the answer)."""
+        """Open the answer window and beep; returns the beep onset (time 0 of the answer).
+
+        Answer sources time presses from ``open_window``, made just before the beep call; the
+        press times are later shifted by ``onset_shift``, so reaction times count from the onset.
+        """
         self.stage.look("answer")
+        opened = self.clock.now()
         self.answers.open_window()
-        return self.stage.beep(turn)
+        onset = self.stage.beep(turn)
+        self.onset_shift = max(0.0, onset - opened)
+        return onset
 
     def collect(self, turn: int, length: int, onset: float) -> tuple[Answer, PhaseEngagement | None]:
         """Close the listening phase at beep + tail (EEG), then wait for the answer.
@@ -64,10 +75,17 @@ class PhaseClock:
             listening = self.end(turn)
             self.begin("answer", turn)
         # The window opened at the beep; the timeout counts from there (sources measure from open_window).
-        answer = self.answers.collect(length, self.clock.wall(self.timing.response_timeout_s(length)))
+        # Nothing else talks to the robot meanwhile: a watchdog does (a frozen link goes unnoticed ~60 s).
+        with watch_link(self.robot) as link:
+            answer = self.answers.collect(length, self.clock.wall(self.timing.response_timeout_s(length)))
+        if self.onset_shift:
+            answer = Answer(tuple(replace(p, t=p.t - self.onset_shift) for p in answer.presses), answer.timed_out)
         self.rec.event("answer", turn=turn, timed_out=answer.timed_out,  # each press, seconds from the beep
                        presses=[{"key": p.key, "letter": p.letter, "t": round(self.clock.session(p.t), 3)}
                                 for p in answer.presses])
+        if link.lost is not None:
+            self.rec.event("link_frozen", turn=turn, error=link.lost)
+            raise RobotConnectionLost(f"the link to the robot froze during the answer window ({link.lost})")
         if not self.robot.is_connected():  # an answer window does not talk to the robot: ask
             raise RobotConnectionLost("the robot dropped during the answer window")
         return answer, listening

@@ -13,7 +13,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from nao_trainer.ports import Robot, RobotCallFailed, RobotConnectionLost
+from nao_trainer.ports import BeepTiming, Robot, RobotCallFailed, RobotConnectionLost
 from nao_trainer.session.behaviors import Behaviors
 from nao_trainer.session.config import TimingSection
 from nao_trainer.session.dialogue import Dialogue
@@ -120,12 +120,21 @@ class Stage:
             self.rec.event("say", what="letter", text=letter, turn=turn, index=i + 1)
 
     def beep(self, turn: int) -> float:
-        """Beep (the answer window must be open already); returns the onset on the monotonic clock."""
+        """Beep (the answer window must be open already); returns the onset on the monotonic clock.
+
+        The onset is the robot's estimate when it returns a ``BeepTiming`` (a NAO over qi), else the
+        moment the call was made (the laptop, fakes).
+        """
         t = self.timing
-        onset = self.clock.now()
-        self.robot.beep(t.beep_hz, self.clock.wall(t.beep_s), t.beep_gain)
+        start = self.clock.now()
+        timing = self.robot.beep(t.beep_hz, self.clock.wall(t.beep_s), t.beep_gain)
+        if isinstance(timing, BeepTiming):
+            self.rec.event("beep", turn=turn, rtt_ms=round(timing.rtt_s * 1000, 2),
+                           call_ms=round((timing.returned - timing.start) * 1000, 2),
+                           onset_after_call_ms=round((timing.onset - timing.start) * 1000, 2))
+            return timing.onset
         self.rec.event("beep", turn=turn)
-        return onset
+        return start
 
     def goodbye(self, total: int, turns: int) -> None:
         """The closing words (without a number when the total is zero or negative), end posture, LEDs off."""

@@ -28,7 +28,6 @@ from nao_trainer.policies.factory import make_policy
 from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, NullObserver, Policy, Robot,
                                RobotConnectionLost, SessionObserver)
 from nao_trainer.robot.address import redact_url
-from nao_trainer.robot.desktop import DesktopRobot
 from nao_trainer.session.behaviors import Behaviors, load_behaviors
 from nao_trainer.session.check import check_disk, check_eeg, check_robot, plan_from_config
 from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig
@@ -38,6 +37,7 @@ from nao_trainer.session.engine import EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Sessio
 from nao_trainer.session.parts import Randomness, Script, SessionPorts
 from nao_trainer.session.record import SessionRecorder, ensure_output_dir, os_error_in, versions, write_failure
 from nao_trainer.session.resume import Resumption
+from nao_trainer.session.robot_setup import RobotSetup, connect_robot
 from nao_trainer.session.stage import leave_robot_safe
 from nao_trainer.session.turn import SessionResult, summary_data
 
@@ -262,15 +262,18 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
     standin = _start_standin(stack, config)
     stack.callback(_close_record, recorder, out, policy, standin, resume is not None)
     connect_url = standin.url if standin else config.robot.url
-    robot = _connect_robot(config, connect_url, standin is not None, progress)
+    robot = connect_robot(config, connect_url, standin is not None, progress)
     stack.callback(_close_quietly, robot, recorder, out)
+    setup = RobotSetup(recorder)
+    if config.robot.url != DESKTOP:  # Autonomous Life and motors as the study says; restored at the end
+        stack.callback(setup.prepare(robot, config.robot).leave)
     stack.callback(_leave_robot_safe, out, robot, behaviors, config, recorder)
     commands = options.commands if options.commands is not None else CommandQueue()  # an empty queue is falsy
     # The console's port is taken before the folder exists: a port in use leaves no empty session folder.
     observer = _start_console(stack, out, recorder, config, options, commands, console_bind, progress) \
         if console_bind is not None else options.observer
     # Only now that the robot answered (and the console listens) does anything get written.
-    path = _open_record(recorder, config, out.seed, robot, standin is not None, simulator, resume, progress)
+    path = _open_record(recorder, config, out.seed, robot, standin is not None, simulator, resume, progress, setup)
     if config.robot.url == DESKTOP:
         robot.record_audio_to(path / "audio")
     policy_state = _policy_state(policy, config, options.fresh_policy, progress)
@@ -316,20 +319,9 @@ def _start_standin(stack: ExitStack, config: StudyConfig) -> Any:
     return standin
 
 
-def _connect_robot(config: StudyConfig, url: str, standin: bool, progress: TextIO | None) -> Robot:
-    if config.robot.url == DESKTOP:
-        return _desktop_robot(config.answers.input, config.timing.speed, progress)
-    from nao_trainer.robot.naoqi import NaoqiRobot  # heavy: qi
-
-    if progress:
-        print(f"connecting to the robot at {'the stand-in ' + url if standin else redact_url(url)} ...",
-              file=progress, flush=True)
-    return NaoqiRobot.connect(url, config.robot.connect_deadline_s, None,
-                              debounce_s=config.answers.debounce_s / config.timing.speed)
-
-
 def _open_record(recorder: SessionRecorder, config: StudyConfig, seed: int, robot: Robot, standin: bool,
-                 simulator: UserSimulator | None, resume: Resumption | None, progress: TextIO | None) -> Path:
+                 simulator: UserSimulator | None, resume: Resumption | None, progress: TextIO | None,
+                 setup: RobotSetup) -> Path:
     """Create the session folder (or reopen the resumed one); returns its path."""
     url = config.robot.url
     if resume is None:
@@ -341,6 +333,8 @@ def _open_record(recorder: SessionRecorder, config: StudyConfig, seed: int, robo
             shown = redact_url(url)
         path = recorder.open({
             "nao_trainer": __version__, "versions": versions(), "seed": seed, "robot": shown,
+            "robot_status": setup.status,  # name, NAOqi version, volume, battery, Autonomous Life found
+            "robot_setup": setup.early,  # what was done to the robot before session_start
             "input": config.answers.input, "policy": config.policy.kind,
             "user_model": simulator.name if simulator else None,
             "config": config.snapshot(), "argv": sys.argv[1:],
@@ -439,17 +433,6 @@ def _policy_state(policy: Policy, config: StudyConfig, fresh: bool, progress: Te
     return {"policy": policy.name, "loaded_from": str(loaded) if loaded else "trained policy",
             "saves_to": str(target) if target else "session folder", "fresh": fresh,
             "turns_learned": policy.payload["live"]["turns_learned"]}
-
-
-def _desktop_robot(input_kind: str, speed: float, progress: TextIO | None) -> Robot:
-    """The laptop as the robot (``--robot desktop``); refuses head-button answers it cannot give."""
-    if input_kind == "tactile":
-        raise ConfigError("--robot desktop has no head buttons: answer with --input keyboard (or simulated)")
-    robot = DesktopRobot.start(speed)
-    if progress:
-        where = "the sound device" if robot.player else "WAV files in the session folder's audio/ (no sound device)"
-        print(f"the laptop plays the robot: speech through espeak-ng, sound to {where}", file=progress, flush=True)
-    return robot
 
 
 def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, simulator: UserSimulator | None,

@@ -21,7 +21,7 @@ from nao_trainer.robot.naoqi import (
     normalize_url,
     redact_url,
 )
-from nao_trainer.robot.standin import StandIn
+from nao_trainer.robot.standin import StandIn, StandInClient
 
 
 @pytest.fixture
@@ -80,8 +80,9 @@ def test_say_beep_leds_posture_reach_the_robot_with_naoqi_signatures(standin, ro
     robot.say("Listen.", animated=True, mode="disabled")
     robot.beep(880, 0.2, gain=0.3)
     robot.set_eye_leds(0x0000FF, 0.1)
-    assert robot.go_to_posture("Stand", 0.6) is True
+    assert robot.go_to_posture("Stand", 0.6) is False  # motors off: a NAO's joints do not move
     robot.wake_up()
+    assert robot.go_to_posture("Stand", 0.6) is True
     robot.rest()
     assert _calls(standin) == [
         ("ALTextToSpeech", "say", ["Hello, let us play."]),
@@ -91,6 +92,7 @@ def test_say_beep_leds_posture_reach_the_robot_with_naoqi_signatures(standin, ro
         ("ALLeds", "fadeRGB", ["FaceLeds", 0x0000FF, 0.1]),
         ("ALRobotPosture", "goToPosture", ["Stand", 0.6]),
         ("ALMotion", "wakeUp", []),
+        ("ALRobotPosture", "goToPosture", ["Stand", 0.6]),
         ("ALMotion", "rest", []),
     ]
 
@@ -207,6 +209,22 @@ def test_debounce_drops_a_quick_second_press_of_the_same_button(robot, memory):
     assert presses.wait_for(3) == ["A", "B", "A"]
 
 
+def test_a_bouncing_sensor_counts_as_one_press(standin):
+    """The stand-in's worn sensor: three contacts for one touch; the adapter's debounce keeps one."""
+    robot = NaoqiRobot.connect(standin.url, 3.0, debounce_s=5.0)  # wide: a loaded machine cannot split it
+    try:
+        presses = Presses()
+        robot.subscribe_buttons(presses)
+        with StandInClient.connect(standin.url) as control:
+            control.bounce("C", 3)
+            control.press("A")  # another button is not held back
+        assert presses.wait_for(2) == ["C", "A"]
+        time.sleep(0.1)
+        assert len(presses.items) == 2
+    finally:
+        robot.close()
+
+
 def test_debounce_is_configurable(standin, memory):
     robot = NaoqiRobot.connect(standin.url, 3.0, debounce_s=0.0)
     try:
@@ -303,6 +321,22 @@ def test_urls_with_credentials_are_refused_and_never_echoed():
         normalize_url("tcp://10.0.0.5:70000")
 
 
+LEAKY = [("tcps://nao:S3c/retPW@127.0.0.1:9503", "tcps://***@127.0.0.1:9503", ("S3c", "retPW")),
+         ("tcps://nao:S3c@retPW@127.0.0.1:9503", "tcps://***@127.0.0.1:9503", ("S3c", "retPW")),
+         ("nao:S3cretPW@127.0.0.1", "***@127.0.0.1", ("S3cretPW", "nao:")),
+         ("tcp://a@b:pw@10.0.0.5", "tcp://***@10.0.0.5", ("pw", "a@b"))]
+
+
+@pytest.mark.parametrize("url, shown, secrets", LEAKY)
+def test_no_part_of_a_password_survives_redaction_or_the_refusal(url, shown, secrets):
+    assert redact_url(url) == shown
+    with pytest.raises(ConfigError) as info:
+        normalize_url(url)
+    assert "NAO_PASSWORD" in str(info.value)
+    for secret in secrets:
+        assert secret not in str(info.value)
+
+
 def test_credentials_from_env():
     assert credentials_from_env({}) is None
     creds = credentials_from_env({"NAO_USER": "nao", "NAO_PASSWORD": "pw"})
@@ -369,3 +403,16 @@ def test_close_is_idempotent_and_final(standin):
     assert not robot.is_connected()
     with pytest.raises(RobotCallFailed, match="is closed"):
         robot.say("hi")
+
+
+def test_beep_reports_its_round_trip_and_an_onset_inside_the_call():
+    """Network round trip 0.2 s, audio latency 0.1 s, tone 0.3 s (speed 1): lower bounds only (a loaded
+    machine can only add time); the onset estimate lies between the call and its return minus the tone."""
+    with StandIn.start(speed=1.0) as standin:
+        standin.set_latency(round_trip_s=0.2, beep_s=0.1)
+        with NaoqiRobot.connect(standin.url, 10.0) as robot:
+            timing = robot.beep(880, 0.3)
+    assert timing.rtt_s >= 0.2 * 0.99
+    assert timing.returned - timing.start >= (0.2 + 0.1 + 0.3) * 0.99
+    assert timing.start <= timing.onset <= timing.returned - timing.duration_s
+    assert timing.duration_s == 0.3

@@ -91,6 +91,9 @@ def test_speech_sound_leds_posture_with_naoqi_signatures(standin, client):
     leds.fadeRGB("FaceLeds", 0x00FF00, 0.1)
     leds.fadeRGB("FaceLeds", 1.0, 0.5, 0.0, 0.1)
     posture = client.service("ALRobotPosture")
+    assert posture.goToPosture("StandInit", 0.5) is False  # motors off at boot: the joints do not move
+    assert posture.getPosture() == "Crouch"
+    client.service("ALMotion").wakeUp()
     assert posture.goToPosture("StandInit", 0.5) is True
     assert posture.getPosture() == "StandInit"
     assert _calls(standin) == [
@@ -100,6 +103,8 @@ def test_speech_sound_leds_posture_with_naoqi_signatures(standin, client):
         ("ALAudioPlayer", "playSine", [440, 50, 0, 0.25]),
         ("ALLeds", "fadeRGB", ["FaceLeds", 0x00FF00, 0.1]),
         ("ALLeds", "fadeRGB", ["FaceLeds", 1.0, 0.5, 0.0, 0.1]),
+        ("ALRobotPosture", "goToPosture", ["StandInit", 0.5]),
+        ("ALMotion", "wakeUp", []),
         ("ALRobotPosture", "goToPosture", ["StandInit", 0.5]),
     ]
 
@@ -306,8 +311,9 @@ def test_listen_address_checks():
     with pytest.raises(ConfigError, match="not a loopback address.*--allow-remote"):
         check_listen_url("tcp://192.168.1.20:9559")
     assert check_listen_url("tcp://192.168.1.20:9559", allow_remote=True)
-    with pytest.raises(ConfigError, match="plain tcp"):
-        check_listen_url("tcps://127.0.0.1:9503")
+    assert check_listen_url("tcps://127.0.0.1:9503") == "tcps://127.0.0.1:9503"  # NAOqi 2.9, with a login
+    with pytest.raises(ConfigError, match="checks a login"):
+        StandIn.start("tcps://127.0.0.1:0")
     with pytest.raises(ConfigError, match="not of the form"):
         check_listen_url("127.0.0.1")
     with pytest.raises(ConfigError, match="positive"):

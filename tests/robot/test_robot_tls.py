@@ -7,12 +7,14 @@ import subprocess
 import sys
 
 import pytest
+import qi
 
 from _tls_proxy import TlsProxy
-from nao_trainer.errors import ConfigError
+from nao_trainer.errors import ConfigError, RobotUnavailable
 from nao_trainer.files import PROJECT_ROOT
-from nao_trainer.robot.naoqi import NaoqiRobot
-from nao_trainer.robot.standin import StandIn
+from nao_trainer.robot.address import _AuthenticatorFactory
+from nao_trainer.robot.naoqi import Credentials, NaoqiRobot
+from nao_trainer.robot.standin import Login, StandIn
 
 USER, PASSWORD = "nao-lab", "pw-Xy7-not-in-the-clear"
 
@@ -33,6 +35,7 @@ def test_login_goes_over_tls_and_a_call_succeeds(tls, monkeypatch):
     robot = NaoqiRobot.connect(proxy.url, 5.0)
     try:
         robot.say("over TLS")
+        robot.wake_up()
         assert robot.go_to_posture("Stand", 1.0)
     finally:
         robot.close()
@@ -76,3 +79,42 @@ def test_a_session_runs_over_tls_from_the_command_line(tls, tmp_path):
             assert PASSWORD not in path.read_text(errors="replace"), path
     assert PASSWORD not in res.stdout + res.stderr
     assert any(e["method"] == "playSine" for e in standin.transcript())
+
+
+# -- the stand-in's own tcps front: a login checked as libqi's server checks it ---------------------
+
+
+@pytest.fixture()
+def tcps_standin():
+    standin = StandIn.start("tcps://127.0.0.1:0", speed=50, login=Login(USER, PASSWORD))
+    yield standin
+    standin.stop()
+
+
+def test_tcps_standin_accepts_the_right_login(tcps_standin):
+    with NaoqiRobot.connect(tcps_standin.url, 5.0, Credentials(USER, PASSWORD)) as robot:
+        robot.say("logged in")
+    assert [e["args"] for e in tcps_standin.transcript() if e["method"] == "say"] == [["logged in"]]
+    assert tcps_standin.link.refused_logins == 0
+
+
+@pytest.mark.parametrize("creds", [Credentials(USER, "wrong-password"), Credentials("someone-else", PASSWORD)])
+def test_tcps_standin_refuses_a_wrong_login_as_libqi_reports_it(tcps_standin, creds):
+    with pytest.raises(RobotUnavailable) as info:
+        NaoqiRobot.connect(tcps_standin.url, 5.0, creds)
+    message = str(info.value)
+    # qi 3.1.5 does not enforce authentication on its side, so libqi's "Authentication failed" reply
+    # surfaces as the server closing the link; the message names the variables to check.
+    assert "NAO_USER / NAO_PASSWORD" in message and "\n" not in message
+    assert PASSWORD not in message and "wrong-password" not in message
+    assert tcps_standin.link.refused_logins == 1
+    assert not any(e["method"] == "say" for e in tcps_standin.transcript())
+
+
+def test_raw_qi_client_sees_what_libqi_reports_for_a_refused_login(tcps_standin):
+    """What the qi binding itself raises (no adapter in between), so the adapter's reading stays honest."""
+    session = qi.Session()
+    session.setClientAuthenticatorFactory(_AuthenticatorFactory(Credentials(USER, "nope")))
+    with pytest.raises(RuntimeError, match="disconnected"):
+        session.connect(tcps_standin.url)
+    session.close()

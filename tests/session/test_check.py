@@ -37,23 +37,33 @@ def study(tmp_path, eeg: str) -> str:
     return str(path)
 
 
-def test_a_ready_robot_passes_and_a_quiet_one_fails_with_the_fix(standin, tmp_path):
+def test_a_ready_robot_passes_and_a_quiet_muted_or_flat_one_fails_with_the_fix(standin, tmp_path):
     cfg = study(tmp_path, "{mode: \"off\"}")
     res = check("--config", cfg, "--robot", standin, "--out", str(tmp_path / "s"))
     lines = res.stdout.strip().splitlines()
     assert res.returncode == 0, res.stdout + res.stderr
     assert [ln.split()[:2] for ln in lines] == [["OK", "disk"], ["OK", "robot"], ["OK", "eeg"]]
-    assert "7 services the task needs, speech volume 100%" in lines[1]  # ALMemory too: tactile answers
-    robot = NaoqiRobot.connect(standin, 5.0)
-    try:
-        robot._call("ALTextToSpeech", "setVolume", 0.1, timeout_s=5.0)
-        res = check("--config", cfg, "--robot", standin, "--out", str(tmp_path / "s"))
-    finally:
-        robot._call("ALTextToSpeech", "setVolume", 1.0, timeout_s=5.0)
-        robot.close()
-    assert res.returncode == 3
-    line = res.stdout.strip().splitlines()[1]
-    assert line.startswith("FAIL robot") and "speech volume 10% is too low" in line and "fix: raise it" in line
+    assert "7 services the task needs" in lines[1]  # ALMemory too: tactile answers
+    assert "nao-standin (NAOqi 2.8.5.10), volume 60%, battery 85%, Autonomous Life solitary" in lines[1]
+
+    def failing(call: tuple, undo: tuple) -> str:
+        robot = NaoqiRobot.connect(standin, 5.0)
+        try:
+            robot.call(*call)
+            res = check("--config", cfg, "--robot", standin, "--out", str(tmp_path / "s"))
+        finally:
+            robot.call(*undo)
+            robot.close()
+        assert res.returncode == 3, res.stdout
+        return res.stdout.strip().splitlines()[1]
+
+    # A muted robot: the speech engine's gain still says 1.0, so only ALAudioDevice tells.
+    line = failing(("ALAudioDevice", "muteAudioOut", True), ("ALAudioDevice", "muteAudioOut", False))
+    assert line.startswith("FAIL robot") and "MUTED" in line and "fix: unmute the robot" in line
+    line = failing(("ALAudioDevice", "setOutputVolume", 10), ("ALAudioDevice", "setOutputVolume", 60))
+    assert line.startswith("FAIL robot") and "volume 10%" in line and "fix: raise the robot's volume" in line
+    line = failing(("NaoTrainerStandIn", "set_battery", 12), ("NaoTrainerStandIn", "set_battery", 85))
+    assert line.startswith("FAIL robot") and "battery 12%" in line and "fix: charge the robot" in line
 
 
 def test_an_unreachable_robot_fails_with_exit_3_and_no_traceback(tmp_path):

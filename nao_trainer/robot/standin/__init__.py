@@ -11,8 +11,13 @@ the client (``nao_trainer.robot.naoqi.NaoqiRobot``) talks to it exactly as it ta
 * ``ALRobotPosture``  goToPosture(name, speed) -> bool, getPosture, getPostureList
 * ``ALMotion``        wakeUp, rest, robotIsWakeUp
 * ``ALMemory``        subscriber(key) (object with ``.signal``), raiseEvent, insertData, getData
-* ``NaoTrainerStandIn`` (control, not NAOqi) press(button or letter), transcript(), clear(),
-  set_speed(x), speed()
+* ``ALAutonomousLife`` getState, setState (boots "solitary"); ``ALAudioDevice`` getOutputVolume,
+  setOutputVolume, isAudioOutMuted, muteAudioOut; ``ALBattery`` getBatteryCharge; ``ALSystem``
+  robotName, systemVersion (``body``)
+* ``NaoTrainerStandIn`` (control, not NAOqi) press(button or letter), hold, bounce, body,
+  set_battery, set_latency, freeze, freeze_after, transcript(), clear(), set_speed(x), speed()
+
+Clients reach the qi server through a ``link.Link`` (latency, a frozen link, the tcps login).
 
 Speech and motion take time (``SECONDS_PER_CHARACTER`` per character, a beep its duration,
 divided by the speed factor) so sessions keep realistic timing that tests can speed up. Every
@@ -24,12 +29,14 @@ Modules: ``recorder`` (speed factor and transcript), ``services`` (the NAOqi ser
 """
 from __future__ import annotations
 
+from nao_trainer.robot.standin.body import LIFE_STATES, SLEEP_HOLD_S, Body
 from nao_trainer.robot.standin.client import StandInClient
+from nao_trainer.robot.standin.login import Login
 from nao_trainer.robot.standin.recorder import Recorder
 from nao_trainer.robot.standin.server import READY_PREFIX, StandIn, check_listen_url, serve, spawn_standin
 from nao_trainer.robot.standin.services import (BODY_LANGUAGE_MODES, POSTURE_SECONDS, POSTURES, PRESS_HOLD_S,
                                                 SECONDS_PER_CHARACTER, button_key)
 
-__all__ = ["BODY_LANGUAGE_MODES", "POSTURES", "POSTURE_SECONDS", "PRESS_HOLD_S", "READY_PREFIX",
+__all__ = ["LIFE_STATES", "SLEEP_HOLD_S", "Body", "Login", "BODY_LANGUAGE_MODES", "POSTURES", "POSTURE_SECONDS", "PRESS_HOLD_S", "READY_PREFIX",
            "SECONDS_PER_CHARACTER", "Recorder", "StandIn", "StandInClient", "button_key", "check_listen_url",
            "serve", "spawn_standin"]

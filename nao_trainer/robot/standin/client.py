@@ -60,6 +60,30 @@ class StandInClient:
                 raise ValueError(str(exc).strip().splitlines()[0]) from None
             raise
 
+    def hold(self, button: str, seconds: float) -> str:
+        """A hand on the head for ``seconds`` (robot time): "asleep", "activity stopped" or "nothing"."""
+        return self._control.hold(button, float(seconds))
+
+    def bounce(self, button: str, contacts: int) -> None:
+        self._control.bounce(button, int(contacts))
+
+    def body(self) -> dict[str, Any]:
+        """Autonomous Life state, motors_on, posture, asleep, volume, muted, battery."""
+        return dict(self._control.body())
+
+    def set_battery(self, percent: int) -> None:
+        self._control.set_battery(int(percent))
+
+    def set_latency(self, round_trip_s: float = 0.0, beep_s: float = 0.0) -> None:
+        self._control.set_latency(float(round_trip_s), float(beep_s))
+
+    def freeze(self, seconds: float) -> None:
+        """The link goes silent for ``seconds`` (wall time), starting just after this call returns."""
+        self._control.freeze(float(seconds))
+
+    def freeze_after(self, call: str, seconds: float) -> None:
+        self._control.freeze_after(call, float(seconds))
+
     def transcript(self) -> list[dict[str, Any]]:
         return [dict(e) for e in self._control.transcript()]
 

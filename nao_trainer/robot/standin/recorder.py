@@ -6,7 +6,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, Callable, TextIO
 
 from nao_trainer.errors import ConfigError
 
@@ -25,6 +25,7 @@ class Recorder:
     _stopping: threading.Event = field(default_factory=threading.Event)
     _channels: list["Channel"] = field(default_factory=list)
     _file: TextIO | None = None
+    _armed: dict[str, list[Callable[[], None]]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.speed = check_speed(self.speed)
@@ -52,6 +53,18 @@ class Recorder:
             if self.echo is not None:
                 args_text = ", ".join(json.dumps(a, ensure_ascii=False) for a in entry["args"])
                 print(f"{entry['t']:9.3f}  {service}.{method}({args_text})", file=self.echo, flush=True)
+
+    def arm(self, call: str, action: Callable[[], None]) -> None:
+        """Run ``action`` once, when the next ``call`` ("Service.method") has finished."""
+        with self._lock:
+            self._armed.setdefault(call, []).append(action)
+
+    def finished(self, call: str) -> None:
+        """A call that tests may hook (``arm``) has finished: run what was armed on it."""
+        with self._lock:
+            actions = self._armed.pop(call, [])
+        for action in actions:
+            action()
 
     def wait(self, seconds: float) -> None:
         """Sleep ``seconds`` of robot time (scaled by the speed factor); cut short when the stand-in stops."""

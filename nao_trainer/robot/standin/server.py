@@ -5,6 +5,7 @@ import ipaddress
 import os
 import re
 import selectors
+import shutil
 import signal
 import subprocess
 import sys
@@ -18,7 +19,10 @@ import qi  # noqa: E402
 
 from nao_trainer.errors import ConfigError, RobotUnavailable  # noqa: E402
 from nao_trainer.robot.standin.recorder import Recorder, check_speed  # noqa: E402
-from nao_trainer.robot.standin.services import Control, Memory, build_services  # noqa: E402
+from nao_trainer.robot.standin.control import Control, build_services  # noqa: E402
+from nao_trainer.robot.standin.link import Link  # noqa: E402
+from nao_trainer.robot.standin.login import Login  # noqa: E402
+from nao_trainer.robot.standin.services import Memory  # noqa: E402
 
 #: The first line ``nao-trainer mock-robot`` prints once it serves.
 READY_PREFIX = "nao-trainer mock-robot: listening on "
@@ -27,13 +31,11 @@ _URL_RE = re.compile(r"^(tcp|tcps)://([^:/@\s]+|\[[0-9a-fA-F:]+\]):(\d{1,5})$")
 
 
 def check_listen_url(url: str, allow_remote: bool = False) -> str:
-    """Validate a ``tcp://HOST:PORT`` listen address; only loopback unless ``allow_remote``."""
+    """Validate a ``tcp://HOST:PORT`` or ``tcps://HOST:PORT`` listen address; only loopback unless ``allow_remote``."""
     m = _URL_RE.match(url.strip())
     if not m:
         raise ConfigError(f"listen address {url!r} is not of the form tcp://127.0.0.1:PORT (port 0 picks a free one)")
-    scheme, host, port = m.group(1), m.group(2).strip("[]"), int(m.group(3))
-    if scheme != "tcp":
-        raise ConfigError(f"listen address {url!r}: the stand-in serves plain tcp:// only (no certificates)")
+    host, port = m.group(2).strip("[]"), int(m.group(3))
     if port > 65535:
         raise ConfigError(f"listen address {url!r}: port {port} is out of range 0..65535")
     if not allow_remote and not _is_loopback(host):
@@ -61,7 +63,8 @@ class StandIn:
     """
 
     def __init__(
-        self, session: Any, url: str, recorder: Recorder, memory: Memory, control: Control, service_ids: list[int]
+        self, session: Any, url: str, recorder: Recorder, memory: Memory, control: Control, service_ids: list[int],
+        link: Link,
     ) -> None:
         self._session = session
         self._service_ids = service_ids
@@ -69,6 +72,8 @@ class StandIn:
         self._rec = recorder
         self._memory = memory
         self._control = control
+        self.link = link
+        control.link = link
         self._stopped = False
 
     @classmethod
@@ -79,18 +84,34 @@ class StandIn:
         transcript_path: str | os.PathLike | None = None,
         allow_remote: bool = False,
         echo: TextIO | None = None,
+        login: Login | None = None,
     ) -> "StandIn":
         """Serve the stand-in on ``url`` (port 0 picks a free port; ``.url`` tells which).
 
-        ``echo``: a stream that gets one readable line per call (the robot's actions, live).
+        Clients reach the qi server (on a private loopback port) through a ``Link`` that can add
+        latency and freeze. ``tcps://`` (NAOqi 2.9) needs ``login``: the only user and password
+        accepted. ``echo``: a stream that gets one readable line per call (the robot's actions, live).
         """
         url = check_listen_url(url, allow_remote)
+        scheme, _, rest = url.partition("://")
+        host, port = rest.rsplit(":", 1)
+        if scheme == "tcps" and login is None:
+            raise ConfigError(f"listen address {url}: a tcps:// stand-in checks a login: give the user and password "
+                              "it accepts (mock-robot takes them from NAO_USER and NAO_PASSWORD)")
         rec = Recorder(speed=speed, path=Path(transcript_path) if transcript_path else None, echo=echo)
         session = qi.Session()
         try:
-            session.listenStandalone(url)
+            link = _start_link(scheme, host.strip("[]"), int(port), login)
+        except OSError as exc:
+            rec.close()
+            session.close()
+            reason = "the port is already in use (another mock-robot or NAOqi?)" if exc.errno == 98 else exc.strerror
+            raise RobotUnavailable(f"the stand-in cannot listen on {url}: {reason}; pick another port or use port 0") from None
+        try:
+            session.listenStandalone("tcp://127.0.0.1:0")
         except RuntimeError as exc:
             rec.close()
+            link.stop()
             session.close()
             if "already in use" in str(exc):
                 reason = "the port is already in use (another mock-robot or NAOqi?)"
@@ -101,8 +122,8 @@ class StandIn:
             ) from None
         services, memory, control = build_services(rec)
         ids = [session.registerService(name, obj) for name, obj in services.items()]
-        bound = _bound_url(session, url)
-        return cls(session, bound, rec, memory, control, ids)
+        link.target_port = int(_bound_url(session, "tcp://127.0.0.1:0").rsplit(":", 1)[1])
+        return cls(session, f"{scheme}://{host}:{link.port}", rec, memory, control, ids, link)
 
     @property
     def speed(self) -> float:
@@ -117,6 +138,26 @@ class StandIn:
             return self._control.press(button)
         except RuntimeError as exc:
             raise ValueError(str(exc)) from None
+
+    def hold(self, button: str, seconds: float) -> str:
+        """A hand on the head for ``seconds`` of robot time (see ``Control.hold``); returns what it caused."""
+        return self._control.hold(button, seconds)
+
+    def body(self) -> dict[str, Any]:
+        """Autonomous Life state, motors, posture, sleep, volume, mute, battery."""
+        return self._control.body()
+
+    def set_latency(self, round_trip_s: float = 0.0, beep_s: float = 0.0) -> None:
+        """Network round trip of every call (wall s) and the beep's audio latency (robot s)."""
+        self._control.set_latency(round_trip_s, beep_s)
+
+    def freeze(self, seconds: float) -> None:
+        """The link goes silent (connections stay open, no byte moves) for ``seconds`` of wall time."""
+        self.link.freeze(seconds)
+
+    def freeze_after(self, call: str, seconds: float) -> None:
+        """Freeze the link for ``seconds`` once the next ``call`` ("ALAudioPlayer.playSine") has returned."""
+        self._control.freeze_after(call, seconds)
 
     def transcript(self) -> list[dict[str, Any]]:
         """Every call the stand-in received so far: ``{"t", "service", "method", "args"}``."""
@@ -144,6 +185,7 @@ class StandIn:
                     pass
             self._session.close()
         finally:
+            self.link.stop()
             self._rec.close()
 
     def __enter__(self) -> "StandIn":
@@ -151,6 +193,19 @@ class StandIn:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def _start_link(scheme: str, host: str, port: int, login: Login | None) -> Link:
+    tls = None
+    if scheme == "tcps":
+        from nao_trainer.robot.standin.tls import server_context
+
+        folder = Path(tempfile.mkdtemp(prefix="nao-standin-tls-"))
+        try:
+            tls = server_context(folder)  # the key is loaded: it need not stay on disk
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+    return Link(0, host, port, tls=tls, login=login if scheme == "tcps" else None).start()
 
 
 def _bound_url(session: Any, requested: str) -> str:
@@ -172,13 +227,24 @@ def serve(
     allow_remote: bool = False,
     out: TextIO | None = None,
     echo: TextIO | None = None,
+    login: Login | None = None,
+    latency_s: float = 0.0,
+    beep_latency_s: float = 0.0,
+    freeze_s: float = 10.0,
 ) -> int:
-    """Run the stand-in until SIGINT/SIGTERM (``nao-trainer mock-robot``); prints the ready line."""
+    """Run the stand-in until SIGINT/SIGTERM (``nao-trainer mock-robot``); prints the ready line.
+
+    SIGUSR1 freezes the link for ``freeze_s`` seconds (the process stays alive, nothing moves).
+    """
     out = out or sys.stdout
     stop = threading.Event()
     handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    standin: StandIn | None = None
+    handlers[signal.SIGUSR1] = signal.signal(signal.SIGUSR1, lambda *_: standin.freeze(freeze_s) if standin else None)
     try:
-        standin = StandIn.start(url, speed=speed, transcript_path=transcript_path, allow_remote=allow_remote, echo=echo)
+        standin = StandIn.start(url, speed=speed, transcript_path=transcript_path, allow_remote=allow_remote, echo=echo,
+                                login=login)
+        standin.set_latency(latency_s, beep_latency_s)
         try:
             print(f"{READY_PREFIX}{standin.url}", file=out, flush=True)
             while not stop.wait(0.2):

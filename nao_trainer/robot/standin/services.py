@@ -1,4 +1,4 @@
-"""The NAOqi services of the stand-in (qi objects): speech, sound, LEDs, posture, motion, memory, control.
+"""The NAOqi services of the stand-in (qi objects): speech, sound, LEDs, posture, motion, memory.
 
 Each service records its calls in the stand-in's :class:`~nao_trainer.robot.standin.recorder.Recorder`
 and takes robot time (scaled by the speed factor) where a NAO would.
@@ -15,7 +15,8 @@ import qi  # noqa: E402
 
 from nao_trainer.errors import ConfigError  # noqa: E402
 from nao_trainer.ports import BUTTON_LETTERS  # noqa: E402
-from nao_trainer.robot.standin.recorder import Channel, Recorder, check_speed  # noqa: E402
+from nao_trainer.robot.standin.body import Body  # noqa: E402
+from nao_trainer.robot.standin.recorder import Channel, Recorder  # noqa: E402
 
 #: Speaking time per character at speed 1.0 (a NAO speaks roughly 12-15 characters a second).
 SECONDS_PER_CHARACTER = 0.06
@@ -36,9 +37,10 @@ _LETTER_BUTTONS = {letter: key for key, letter in BUTTON_LETTERS.items()}
 class _TextToSpeech:
     """ALTextToSpeech: ``say`` blocks for a time proportional to the text."""
 
-    def __init__(self, rec: Recorder, speech: Channel) -> None:
+    def __init__(self, rec: Recorder, speech: Channel, body: Body) -> None:
         self._rec = rec
         self._speech = speech
+        self._body = body
         self._lock = threading.Lock()
         self._language = "English"
         self._params: dict[str, float] = {"speed": 100.0, "pitchShift": 1.0, "volume": 1.0}
@@ -50,6 +52,7 @@ class _TextToSpeech:
         if len(args) not in (1, 2) or not all(isinstance(a, str) for a in args):
             raise RuntimeError("ALTextToSpeech::say expects (text) or (text, language)")
         self._rec.record("ALTextToSpeech", "say", list(args))
+        self._body.check_awake("ALTextToSpeech::say")
         self._speech.run(SECONDS_PER_CHARACTER * len(args[0]))
 
     @qi.bind(qi.Void, [qi.String])
@@ -102,9 +105,10 @@ class _TextToSpeech:
 class _AnimatedSpeech:
     """ALAnimatedSpeech: ``say(text)`` and ``say(text, configuration)`` (a NAOqi overload)."""
 
-    def __init__(self, rec: Recorder, speech: Channel) -> None:
+    def __init__(self, rec: Recorder, speech: Channel, body: Body) -> None:
         self._rec = rec
         self._speech = speech
+        self._body = body
 
     @qi.bind(qi.Void, qi.AnyArguments)
     def say(self, *args: Any) -> None:
@@ -120,6 +124,7 @@ class _AnimatedSpeech:
                     f"ALAnimatedSpeech::say: bodyLanguageMode must be one of {', '.join(BODY_LANGUAGE_MODES)}, got {mode!r}"
                 )
         self._rec.record("ALAnimatedSpeech", "say", list(args))
+        self._body.check_awake("ALAnimatedSpeech::say")
         self._speech.run(SECONDS_PER_CHARACTER * len(_strip_annotations(args[0])))
 
 
@@ -130,11 +135,17 @@ def _strip_annotations(text: str) -> str:
 
 @qi.multiThreaded()
 class _AudioPlayer:
-    """ALAudioPlayer: ``playSine`` blocks for the beep's duration."""
+    """ALAudioPlayer: ``playSine`` blocks for the audio latency, then the beep's duration.
 
-    def __init__(self, rec: Recorder) -> None:
+    ``latency_s`` (robot seconds, scaled by the speed factor) models the time from the call's
+    arrival to the first sample out of the loudspeaker; a NAO's is not documented.
+    """
+
+    def __init__(self, rec: Recorder, body: Body) -> None:
         self._rec = rec
+        self._body = body
         self._sound = Channel(rec)
+        self.latency_s = 0.0
 
     @qi.bind(qi.Void, [qi.Int32, qi.Int32, qi.Int32, qi.Float])
     def playSine(self, frequency: int, gain: int, pan: int, duration: float) -> None:
@@ -143,7 +154,10 @@ class _AudioPlayer:
         if not -1 <= pan <= 1:
             raise RuntimeError(f"ALAudioPlayer::playSine: pan must be -1, 0 or 1, got {pan}")
         self._rec.record("ALAudioPlayer", "playSine", [frequency, gain, pan, duration])
-        self._sound.run(duration)
+        self._body.check_awake("ALAudioPlayer::playSine")
+        if self._sound.run(self.latency_s):
+            self._sound.run(duration)
+        self._rec.finished("ALAudioPlayer.playSine")
 
     @qi.bind(qi.Void, [])
     def stopAll(self) -> None:
@@ -192,10 +206,9 @@ class _Leds:
 class _RobotPosture:
     """ALRobotPosture: ``goToPosture`` takes time inversely proportional to the speed argument."""
 
-    def __init__(self, rec: Recorder) -> None:
+    def __init__(self, rec: Recorder, body: Body) -> None:
         self._rec = rec
-        self._lock = threading.Lock()
-        self._posture = "Crouch"
+        self._body = body
 
     @qi.bind(qi.Bool, [qi.String, qi.Float])
     def goToPosture(self, name: str, speed: float) -> bool:
@@ -204,55 +217,56 @@ class _RobotPosture:
             raise RuntimeError(f"ALRobotPosture::goToPosture: unknown posture {name!r} (known: {', '.join(POSTURES)})")
         if not 0.0 < speed <= 1.0:
             raise RuntimeError(f"ALRobotPosture::goToPosture: speed must be in (0, 1], got {speed}")
+        with self._body.lock:
+            motors_on = self._body.motors_on
+        if not motors_on:  # joints without stiffness do not move: the posture is not reached
+            return False
         self._rec.wait(POSTURE_SECONDS / speed)
-        with self._lock:
-            self._posture = name
+        with self._body.lock:
+            self._body.posture = name
         return True
 
     @qi.bind(qi.String, [])
     def getPosture(self) -> str:
-        with self._lock:
-            return self._posture
+        with self._body.lock:
+            return self._body.posture
 
     @qi.bind(qi.List(qi.String), [])
     def getPostureList(self) -> list[str]:
         return list(POSTURES)
 
-    def _set(self, name: str) -> None:
-        with self._lock:
-            self._posture = name
-
 
 @qi.multiThreaded()
 class _Motion:
-    """ALMotion (subset): ``wakeUp`` stiffens and stands, ``rest`` crouches and relaxes."""
+    """ALMotion (subset): ``wakeUp`` sets the motors on and stands, ``rest`` crouches and sets them off."""
 
-    def __init__(self, rec: Recorder, posture: _RobotPosture) -> None:
+    def __init__(self, rec: Recorder, body: Body) -> None:
         self._rec = rec
-        self._posture = posture
-        self._awake = False
-        self._lock = threading.Lock()
+        self._body = body
 
     @qi.bind(qi.Void, [])
     def wakeUp(self) -> None:
         self._rec.record("ALMotion", "wakeUp", [])
+        with self._body.lock:
+            already = self._body.motors_on
+            self._body.asleep = False
+        if already:  # "if the robot is already stiffened, the call returns immediately"
+            return
         self._rec.wait(POSTURE_SECONDS)
-        self._posture._set("Stand")
-        with self._lock:
-            self._awake = True
+        with self._body.lock:
+            self._body.motors_on, self._body.posture = True, "Stand"
 
     @qi.bind(qi.Void, [])
     def rest(self) -> None:
         self._rec.record("ALMotion", "rest", [])
         self._rec.wait(POSTURE_SECONDS)
-        self._posture._set("Crouch")
-        with self._lock:
-            self._awake = False
+        with self._body.lock:
+            self._body.motors_on, self._body.posture = False, "Crouch"
 
     @qi.bind(qi.Bool, [])
     def robotIsWakeUp(self) -> bool:
-        with self._lock:
-            return self._awake
+        with self._body.lock:
+            return self._body.motors_on
 
 
 class _MemorySubscriber:
@@ -327,63 +341,3 @@ def button_key(button: str) -> str:
         f"unknown head button {button!r}: use a letter ({', '.join(_LETTER_BUTTONS)}), "
         f"a key ({', '.join(BUTTON_LETTERS)}) or front/middle/rear"
     )
-
-
-@qi.multiThreaded()
-class Control:
-    """NaoTrainerStandIn: what tests and simulated participants use to act on the stand-in."""
-
-    def __init__(self, rec: Recorder, memory: Memory) -> None:
-        self._rec = rec
-        self._memory = memory
-
-    @qi.bind(qi.String, [qi.String])
-    def press(self, button: str) -> str:
-        """Touch then release a head button; returns the ALMemory key pressed."""
-        try:
-            key = button_key(button)
-        except ValueError as exc:
-            raise RuntimeError(str(exc)) from None
-        self._rec.record("NaoTrainerStandIn", "press", [key])
-        self._memory._emit(key, 1.0)
-        self._rec.wait(PRESS_HOLD_S)
-        self._memory._emit(key, 0.0)
-        return key
-
-    @qi.bind(qi.List(qi.Map(qi.String, qi.Dynamic)), [])
-    def transcript(self) -> list[dict[str, Any]]:
-        return self._rec.snapshot()
-
-    @qi.bind(qi.Void, [])
-    def clear(self) -> None:
-        self._rec.clear()
-
-    @qi.bind(qi.Void, [qi.Float])
-    def set_speed(self, speed: float) -> None:
-        try:
-            self._rec.speed = check_speed(speed)
-        except ConfigError as exc:
-            raise RuntimeError(str(exc)) from None
-
-    @qi.bind(qi.Float, [])
-    def speed(self) -> float:
-        return self._rec.speed
-
-
-def build_services(rec: Recorder) -> tuple[dict[str, Any], Memory, Control]:
-    """One stand-in's services by the names a NAO offers them under (+ the control service)."""
-    memory = Memory(rec)
-    posture = _RobotPosture(rec)
-    control = Control(rec, memory)
-    speech = Channel(rec)  # say and animated say share one voice: stopAll cuts both
-    services = {
-        "ALTextToSpeech": _TextToSpeech(rec, speech),
-        "ALAnimatedSpeech": _AnimatedSpeech(rec, speech),
-        "ALAudioPlayer": _AudioPlayer(rec),
-        "ALLeds": _Leds(rec),
-        "ALRobotPosture": posture,
-        "ALMotion": _Motion(rec, posture),
-        "ALMemory": memory,
-        "NaoTrainerStandIn": control,
-    }
-    return services, memory, control

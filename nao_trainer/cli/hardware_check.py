@@ -1,0 +1,44 @@
+"""`nao-trainer hardware-check --robot URL [--config STUDY]`: the robot check an operator runs in front of it."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "hardware-check",
+        help="in front of the robot: speech, beep, each head button, volume, mute, battery, Autonomous Life",
+        description="Run in front of the robot before each participant: it says a test sentence and the letters "
+                    "A, B, C and beeps (touch the front button if you heard them), then asks for each head "
+                    "button in turn and reports each press and how long after the request it came. Shows the "
+                    "system volume, mute, battery, Autonomous Life and NAOqi version and ends with one PASS or "
+                    "FAIL line per item. Exit code 0 when all pass, 3 otherwise. See docs/before-first-participant.md.",
+    )
+    p.add_argument("--robot", metavar="URL", help="robot address (overrides robot.url): tcp://IP:9559 or tcps://IP:9503")
+    p.add_argument("--config", metavar="FILE", help="study configuration (default: config/default.yaml)")
+    p.add_argument("--timeout", type=float, default=20.0, metavar="S",
+                   help="how long to wait for each button press (default 20 s)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from nao_trainer.errors import ConfigError
+    from nao_trainer.files import PROJECT_ROOT
+    from nao_trainer.robot.hardware_check import run_hardware_check, verdict
+    from nao_trainer.robot.naoqi import NaoqiRobot, redact_url
+    from nao_trainer.session.config import DESKTOP, MOCK, load_config
+
+    if not 1 <= args.timeout <= 600:
+        raise ConfigError(f"--timeout must be between 1 and 600 seconds, got {args.timeout:g}")
+    config = load_config(args.config or PROJECT_ROOT / "config" / "default.yaml", {"robot.url": args.robot})
+    url = config.robot.url
+    if url in (MOCK, DESKTOP):
+        raise ConfigError(f"hardware-check needs a robot address (robot.url is {url!r}): pass --robot tcp://IP:9559")
+    print(f"hardware check of the robot at {redact_url(url)}", flush=True)
+    with NaoqiRobot.connect(url, config.robot.connect_deadline_s) as robot:
+        items = run_hardware_check(robot, sys.stdout, args.timeout, config.robot.autonomous_life)
+    print("", flush=True)
+    for item in items:
+        print(item.line(), flush=True)
+    return verdict(items)

@@ -1,0 +1,152 @@
+"""What a real NAO does around the task's calls: Autonomous Life, motors, system volume, battery, identity.
+
+NAOqi 2.8.5 SDK documentation (``doc/`` of the SDK; pages named in docs/robot.md):
+
+* ``ALAutonomousLife`` (``naoqi/interaction/autonomouslife-api.html``): states ``solitary``,
+  ``interactive``, ``safeguard``, ``disabled``; a NAO boots ``solitary``; a manual change from
+  ``interactive`` to ``solitary`` fails. With life on, a hand held on the head 1 s stops the running
+  activity, 3 s puts NAO to sleep (``family/nao_user_guide/activity_nao.html``, ``sleep_nao.html``).
+* ``ALMotion`` (``naoqi/motion/control-stiffness-api.html``): ``wakeUp`` sets the motors on and
+  goes to an initial posture, ``rest`` goes to a safe crouch and sets the motors off,
+  ``robotIsWakeUp``. ``ALRobotPosture.goToPosture`` returns whether the posture was reached:
+  with the motors off the joints do not move, so it is not (modelled: False, posture unchanged).
+* ``ALAudioDevice`` (``naoqi/audio/alaudiodevice-api.html``): ``getOutputVolume`` 0-100,
+  ``setOutputVolume``, ``isAudioOutMuted``, ``muteAudioOut``.
+* ``ALBattery.getBatteryCharge`` (percent), ``ALSystem.robotName`` / ``systemVersion``.
+
+Modelling choices (not documented behaviour): asleep, the stand-in refuses speech and sound with
+"NAO is asleep" and drops head-button events until Autonomous Life is set again or ``wakeUp`` runs.
+"""
+from __future__ import annotations
+
+import os
+import threading
+from dataclasses import dataclass, field
+
+os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise; must precede `import qi`
+import qi  # noqa: E402
+
+from nao_trainer.robot.standin.recorder import Recorder  # noqa: E402
+
+LIFE_STATES = ("solitary", "interactive", "safeguard", "disabled")
+#: A hand on the head this long (robot seconds) stops the activity / puts NAO to sleep, with life on.
+STOP_ACTIVITY_HOLD_S, SLEEP_HOLD_S = 1.0, 3.0
+NAOQI_VERSION = "2.8.5.10"
+
+
+@dataclass
+class Body:
+    """The robot's state shared by the services; thread-safe through ``lock``."""
+
+    life: str = "solitary"
+    motors_on: bool = False
+    posture: str = "Crouch"
+    asleep: bool = False
+    volume: int = 60
+    muted: bool = False
+    battery: int = 85
+    name: str = "nao-standin"
+    version: str = NAOQI_VERSION
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def check_awake(self, what: str) -> None:
+        """RuntimeError (a refused call) while NAO sleeps."""
+        with self.lock:
+            if self.asleep:
+                raise RuntimeError(f"{what}: NAO is asleep (a hand was held on its head with Autonomous Life on); "
+                                   "wake it with ALMotion.wakeUp or ALAutonomousLife.setState")
+
+    def fall_asleep(self) -> None:
+        with self.lock:
+            self.asleep, self.motors_on, self.posture, self.life = True, False, "Crouch", "disabled"
+
+    def wake(self) -> None:
+        with self.lock:
+            self.asleep = False
+
+
+@qi.multiThreaded()
+class AutonomousLife:
+    """ALAutonomousLife: getState / setState; leaving ``disabled`` wakes the motors, as an activity would."""
+
+    def __init__(self, rec: Recorder, body: Body) -> None:
+        self._rec, self._body = rec, body
+
+    @qi.bind(qi.String, [])
+    def getState(self) -> str:
+        with self._body.lock:
+            return self._body.life
+
+    @qi.bind(qi.Void, [qi.String])
+    def setState(self, state: str) -> None:
+        self._rec.record("ALAutonomousLife", "setState", [state])
+        if state not in LIFE_STATES:
+            raise RuntimeError(f"ALAutonomousLife::setState: unknown state {state!r} (states: {', '.join(LIFE_STATES)})")
+        with self._body.lock:
+            if self._body.life == "interactive" and state == "solitary":
+                raise RuntimeError("ALAutonomousLife::setState: a manual change from interactive to solitary fails")
+            self._body.life = state
+            self._body.asleep = False
+            if state in ("solitary", "interactive"):  # life takes the robot: motors on, standing
+                self._body.motors_on, self._body.posture = True, "Stand"
+
+
+@qi.multiThreaded()
+class AudioDevice:
+    """ALAudioDevice: the system's output volume (0-100) and mute, not the speech engine's gain."""
+
+    def __init__(self, rec: Recorder, body: Body) -> None:
+        self._rec, self._body = rec, body
+
+    @qi.bind(qi.Int32, [])
+    def getOutputVolume(self) -> int:
+        with self._body.lock:
+            return self._body.volume
+
+    @qi.bind(qi.Void, [qi.Int32])
+    def setOutputVolume(self, volume: int) -> None:
+        self._rec.record("ALAudioDevice", "setOutputVolume", [volume])
+        if not 0 <= volume <= 100:
+            raise RuntimeError(f"ALAudioDevice::setOutputVolume: volume must be 0..100, got {volume}")
+        with self._body.lock:
+            self._body.volume = int(volume)
+
+    @qi.bind(qi.Bool, [])
+    def isAudioOutMuted(self) -> bool:
+        with self._body.lock:
+            return self._body.muted
+
+    @qi.bind(qi.Void, [qi.Bool])
+    def muteAudioOut(self, muted: bool) -> None:
+        self._rec.record("ALAudioDevice", "muteAudioOut", [muted])
+        with self._body.lock:
+            self._body.muted = bool(muted)
+
+
+@qi.multiThreaded()
+class Battery:
+    """ALBattery: the charge in percent."""
+
+    def __init__(self, body: Body) -> None:
+        self._body = body
+
+    @qi.bind(qi.Int32, [])
+    def getBatteryCharge(self) -> int:
+        with self._body.lock:
+            return self._body.battery
+
+
+@qi.multiThreaded()
+class System:
+    """ALSystem: the robot's name and NAOqi version."""
+
+    def __init__(self, body: Body) -> None:
+        self._body = body
+
+    @qi.bind(qi.String, [])
+    def robotName(self) -> str:
+        return self._body.name
+
+    @qi.bind(qi.String, [])
+    def systemVersion(self) -> str:
+        return self._body.version

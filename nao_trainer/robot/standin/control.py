@@ -1,0 +1,167 @@
+"""The stand-in's control service (``NaoTrainerStandIn``, not NAOqi) and the assembly of all its services."""
+from __future__ import annotations
+
+import os
+import threading
+from typing import Any
+
+os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise; must precede `import qi`
+import qi  # noqa: E402
+
+from nao_trainer.errors import ConfigError  # noqa: E402
+from nao_trainer.robot.standin.body import (SLEEP_HOLD_S, STOP_ACTIVITY_HOLD_S, AudioDevice,  # noqa: E402
+                                             AutonomousLife, Battery, Body, System)
+from nao_trainer.robot.standin.recorder import Channel, Recorder, check_speed  # noqa: E402
+from nao_trainer.robot.standin.services import (PRESS_HOLD_S, Memory, _AnimatedSpeech, _AudioPlayer,  # noqa: E402
+                                                _Leds, _Motion, _RobotPosture, _TextToSpeech, button_key)
+
+
+@qi.multiThreaded()
+class Control:
+    """NaoTrainerStandIn: what tests and simulated participants use to act on the stand-in.
+
+    Besides presses: a hand held on the head (``hold``), a bouncing contact (``bounce``), the
+    battery level, latency of calls (through the link) and of the beep, and a frozen link.
+    """
+
+    def __init__(self, rec: Recorder, memory: Memory, body: Body, player: _AudioPlayer) -> None:
+        self._rec = rec
+        self._memory = memory
+        self._body = body
+        self._player = player
+        self.link: Any = None  # the stand-in's Link (latency, freeze), set by the server
+
+    def _key(self, button: str) -> str:
+        try:
+            return button_key(button)
+        except ValueError as exc:
+            raise RuntimeError(str(exc)) from None
+
+    def _touch(self, key: str) -> bool:
+        """A touch reaches the task only when NAO is awake; asleep, a touch wakes it (sleep_nao.html)."""
+        with self._body.lock:
+            if not self._body.asleep:
+                return True
+            self._body.asleep, self._body.life, self._body.motors_on, self._body.posture = (
+                False, "solitary", True, "Stand")
+        return False
+
+    @qi.bind(qi.String, [qi.String])
+    def press(self, button: str) -> str:
+        """Touch then release a head button; returns the ALMemory key pressed."""
+        key = self._key(button)
+        self._rec.record("NaoTrainerStandIn", "press", [key])
+        if self._touch(key):
+            self._memory._emit(key, 1.0)
+            self._rec.wait(PRESS_HOLD_S)
+            self._memory._emit(key, 0.0)
+        return key
+
+    @qi.bind(qi.String, [qi.String, qi.Float])
+    def hold(self, button: str, seconds: float) -> str:
+        """A hand on the head for ``seconds`` (robot time). With Autonomous Life on, 1 s stops the
+        activity and 3 s puts NAO to sleep (it then refuses speech and sound); returns the state after."""
+        key = self._key(button)
+        self._rec.record("NaoTrainerStandIn", "hold", [key, seconds])
+        if self._touch(key):
+            self._memory._emit(key, 1.0)
+            self._rec.wait(seconds)
+            self._memory._emit(key, 0.0)
+            with self._body.lock:
+                life_on = self._body.life in ("solitary", "interactive")
+            if life_on and seconds >= SLEEP_HOLD_S:
+                self._body.fall_asleep()
+                return "asleep"
+            if life_on and seconds >= STOP_ACTIVITY_HOLD_S:
+                return "activity stopped"
+        return "nothing"
+
+    @qi.bind(qi.Void, [qi.String, qi.Int32])
+    def bounce(self, button: str, contacts: int) -> None:
+        """A worn sensor: ``contacts`` touches 5 ms apart (robot time), as one press may give."""
+        key = self._key(button)
+        self._rec.record("NaoTrainerStandIn", "bounce", [key, contacts])
+        for _ in range(max(1, contacts)):
+            self._memory._emit(key, 1.0)
+            self._rec.wait(0.005)
+            self._memory._emit(key, 0.0)
+            self._rec.wait(0.005)
+
+    @qi.bind(qi.Void, [qi.Int32])
+    def set_battery(self, percent: int) -> None:
+        with self._body.lock:
+            self._body.battery = max(0, min(100, int(percent)))
+
+    @qi.bind(qi.Void, [qi.Float, qi.Float])
+    def set_latency(self, round_trip_s: float, beep_s: float) -> None:
+        """Network round trip of every call (wall seconds) and the beep's audio latency (robot seconds)."""
+        if self.link is not None:
+            self.link.latency_s = max(0.0, float(round_trip_s))
+        self._player.latency_s = max(0.0, float(beep_s))
+
+    @qi.bind(qi.Void, [qi.Float])
+    def freeze(self, seconds: float) -> None:
+        """Freeze the link (alive, silent) for ``seconds`` of wall time, starting just after this reply."""
+        self._rec.record("NaoTrainerStandIn", "freeze", [seconds])
+        link = self.link
+        if link is not None:
+            threading.Timer(0.02, link.freeze, (float(seconds),)).start()
+
+    @qi.bind(qi.Void, [qi.String, qi.Float])
+    def freeze_after(self, call: str, seconds: float) -> None:
+        """Freeze the link for ``seconds`` once the next ``call`` (only "ALAudioPlayer.playSine") has returned."""
+        self._rec.record("NaoTrainerStandIn", "freeze_after", [call, seconds])
+        link = self.link
+        if link is not None:
+            self._rec.arm(call, lambda: threading.Timer(0.02, link.freeze, (float(seconds),)).start())
+
+    @qi.bind(qi.Map(qi.String, qi.Dynamic), [])
+    def body(self) -> dict[str, Any]:
+        """The robot's state as tests read it: life, motors_on, posture, asleep, volume, muted, battery."""
+        b = self._body
+        with b.lock:
+            return {"life": b.life, "motors_on": b.motors_on, "posture": b.posture, "asleep": b.asleep,
+                    "volume": b.volume, "muted": b.muted, "battery": b.battery}
+
+    @qi.bind(qi.List(qi.Map(qi.String, qi.Dynamic)), [])
+    def transcript(self) -> list[dict[str, Any]]:
+        return self._rec.snapshot()
+
+    @qi.bind(qi.Void, [])
+    def clear(self) -> None:
+        self._rec.clear()
+
+    @qi.bind(qi.Void, [qi.Float])
+    def set_speed(self, speed: float) -> None:
+        try:
+            self._rec.speed = check_speed(speed)
+        except ConfigError as exc:
+            raise RuntimeError(str(exc)) from None
+
+    @qi.bind(qi.Float, [])
+    def speed(self) -> float:
+        return self._rec.speed
+
+
+def build_services(rec: Recorder, body: Body | None = None) -> tuple[dict[str, Any], Memory, Control]:
+    """One stand-in's services by the names a NAO offers them under (+ the control service)."""
+    body = body or Body()
+    memory = Memory(rec)
+    player = _AudioPlayer(rec, body)
+    control = Control(rec, memory, body, player)
+    speech = Channel(rec)  # say and animated say share one voice: stopAll cuts both
+    services = {
+        "ALTextToSpeech": _TextToSpeech(rec, speech, body),
+        "ALAnimatedSpeech": _AnimatedSpeech(rec, speech, body),
+        "ALAudioPlayer": player,
+        "ALLeds": _Leds(rec),
+        "ALRobotPosture": _RobotPosture(rec, body),
+        "ALMotion": _Motion(rec, body),
+        "ALMemory": memory,
+        "ALAutonomousLife": AutonomousLife(rec, body),
+        "ALAudioDevice": AudioDevice(rec, body),
+        "ALBattery": Battery(body),
+        "ALSystem": System(body),
+        "NaoTrainerStandIn": control,
+    }
+    return services, memory, control

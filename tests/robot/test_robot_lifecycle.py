@@ -1,0 +1,205 @@
+"""Autonomous Life and the motors before, during and after a session, through `nao-trainer run` against a
+stand-in process over qi: a completed session, one stopped by a signal, one killed (SIGKILL), and what the
+next `check` and `run` do about the robot a killed session left behind."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from nao_trainer.files import PROJECT_ROOT
+from nao_trainer.robot.lifecycle import MARKER_KEY
+from nao_trainer.robot.naoqi import NaoqiRobot
+from nao_trainer.robot.standin import StandInClient, spawn_standin
+from nao_trainer.session.record import read_events, read_turns
+
+STUDY = str(PROJECT_ROOT / "config" / "default.yaml")
+
+
+def nao(command: str, url: str, out: Path, *extra: str, wait: bool = True):
+    args = [sys.executable, "-m", "nao_trainer", command, "--config", STUDY, "--robot", url, "--eeg", "off",
+            "--out", str(out)]
+    if command == "run":
+        args += ["--speed", "50", "--policy", "schedule", "--input", "simulated", "--seed", "3", *extra]
+    env = dict(os.environ, QI_LOG_LEVEL="silent", PYTHONUNBUFFERED="1")
+    if wait:
+        return subprocess.run(args, capture_output=True, text=True, env=env, timeout=180)
+    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+
+
+@pytest.fixture
+def robot_proc():
+    proc, url = spawn_standin(speed=50)
+    control = StandInClient.connect(url)
+    yield url, control
+    control.close()
+    proc.send_signal(signal.SIGINT)
+    proc.wait(15)
+
+
+def marker(url: str) -> str:
+    with NaoqiRobot.connect(url, 5.0) as robot:
+        try:
+            return robot.call("ALMemory", "getData", MARKER_KEY)
+        except Exception:  # noqa: BLE001 - no such key: never written
+            return ""
+
+
+def wait_first_row(out: Path, proc: subprocess.Popen, timeout_s: float = 90) -> Path:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()
+        folders = list(out.glob("*_*"))
+        if folders and (folders[0] / "turns.csv").exists() and read_turns(folders[0]):
+            return folders[0]
+        time.sleep(0.05)
+    raise AssertionError("no turn recorded in time")
+
+
+def test_a_completed_session_disables_life_wakes_the_motors_and_restores_both(robot_proc, tmp_path):
+    url, control = robot_proc
+    before = control.body()
+    assert (before["life"], before["motors_on"]) == ("solitary", False)
+    proc = nao("run", url, tmp_path / "out", "--turns", "6", wait=False)
+    wait_first_row(tmp_path / "out", proc)
+    during = control.body()
+    assert (during["life"], during["motors_on"]) == ("disabled", True)  # nothing autonomous during the task
+    assert marker(url) == "solitary"  # written on the robot while the session runs
+    out, err = proc.communicate(timeout=180)
+    assert proc.returncode == 0, err
+    after = control.body()
+    # As found: rest() turned the motors off, then Autonomous Life "solitary" took the robot back (it
+    # stands up, as a NAO does when life is switched on).
+    assert after["life"] == "solitary" and not after["asleep"]
+    assert marker(url) == ""
+    (folder,) = (tmp_path / "out").glob("*_*")
+    info = json.loads((folder / "session.json").read_text())
+    assert info["robot_status"]["autonomous_life"] == "solitary" and info["robot_status"]["naoqi_version"] == "2.8.5.10"
+    assert info["robot_status"]["name"] == "nao-standin" and info["robot_status"]["output_volume"] == 60
+    assert [e["event"] for e in info["robot_setup"]] == ["robot_marker", "set_autonomous_life", "wake_up"]
+    events = [e["event"] for e in read_events(folder)]
+    assert events.index("rest") < events.index("restore_autonomous_life")
+    calls = [(e["service"], e["method"], e["args"]) for e in control.transcript()]
+    assert calls.index(("ALMotion", "wakeUp", [])) < calls.index(("ALRobotPosture", "goToPosture", ["Stand", 0.5]))
+    body_calls = [c for c in calls if c[0] in ("ALMotion", "ALAutonomousLife")]
+    assert body_calls[-2:] == [("ALMotion", "rest", []), ("ALAutonomousLife", "setState", ["solitary"])]
+    assert calls[-1] == ("ALMemory", "insertData", [MARKER_KEY, ""])  # the mark cleared last
+
+
+def test_a_robot_found_with_life_disabled_ends_resting(robot_proc, tmp_path):
+    url, control = robot_proc
+    with NaoqiRobot.connect(url, 5.0) as robot:
+        robot.call("ALAutonomousLife", "setState", "disabled")
+    res = nao("run", url, tmp_path / "out", "--turns", "2")
+    assert res.returncode == 0, res.stderr
+    after = control.body()
+    assert (after["life"], after["motors_on"], after["posture"]) == ("disabled", False, "Crouch")
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_a_session_stopped_by_a_signal_restores_the_robot(robot_proc, tmp_path, signum):
+    url, control = robot_proc
+    proc = nao("run", url, tmp_path / "out", "--turns", "25", wait=False)
+    wait_first_row(tmp_path / "out", proc)
+    assert control.body()["life"] == "disabled"
+    proc.send_signal(signum)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    after = control.body()
+    assert after["life"] == "solitary"
+    calls = [(e["service"], e["method"], e["args"]) for e in control.transcript()]
+    body_calls = [c for c in calls if c[0] in ("ALMotion", "ALAutonomousLife")]
+    assert body_calls[-2:] == [("ALMotion", "rest", []), ("ALAutonomousLife", "setState", ["solitary"])]
+    assert calls[-1] == ("ALMemory", "insertData", [MARKER_KEY, ""])  # the mark cleared last
+    assert marker(url) == ""
+
+
+def test_a_killed_session_leaves_a_mark_that_check_reports_and_the_next_run_restores(robot_proc, tmp_path):
+    url, control = robot_proc
+    proc = nao("run", url, tmp_path / "a", "--turns", "25", wait=False)
+    wait_first_row(tmp_path / "a", proc)
+    proc.kill()  # SIGKILL: nothing of the session runs any more
+    proc.communicate(timeout=30)
+    after_kill = control.body()
+    assert (after_kill["life"], after_kill["motors_on"]) == ("disabled", True)  # left as the task had it
+    assert marker(url) == "solitary"
+    res = nao("check", url, tmp_path / "a")
+    robot_line = res.stdout.splitlines()[1]
+    assert robot_line.startswith("OK   robot") and "left by an earlier session that did not end" in robot_line
+    assert "found 'solitary'" in robot_line
+    res = nao("run", url, tmp_path / "b", "--turns", "2")
+    assert res.returncode == 0, res.stderr
+    assert control.body()["life"] == "solitary"  # restored to what the killed one found
+    assert marker(url) == ""
+    (folder,) = (tmp_path / "b").glob("*_*")
+    info = json.loads((folder / "session.json").read_text())
+    assert info["robot_status"]["left_by_earlier_session"] == "solitary"
+    assert info["robot_status"]["autonomous_life"] == "disabled"
+
+
+def test_a_link_frozen_8_s_in_an_answer_window_gives_an_interrupted_replayed_turn_not_a_failure(tmp_path):
+    """The stand-in stays alive but its link goes silent for 8 s right after turn 1's beep (a dropped
+    Wi-Fi: libqi would notice only after ~60 s). The watchdog's cheap call gets no answer within its
+    deadline: the turn is recorded as interrupted and replayed, and never scored."""
+    from nao_trainer.robot.standin import StandIn
+
+    standin = StandIn.start(speed=20)
+    try:
+        standin.freeze_after("ALAudioPlayer.playSine", 8.0)  # the first beep: turn 1 (no practice)
+        res = subprocess.run(
+            [sys.executable, "-m", "nao_trainer", "run", "--config", STUDY, "--robot", standin.url, "--eeg", "off",
+             "--out", str(tmp_path / "out"), "--speed", "20", "--policy", "schedule", "--input", "simulated",
+             "--seed", "5", "--turns", "2", "--no-practice"],
+            capture_output=True, text=True, env=dict(os.environ, QI_LOG_LEVEL="silent"), timeout=180)
+    finally:
+        standin.stop()
+    assert res.returncode == 0, res.stderr
+    (folder,) = (tmp_path / "out").glob("*_*")
+    rows = read_turns(folder)
+    assert [(r["turn"], r["replay"]) for r in rows] == [("1", ""), ("1", "True"), ("2", "")]
+    frozen = rows[0]
+    assert frozen["success"] == "" and frozen["score"] == "" and "interrupted: robot lost" in frozen["notes"]
+    assert all(r["success"] in ("True", "False") for r in rows[1:])
+    events = read_events(folder)
+    assert [e["turn"] for e in events if e["event"] == "link_frozen"] == [1]
+    lost = [e for e in events if e["event"] == "robot_lost"]
+    assert len(lost) == 1 and "froze during the answer window" in lost[0]["error"]
+    info = json.loads((folder / "session.json").read_text())
+    assert info["status"] == "completed"
+    assert info["total_score"] == sum(int(r["score"]) for r in rows[1:])  # the frozen attempt counts nothing
+
+
+@pytest.mark.parametrize("life, ends", [("unchanged", 3), ("disabled", 0)])
+def test_a_hand_held_3_s_on_the_head_mid_session_only_matters_with_life_left_on(tmp_path, life, ends):
+    """Why the session disables Autonomous Life: left on ("unchanged"), a hand resting 3 s on the answer
+    buttons puts NAO to sleep and the task cannot go on (a robot error, every turn kept); disabled, it
+    is only a press."""
+    from nao_trainer.robot.standin import StandIn
+
+    study = tmp_path / "study.yaml"
+    study.write_text(f"robot: {{autonomous_life: {life}}}\n", encoding="utf-8")
+    standin = StandIn.start(speed=50)
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "nao_trainer", "run", "--config", str(study), "--robot", standin.url,
+             "--eeg", "off", "--out", str(tmp_path / "out"), "--speed", "50", "--policy", "schedule",
+             "--input", "simulated", "--seed", "2", "--turns", "8", "--no-practice"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ, QI_LOG_LEVEL="silent"))
+        folder = wait_first_row(tmp_path / "out", proc)
+        held = standin.hold("B", 3.0)
+        _, err = proc.communicate(timeout=180)
+    finally:
+        standin.stop()
+    assert held == ("asleep" if life == "unchanged" else "nothing")
+    assert proc.returncode == ends, err
+    info = json.loads((folder / "session.json").read_text())
+    assert info["status"] == ("robot error" if ends else "completed")
+    if ends:
+        assert "NAO is asleep" in info["error"]
+    assert all(r["success"] in ("True", "False", "") for r in read_turns(folder))
