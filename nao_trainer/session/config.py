@@ -136,7 +136,7 @@ class PolicySection:
 
     def state_file(self, pseudonym: str, output: Path) -> Path | None:
         """Where a learning policy keeps its state across sessions: by default the participant's
-        folder (``policies.base.state_file``); None = the session folder."""
+        folder (``policies.participant_state.state_file``); None = the session folder."""
         return state_file(self.kind, self.state_path, pseudonym, output)
 
 
