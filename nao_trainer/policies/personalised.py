@@ -148,7 +148,8 @@ class PersonalisedPolicy:
     def snapshot(self) -> dict | None:
         """The whole state (a session checkpoint carries it; ``restore`` goes back to it)."""
         pers = self.pers.snapshot()
-        return {**self.payload(), "turn": self.turn, **{k: pers[k] for k in ("current", "switches", "full", "schedule")},
+        return {**self.payload(), "turn": self.turn,
+                **{k: pers[k] for k in ("current", "switches", "full", "schedule")},
                 "history": self.history, "started": self.started}
 
     def restore(self, data: dict | None) -> None:
