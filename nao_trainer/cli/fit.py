@@ -37,14 +37,18 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from nao_trainer.core.usermodel import TooFewSessions
     from nao_trainer.learn.fit_source import fit_and_save
 
     if args.k < 1:
         raise ConfigError(f"--k must be a positive number of clusters, got {args.k}")
     require_matplotlib(not args.no_figures, "--no-figures")
     say = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
-    fitted = fit_and_save(args.source, args.out, compat=args.compat, k=args.k, seed=args.seed,
-                          cache=None if args.no_cache else (args.cache or "default"), progress=say)
+    try:
+        fitted = fit_and_save(args.source, args.out, compat=args.compat, k=args.k, seed=args.seed,
+                              cache=None if args.no_cache else (args.cache or "default"), progress=say)
+    except TooFewSessions as exc:
+        raise exc.naming("--k") from None
     report = fitted.report
     if not args.no_figures:
         from nao_trainer.plots.usermodels import draw_fit

@@ -84,6 +84,20 @@ def user_models(
     return UserModels(tuple(names.tolist()), features, missing)
 
 
+class TooFewSessions(DataError):
+    """Too few sessions (or distinct user models) for ``k`` clusters; the message names the value ``k``
+    (a command adds its own option with ``naming``)."""
+
+    def __init__(self, sessions: int, distinct: int, k: int, k_name: str = "k") -> None:
+        self.sessions, self.distinct, self.k = sessions, distinct, k
+        super().__init__(f"{sessions} sessions ({distinct} distinct user models) are too few for K={k} clusters: "
+                         f"import at least {2 * k} sessions or lower {k_name}")
+
+    def naming(self, k_name: str) -> "TooFewSessions":
+        """The same error, naming the option that sets ``k`` (e.g. ``--k``)."""
+        return TooFewSessions(self.sessions, self.distinct, self.k, k_name)
+
+
 @dataclass(frozen=True)
 class Clustering:
     """K-means result with stable ids. ``labels[i]`` in 1..K is the cluster of session i."""
@@ -113,10 +127,7 @@ def cluster_users(features: np.ndarray, k: int = 3, n_init: int = 200, seed: int
         raise ValueError(f"k must be a positive integer, got {k!r}")
     n_distinct = len(np.unique(x, axis=0))
     if len(x) < 2 * k or n_distinct < k:
-        raise DataError(
-            f"{len(x)} sessions ({n_distinct} distinct user models) are too few for K={k} clusters: "
-            f"import at least {2 * k} sessions or lower --k"
-        )
+        raise TooFewSessions(len(x), n_distinct, k)
     km = KMeans(n_clusters=k, n_init=n_init, random_state=seed).fit(x)
     raw = km.labels_
     centers = np.array([x[raw == c].mean(axis=0) for c in range(k)])

@@ -235,7 +235,8 @@ def score_held_out(h: HeldOut, spec: PersonaliseSpec) -> list[dict[str, Any]]:
         for i, name in enumerate(PIPELINES):
             mode = Choice.MOST_LIKELY if name == "paper" else Choice.EXPECTED_VALUE
             kappa = spec.kappa if name == "personalised" else float("inf")
-            pers = assessment.Personaliser(models, list(cands), schedule, kappa, spec.margin, T, mode=mode, own_policy=own)
+            pers = assessment.Personaliser(models, list(cands), schedule, kappa, spec.margin, T, mode=mode,
+                                           own_policy=own)
             out = evaluation.monte_carlo(pers, p, e, spec.mc_episodes, _rng(spec, h.user.name, i, length), T)
             add(f"{name}", out, length, switches=round(float(pers.switches.mean()), 4),
                 matched=float(np.mean(pers.posterior().argmax(axis=1) == h.cluster_index)))

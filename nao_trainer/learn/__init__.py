@@ -1,1 +1,1 @@
-"""Offline learning: user-model fitting, simulator files, the Q-learning grid, user-specific policies, the gym env."""
+"""Offline learning: user-model fitting, simulator files, the Q-learning grid, policy files, user sets, the gym env."""

@@ -14,7 +14,8 @@ per-level counts, the learners' tables and one line per session. A returning par
 from it and skips the assessment (the carried-over posterior already holds it). The file is
 refused in one line when it was made for another MDP, with other user models or policies
 (fingerprint), or is torn; ``--fresh-policy`` keeps the old file as ``personalised.json.replaced-<time>``
-(``policies.base.set_aside``) and starts from the prior. Nothing is reset silently.
+(``policies.participant_state.set_aside``) and starts from the prior. Nothing is reset silently. The file
+names its participant; a file of another pseudonym (copied between folders) is refused.
 """
 from __future__ import annotations
 
@@ -42,7 +43,7 @@ PARTICIPANT_FILE = JsonFormat("nao-trainer/participant-personalisation", 1, "par
 
 
 def participant_file(output: Path, pseudonym: str) -> Path:
-    """The participant's state file by default (``policies.base.state_file``)."""
+    """The participant's state file by default (``policies.participant_state.state_file``)."""
     path = state_file("personalised", None, pseudonym, output)
     assert path is not None
     return path
@@ -147,7 +148,8 @@ class PersonalisedPolicy:
     def snapshot(self) -> dict | None:
         """The whole state (a session checkpoint carries it; ``restore`` goes back to it)."""
         pers = self.pers.snapshot()
-        return {**self.payload(), "turn": self.turn, **{k: pers[k] for k in ("current", "switches", "full", "schedule")},
+        return {**self.payload(), "turn": self.turn,
+                **{k: pers[k] for k in ("current", "switches", "full", "schedule")},
                 "history": self.history, "started": self.started}
 
     def restore(self, data: dict | None) -> None:

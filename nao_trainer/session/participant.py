@@ -100,7 +100,8 @@ def participant_lock(state_file: Path, pseudonym: str, progress: TextIO | None =
             if where == host and isinstance(pid, int) and not _running(pid):
                 path.unlink(missing_ok=True)  # stale: the session that held it is gone
                 if progress:
-                    print(f"participant {pseudonym}: a lock left by session pid {pid} (started {holder.get('started')}), "
+                    print(f"participant {pseudonym}: a lock left by session pid {pid} "
+                          f"(started {holder.get('started')}), "
                           f"which no longer runs, was taken over ({path})", file=progress, flush=True)
                 continue
             raise UserError(f"{path}: participant {pseudonym} is in another session (pid {pid} on {where}, started "

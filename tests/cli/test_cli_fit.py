@@ -82,6 +82,7 @@ def test_fit_on_too_few_sessions_says_so(dataset_root, tmp_path, capsys):
     assert rc == 2
     last = err.strip().splitlines()[-1]
     assert last.startswith("nao-trainer fit: error: 4 sessions") and "too few for K=3" in last
+    assert last.endswith("or lower --k")  # core names the value k, the command its option
     assert "Traceback" not in err
     assert main(["fit", str(tmp_path / "data"), "--out", str(tmp_path / "out"), "--no-figures", "--no-cache",
                  "--k", "1"]) == 0

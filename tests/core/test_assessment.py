@@ -112,3 +112,29 @@ def test_per_level_learning_finds_a_strong_participant():
         out[kappa] = evaluation.monte_carlo(pol, strong, e, 300, rng)
     assert out[4.0].visits[3] > 15 and out[float("inf")].visits[3] == pytest.approx(2.0)
     assert out[4.0].score > out[float("inf")].score + 15
+
+
+def test_a_bonus_is_an_argument_of_one_decision_and_the_choice_has_names():
+    models, cands = hand_built()
+    pol = assessment.Personaliser(models, cands, schedule=(), kappa=float("inf"), margin=0.0, turns=25,
+                                  mode=assessment.Choice.EXPECTED_VALUE)
+    assert pol.decide(0)[0] == 1
+    pol.current[:] = -1
+    assert pol.decide(0, bonus=np.array([[100.0, 0.0]]))[0] == 0  # the supervisor's guidance, this decision only
+    assert assessment.Personaliser(models, cands, schedule=(), mode="map", own_policy=(0, 1)).mode \
+        is assessment.Choice.MOST_LIKELY  # the strings still name the choices
+    with pytest.raises(ValueError, match="mode must be one of ev, map"):
+        assessment.Personaliser(models, cands, mode="best")
+
+
+def test_snapshot_and_restore_of_one_participant():
+    models, cands = hand_built()
+    pol = assessment.Personaliser(models, cands, schedule=(2, 3), kappa=10.0, turns=25)
+    for state, ok in [(mdp.encode(3, 0, 0), True), (mdp.encode(5, 0, 2), False)]:
+        pol.update(np.array([state]), np.array([ok]))
+    pol.decide(2)
+    snap = pol.snapshot()
+    again = assessment.Personaliser(models, cands, schedule=(), kappa=10.0, turns=25)
+    again.restore(snap)
+    assert again.snapshot() == snap and again.schedule == (2, 3) and again.turn == 2
+    assert np.allclose(again.posterior(), pol.posterior())

@@ -238,3 +238,22 @@ def test_config_with_a_non_number_is_a_value_error_naming_it(name, value):
     # core.settings: one validator and one message style for every settings class (a SettingError is a ValueError)
     with pytest.raises(ValueError, match=rf"key '{name}' (must be a number|needs a value \(a number\)), got"):
         QConfig(**{name: value})
+
+
+def test_the_learner_owns_its_state():
+    rng = np.random.default_rng(3)
+    lr = QLearner("qaug")
+    s = mdp.encode(5, 0, 2)
+    a = int(np.flatnonzero(mdp.ACTION_MASK[s])[0])
+    lr.update(s, a, 3, 0.7, mdp.next_state(s, a, True), False)
+    saved = lr.state_dict(transient=True)
+    assert set(saved) == {"q", "h", "h_counts", "visits", "shift"} and "shift" not in lr.state_dict()
+    other = QLearner("qaug")
+    other.load_state_dict(saved)
+    nxt = mdp.next_state(s, a, True)
+    u = rng.random()
+    assert other.choose(nxt, u) == lr.choose(nxt, u) and np.array_equal(other.q, lr.q)
+    with pytest.raises(ValueError, match="q must have shape"):
+        other.load_state_dict({**saved, "q": [[0.0] * 6]})
+    with pytest.raises(KeyError):
+        other.load_state_dict({k: v for k, v in saved.items() if k != "visits"})

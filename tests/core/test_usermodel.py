@@ -49,7 +49,7 @@ def test_cluster_ids_are_stable_and_ordered_by_mean_success(models):
 
 
 def test_too_few_sessions_for_k_is_a_clear_error(models):
-    with pytest.raises(DataError, match=r"4 sessions .* too few for K=3 clusters.*--k"):
+    with pytest.raises(DataError, match=r"4 sessions .* too few for K=3 clusters: import at least 6 sessions or lower k$"):
         cluster_users(models.features[:4], k=3)
     with pytest.raises(ValueError, match="k must be a positive integer, got 0"):
         cluster_users(models.features, k=0)

@@ -6,15 +6,11 @@ import json
 import numpy as np
 import pytest
 
-from nao_trainer.learn import artifacts
-
-from nao_trainer.learn import policy_files
 from nao_trainer.core import mdp
 from nao_trainer.core.qlearning import QConfig, QLearner
 from nao_trainer.core.simulation import UserSimulator
-from nao_trainer.errors import ConfigError, DataError
-from nao_trainer.ports import Transition
-from nao_trainer.learn.training import TrainingSpec, train_grid, write_outputs
+from nao_trainer.errors import DataError
+from nao_trainer.learn import policy_files
 
 S0 = mdp.encode(*mdp.S0)
 
@@ -24,23 +20,6 @@ def simulators():
         UserSimulator.from_level_rates("cluster-1", [0.95, 0.8, 0.35, 0.06], [0.3, 0.4, 0.5, 0.6]),
         UserSimulator.from_level_rates("cluster-2", [0.99, 0.95, 0.65, 0.3], [0.6, 0.5, 0.4, 0.3]),
     ]
-
-
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    """A models folder and the policies trained on it (tiny grid)."""
-    models = tmp_path_factory.mktemp("models")
-    artifacts.save_models(models, simulators(), [{"id": 1}, {"id": 2}], {"k": 2})
-    policies = tmp_path_factory.mktemp("policies")
-    result = train_grid(simulators(), ["1", "2"], TrainingSpec(seeds=2, episodes=30, workers=1), progress=False)
-    write_outputs(result, policies, str(models), "test")
-    return models, policies
-
-
-def load(trained, spec="usp:1:qaug", learning=True, state_path=None):
-    models, policies = trained
-    return learned.load_policy(spec, learning, state_path, policies_dir=policies,
-                           models_dir=models)
 
 
 def random_learner(method="shaping") -> QLearner:

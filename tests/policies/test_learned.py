@@ -6,16 +6,14 @@ import json
 import numpy as np
 import pytest
 
-from nao_trainer.learn import artifacts
-
-from nao_trainer.learn import policy_files
-from nao_trainer.policies import learned
 from nao_trainer.core import mdp
 from nao_trainer.core.qlearning import QConfig, QLearner
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import ConfigError, DataError
-from nao_trainer.ports import Transition
+from nao_trainer.learn import artifacts, policy_files
 from nao_trainer.learn.training import TrainingSpec, train_grid, write_outputs
+from nao_trainer.policies import learned
+from nao_trainer.ports import Transition
 
 S0 = mdp.encode(*mdp.S0)
 

@@ -43,7 +43,8 @@ def test_no_shipped_file_but_the_simulated_demo_names_a_participant():
 def test_a_person_or_a_real_robot_needs_an_entered_pseudonym(study, over):
     with pytest.raises(ConfigError) as exc:
         check_pseudonym(load_config(study, over))
-    assert one_line(exc).startswith("participant.pseudonym: no pseudonym entered") and "--pseudonym ID" in str(exc.value)
+    assert one_line(exc).startswith("participant.pseudonym: no pseudonym entered")
+    assert "--pseudonym ID" in str(exc.value)
     entered = load_config(study, {**over, "participant.pseudonym": "P07"})
     check_pseudonym(entered)
     assert entered.participant.pseudonym == "P07"

@@ -1,0 +1,1 @@
+"""Research questions answered offline: policy comparisons, the personalisation evaluation, sweeps, their reports."""

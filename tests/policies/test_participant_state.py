@@ -1,0 +1,36 @@
+"""Where a participant's state lives and how a replaced one is kept (policies.participant_state)."""
+from __future__ import annotations
+
+import re
+import time
+from datetime import datetime, timezone
+
+from nao_trainer.policies.participant_state import SESSION_FOLDER, session_state_file, set_aside, state_file
+
+
+def test_one_rule_for_every_policy(tmp_path):
+    out = tmp_path / "out"
+    assert state_file("usp:2", None, "P7", out) == out.resolve() / "participants" / "P7" / "policy_state.json"
+    assert state_file("personalised", None, "P7", out) == out.resolve() / "participants" / "P7" / "personalised.json"
+    template = str(tmp_path / "s" / "{pseudonym}-state.json")
+    assert state_file("personalised", template, "P7", out) == tmp_path / "s" / "P7-state.json"
+    assert state_file("usp:2", SESSION_FOLDER, "P7", out) is None
+    assert session_state_file("personalised", tmp_path) == tmp_path / "personalised.json"
+    assert session_state_file("usp:1:qaug", tmp_path) == tmp_path / "policy_state.json"
+
+
+def test_set_aside_keeps_every_replaced_file_with_a_utc_stamp(tmp_path, monkeypatch):
+    monkeypatch.setenv("TZ", "Pacific/Kiritimati")  # UTC+14: a local-time stamp would be 14 hours off
+    time.tzset()
+    path = tmp_path / "personalised.json"
+    kept = []
+    for text in ("first", "second", "third"):  # within one second: the names must not collide
+        path.write_text(text)
+        kept.append(set_aside(path))
+    assert not path.exists() and [k.read_text() for k in kept] == ["first", "second", "third"]
+    stamp = re.fullmatch(r"personalised\.json\.replaced-(\d{8}-\d{6})(_\d+)?", kept[0].name).group(1)
+    when = datetime.strptime(stamp, "%Y%m%d-%H%M%S").replace(tzinfo=timezone.utc)
+    monkeypatch.undo()
+    time.tzset()
+    assert abs((datetime.now(timezone.utc) - when).total_seconds()) < 3600  # UTC, not local time
+    assert len({k.name for k in kept}) == 3
