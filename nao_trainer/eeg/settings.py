@@ -44,6 +44,9 @@ class EEGSettings:
     lsl_scope: str = "machine"
     processing: Processing = field(default_factory=Processing)
     xdf: bool = True  # also record session.xdf (EEG + markers) with LabRecorder's engine (eeg/xdf.py)
+    #: A pilot may take a simulated or replayed stream (``simulate-muse``) for a session where a person
+    #: answers or a real robot plays; otherwise such a session refuses it (exit 4). ``--allow-simulated-eeg``.
+    allow_simulated: bool = False
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any] | None, mode: str | None = None,
@@ -71,6 +74,9 @@ class EEGSettings:
         xdf = data.get("xdf", True)
         if not isinstance(xdf, bool):
             raise fail("eeg.xdf", f"key 'eeg.xdf' must be true/false, got {xdf!r}")
+        allow_simulated = data.get("allow_simulated", False)
+        if not isinstance(allow_simulated, bool):
+            raise fail("eeg.allow_simulated", f"key 'eeg.allow_simulated' must be true/false, got {allow_simulated!r}")
         scope = data.get("lsl_scope", "machine")
         if scope not in SCOPES:
             raise fail("eeg.lsl_scope", f"key 'eeg.lsl_scope' must be one of {', '.join(SCOPES)}, got {scope!r}")
@@ -92,4 +98,27 @@ class EEGSettings:
             raise fail(str(exc).split(":", 1)[0], str(exc)) from None
         return cls(mode=mode, required=required, stream_type=data.get("stream_type") or "EEG",
                    stream_name=data.get("stream_name"), source_id=data.get("source_id"), lsl_scope=scope,
-                   processing=proc, xdf=xdf)
+                   processing=proc, xdf=xdf, allow_simulated=allow_simulated)
+
+
+def simulated_refusal(identity: Mapping[str, Any], settings: EEGSettings) -> str:
+    """Why a session where a person answers (or a real robot plays) must not take this stream, or "".
+
+    ``identity`` is ``EEGInlet.identity()``; a simulated or replayed stream would record made-up or
+    someone else's engagement as the participant's, unless the study allows it for a pilot.
+    """
+    if not identity.get("simulated") or settings.allow_simulated:
+        return ""
+    return (f"EEG stream {identity.get('name')!r} (source_id {identity.get('source_id')!r}) is "
+            f"{identity.get('acquisition')} (nao-trainer simulate-muse), not a headband, but a person answers or a "
+            "real robot plays: its engagement would be recorded as theirs; start the headband bridge and pin it with "
+            "eeg.source_id (--eeg-source-id), or for a pilot set eeg.allow_simulated: true (--allow-simulated-eeg)")
+
+
+def ambiguous_streams(query: str, pinned: str | None, streams: list[tuple[str, str]]) -> str:
+    """Why the choice among ``streams`` (name, source_id) is ambiguous, or "": several match ``query``
+    and no source_id pins one, so a session could take another person's headband or a simulator."""
+    if pinned or len(streams) < 2:
+        return ""
+    listed = ", ".join(f"{name!r} source_id {sid!r}" for name, sid in streams)
+    return f"{len(streams)} EEG streams match ({query}) and none is pinned: {listed}"

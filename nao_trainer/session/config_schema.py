@@ -156,6 +156,7 @@ SCHEMA: dict[str, Any] = {
         "lsl_scope": Field(str),
         "processing": Field(dict, free=True),
         "xdf": Field(bool),
+        "allow_simulated": Field(bool),
     },
 }
 

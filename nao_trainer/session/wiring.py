@@ -24,7 +24,7 @@ from nao_trainer.files import PROJECT_ROOT, read_json, write_text_atomic
 from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, Policy, Robot,
                                RobotConnectionLost, SessionObserver)
 from nao_trainer.session.behaviors import Behaviors, load_behaviors
-from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig, load_config
+from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig, is_robot_address, load_config
 from nao_trainer.session.dialogue import Dialogue, load_dialogue
 from nao_trainer.session.engine import EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session, who_stopped
 from nao_trainer.session.record import CHECKPOINT, CHECKPOINT_FORMAT, SessionRecorder, ensure_output_dir, read_turns, versions
@@ -116,7 +116,9 @@ def open_engagement_monitor(config: StudyConfig, session_dir: Path, rng: np.rand
     from nao_trainer.eeg.factory import open_monitor  # sets LSL's scope before its first stream object
 
     return open_monitor(eeg.mode, eeg, session_dir, rng, config.participant.pseudonym,
-                        record_xdf=True)  # session.xdf beside the session's files (eeg.xdf: false turns it off)
+                        record_xdf=True,  # session.xdf beside the session's files (eeg.xdf: false turns it off)
+                        # issue 17: a person answering or a real robot never takes a simulated stream for theirs
+                        person=config.answers.input != "simulated" or is_robot_address(config.robot.url))
 
 
 def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progress: TextIO | None = None,
@@ -312,7 +314,8 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
                 if summary:
                     recorder.event("policy_summary", summary=summary)
                 recorder.close(status, code, total_score=session.total if session else 0, error=error,
-                               policy_summary=summary or None)
+                               policy_summary=summary or None,
+                               eeg_stream=getattr(monitor, "stream_identity", None))  # issue 17: which stream, simulated?
             if standin is not None:
                 standin.stop()
             result = SessionResult(recorder.path if recorder else None, status, code, session.rows if session else [],
