@@ -110,8 +110,12 @@ class StateRow:
 _LOG_LINE = re.compile(r"^\s*((?:\S+\s+){6}\S+)\s*(\[.*?\])\s*(\[.*?\])\s*$")
 
 
+#: Largest published file read (bytes): a raw recording is a few MB; a larger file is refused before reading.
+MAX_FILE_BYTES = 256_000_000
+
+
 def _read_text(path: Path) -> str:
-    return read_text(path, DataError)
+    return read_text(path, DataError, max_bytes=MAX_FILE_BYTES)
 
 
 #: Largest whole number a logfile / state_EEG field may hold (turns, lengths, scores are small).
