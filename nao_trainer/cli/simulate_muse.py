@@ -16,7 +16,10 @@ def register(sub) -> None:
             "Publish an LSL stream laid out like muselsl's (name Muse, type EEG, TP9 AF7 AF8 TP10 Right AUX, "
             "256 Hz) whose band content shows the given engagement, or replay a recorded session: the eeg/raw.csv of "
             "a folder written by `nao-trainer run` at its recorded rate, or the raw 'eeg' lines of a published "
-            "session folder (intro, robot_N, user_N) at 220 Hz. Runs until Ctrl-C or --duration. "
+            "session folder (intro, robot_N, user_N) at 220 Hz. Runs until Ctrl-C or --duration (exit 130 after "
+            "Ctrl-C or SIGTERM, 0 after --duration). The stream says what it is in its LSL description "
+            "(desc/acquisition: simulated or replayed): a session where a person answers refuses it (exit 4) "
+            "unless run with --allow-simulated-eeg. "
             "LSL stays on this machine unless --lsl-scope widens it."
         ),
     )
@@ -42,7 +45,7 @@ def register(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from nao_trainer.errors import ConfigError
+    from nao_trainer.errors import ConfigError, Interrupted
     from nao_trainer.eeg.lsl_scope import configure_lsl
     from nao_trainer.eeg.simulated_muse import ReplayMuse, SimulatedMuse
 
@@ -53,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     configure_lsl(args.lsl_scope)
     stop = {"flag": False}
 
-    def on_signal(signum, frame):  # Ctrl-C / SIGTERM: stop cleanly, exit 0
+    def on_signal(signum, frame):  # Ctrl-C / SIGTERM: stop cleanly, exit 130 like every command (README)
         stop["flag"] = True
 
     old_int = signal.signal(signal.SIGINT, on_signal)
@@ -82,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         if pub.error is not None:
             raise pub.error
         print(f"simulate-muse: stopped after {pub.samples_pushed} samples", file=sys.stderr)
-        return 0
+        return Interrupted.exit_code if stop["flag"] else 0
     finally:
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)

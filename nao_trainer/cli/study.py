@@ -5,13 +5,15 @@ import argparse
 import sys
 from pathlib import Path
 
+from nao_trainer.cli._filters import add_filter_args, filter_from_args
+
 
 def register(sub) -> None:
     p = sub.add_parser(
         "study",
         help="a study table: one row per session written by `run` (CSV + figure)",
         description="Read every session folder written by `nao-trainer run` under STUDY_DIR and write "
-        "study.csv (session, pseudonym, date, turns, score, success per level, mean engagement, policy, status, "
+        "study.csv (session, pseudonym, study, input (simulated, tactile, keyboard), date, turns, score, success per level, mean engagement, policy, status, "
         "duration) and study.png (score and engagement per session, level over turns). Sessions that cannot "
         "be read are reported one line each and left out.",
     )
@@ -19,6 +21,7 @@ def register(sub) -> None:
     p.add_argument("--out", "-o", type=Path, default=None, metavar="DIR",
                    help="where study.csv and study.png go (default: STUDY_DIR)")
     p.add_argument("--no-figure", action="store_true", help="only the CSV")
+    add_filter_args(p)
     p.set_defaults(func=run)
 
 
@@ -28,15 +31,19 @@ def run(args: argparse.Namespace) -> int:
     from nao_trainer.files import write_text_atomic
 
     out = args.out or args.root
-    study = read_study(args.root)
-    for line in study.problems:
+    study = read_study(args.root, filter_from_args(args))
+    for line in study.problems + study.notes:
         print(f"nao-trainer study: {line}", file=sys.stderr)
     try:
         out.mkdir(parents=True, exist_ok=True)
         write_text_atomic(out / "study.csv", study.to_csv())
     except OSError as exc:
         raise DataError(f"{out}: cannot write the study table ({exc.strerror}); give another --out") from None
-    print(f"{out / 'study.csv'}: {len(study.sessions)} sessions", file=sys.stderr)
+    inputs: dict[str, int] = {}
+    for s in study.sessions:
+        inputs[s.row["input"]] = inputs.get(s.row["input"], 0) + 1
+    kinds = ", ".join(f"{n} {k}" for k, n in sorted(inputs.items()))
+    print(f"{out / 'study.csv'}: {len(study.sessions)} sessions ({kinds})", file=sys.stderr)
     if not args.no_figure:
         from nao_trainer.plots.study import plot_study
 

@@ -119,6 +119,21 @@ class OwnSession:
         return str(p) if p else _STAMP.sub("", self.id)
 
     @property
+    def study(self) -> str:
+        """``study.name`` of the configuration the session ran with ("" when not recorded)."""
+        cfg = self.info.get("config") if isinstance(self.info.get("config"), dict) else {}
+        values = cfg.get("values", cfg) if isinstance(cfg, dict) else {}
+        study = values.get("study") if isinstance(values, dict) else None
+        name = study.get("name") if isinstance(study, dict) else None
+        return str(name)[:200] if name else ""
+
+    @property
+    def input(self) -> str:
+        """Who answered: ``simulated`` (a simulated participant), ``tactile`` or ``keyboard`` (a person)."""
+        kind = self.info.get("input")
+        return str(kind)[:40] if kind else "unknown"
+
+    @property
     def status(self) -> str:
         status = str(self.info.get("status", "?"))
         return "incomplete (no end recorded: killed?)" if status == "running" else status
@@ -260,7 +275,8 @@ def table_rows(session: OwnSession, engagement: "dict[int, Any] | None" = None
         else:
             eeg = (_float(r["engagement_index"]), _float(r["engagement"]), _float(r["eeg_quality"]),
                    r.get("engagement_note", "") or ("" if r["engagement"] else "no EEG"))
-        out.append({"session": session.id, "pseudonym": session.pseudonym, **row,
+        out.append({"session": session.id, "pseudonym": session.pseudonym, "study": session.study,
+                    "input": session.input, **row,
                     "engagement_index": eeg[0], "engagement": eeg[1],
                     "eeg_quality": 0.0 if math.isnan(eeg[2]) else eeg[2], "contact": math.nan, "eeg_note": eeg[3]})
     return out, excluded

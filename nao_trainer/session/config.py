@@ -11,6 +11,7 @@ NAOqi 2.9 credentials are never read from files: the robot client takes them fro
 from __future__ import annotations
 
 import difflib
+import json
 import hashlib
 import os
 from dataclasses import dataclass, fields
@@ -240,7 +241,8 @@ def _merge(base: dict, over: Mapping, schema: dict, prefix: str, locs: dict[str,
         if key not in schema:
             hint = difflib.get_close_matches(str(key), [str(k) for k in schema], n=1)
             fix = f"did you mean '{(prefix + '.') if prefix else ''}{hint[0]}'?" if hint else f"valid keys here: {', '.join(schema)}"
-            raise ConfigError(f"{where}: unknown key '{dotted}'; {fix}")
+            shown = json.dumps(dotted, ensure_ascii=False)[1:-1]  # a newline or control character echoed escaped
+            raise ConfigError(f"{where}: unknown key '{shown}'; {fix}")
         spec = schema[key]
         if isinstance(spec, dict):
             base.setdefault(key, {})
