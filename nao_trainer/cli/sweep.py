@@ -73,11 +73,15 @@ def run(args) -> int:
     write_text_atomic(out / "sweep.csv", "\n".join(lines) + "\n")
     paths = [out / "sweep.json", out / "sweep.csv"]
     if not args.no_plots:
-        from nao_trainer.plots.evaluation import plot_sweep
+        from nao_trainer.plots.evaluation import plot_sweep, plot_sweep_grid
 
-        points = [{**r, "value": r[names[0]]} for r in results] if len(names) == 1 else None
-        if points is not None:
-            paths.append(plot_sweep(points, names[0], out / "sweep.png"))
+        if len(names) == 1:
+            paths.append(plot_sweep([{**r, "value": r[names[0]]} for r in results], names[0], out / "sweep.png"))
+        elif len(names) == 2:  # issue 17: two parameters wrote no figure and said nothing
+            paths.append(plot_sweep_grid(results, (names[0], names[1]), out / "sweep.png"))
+        else:
+            print(f"sweep: no sweep.png for {len(names)} swept parameters (a figure shows one or two); "
+                  f"sweep.csv holds every point", file=sys.stderr)
     print(f"sweep: {turns / 1e9:.2f} G turns in {seconds:.1f} s ({turns / max(seconds, 1e-9) / 1e6:.1f} M turns/s)",
           file=sys.stderr)
     if args.json:

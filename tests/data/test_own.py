@@ -148,6 +148,13 @@ def test_study_table_and_figure(study, tmp_path, capsys):
             got = r[f"success_L{level}"]
             assert (got == "") if not played else abs(float(got) - sum(played) / len(played)) < 1e-4
     assert rows[2]["engagement"] == "" and float(rows[0]["engagement"]) > 0
+    assert all(r["study"] == "own-data" and r["input"] == "simulated" for r in rows)  # issue 17: said per session
+    assert "3 sessions (3 simulated)" in err
+    code, _, err = _cli(["study", str(study), "--out", str(tmp_path / "f"), "--no-figure", "--input", "tactile"], capsys)
+    assert code == 2 and "the filter left none of the 3 sessions" in err
+    code, _, err = _cli(["study", str(study), "--out", str(tmp_path / "g"), "--no-figure", "--study", "own-data"],
+                        capsys)
+    assert code == 0 and len(_rows(tmp_path / "g" / "study.csv")) == 3
     assert (tmp_path / "study.png").stat().st_size > 10_000
 
 
@@ -226,9 +233,13 @@ def test_a_root_mixing_both_layouts_imports_both_and_says_so(study, dataset_root
     table = read_table(tmp_path / "t.csv")
     assert set(table.sessions) == {"user_1/session_4", _session(study, "P1").name}
     assert set(table["pseudonym"].tolist()) == {"user_1", "P1"}
+    # issue 17: each row says which study and who answered; the summary says what the table mixes
+    assert {(str(s), str(i)) for s, i in zip(table["study"], table["input"])} == {("published", "published"),
+                                                                                  ("own-data", "simulated")}
+    assert "sessions by study/input: own-data/simulated 1, published/published 1" in err
     code, _, err = _cli(["import", str(root), "--out", str(tmp_path / "c.csv"), "--compat", "authors2018", "-q"],
                         capsys)
-    assert code == 0 and "applies to the published layout only" in err
+    assert code == 6 and "applies to the published layout only" in err  # written, one session skipped
 
 
 def test_fuzzed_session_files_never_give_a_traceback(study, tmp_path, capsys):

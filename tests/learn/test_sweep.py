@@ -55,6 +55,19 @@ def test_sweep_command_writes_its_table_and_figure(tmp_path, capsys):
     assert (out / "sweep.csv").read_text().count("\n") == 7 and (out / "sweep.png").stat().st_size > 0
 
 
+def test_a_sweep_over_two_parameters_draws_a_grid_and_over_three_says_why_not(tmp_path, capsys):
+    """Issue 17: two parameters wrote no figure and said nothing (the docs list sweep.png)."""
+    out = tmp_path / "s2"
+    assert main(["sweep", "--param", "alpha=0.1,0.2", "--param", "gamma=0.9,0.95", "--seeds", "1", "--episodes",
+                 "50", "--out", str(out), "--json"]) == 0
+    assert (out / "sweep.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    capsys.readouterr()
+    out = tmp_path / "s3"
+    assert main(["sweep", "--param", "alpha=0.1", "--param", "gamma=0.9", "--param", "beta1=1", "--seeds", "1",
+                 "--episodes", "50", "--out", str(out), "--json"]) == 0
+    assert not (out / "sweep.png").exists() and "no sweep.png for 3 swept parameters" in capsys.readouterr().err
+
+
 def test_dask_cluster_gives_bit_identical_results_to_local_processes():
     distributed = pytest.importorskip("distributed")
     spec = sweep.make_spec(["beta2=0,0.8"], seeds=2, episodes=150)
