@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 import pytest
+from _waits import returns
 
 from nao_trainer.answers.inputs import KeyboardAnswers, PressWindow, TactileAnswers
 from nao_trainer.core import mdp, task
@@ -37,9 +38,9 @@ def test_window_times_out_with_partial_answer():
     w.open()
     w.add("A", "A")
     t0 = time.monotonic()
-    ans = w.collect(3, timeout_s=0.2)
+    ans = returns(lambda: w.collect(3, timeout_s=0.2))  # ends by its timeout (timed_out says so), never hangs
     assert ans.timed_out and ans.response == ("A",)
-    assert 0.15 < time.monotonic() - t0 < 1.0
+    assert time.monotonic() - t0 > 0.15  # it did wait (a lower bound: load only lengthens it)
 
 
 def test_keyboard_discards_keys_before_the_beep_and_records_invalid_ones():

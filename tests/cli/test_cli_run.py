@@ -30,9 +30,7 @@ def only_folder(out: Path) -> Path:
 
 def test_no_flags_plays_the_25_turn_demo(tmp_path):
     out = tmp_path / "sessions"
-    t0 = time.monotonic()
-    res = cli("--out", str(out))  # exactly as `make demo` runs it
-    elapsed = time.monotonic() - t0
+    res = cli("--out", str(out))  # exactly as `make demo` runs it (its speed: benchmarks/bench_session_demo.py)
     assert res.returncode == 0, res.stderr
     folder = only_folder(out)
     assert folder.name.startswith("demo_")
@@ -44,7 +42,6 @@ def test_no_flags_plays_the_25_turn_demo(tmp_path):
     assert f"total score: {sum(int(r['score']) for r in rows)}" in res.stdout
     info = json.loads((folder / "session.json").read_text())
     assert info["status"] == "completed" and info["robot"] == "stand-in (in-process)"
-    assert elapsed < 60
     # the demo shows the whole system: simulated Muse -> engagement per turn, a trained policy
     with_engagement = [r for r in rows if r["engagement"] not in ("", None)]
     assert len(with_engagement) >= 20, [r["notes"] for r in rows]

@@ -83,7 +83,9 @@ def test_inlet_finds_simulated_muse_and_drops_aux():
             assert x.shape[1] == 4 and len(ts) >= 256
             import pylsl
 
-            assert abs(ts[-1] - pylsl.local_clock()) < 1.0  # on this machine's LSL clock
+            # on this machine's LSL clock, not wall-clock time (which differs by decades of seconds); the
+            # margin is for samples still queued on a loaded machine, not a speed requirement
+            assert abs(ts[-1] - pylsl.local_clock()) < 60.0
             assert np.allclose(np.diff(ts), 1 / 256, atol=1e-4)
             assert inlet.wall_clock is False
         finally:
