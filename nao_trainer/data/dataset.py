@@ -52,6 +52,8 @@ IMPORTER_VERSION = 3  # 2: pseudonym column; sessions written by `run`. 3: study
 PUBLISHED = "published"
 COMPAT_MODES = (None, "authors2018")
 
+#: Columns that label a session (what study, who answered) rather than describe a turn: not fingerprinted.
+LABELS = ("study", "input")
 #: Column name -> kind (str, int, float). The CSV's header is exactly these names in this order.
 COLUMNS: dict[str, type] = {
     "session": str,
@@ -115,21 +117,25 @@ class TurnTable:
             cols[name] = np.array(values, dtype=float if kind is float else (np.int64 if kind is int else str))
         return cls(cols)
 
-    def to_csv(self) -> str:
-        """CSV text (floats as ``repr``, so reading back is exact; NaN as empty)."""
+    def to_csv(self, columns: "tuple[str, ...] | None" = None) -> str:
+        """CSV text (floats as ``repr``, so reading back is exact; NaN as empty) of ``columns`` (default all)."""
+        names = tuple(COLUMNS) if columns is None else columns
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
-        w.writerow(COLUMNS)
-        cols = [self.columns[n] for n in COLUMNS]
-        kinds = list(COLUMNS.values())
+        w.writerow(names)
+        cols = [self.columns[n] for n in names]
+        kinds = [COLUMNS[n] for n in names]
         for i in range(len(self)):
             w.writerow(["" if k is float and not np.isfinite(c[i]) else (repr(float(c[i])) if k is float else c[i])
                         for c, k in zip(cols, kinds)])
         return buf.getvalue()
 
     def fingerprint(self) -> str:
-        """SHA-256 of the CSV text: identifies the data a model was fitted from."""
-        return hashlib.sha256(self.to_csv().encode()).hexdigest()
+        """SHA-256 of the CSV text of the turn data: identifies the data a model was fitted from.
+
+        The session labels ``study`` and ``input`` (importer v3) are left out, so a model fitted from the
+        same turns before they existed keeps its fingerprint (sim/models)."""
+        return hashlib.sha256(self.to_csv(tuple(c for c in COLUMNS if c not in LABELS)).encode()).hexdigest()
 
 
 def write_table(table: TurnTable, path: Path, provenance: dict[str, Any]) -> Path:
