@@ -3,7 +3,6 @@ stand-in over real qi, and the simulated participant."""
 from __future__ import annotations
 
 import os
-import threading
 import time
 
 import numpy as np
