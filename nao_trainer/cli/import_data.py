@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"nao-trainer import: {line}", file=sys.stderr)
     write_table(result.table, args.out, result.provenance)
     t = result.table
-    print(f"nao-trainer import: {describe_sessions(t)}", file=sys.stderr)
+    print(f"nao-trainer import: {t.mix()}", file=sys.stderr)
     skipped = len(result.problems)
     print(f"{args.out}: {len(t)} turns from {len(t.sessions)} sessions"
           f" ({result.cached} from cache, {skipped} skipped)"
@@ -72,14 +72,3 @@ def report_lines(result) -> list[str]:
         lines += [f"  {e}" for e in result.excluded]
     return lines
 
-
-def describe_sessions(table) -> str:
-    """``sessions by study and input: demo/simulated 3, paper-2018/tactile 2`` (what the table mixes)."""
-    counts: dict[str, int] = {}
-    seen = set()
-    for sid, study, kind in zip(table["session"], table["study"], table["input"]):
-        if sid not in seen:
-            seen.add(sid)
-            key = f"{study or '?'}/{kind}"
-            counts[key] = counts.get(key, 0) + 1
-    return "sessions by study/input: " + ", ".join(f"{k} {n}" for k, n in sorted(counts.items()))

@@ -117,6 +117,17 @@ class TurnTable:
             cols[name] = np.array(values, dtype=float if kind is float else (np.int64 if kind is int else str))
         return cls(cols)
 
+    def mix(self) -> str:
+        """``sessions by study/input: demo/simulated 3, paper-2018/tactile 2``: what the table mixes."""
+        counts: dict[str, int] = {}
+        seen: set[str] = set()
+        for sid, study, kind in zip(self["session"], self["study"], self["input"]):
+            if sid not in seen:
+                seen.add(sid)
+                key = f"{study or '?'}/{kind}"
+                counts[key] = counts.get(key, 0) + 1
+        return "sessions by study/input: " + ", ".join(f"{k} {n}" for k, n in sorted(counts.items()))
+
     def to_csv(self, columns: "tuple[str, ...] | None" = None) -> str:
         """CSV text (floats as ``repr``, so reading back is exact; NaN as empty) of ``columns`` (default all)."""
         names = tuple(COLUMNS) if columns is None else columns

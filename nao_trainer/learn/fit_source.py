@@ -95,6 +95,7 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
         skipped = [str(p) for p in imported.problems]
         table = imported.table
         say(f"imported {len(table)} turns from {len(table.sessions)} sessions ({imported.cached} from cache)")
+    say(f"nao-trainer fit: {table.mix()}")
     simulated = dataset.simulated_sessions(table)
     if simulated and not include_simulated:
         raise ConfigError(f"{source}: {len(simulated)} of {len(table.sessions)} sessions had a simulated participant "

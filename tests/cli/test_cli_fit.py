@@ -206,6 +206,7 @@ def test_fit_filters_by_study_and_input_and_refuses_simulated_participants_silen
     assert main(["fit", str(table), "--out", str(tmp_path / "m"), "--no-figures"]) == 2
     err = capsys.readouterr().err
     assert "2 of 3 sessions had a simulated participant" in err and "--exclude-simulated" in err
+    assert "sessions by study/input: demo/simulated 1, paper/simulated 1, paper/tactile 1" in err
     assert "--include-simulated" in err and err.count("error:") == 1
     main(["fit", str(table), "--out", str(tmp_path / "m"), "--no-figures", "--exclude-simulated"])
     err = capsys.readouterr().err
