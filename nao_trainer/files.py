@@ -17,11 +17,19 @@ from nao_trainer.errors import ConfigError, UserError
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 
 
-def read_text(path: str | os.PathLike, error: type[UserError], missing: str = "file not found", fix: str = "") -> str:
-    """The UTF-8 text of ``path``; ``error(...)`` naming the file (and ``fix``) when it cannot be read."""
+def read_text(path: str | os.PathLike, error: type[UserError], missing: str = "file not found", fix: str = "",
+              max_bytes: int | None = None) -> str:
+    """The UTF-8 text of ``path``; ``error(...)`` naming the file (and ``fix``) when it cannot be read.
+
+    ``max_bytes``: a larger file is refused before it is read (a crafted or runaway file must not
+    exhaust the memory)."""
     path = Path(path)
     tail = f"; {fix}" if fix else ""
     try:
+        if max_bytes is not None and path.stat().st_size > max_bytes:
+            size = path.stat().st_size
+            raise error(f"{path}: {size / 1e6:.0f} MB is larger than the {max_bytes / 1e6:.0f} MB this file can be "
+                        f"(not written by nao-trainer, or corrupt){tail}")
         return path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise error(f"{path}: {missing}{tail}") from None
@@ -32,14 +40,18 @@ def read_text(path: str | os.PathLike, error: type[UserError], missing: str = "f
         raise error(f"{path}: cannot read ({exc.strerror}){tail}") from None
 
 
-def read_json(path: str | os.PathLike, error: type[UserError], missing: str = "file not found", fix: str = "") -> Any:
-    """The parsed JSON of ``path``; ``error`` naming file and line when unreadable or invalid (torn, edited)."""
-    text = read_text(path, error, missing, fix)
+def read_json(path: str | os.PathLike, error: type[UserError], missing: str = "file not found", fix: str = "",
+              max_bytes: int | None = None) -> Any:
+    """The parsed JSON of ``path``; ``error`` naming file and line when unreadable or invalid (torn, edited,
+    nested too deep to parse)."""
+    text = read_text(path, error, missing, fix, max_bytes)
+    tail = f"; {fix}" if fix else ""
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:
-        tail = f"; {fix}" if fix else ""
         raise error(f"{path}:{exc.lineno}: not valid JSON ({exc.msg}): torn or corrupt{tail}") from None
+    except RecursionError:
+        raise error(f"{path}: JSON nested too deeply to read: corrupt or crafted{tail}") from None
 
 
 def read_yaml(path: str | os.PathLike, missing: str = "file not found", fix: str = "") -> tuple[Any, dict[str, int], str]:

@@ -63,9 +63,16 @@ def test_sessions_import_fit_train_and_play_a_trained_policy(tmp_path):
     assert len(rows) == 64 and {r["success"] for r in rows} <= {"0", "1"}
     assert {r["pseudonym"] for r in rows} == {f"{g}{i}" for g in GROUPS for i in range(1, 5)}
 
-    fit = _cli("fit", str(study), "--out", str(tmp_path / "models"), "--k", "2", "--no-figures", "--json",
-               "--no-cache")  # the study folder itself (import inside fit)
+    # the study folder itself (import inside fit), figures included (issue 17: the figure step read only the
+    # published layout); its participants are simulated, which fit refuses unless told
+    refused = subprocess.run([sys.executable, "-m", "nao_trainer", "fit", str(study), "--out", str(tmp_path / "m0"),
+                              "--k", "2", "--no-figures"], capture_output=True, text=True, env=_env(), timeout=120)
+    assert refused.returncode == 2 and "8 of 8 sessions had a simulated participant" in refused.stderr
+    fit = _cli("fit", str(study), "--out", str(tmp_path / "models"), "--k", "2", "--json", "--no-cache",
+               "--include-simulated")
+    assert (tmp_path / "models" / "users.png").stat().st_size > 0 and (tmp_path / "models" / "clusters.png").exists()
     report = json.loads(fit.stdout)
+    assert report["inputs"] == ["simulated"] and report["simulated_sessions"] == 8
     groups = [{s.split("_")[0].rstrip("1234") for s in c["sessions"]} for c in report["clusters"]]
     assert sorted(map(sorted, groups)) == [["strong"], ["weak"]], report["clusters"]
     strong = next(c["id"] for c, g in zip(report["clusters"], groups) if g == {"strong"})

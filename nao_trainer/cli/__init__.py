@@ -46,7 +46,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except UserError as exc:
-        print(f"nao-trainer {args.command}: error: {exc}", file=sys.stderr)
+        message = str(exc).replace("\r", "\\r").replace("\n", "\\n")  # always one line, whatever was echoed
+        print(f"nao-trainer {args.command}: error: {message}", file=sys.stderr)
         return exc.exit_code
     except (KeyboardInterrupt, Interrupted):
         print(f"nao-trainer {args.command}: interrupted", file=sys.stderr)

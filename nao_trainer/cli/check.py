@@ -23,6 +23,9 @@ def register(sub) -> None:
     p.add_argument("--config", metavar="FILE", help="study configuration (default: config/studies/demo.yaml)")
     p.add_argument("--robot", metavar="mock|desktop|URL", help="robot address (overrides robot.url)")
     p.add_argument("--eeg", choices=EEG_MODES, help="EEG mode (overrides eeg.mode)")
+    p.add_argument("--allow-simulated-eeg", action="store_true",
+                   help="pilots only: accept a simulated or replayed stream (simulate-muse) for a session where a "
+                        "person answers or a real robot plays (eeg.allow_simulated)")
     p.add_argument("--eeg-source-id", metavar="ID", help="the LSL source_id of the headband (overrides eeg.source_id)")
     p.add_argument("--input", choices=INPUTS, help="answer input (overrides answers.input)")
     p.add_argument("--out", metavar="DIR", help="folder under which session folders are created (overrides session.output)")
@@ -36,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     if not 0.5 <= args.seconds <= 60:
         raise ConfigError(f"--seconds must be between 0.5 and 60, got {args.seconds:g}")
     overrides = {"robot.url": args.robot, "eeg.mode": args.eeg, "eeg.source_id": args.eeg_source_id,
-                 "answers.input": args.input,
+                 "eeg.allow_simulated": True if args.allow_simulated_eeg else None, "answers.input": args.input,
                  "session.output": str(Path(args.out).resolve()) if args.out else None}
     config = load_config(args.config, overrides)
     results = run_checks(plan_from_config(config), report=lambda r: print(r.line(), flush=True),

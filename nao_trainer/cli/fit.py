@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from nao_trainer.cli._checks import require_matplotlib
+from nao_trainer.cli._filters import add_filter_args, filter_from_args
 from nao_trainer.errors import ConfigError
 
 
@@ -17,7 +18,9 @@ def register(sub) -> None:
         description="Import SOURCE (a study folder of sessions written by `nao-trainer run`, a dataset root of the "
         "published layout, or a turn table CSV from `nao-trainer import`), compute the "
         "user models [P1..P4, E1..E4], cluster them with K-means and fit one simulated user per cluster. "
-        "Writes DIR/manifest.json, DIR/cluster_<id>.json and the figures DIR/users.png, DIR/clusters.png.",
+        "Writes DIR/manifest.json, DIR/cluster_<id>.json and the figures DIR/users.png, DIR/clusters.png. "
+        "Sessions of simulated participants are refused unless --include-simulated (or left out with "
+        "--exclude-simulated); --study / --input keep some sessions only.",
     )
     p.add_argument("source", metavar="SOURCE", type=Path, help="study folder, dataset root or turn-table CSV")
     p.add_argument("--out", "-o", type=Path, required=True, metavar="DIR", help="folder for the models and figures")
@@ -33,6 +36,10 @@ def register(sub) -> None:
     p.add_argument("--cache", type=Path, default=None, metavar="DIR",
                    help="import cache folder (default: ~/.cache/nao-trainer/import/...)")
     p.add_argument("--no-cache", action="store_true", help="read every session again")
+    add_filter_args(p)
+    p.add_argument("--include-simulated", action="store_true",
+                   help="also learn from sessions of simulated participants (refused otherwise: pilots and tests "
+                        "only; the manifest records how many)")
     p.set_defaults(func=run)
 
 
@@ -46,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
     say = lambda m: print(m, file=sys.stderr, flush=True)  # noqa: E731
     try:
         fitted = fit_and_save(args.source, args.out, compat=args.compat, k=args.k, seed=args.seed,
-                              cache=None if args.no_cache else (args.cache or "default"), progress=say)
+                              cache=None if args.no_cache else (args.cache or "default"), progress=say,
+                              select=filter_from_args(args), include_simulated=args.include_simulated)
     except TooFewSessions as exc:
         raise exc.naming("--k") from None
     report = fitted.report
@@ -67,8 +75,14 @@ def format_table(report: dict) -> str:
             f"{'RMSE perf':>9} {'(CV)':>6}  {'RMSE eng':>8} {'(CV)':>6}")
     lines = [head]
     for c in report["clusters"]:
-        p = " ".join(f"{v:.2f}" for v in c["p"])
-        e = " ".join(f"{v:.2f}" for v in c["e"])
-        lines.append(f"{c['id']:>2} {c['size']:>4}  {p:<23}  {e:<23}  {c['rmse_performance']:>9.3f} "
-                     f"{c['cv_rmse_performance']:>6.3f}  {c['rmse_engagement']:>8.3f} {c['cv_rmse_engagement']:>6.3f}")
+        p = " ".join(_num(v, 4, 2) for v in c["p"])
+        e = " ".join(_num(v, 4, 2) for v in c["e"])
+        lines.append(f"{c['id']:>2} {c['size']:>4}  {p:<23}  {e:<23}  {_num(c['rmse_performance'], 9)} "
+                     f"{_num(c['cv_rmse_performance'], 6)}  {_num(c['rmse_engagement'], 8)} "
+                     f"{_num(c['cv_rmse_engagement'], 6)}")
     return "\n".join(lines)
+
+
+def _num(value: float | None, width: int, digits: int = 3) -> str:
+    """A report number, or "-" where there is none (a cluster of one session has no cross-validation)."""
+    return f"{'-':>{width}}" if value is None else f"{value:>{width}.{digits}f}"

@@ -30,6 +30,9 @@ def register(sub) -> None:
     p.add_argument("--out", metavar="DIR", help="folder under which the session folder is created")
     p.add_argument("--pseudonym", metavar="ID", help="participant pseudonym (names the session folder)")
     p.add_argument("--eeg", choices=EEG_MODES, help="EEG: off, a simulated Muse, or a Muse over LSL")
+    p.add_argument("--allow-simulated-eeg", action="store_true",
+                   help="pilots only: a session where a person answers or a real robot plays may take a simulated or "
+                        "replayed stream (simulate-muse), refused otherwise with exit 4 (eeg.allow_simulated)")
     p.add_argument("--eeg-source-id", metavar="ID",
                    help="use only the LSL stream with this source_id (one headband among several; eeg.source_id)")
     p.add_argument("--user-model", metavar="CLUSTER|FILE",
@@ -72,6 +75,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, object]:
         "participant.pseudonym": args.pseudonym,
         "eeg.mode": args.eeg,
         "eeg.source_id": args.eeg_source_id,
+        "eeg.allow_simulated": True if args.allow_simulated_eeg else None,
         "policy.kind": args.policy,
         "participant_model.user_model": args.user_model,
         "policy.learning": False if args.no_learning else None,

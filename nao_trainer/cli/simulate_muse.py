@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from nao_trainer.errors import ConfigError
+from nao_trainer.errors import ConfigError, Interrupted
 
 
 def register(sub) -> None:
@@ -18,7 +18,10 @@ def register(sub) -> None:
             "Publish an LSL stream laid out like muselsl's (name Muse, type EEG, TP9 AF7 AF8 TP10 Right AUX, "
             "256 Hz) whose band content shows the given engagement, or replay a recorded session: the eeg/raw.csv of "
             "a folder written by `nao-trainer run` at its recorded rate, or the raw 'eeg' lines of a published "
-            "session folder (intro, robot_N, user_N) at 220 Hz. Runs until Ctrl-C or --duration. "
+            "session folder (intro, robot_N, user_N) at 220 Hz. Runs until Ctrl-C or --duration (exit 130 after "
+            "Ctrl-C or SIGTERM, 0 after --duration). The stream says what it is in its LSL description "
+            "(desc/acquisition: simulated or replayed): a session where a person answers refuses it (exit 4) "
+            "unless run with --allow-simulated-eeg. "
             "LSL stays on this machine unless --lsl-scope widens it."
         ),
     )
@@ -54,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     configure_lsl(args.lsl_scope)
     stop = {"flag": False}
 
-    def on_signal(signum, frame):  # Ctrl-C / SIGTERM: stop cleanly, exit 0
+    def on_signal(signum, frame):  # Ctrl-C / SIGTERM: stop cleanly, exit 130 like every command (README)
         stop["flag"] = True
 
     old_int = signal.signal(signal.SIGINT, on_signal)
@@ -83,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         if pub.error is not None:
             raise pub.error
         print(f"simulate-muse: stopped after {pub.samples_pushed} samples", file=sys.stderr)
-        return 0
+        return Interrupted.exit_code if stop["flag"] else 0
     finally:
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)

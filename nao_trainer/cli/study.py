@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from nao_trainer.cli._filters import add_filter_args, filter_from_args
 from nao_trainer.eeg.settings import MODES as EEG_MODES
 from nao_trainer.errors import DataError
 from nao_trainer.files import write_text_atomic
@@ -24,7 +25,7 @@ A controlled study (docs/study.md), in order:
   study analyse STUDY_DIR                    the protocol's mixed model, estimates, figures
   study export STUDY_DIR --bids OUT | --published OUT
 And the session table: study STUDY_DIR [--out DIR] [--no-figure] (also `study table STUDY_DIR`):
-study.csv (session, pseudonym, date, turns, score, success per level, mean engagement, turns with EEG,
+study.csv (session, pseudonym, study, input, date, turns, score, success per level, mean engagement, turns with EEG,
 policy, status, duration) and study.png. Sessions that cannot be read are reported one line each and left out."""
 
 
@@ -48,6 +49,7 @@ def actions_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", "-o", type=Path, default=None, metavar="DIR",
                    help="where study.csv and study.png go (default: STUDY_DIR)")
     p.add_argument("--no-figure", action="store_true", help="only the CSV")
+    add_filter_args(p)
     p = sub.add_parser("init", help="freeze a protocol in a new study folder and draw the allocation")
     p.add_argument("protocol", type=Path, metavar="PROTOCOL")
     p.add_argument("--out", "-o", type=Path, required=True, metavar="STUDY_DIR")
@@ -128,15 +130,19 @@ def _table(args: argparse.Namespace) -> int:
     from nao_trainer.data.study import read_study
 
     out = args.out or args.root
-    study = read_study(args.root)
-    for line in study.problems:
+    study = read_study(args.root, filter_from_args(args))
+    for line in study.problems + study.notes:
         print(f"nao-trainer study: {line}", file=sys.stderr)
     try:
         out.mkdir(parents=True, exist_ok=True)
         write_text_atomic(out / "study.csv", study.to_csv())
     except OSError as exc:
         raise DataError(f"{out}: cannot write the study table ({exc.strerror}); give another --out") from None
-    print(f"{out / 'study.csv'}: {len(study.sessions)} sessions", file=sys.stderr)
+    inputs: dict[str, int] = {}
+    for s in study.sessions:
+        inputs[s.row["input"]] = inputs.get(s.row["input"], 0) + 1
+    kinds = ", ".join(f"{n} {k}" for k, n in sorted(inputs.items()))
+    print(f"{out / 'study.csv'}: {len(study.sessions)} sessions ({kinds})", file=sys.stderr)
     if not args.no_figure:
         from nao_trainer.plots.study import plot_study
 

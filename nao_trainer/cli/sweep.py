@@ -61,12 +61,16 @@ def run(args) -> int:
     report, lines, paths = reports.write_sweep(Path(args.out), results, spec, seconds=seconds,
                                                command="nao-trainer " + " ".join(shlex.quote(a) for a in argv))
     if not args.no_plots:
-        from nao_trainer.plots.evaluation import plot_sweep
+        from nao_trainer.plots.evaluation import plot_sweep, plot_sweep_grid
 
         names = [n for n, _ in spec.params]
-        points = [{**r, "value": r[names[0]]} for r in results] if len(names) == 1 else None
-        if points is not None:
-            paths.append(plot_sweep(points, names[0], Path(args.out) / "sweep.png"))
+        if len(names) == 1:
+            paths.append(plot_sweep([{**r, "value": r[names[0]]} for r in results], names[0], Path(args.out) / "sweep.png"))
+        elif len(names) == 2:  # two parameters: a heat map per user model
+            paths.append(plot_sweep_grid(results, (names[0], names[1]), Path(args.out) / "sweep.png"))
+        else:
+            print(f"sweep: no sweep.png for {len(names)} swept parameters (a figure shows one or two); "
+                  f"sweep.csv holds every point", file=sys.stderr)
     print(f"sweep: {turns / 1e9:.2f} G turns in {seconds:.1f} s ({turns / max(seconds, 1e-9) / 1e6:.1f} M turns/s)",
           file=sys.stderr)
     if args.json:

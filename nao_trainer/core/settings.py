@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import json
 import math
 from dataclasses import MISSING, dataclass
 from typing import Any, Callable
@@ -60,7 +61,8 @@ class UnknownKey(SettingError):
         hint = difflib.get_close_matches(key, known, n=1)
         fix = f"did you mean '{(prefix + '.') if prefix else ''}{hint[0]}'?" if hint else f"valid keys here: {', '.join(known)}"
         super().__init__(dotted, "is unknown")
-        self.args = (f"unknown key '{dotted}'; {fix}",)
+        shown = json.dumps(dotted, ensure_ascii=False)[1:-1]  # a newline or control character echoed escaped
+        self.args = (f"unknown key '{shown}'; {fix}",)
         self.prefix, self.name, self.known = prefix, key, known
 
 

@@ -13,7 +13,7 @@ Two layouts import into the same columns and encodings (the schema: ``docs/data.
 
 A session that cannot be read is reported in one line and skipped; the others import.
 
-Columns (:data:`COLUMNS`): ``session pseudonym turn state length level feedback previous_score action
+Columns (:data:`COLUMNS`): ``session pseudonym study input turn state length level feedback previous_score action
 sequence response success score signed_score reaction_time completion_time engagement_index
 engagement eeg_quality contact eeg_note``. ``action`` is the core.mdp action that produced the turn (a
 level action from START on turn 1; RF1/RF2 when the turn followed robot feedback). ``score`` is
@@ -49,13 +49,19 @@ from nao_trainer.data import own, published
 from nao_trainer.errors import DataError, UserError
 from nao_trainer.files import read_text, write_text_atomic
 
-IMPORTER_VERSION = 3  # 2: pseudonym column; sessions written by `run`; 3: engagement scaled over the task (issue 22)
+IMPORTER_VERSION = 4  # 2: pseudonym column; sessions written by `run`; 3: engagement scaled over the task; 4: study and input columns
+#: ``study`` / ``input`` of a published session: the authors' study; a person answered (how is not recorded).
+PUBLISHED = "published"
 COMPAT_MODES = (None, "authors2018")
 
+#: Columns that label a session (what study, who answered) rather than describe a turn: not fingerprinted.
+LABELS = ("study", "input")
 #: Column name -> kind (str, int, float). The CSV's header is exactly these names in this order.
 COLUMNS: dict[str, type] = {
     "session": str,
     "pseudonym": str,
+    "study": str,
+    "input": str,
     "turn": int,
     "state": int,
     "length": int,
@@ -113,21 +119,36 @@ class TurnTable:
             cols[name] = np.array(values, dtype=float if kind is float else (np.int64 if kind is int else str))
         return cls(cols)
 
-    def to_csv(self) -> str:
-        """CSV text (floats as ``repr``, so reading back is exact; NaN as empty)."""
+    def mix(self) -> str:
+        """``sessions by study/input: demo/simulated 3, paper-2018/tactile 2``: what the table mixes."""
+        counts: dict[str, int] = {}
+        seen: set[str] = set()
+        for sid, study, kind in zip(self["session"], self["study"], self["input"]):
+            if sid not in seen:
+                seen.add(sid)
+                key = f"{study or '?'}/{kind}"
+                counts[key] = counts.get(key, 0) + 1
+        return "sessions by study/input: " + ", ".join(f"{k} {n}" for k, n in sorted(counts.items()))
+
+    def to_csv(self, columns: "tuple[str, ...] | None" = None) -> str:
+        """CSV text (floats as ``repr``, so reading back is exact; NaN as empty) of ``columns`` (default all)."""
+        names = tuple(COLUMNS) if columns is None else columns
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
-        w.writerow(COLUMNS)
-        cols = [self.columns[n] for n in COLUMNS]
-        kinds = list(COLUMNS.values())
+        w.writerow(names)
+        cols = [self.columns[n] for n in names]
+        kinds = [COLUMNS[n] for n in names]
         for i in range(len(self)):
             w.writerow(["" if k is float and not np.isfinite(c[i]) else (repr(float(c[i])) if k is float else c[i])
                         for c, k in zip(cols, kinds)])
         return buf.getvalue()
 
     def fingerprint(self) -> str:
-        """SHA-256 of the CSV text: identifies the data a model was fitted from."""
-        return hashlib.sha256(self.to_csv().encode()).hexdigest()
+        """SHA-256 of the CSV text of the turn data: identifies the data a model was fitted from.
+
+        The session labels ``study`` and ``input`` (importer v3) are left out, so a model fitted from the
+        same turns before they existed keeps its fingerprint (sim/models)."""
+        return hashlib.sha256(self.to_csv(tuple(c for c in COLUMNS if c not in LABELS)).encode()).hexdigest()
 
 
 def write_table(table: TurnTable, path: Path, provenance: dict[str, Any]) -> Path:
@@ -251,7 +272,7 @@ def import_session(session_dir: Path, compat: str | None = None) -> list[dict[st
         lv = level_of(r.length)
         ok = r.success == 1
         rows.append({
-            "session": sid, "pseudonym": Path(sid).parent.name, "turn": r.turn, "state": mdp.encode(s.length, s.rf, s.previous_score),
+            "session": sid, "pseudonym": Path(sid).parent.name, "study": PUBLISHED, "input": PUBLISHED, "turn": r.turn, "state": mdp.encode(s.length, s.rf, s.previous_score),
             "length": r.length, "level": lv, "feedback": r.rf, "previous_score": s.previous_score,
             "action": produced_by(r.length, r.rf, i), "sequence": _letters(r.sequence),
             "response": _letters(r.response), "success": int(ok), "score": score(lv, ok),
@@ -324,6 +345,44 @@ class ImportResult:
 
 
 @dataclass(frozen=True)
+class SessionFilter:
+    """Which sessions a table keeps, by the study they belong to and who answered (``input``).
+
+    Empty tuples keep every value; ``exclude_simulated`` drops sessions whose participant was simulated.
+    """
+
+    studies: tuple[str, ...] = ()
+    inputs: tuple[str, ...] = ()
+    exclude_simulated: bool = False
+
+    def keeps(self, study: str, input_kind: str) -> bool:
+        return ((not self.studies or study in self.studies) and (not self.inputs or input_kind in self.inputs)
+                and not (self.exclude_simulated and input_kind == "simulated"))
+
+    def apply(self, table: TurnTable) -> tuple[TurnTable, list[str]]:
+        """The rows of the sessions kept, and one line per session left out."""
+        keep = np.array([self.keeps(s, i) for s, i in zip(table["study"], table["input"])], dtype=bool)
+        dropped = list(dict.fromkeys(
+            f"{sid}: left out by the filter (study {str(st)!r}, input {str(inp)!r})"
+            for sid, st, inp, k in zip(table["session"], table["study"], table["input"], keep) if not k))
+        return TurnTable({k: v[keep] for k, v in table.columns.items()}), dropped
+
+    def __str__(self) -> str:
+        parts = ([f"study {' or '.join(self.studies)}"] if self.studies else []) + (
+            [f"input {' or '.join(self.inputs)}"] if self.inputs else []) + (
+            ["simulated participants left out"] if self.exclude_simulated else [])
+        return ", ".join(parts) or "no filter"
+
+    def describe(self) -> dict[str, Any]:
+        return {"studies": list(self.studies), "inputs": list(self.inputs), "exclude_simulated": self.exclude_simulated}
+
+
+def simulated_sessions(table: TurnTable) -> list[str]:
+    """The sessions of ``table`` whose participant was simulated (``input`` simulated)."""
+    return list(dict.fromkeys(s for s, i in zip(table["session"], table["input"]) if i == "simulated"))
+
+
+@dataclass(frozen=True)
 class Discovered:
     """The sessions under a root, by layout."""
 
@@ -373,10 +432,12 @@ def import_own_session(session_dir: Path) -> tuple[list[dict[str, Any]], list[An
 
 
 def import_dataset(root: Path, compat: str | None = None, cache_dir: Path | None = None,
-                   progress: Callable[[str], None] | None = None) -> ImportResult:
+                   progress: Callable[[str], None] | None = None,
+                   select: SessionFilter | None = None) -> ImportResult:
     """Import every session under ``root``; unreadable sessions become :class:`SkippedSession` lines.
 
-    Raises DataError when no session folder exists or none could be imported.
+    ``select`` keeps only the sessions of some studies / inputs (the others are noted, not problems).
+    Raises DataError when no session folder exists or none could be imported (or kept).
     """
     if compat not in COMPAT_MODES:
         known = ", ".join(str(c) for c in COMPAT_MODES[1:])
@@ -439,11 +500,21 @@ def import_dataset(root: Path, compat: str | None = None, cache_dir: Path | None
         detail = f" ({problems[0]})" if problems else ""
         raise DataError(f"{root}: none of {len(sessions)} sessions could be imported{detail}")
     table = TurnTable.from_rows(rows)
+    if select is not None:
+        table, dropped = select.apply(table)
+        notes.extend(dropped)
+        if not len(table):
+            raise DataError(f"{root}: the filter ({select}) left none of the {len(sessions)} sessions; "
+                            "check --study / --input (`nao-trainer study` lists each session's study and input)")
     provenance = {
         "format": "nao-trainer/turn-table",
         "importer_version": IMPORTER_VERSION,
         "root": str(root.resolve()),
         "compat": compat,
+        "filter": select.describe() if select is not None else None,
+        "studies": sorted(set(table["study"].tolist())),
+        "inputs": sorted(set(table["input"].tolist())),
+        "simulated_sessions": simulated_sessions(table),
         "sessions": len(table.sessions),
         "turns": len(table),
         "skipped": [str(p) for p in problems],

@@ -19,8 +19,11 @@ Two things are read here:
   For a session recorded by this version the result equals the live values in ``phases.csv`` (tested
   to 1e-9).
 
-A torn last line (a killed session) is dropped and said; anything else malformed is a one-line
-``DataError`` naming the file and line.
+A torn last line (a killed session) is dropped and said; a malformed row of turns.csv or phases.csv
+is left out and said (file:line), the valid rows are kept; anything else malformed is a one-line
+``DataError`` naming the file and line. Files larger than any session writes (:data:`MAX_JSON_BYTES`,
+:data:`MAX_CSV_BYTES`, :data:`MAX_RAW_BYTES`) are refused before they are read; ``raw.csv`` is read in
+blocks, so memory stays near the size of its samples.
 """
 from __future__ import annotations
 
@@ -39,6 +42,7 @@ from nao_trainer.core.eeg import Processing
 from nao_trainer.core.engagement import OnlineEngagement, QualityThresholds, WindowResult
 from nao_trainer.core.phase import EngagementNormaliser, summarise_phase
 from nao_trainer.data.engagement import SessionEngagement, TurnEngagement, TurnSeries
+from nao_trainer.data.raw_csv import MAX_RAW_BYTES, read_raw  # noqa: F401 - read_raw is part of this module's API
 from nao_trainer.errors import DataError
 from nao_trainer.files import read_json, read_text
 
@@ -49,6 +53,12 @@ TURN_FIELDS = ("turn", "state", "length", "level", "feedback", "previous_score",
                "success", "score", "signed_score", "reaction_time", "completion_time", "engagement",
                "engagement_index", "eeg_quality", "engagement_note", "notes")
 PHASE_FIELDS = ("turn", "phase", "t_begin", "t_end", "engagement", "engagement_index")
+#: Largest files read (bytes; docs/data.md). session.json / stream.json are a few kB; turns.csv holds ~300 bytes a
+#: turn, phases.csv ~200 a phase; raw.csv: ``data.raw_csv.MAX_RAW_BYTES``.
+MAX_JSON_BYTES = 16_000_000
+MAX_CSV_BYTES = 64_000_000
+#: Turn numbers a session can have (1..MAX_TURN); others are refused (a crafted or corrupt row).
+MAX_TURN = 100_000
 _STAMP = re.compile(r"_\d{8}-\d{6}(?:_\d+)?$")
 
 
@@ -109,6 +119,21 @@ class OwnSession:
         return str(p) if p else _STAMP.sub("", self.id)
 
     @property
+    def study(self) -> str:
+        """``study.name`` of the configuration the session ran with ("" when not recorded)."""
+        cfg = self.info.get("config") if isinstance(self.info.get("config"), dict) else {}
+        values = cfg.get("values", cfg) if isinstance(cfg, dict) else {}
+        study = values.get("study") if isinstance(values, dict) else None
+        name = study.get("name") if isinstance(study, dict) else None
+        return str(name)[:200] if name else ""
+
+    @property
+    def input(self) -> str:
+        """Who answered: ``simulated`` (a simulated participant), ``tactile`` or ``keyboard`` (a person)."""
+        kind = self.info.get("input")
+        return str(kind)[:40] if kind else "unknown"
+
+    @property
     def status(self) -> str:
         status = str(self.info.get("status", "?"))
         return "incomplete (no end recorded: killed?)" if status == "running" else status
@@ -116,7 +141,7 @@ class OwnSession:
 
 def read_info(path: Path) -> dict[str, Any]:
     """``session.json``, its format and version checked (a newer version is refused, not guessed)."""
-    info = read_json(Path(path) / "session.json", DataError)
+    info = read_json(Path(path) / "session.json", DataError, max_bytes=MAX_JSON_BYTES)
     if not isinstance(info, dict):
         raise DataError(f"{Path(path) / 'session.json'}: not a session record (expected a JSON object)")
     fmt, version = info.get("format", FORMAT), info.get("format_version", 1)
@@ -130,7 +155,7 @@ def read_info(path: Path) -> dict[str, Any]:
 
 def _csv_rows(path: Path, required: tuple[str, ...], notes: list[str]) -> list[dict[str, str]]:
     """Rows of a CSV file written line by line; a torn last line is dropped (and noted), others are errors."""
-    text = read_text(path, DataError)
+    text = read_text(path, DataError, max_bytes=MAX_CSV_BYTES)
     lines = text.splitlines()
     if not lines:
         raise DataError(f"{path}: empty (no header)")
@@ -152,8 +177,9 @@ def _csv_rows(path: Path, required: tuple[str, ...], notes: list[str]) -> list[d
             if rec:
                 notes.append(f"{path.name} line {k} torn ({len(rec)} of {len(header)} fields): dropped")
             break
-        if len(rec) != len(header):
-            raise DataError(f"{path}:{k}: expected {len(header)} fields, got {len(rec)}")
+        if len(rec) != len(header):  # a garbage line: left out and said, the valid rows are kept
+            notes.append(f"{path.name}:{k}: expected {len(header)} fields, got {len(rec)}: line left out")
+            continue
         rows.append(dict(zip(header, rec)))
     return rows
 
@@ -191,9 +217,15 @@ def _float(v: str) -> float:
 
 def _turn_row(r: dict[str, str]) -> dict[str, Any]:
     """One completed turn in the table's encodings; ValueError saying why it is invalid."""
-    if r.get("invalid", "") == "True":  # the operator marked it (recorded, not learned from)
+    marked = r.get("invalid", "").strip()
+    if marked == "True":  # the operator marked it (recorded, not learned from)
         said = next((n.strip() for n in r.get("notes", "").split(";") if n.strip().startswith("invalid (")), "")
         raise ValueError(f"invalid: marked by the operator{f' ({said})' if said else ''}")
+    if marked not in ("", "False"):  # never counted as valid on a guess
+        raise ValueError(f"invalid: column 'invalid' is {marked[:40]!r}, not True/False")
+    number = _int(r["turn"], "turn")
+    if not 1 <= number <= MAX_TURN:
+        raise ValueError(f"invalid: turn number {r['turn'][:30]!r} is not in 1..{MAX_TURN}")
     if r["success"] not in ("True", "False"):
         notes = r.get("notes", "")
         why = next((n.strip() for n in notes.split(";") if n.strip().startswith("interrupted")), "")
@@ -215,7 +247,7 @@ def _turn_row(r: dict[str, str]) -> dict[str, Any]:
     if _int(r["score"], "score") != score or _int(r["signed_score"], "signed_score") != signed:
         raise ValueError(f"invalid: score {r['score']}/{r['signed_score']} contradicts level {st.level} and success {ok}")
     return {
-        "turn": _int(r["turn"], "turn"), "state": state, **parts, "action": mdp.ACTION_NAMES.index(r["action"]),
+        "turn": number, "state": state, **parts, "action": mdp.ACTION_NAMES.index(r["action"]),
         "sequence": r["sequence"], "response": r["response"], "success": int(ok), "score": score,
         "signed_score": signed, "reaction_time": _float(r["reaction_time"]),
         "completion_time": _float(r["completion_time"]),
@@ -243,7 +275,8 @@ def table_rows(session: OwnSession, engagement: "dict[int, Any] | None" = None
         else:
             eeg = (_float(r["engagement_index"]), _float(r["engagement"]), _float(r["eeg_quality"]),
                    r.get("engagement_note", "") or ("" if r["engagement"] else "no EEG"))
-        out.append({"session": session.id, "pseudonym": session.pseudonym, **row,
+        out.append({"session": session.id, "pseudonym": session.pseudonym, "study": session.study,
+                    "input": session.input, **row,
                     "engagement_index": eeg[0], "engagement": eeg[1],
                     "eeg_quality": 0.0 if math.isnan(eeg[2]) else eeg[2], "contact": math.nan, "eeg_note": eeg[3]})
     return out, excluded
@@ -251,9 +284,10 @@ def table_rows(session: OwnSession, engagement: "dict[int, Any] | None" = None
 
 def _turn_number(r: dict[str, str]) -> int:
     try:
-        return int(r.get("turn", "0"))
+        n = int(r.get("turn", "0"))
     except ValueError:
         return 0
+    return n if 1 <= n <= MAX_TURN else 0
 
 
 def _nan(v: float | None) -> float:
@@ -290,33 +324,6 @@ def _processing(stream: dict[str, Any], path: Path) -> Processing:
     return Processing.from_mapping({k: v for k, v in proc.items() if k in known})
 
 
-def read_raw(path: Path, n_channels: int) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """``eeg/raw.csv``: (samples ``(n, n_channels)``, stamps ``(n,)``, notes); a torn last line is dropped."""
-    text = read_text(path, DataError)
-    lines = text.split("\n")
-    notes: list[str] = []
-    body = [ln for ln in lines[1:] if ln.strip()]
-    if body and (not text.endswith("\n") or body[-1].count(",") != n_channels):
-        notes.append(f"{path.name}: torn last line dropped")
-        body = body[:-1]
-    if not body:
-        return np.empty((0, n_channels)), np.empty(0), notes
-    try:
-        arr = np.array([ln.split(",") for ln in body], dtype=float)
-    except ValueError:
-        bad = next(i for i, ln in enumerate(body) if len(ln.split(",")) != n_channels + 1 or not _numbers(ln))
-        raise DataError(f"{path}:{bad + 2}: expected {n_channels + 1} numbers, got {body[bad]!r}") from None
-    return arr[:, 1:], arr[:, 0], notes
-
-
-def _numbers(line: str) -> bool:
-    try:
-        [float(v) for v in line.split(",")]
-        return True
-    except ValueError:
-        return False
-
-
 def _opt(v: str) -> float | None:
     return float(v) if v.strip() else None
 
@@ -329,12 +336,18 @@ def replay_phases(session_dir: Path) -> tuple[list[ReplayedPhase], list[str]]:
     eeg = Path(session_dir) / "eeg"
     if not eeg.is_dir():
         raise DataError(f"{session_dir}: no eeg/ folder (EEG was off, or the folder was removed)")
-    stream = read_json(eeg / "stream.json", DataError, missing="no EEG stream was recorded (stream.json missing)")
+    stream = read_json(eeg / "stream.json", DataError, missing="no EEG stream was recorded (stream.json missing)",
+                       max_bytes=MAX_JSON_BYTES)
+    if not isinstance(stream, dict):
+        raise DataError(f"{eeg / 'stream.json'}: not a stream description (expected a JSON object)")
     proc = _processing(stream, eeg / "stream.json")
-    labels = list(stream.get("scalp_channels") or [])
-    fs = float(stream.get("nominal_srate") or 0)
-    if not labels or fs <= 0:
-        raise DataError(f"{eeg / 'stream.json'}: needs scalp_channels and nominal_srate > 0")
+    labels = stream.get("scalp_channels")
+    fs = stream.get("nominal_srate")
+    if (not isinstance(labels, list) or not labels or not all(isinstance(v, str) for v in labels)
+            or not isinstance(fs, (int, float)) or isinstance(fs, bool) or not math.isfinite(fs) or fs <= 0):
+        raise DataError(f"{eeg / 'stream.json'}: needs scalp_channels (a list of channel names) and a finite "
+                        "nominal_srate > 0")
+    labels, fs = list(labels), float(fs)
     notes: list[str] = []
     phases = _csv_rows(eeg / "phases.csv", PHASE_FIELDS, notes) if (eeg / "phases.csv").is_file() else []
     windows: list[WindowResult] = []
@@ -361,6 +374,11 @@ def replay_phases(session_dir: Path) -> tuple[list[ReplayedPhase], list[str]]:
             turn = int(p["turn"]) if p["turn"].strip() else None
         except ValueError as exc:
             raise DataError(f"{eeg / 'phases.csv'}:{k}: {exc}") from None
+        if not (math.isfinite(t0) and math.isfinite(t1) and t0 <= t1) or (last is not None and not math.isfinite(last)):
+            raise DataError(f"{eeg / 'phases.csv'}:{k}: t_begin {p['t_begin'][:30]!r} and t_end {p['t_end'][:30]!r} must "
+                            "be finite times with t_begin <= t_end (corrupt or edited)")
+        if turn is not None and not 1 <= turn <= MAX_TURN:
+            raise DataError(f"{eeg / 'phases.csv'}:{k}: turn {p['turn'][:30]!r} is not in 1..{MAX_TURN}")
         upto = t1 if last is None else min(t1, last)
         lo, hi = np.searchsorted(t_end, t0, side="right"), np.searchsorted(t_end, upto, side="right")
         if p.get("monitor_started", "") != monitor:  # a new monitor (a resumed session): a new scale

@@ -110,15 +110,27 @@ class StateRow:
 _LOG_LINE = re.compile(r"^\s*((?:\S+\s+){6}\S+)\s*(\[.*?\])\s*(\[.*?\])\s*$")
 
 
+#: Largest published file read (bytes): a raw recording is a few MB; a larger file is refused before reading.
+MAX_FILE_BYTES = 256_000_000
+
+
 def _read_text(path: Path) -> str:
-    return read_text(path, DataError)
+    return read_text(path, DataError, max_bytes=MAX_FILE_BYTES)
+
+
+#: Largest whole number a logfile / state_EEG field may hold (turns, lengths, scores are small).
+MAX_FIELD = 1_000_000
+#: A recording name in state_EEG: a file name inside the session folder (``robot_3``), never a path.
+_RECORDING_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
 
 
 def _as_int(text: str, path: Path, lineno: int, what: str) -> int:
     try:
         value = float(text)
     except ValueError:
-        raise DataError(f"{path} line {lineno}: {what} must be a number, got {text!r}") from None
+        raise DataError(f"{path} line {lineno}: {what} must be a number, got {text[:40]!r}") from None
+    if not np.isfinite(value) or abs(value) > MAX_FIELD:
+        raise DataError(f"{path} line {lineno}: {what} must be a whole number within +-{MAX_FIELD}, got {text[:40]!r}")
     if value != int(value):
         raise DataError(f"{path} line {lineno}: {what} must be a whole number, got {text!r}")
     return int(value)
@@ -126,9 +138,12 @@ def _as_int(text: str, path: Path, lineno: int, what: str) -> int:
 
 def _as_float(text: str, path: Path, lineno: int, what: str) -> float:
     try:
-        return float(text)
+        value = float(text)
     except ValueError:
-        raise DataError(f"{path} line {lineno}: {what} must be a number, got {text!r}") from None
+        raise DataError(f"{path} line {lineno}: {what} must be a number, got {text[:40]!r}") from None
+    if not np.isfinite(value):
+        raise DataError(f"{path} line {lineno}: {what} must be a finite number, got {text[:40]!r}")
+    return value
 
 
 def _letters(text: str, path: Path, lineno: int, what: str) -> tuple[str, ...]:
@@ -182,6 +197,10 @@ def read_state_eeg(path: Path) -> list[StateRow]:
                 f"{path} line {lineno}: expected 5 fields (length rf previous_score robot_N user_N), got {len(f)}"
             )
         nums = [_as_int(v, path, lineno, n) for v, n in zip(f[:3], ("length", "rf", "previous_score"))]
+        for name in f[3:]:  # opened inside the session folder: a path leaving it is refused, never followed
+            if not _RECORDING_NAME.fullmatch(name) or ".." in name:
+                raise DataError(f"{path} line {lineno}: recording name {name[:60]!r} must be a file name in the "
+                                "session folder (like robot_3), not a path")
         rows.append(StateRow(*nums, robot_file=f[3], user_file=f[4]))
     return rows
 

@@ -1,6 +1,7 @@
 """A study at a glance: one row per session written by ``nao-trainer run`` (``nao-trainer study``).
 
-Columns (:data:`STUDY_COLUMNS`): the session folder, pseudonym, start date, completed turns, total score
+Columns (:data:`STUDY_COLUMNS`): the session folder, pseudonym, the study it ran in (``study.name``), who
+answered (``input``: simulated, tactile, keyboard), start date, completed turns, total score
 (equation (1)), success rate per level (empty when the level was not played), mean listening-phase
 engagement (recomputed from the raw EEG, ``data/own.py``), how many turns had an engagement value (EEG
 lost mid-session shows here), the policy, the session's status and its
@@ -14,14 +15,17 @@ import io
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from nao_trainer.data import own
 from nao_trainer.errors import DataError
 
-STUDY_COLUMNS: tuple[str, ...] = ("session", "pseudonym", "date", "turns", "score", "success_L1", "success_L2",
-                                  "success_L3", "success_L4", "engagement", "eeg_turns", "policy", "status",
-                                  "duration_s")
+if TYPE_CHECKING:
+    from nao_trainer.data.dataset import SessionFilter
+
+STUDY_COLUMNS: tuple[str, ...] = ("session", "pseudonym", "study", "input", "date", "turns", "score", "success_L1",
+                                  "success_L2", "success_L3", "success_L4", "engagement", "eeg_turns", "policy",
+                                  "status", "duration_s")
 
 
 @dataclass
@@ -70,7 +74,7 @@ def study_session(path: Path) -> StudySession:
     values = [r["engagement"] for r in rows if not math.isnan(r["engagement"])]
     policy = sess.info.get("policy")
     row = {
-        "session": sess.id, "pseudonym": sess.pseudonym,
+        "session": sess.id, "pseudonym": sess.pseudonym, "study": sess.study, "input": sess.input,
         "date": started.date().isoformat() if started else "",
         "turns": len(rows), "score": sum(r["score"] for r in rows), **success,
         "engagement": round(sum(values) / len(values), 4) if values else None,
@@ -83,8 +87,10 @@ def study_session(path: Path) -> StudySession:
                         [r["engagement"] for r in rows])
 
 
-def read_study(root: Path) -> Study:
-    """Every session folder written by ``run`` under ``root``, by start time; DataError when none reads."""
+def read_study(root: Path, select: "SessionFilter | None" = None) -> Study:
+    """Every session folder written by ``run`` under ``root``, by start time; DataError when none reads.
+
+    ``select`` (``data.dataset.SessionFilter``) keeps some studies / inputs; the others are noted."""
     root = Path(root)
     if not root.is_dir():
         raise DataError(f"{root}: no such folder (give a study folder holding session folders written by `run`)")
@@ -98,7 +104,13 @@ def read_study(root: Path) -> Study:
         except DataError as exc:
             problems.append(f"{own.session_id(p)}: skipped: {exc}")
             continue
+        if select is not None and not select.keeps(s.row["study"], s.row["input"]):
+            notes.append(f"{s.row['session']}: left out by the filter (study {s.row['study']!r}, "
+                         f"input {s.row['input']!r})")
+            continue
         sessions.append(s)
+    if not sessions and notes:
+        raise DataError(f"{root}: the filter left none of the {len(paths)} sessions; check --study / --input")
     if not sessions:
         raise DataError(f"{root}: none of {len(paths)} sessions could be read ({problems[0]})")
     sessions.sort(key=lambda s: (s.row["date"], s.row["session"]))

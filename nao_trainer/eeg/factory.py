@@ -23,7 +23,7 @@ from nao_trainer.eeg.inlet import EEGInlet, StreamQuery, resolve_eeg
 from nao_trainer.eeg.lsl_scope import configure_lsl
 from nao_trainer.eeg.markers import MarkerOutlet, marker_source_id
 from nao_trainer.eeg.monitor import LslMonitor
-from nao_trainer.eeg.settings import EEGSettings
+from nao_trainer.eeg.settings import EEGSettings, simulated_refusal
 from nao_trainer.eeg.simulated_muse import SimulatedMuse, fake_mac
 from nao_trainer.errors import EEGUnavailable
 from nao_trainer.ports import EngagementMonitor, NullMonitor
@@ -45,7 +45,7 @@ def _no_stream_message(query: StreamQuery, settings: EEGSettings) -> str:
 
 def open_monitor(mode: str, eeg_cfg: EEGSettings | Mapping[str, Any] | None, session_dir: Path | None,
                  rng: np.random.Generator, pseudonym: str | None = None, record_xdf: bool = False,
-                 rest_target: float = 0.5) -> EngagementMonitor:
+                 rest_target: float = 0.5, person: bool = False) -> EngagementMonitor:
     """The session's engagement monitor for ``mode`` "lsl", "simulated" or "off".
 
     ``eeg_cfg`` is the study's ``eeg`` section: the typed settings the config validated at load, or a
@@ -55,6 +55,8 @@ def open_monitor(mode: str, eeg_cfg: EEGSettings | Mapping[str, Any] | None, ses
     ``rest_target`` until then (the simulated participant's resting engagement, for the baseline phase).
     ``record_xdf``: also record ``<session_dir>/session.xdf`` (``eeg.xdf`` can turn it off), started
     before this returns, so the session's first marker is in the file.
+    ``person``: a person answers or a real robot plays; a simulated or replayed LSL stream is then
+    refused (``EEGUnavailable``, exit 4) unless ``eeg.allow_simulated`` (see ``settings.simulated_refusal``).
     """
     if isinstance(eeg_cfg, EEGSettings):  # validated once, at load
         settings = eeg_cfg if eeg_cfg.mode == mode else dataclasses.replace(eeg_cfg, mode=mode)
@@ -89,10 +91,15 @@ def open_monitor(mode: str, eeg_cfg: EEGSettings | Mapping[str, Any] | None, ses
                     f"opened ({type(exc).__name__}: {exc}); check the headband bridge and try again")
                 if settings.required or simulator is not None:
                     raise EEGUnavailable(reason) from None
+        refusal = simulated_refusal(inlet.identity(), settings) if inlet is not None and person else ""
+        if refusal:  # a made-up signal recorded as a person's: refused whether or not EEG is required
+            inlet.close()
+            raise EEGUnavailable(refusal)
         if inlet is None:
             log.warning("EEG unavailable: %s", reason)
         markers = MarkerOutlet(marker_source_id(pseudonym), scope=settings.lsl_scope)
-        monitor = LslMonitor(settings, query, session_dir, inlet, markers, reason, simulator, record_xdf)
+        monitor = LslMonitor(settings, query, session_dir, inlet, markers, reason, simulator, record_xdf,
+                             refuse_simulated=person)
         if simulator is not None:  # a simulated headband is "put on" before the greeting: fill one window
             monitor.wait_for_windows(1, settings.processing.window_s + 2.0)
         return monitor

@@ -96,6 +96,34 @@ def resolve_eeg(query: StreamQuery, timeout_s: float, scope: str = "machine"):
     return chosen
 
 
+#: ``desc/acquisition`` values of streams made by nao-trainer itself (simulate-muse, the replayer): not a headband.
+SIMULATED_ACQUISITIONS = ("simulated", "replayed")
+
+
+def acquisition(info) -> str:
+    """What the stream says it is in ``desc/acquisition`` ("simulated", "replayed"; "" when unmarked,
+    as a headband's bridge such as muselsl leaves it)."""
+    return info.desc().child_value("acquisition").strip()
+
+
+def resolve_all(query: StreamQuery, timeout_s: float, scope: str = "machine", settle_s: float = 1.0) -> list:
+    """Every ``pylsl.StreamInfo`` matching ``query``: waits up to ``timeout_s`` for the first, then
+    ``settle_s`` more for others to answer (``nao-trainer check`` refuses an ambiguous choice)."""
+    configure_lsl(scope)
+    import pylsl
+
+    resolver = pylsl.ContinuousResolver(pred=query.predicate(), forget_after=5.0)
+    deadline = time.monotonic() + float(timeout_s)
+    infos = resolver.results()
+    while not infos and time.monotonic() < deadline:
+        time.sleep(0.02)
+        infos = resolver.results()
+    if infos:
+        time.sleep(settle_s)
+        infos = resolver.results() or infos
+    return list(infos)
+
+
 def channel_labels(info) -> list[str]:
     """Channel labels from ``desc/channels/channel/label`` (empty strings where missing)."""
     labels = []
@@ -138,6 +166,8 @@ class EEGInlet:
     warnings: list[str] = field(default_factory=list)
     offset: float = 0.0  # add to a stream stamp to get local LSL time
     wall_clock: bool | None = None  # None until the first samples tell
+    stream_type: str = "EEG"
+    acquisition: str = ""  # desc/acquisition: "simulated" / "replayed" for nao-trainer's own streams
     _max_samples: int = 1024
 
     @classmethod
@@ -155,7 +185,8 @@ class EEGInlet:
             raise EEGUnavailable(f"LSL stream {full.name()!r} (source_id {full.source_id()!r}) has an irregular "
                                  "rate; an EEG stream needs a nominal sampling rate")
         obj = cls(inlet=inlet, name=full.name(), source_id=full.source_id(), hostname=full.hostname(), fs=fs,
-                  n_channels=full.channel_count(), labels=tuple(labels), scalp_index=idx, scalp_labels=scalp)
+                  n_channels=full.channel_count(), labels=tuple(labels), scalp_index=idx, scalp_labels=scalp,
+                  stream_type=full.type(), acquisition=acquisition(full))
         if warning:
             obj.warnings.append(warning)
             log.warning("%s", warning)
@@ -206,9 +237,20 @@ class EEGInlet:
             self.warnings.append(msg)
             log.warning("%s", msg)
 
+    @property
+    def simulated(self) -> bool:
+        """True for a stream nao-trainer made (simulated or replayed), not a headband."""
+        return self.acquisition in SIMULATED_ACQUISITIONS
+
+    def identity(self) -> dict:
+        """Which stream this is (session.json's ``eeg_stream``): enough to tell two headbands apart."""
+        return {"name": self.name, "type": self.stream_type, "source_id": self.source_id, "hostname": self.hostname,
+                "channel_count": self.n_channels, "nominal_srate": self.fs,
+                "acquisition": self.acquisition or "device", "simulated": self.simulated}
+
     def describe(self) -> dict:
         """JSON-ready facts about the stream, for the session folder."""
-        return {"name": self.name, "source_id": self.source_id, "hostname": self.hostname,
+        return {**self.identity(), "name": self.name, "source_id": self.source_id, "hostname": self.hostname,
                 "nominal_srate": self.fs, "channel_count": self.n_channels, "labels": list(self.labels),
                 "scalp_channels": list(self.scalp_labels), "time_offset_s": self.offset,
                 "wall_clock_stamps": self.wall_clock, "warnings": list(self.warnings)}

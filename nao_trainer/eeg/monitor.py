@@ -33,10 +33,10 @@ import numpy as np
 from nao_trainer.core.engagement import OnlineEngagement, QualityThresholds, WindowResult
 from nao_trainer.core.phase import EngagementNormaliser, summarise_phase
 from nao_trainer.eeg.inlet import EEGInlet, StreamQuery
+from nao_trainer.eeg.settings import EEGSettings, simulated_refusal
 from nao_trainer.eeg.markers import MarkerOutlet, event_name
 from nao_trainer.eeg.session_files import (EVENTS_HEADER, GAPS_HEADER, PHASES_HEADER, SEGMENTS_HEADER, WINDOWS_HEADER,
                                            SessionFiles, fmt)
-from nao_trainer.eeg.settings import EEGSettings
 from nao_trainer.eeg.xdf import XdfRecorder, XdfUnavailable
 from nao_trainer.ports import PhaseEngagement
 
@@ -78,7 +78,7 @@ class LslMonitor:
 
     def __init__(self, settings: EEGSettings, query: StreamQuery, session_dir: Path | None,
                  inlet: EEGInlet | None, markers: MarkerOutlet | None, unavailable_reason: str = "",
-                 simulator=None, record_xdf: bool = False) -> None:
+                 simulator=None, record_xdf: bool = False, refuse_simulated: bool = False) -> None:
         import pylsl
 
         self._clock = pylsl.local_clock
@@ -104,6 +104,8 @@ class LslMonitor:
         self._had_baseline = False  # a baseline phase was summarised (for the no-scale reason)
         self._resolver = None  # a pylsl.ContinuousResolver while waiting for a stream
         self._rejected: set[str] = set()  # source_ids found but unusable
+        self.refuse_simulated = refuse_simulated  # a person's session: never attach a simulated/replayed stream
+        self.stream_identity: dict | None = None  # EEGInlet.identity() of the stream attached (session.json)
         self._cond = threading.Condition()
         self._stop = threading.Event()
         self._urgent = threading.Event()  # set while end_phase waits for samples in flight
@@ -172,6 +174,7 @@ class LslMonitor:
             gap_factor=max(2.0, p.gap_tolerance_s * inlet.fs), channel_names=inlet.scalp_labels)
         self.unavailable_reason = ""
         self._last_arrival = self._clock()
+        self.stream_identity = inlet.identity()
         self.files.write_json("stream.json", {**inlet.describe(), "lsl_scope": self.settings.lsl_scope,
                                               "processing": asdict(self.proc)})
         self._event("eeg_stream_found", f"{inlet.name} {inlet.source_id} {inlet.fs:g} Hz "
@@ -261,6 +264,13 @@ class LslMonitor:
             except Exception as exc:  # not usable (e.g. irregular rate): say so once, keep looking
                 self._rejected.add(info.source_id())
                 self._event("eeg_stream_rejected", f"{info.name()} {info.source_id()}: {exc}", publish=False)
+                return
+            refusal = simulated_refusal(inlet.identity(), self.settings) if self.refuse_simulated else ""
+            if refusal:  # a simulate-muse appearing mid-session is not the participant's headband
+                inlet.close()
+                self._rejected.add(info.source_id())
+                log.warning("%s", refusal)
+                self._event("eeg_stream_rejected", f"{info.name()} {info.source_id()}: {refusal}", publish=False)
                 return
             self._attach(inlet)
             self._resolver = None

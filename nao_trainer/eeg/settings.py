@@ -45,6 +45,9 @@ class EEGSettings:
     xdf: bool = setting(True, kind=bool, doc="also record session.xdf (eeg/xdf.py)")
     missing_alert_turns: int = setting(3, kind=int, min=0, max=1000,
                                        doc="tell the operator after this many turns in a row without EEG (0 = never)")
+    allow_simulated: bool = setting(False, kind=bool,
+                                    doc="pilots only: let a session where a person answers or a real robot plays "
+                                        "take a simulated or replayed stream (simulate-muse); --allow-simulated-eeg")
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any] | None, mode: str | None = None,
@@ -62,3 +65,26 @@ class EEGSettings:
             if where is None:
                 raise
             raise ConfigError(f"{where(exc.key)}: {exc}") from None
+
+
+def simulated_refusal(identity: Mapping[str, Any], settings: EEGSettings) -> str:
+    """Why a session where a person answers (or a real robot plays) must not take this stream, or "".
+
+    ``identity`` is ``EEGInlet.identity()``; a simulated or replayed stream would record made-up or
+    someone else's engagement as the participant's, unless the study allows it for a pilot.
+    """
+    if not identity.get("simulated") or settings.allow_simulated:
+        return ""
+    return (f"EEG stream {identity.get('name')!r} (source_id {identity.get('source_id')!r}) is "
+            f"{identity.get('acquisition')} (nao-trainer simulate-muse), not a headband, but a person answers or a "
+            "real robot plays: its engagement would be recorded as theirs; start the headband bridge and pin it with "
+            "eeg.source_id (--eeg-source-id), or for a pilot set eeg.allow_simulated: true (--allow-simulated-eeg)")
+
+
+def ambiguous_streams(query: str, pinned: str | None, streams: list[tuple[str, str]]) -> str:
+    """Why the choice among ``streams`` (name, source_id) is ambiguous, or "": several match ``query``
+    and no source_id pins one, so a session could take another person's headband or a simulator."""
+    if pinned or len(streams) < 2:
+        return ""
+    listed = ", ".join(f"{name!r} source_id {sid!r}" for name, sid in streams)
+    return f"{len(streams)} EEG streams match ({query}) and none is pinned: {listed}"

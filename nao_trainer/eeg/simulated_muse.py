@@ -152,6 +152,10 @@ class _Publisher:
     _stop: threading.Event = field(default_factory=threading.Event)
     _lock: threading.Lock = field(default_factory=threading.Lock)
     error: BaseException | None = None
+    #: ``desc/acquisition`` of the stream: what it is, so a session never takes it for a headband
+    #: (eeg/inlet.py ``SIMULATED_ACQUISITIONS``); the name stays Muse-like for muselsl-style clients.
+    acquisition = "simulated"
+    origin = ""  # ``desc/replay_of``: the recording a replay plays
 
     def _open_outlet(self) -> None:
         configure_lsl(self.scope)
@@ -159,7 +163,11 @@ class _Publisher:
 
         info = pylsl.StreamInfo(self.name, "EEG", len(self.labels), self.fs, pylsl.cf_float32, self.source_id)
         desc = info.desc()
-        desc.append_child_value("manufacturer", "Muse")
+        desc.append_child_value("manufacturer", "nao-trainer")  # not InteraXon: a Muse-like stream, made here
+        desc.append_child_value("acquisition", self.acquisition)
+        desc.append_child_value("generator", f"nao-trainer simulate-muse ({self.acquisition})")
+        if self.origin:
+            desc.append_child_value("replay_of", self.origin)
         channels = desc.append_child("channels")
         for label in self.labels:
             ch = channels.append_child("channel")
@@ -296,6 +304,7 @@ class ReplayMuse(_Publisher):
     (its ``eeg/raw.csv``, at the recorded stream's rate), a study folder of them (one after another), or
     a raw session of the published layout (220 Hz)."""
 
+    acquisition = "replayed"
     data: np.ndarray
     boundaries: list[tuple[str, int]]  # (file name, index of its first sample)
     _pos: int = 0
@@ -318,6 +327,7 @@ class ReplayMuse(_Publisher):
         rep = cls(name=name, source_id=sid, labels=labels, fs=float(fs), chunk=int(chunk),
                   wall_clock=wall_clock, scope=scope)
         rep.data, rep.boundaries, rep.loop = data, boundaries, loop
+        rep.origin = str(session_dir.resolve())
         rep._open_outlet()
         rep._start_thread()
         return rep

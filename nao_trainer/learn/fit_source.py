@@ -13,9 +13,10 @@ from typing import Any
 import numpy as np
 
 from nao_trainer.core import mdp
-from nao_trainer.data import dataset, published
-from nao_trainer.data.dataset import COMPAT_MODES
+from nao_trainer.data import dataset
+from nao_trainer.data.dataset import COMPAT_MODES, discover, session_name
 from nao_trainer.data.engagement import session_engagement
+from nao_trainer.data.own import own_session_engagement
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import read_json
 from nao_trainer.learn import artifacts
@@ -59,13 +60,17 @@ class FittedSource:
 
 def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int = 3, seed: int = 0,
                  cache: Path | str | None = "default",
-                 progress: Callable[[str], None] | None = None) -> FittedSource:
+                 progress: Callable[[str], None] | None = None, select: Any = None,
+                 include_simulated: bool = False) -> FittedSource:
     """Import (or read a turn-table CSV), fit and write the artifacts; returns the report and the fit.
 
     The figures are the command's business (``plots.usermodels.draw_fit``).
 
     ``cache``: a folder, ``"default"`` (:func:`nao_trainer.data.dataset.cache_dir`) or None (no cache). For a turn-table
     CSV, the compat mode and skipped sessions come from its sidecar (:func:`table_provenance`).
+    ``select`` (``data.dataset.SessionFilter``) keeps some studies / inputs. Sessions of a simulated
+    participant are refused (ConfigError) unless ``include_simulated``: user models learnt from made-up
+    people must never pass for a study's.
     """
     say = progress or (lambda _m: None)
     source, out = Path(source), Path(out_dir)
@@ -73,10 +78,16 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
     if source.is_file():
         table = dataset.read_table(source)
         compat, skipped = table_provenance(source, compat)
+        if select is not None:
+            table, dropped = select.apply(table)
+            for line in dropped:
+                say(f"nao-trainer fit: {line}")
+            if not len(table):
+                raise ConfigError(f"{source}: the filter ({select}) left no session; check --study / --input")
         say(f"{source}: {len(table)} turns from {len(table.sessions)} sessions")
     else:
         cache_dir = dataset.cache_dir(source, compat) if cache == "default" else cache
-        imported = dataset.import_dataset(source, compat=compat, cache_dir=cache_dir, progress=say)
+        imported = dataset.import_dataset(source, compat=compat, cache_dir=cache_dir, progress=say, select=select)
         for line in [str(p) for p in imported.problems] + imported.notes:
             say(f"nao-trainer fit: {line}")
         if imported.excluded:
@@ -84,6 +95,14 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
         skipped = [str(p) for p in imported.problems]
         table = imported.table
         say(f"imported {len(table)} turns from {len(table.sessions)} sessions ({imported.cached} from cache)")
+    say(f"nao-trainer fit: {table.mix()}")
+    simulated = dataset.simulated_sessions(table)
+    if simulated and not include_simulated:
+        raise ConfigError(f"{source}: {len(simulated)} of {len(table.sessions)} sessions had a simulated participant "
+                          f"(input simulated, e.g. {simulated[0]}); user models are learnt from people: add "
+                          "--exclude-simulated to leave them out, or --include-simulated to learn from them (pilots, tests)")
+    if simulated:
+        say(f"nao-trainer fit: learning from {len(simulated)} sessions of simulated participants (--include-simulated)")
     turns = Turns.from_columns(table.columns)
     info = {
         "dataset_fingerprint": table.fingerprint(),
@@ -95,6 +114,9 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
         "state_encoding": "index = (level-1)*27 + RF*9 + PR+4 (core.mdp)",
         "mdp_definition": mdp.DEFINITION,
         "cluster_ids": "1..K by increasing mean success rate P1..P4 (ties: mean engagement)",
+        "inputs": sorted(set(table["input"].tolist())),
+        "studies": sorted(set(table["study"].tolist())),
+        "simulated_sessions": len(simulated),
     }
     options = FitOptions(k=k, seed=seed)
     meta = {"compat": compat, "dataset_fingerprint": info["dataset_fingerprint"]}
@@ -103,6 +125,7 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
         "sessions": len(result.user_models.sessions),
         "turns": len(turns.state),
         "skipped": skipped,
+        **{key: info[key] for key in ("inputs", "studies", "simulated_sessions")},
         "k": result.clustering.k,
         "inertia": round(result.clustering.inertia, 9),
         **{key: info[key] for key in ("compat", "seed", "dataset_fingerprint")},
@@ -117,14 +140,19 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
 
 
 def engagement_signals(root: Path, compat: str | None) -> Callable[[str], dict[int, np.ndarray] | None]:
-    """Per-sample normalised engagement of a session of ``root`` (for Figure 4), None if unreadable."""
-    dirs = {published.session_id(d): d for d in published.find_sessions(root)}
+    """Per-sample normalised engagement of a session of ``root`` (for Figure 4), None if unreadable.
+
+    Both layouts: the published one, and the session folders ``nao-trainer run`` writes (a study folder:
+    the signal recomputed from the raw EEG, ``data.own``)."""
+    dirs = {session_name(layout, d): (layout, d) for layout, d in discover(root).all}
 
     def signal_of(session: str) -> dict[int, np.ndarray] | None:
         if session not in dirs:
             return None
+        layout, folder = dirs[session]
         try:
-            eng = session_engagement(dirs[session], compat=compat)
+            eng = (session_engagement(folder, compat=compat) if layout == "published"
+                   else own_session_engagement(folder))
         except DataError:
             return None
         return {turn: np.asarray(s.normalised, dtype=float) for turn, s in eng.series.items()}

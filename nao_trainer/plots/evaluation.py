@@ -58,3 +58,28 @@ def plot_sweep(points: list[dict[str, Any]], param: str, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)
+
+
+def plot_sweep_grid(results: list[dict[str, Any]], names: tuple[str, str], path: Path) -> Path:
+    """Final expected score over a grid of two swept hyper-parameters: one heat map per user model."""
+    plt = pyplot()
+    users = list(dict.fromkeys(r["user"] for r in results))
+    xs = sorted({r[names[0]] for r in results})
+    ys = sorted({r[names[1]] for r in results})
+    fig, axes = plt.subplots(1, len(users), figsize=(3.6 * len(users) + 1, 3.6), squeeze=False)
+    for ax, user in zip(axes[0], users):
+        grid = np.full((len(ys), len(xs)), np.nan)
+        for r in results:
+            if r["user"] == user:
+                grid[ys.index(r[names[1]]), xs.index(r[names[0]])] = r["score"]
+        im = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis")
+        ax.set_xticks(range(len(xs)), [f"{v:.3g}" for v in xs], fontsize=7, rotation=45)
+        ax.set_yticks(range(len(ys)), [f"{v:.3g}" for v in ys], fontsize=7)
+        ax.set_xlabel(names[0])
+        ax.set_ylabel(names[1])
+        ax.set_title(str(user), fontsize=9)
+        fig.colorbar(im, ax=ax, label="expected score (frozen policy)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)

@@ -19,11 +19,13 @@ from typing import Any, Callable
 import numpy as np
 
 from nao_trainer.core.engagement import window_quality
-from nao_trainer.eeg.inlet import EEGInlet, StreamQuery, resolve_eeg
+from nao_trainer.eeg.inlet import EEGInlet, StreamQuery, resolve_all
+from nao_trainer.eeg.settings import ambiguous_streams, simulated_refusal
 from nao_trainer.errors import ConfigError, RobotUnavailable, UserError
 from nao_trainer.ports import RobotCallFailed, RobotConnectionLost
 from nao_trainer.robot.address import redact_url
 from nao_trainer.robot.desktop import DesktopRobot
+from nao_trainer.session.config_rules import is_robot_address
 from nao_trainer.session.record import WRITE_CAUSES
 
 #: Exit codes of failed required checks, by kind (as `nao-trainer run` would fail later).
@@ -85,6 +87,7 @@ class CheckPlan:
     output_dir: Path
     speed: float = 1.0
     write_dirs: tuple[Path, ...] = ()  # other folders the session writes (the participant's learning state)
+    person: bool = False  # a person answers or a real robot plays: a simulated EEG stream fails (issue 17)
 
 
 def plan_from_config(config: Any) -> CheckPlan:
@@ -92,7 +95,8 @@ def plan_from_config(config: Any) -> CheckPlan:
     return CheckPlan(robot_url=config.robot.url, connect_deadline_s=float(config.robot.connect_deadline_s),
                      needs_buttons=config.answers.input in ("tactile", "simulated"),
                      eeg_mode=config.eeg.mode, eeg=config.eeg, output_dir=config.output_dir(),
-                     speed=float(config.timing.speed), write_dirs=_state_dirs(config))
+                     speed=float(config.timing.speed), write_dirs=_state_dirs(config),
+                     person=config.answers.input != "simulated" or is_robot_address(config.robot.url))
 
 
 def _state_dirs(config: Any) -> tuple[Path, ...]:
@@ -260,7 +264,12 @@ def check_eeg(plan: CheckPlan, listen_s: float = EEG_LISTEN_S) -> CheckResult:
     settings = plan.eeg
     required = bool(settings.required)
     query = StreamQuery(settings.stream_type, settings.stream_name, settings.source_id)
-    info = resolve_eeg(query, settings.processing.resolve_timeout_s, settings.lsl_scope)
+    infos = resolve_all(query, settings.processing.resolve_timeout_s, settings.lsl_scope)
+    info = query.pick(infos)
+    many = ambiguous_streams(query.describe(), settings.source_id, [(i.name(), i.source_id()) for i in infos])
+    if many:  # issue 17: a session could take the wrong headband
+        return CheckResult("eeg", False, many, "pin one: eeg.source_id: ID in the study file, or --eeg-source-id ID",
+                           required)
     if info is None:
         return CheckResult("eeg", False, f"no EEG stream ({query.describe()}) found by LSL in scope "
                            f"{settings.lsl_scope!r} within {settings.processing.resolve_timeout_s:g} s",
@@ -271,8 +280,14 @@ def check_eeg(plan: CheckPlan, listen_s: float = EEG_LISTEN_S) -> CheckResult:
     except Exception as exc:  # noqa: BLE001 - irregular rate, vanished: report, do not crash the check
         return CheckResult("eeg", False, f"EEG stream {info.name()!r} (source_id {info.source_id()!r}) cannot be "
                            f"used: {exc}", "check the headband bridge", required)
+    refusal = simulated_refusal(inlet.identity(), settings) if plan.person else ""
+    if refusal:  # the session would refuse it too (exit 4)
+        inlet.close()
+        head, _, fix = refusal.partition(": its engagement would be recorded as theirs; ")
+        return CheckResult("eeg", False, head + ": its engagement would be recorded as theirs", fix, True)
     try:
-        found = (f"stream {inlet.name!r} (source_id {inlet.source_id!r}, {inlet.fs:g} Hz, "
+        kind = f"{inlet.acquisition}, " if inlet.simulated else ""
+        found = (f"stream {inlet.name!r} ({kind}source_id {inlet.source_id!r}, {inlet.fs:g} Hz, "
                  f"{len(inlet.scalp_labels)} scalp channels)")
         x = _listen(inlet, max(listen_s, settings.processing.window_s + 1.0))
     finally:

@@ -30,7 +30,7 @@ from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, Nu
 from nao_trainer.robot.address import redact_url
 from nao_trainer.session.behaviors import Behaviors, load_behaviors
 from nao_trainer.session.check import check_disk, check_eeg, check_robot, plan_from_config
-from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig
+from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig, is_robot_address
 from nao_trainer.session.dialogue import Dialogue, load_dialogue
 from nao_trainer.session.participant import check_pseudonym, session_lock
 from nao_trainer.session.engine import EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session, who_stopped
@@ -133,7 +133,9 @@ def open_engagement_monitor(config: StudyConfig, session_dir: Path, rng: np.rand
 
     rest = {} if simulator is None else {"rest_target": simulator.rest_engagement()}
     return open_monitor(eeg.mode, eeg, session_dir, rng, config.participant.pseudonym,
-                        record_xdf=True, **rest)  # session.xdf beside the session's files (eeg.xdf: false turns it off)
+                        record_xdf=True,  # session.xdf beside the session's files (eeg.xdf: false turns it off)
+                        # a person answering or a real robot never takes a simulated stream for theirs
+                        person=config.answers.input != "simulated" or is_robot_address(config.robot.url), **rest)
 
 
 def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progress: TextIO | None = None,
@@ -212,6 +214,7 @@ class _Outcome:
     error: str = ""
     summary: str = ""  # what the policy concluded
     session: Session | None = None
+    monitor: Any = None  # the EEG monitor, for the stream's identity in session.json
 
     def result(self, recorder: SessionRecorder) -> SessionResult:
         session = self.session
@@ -279,6 +282,7 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
     policy_state = _policy_state(policy, config, options.fresh_policy, progress)
     monitor = open_engagement_monitor(config, path, np.random.default_rng(eeg_ss), simulator)
     stack.callback(_close_quietly, monitor, recorder, out)
+    out.monitor = monitor
     if config.eeg.mode != "off" and progress:  # which headband this session listens to (events.jsonl too)
         print(f"EEG ({config.eeg.mode}): {monitor.describe()}", file=progress, flush=True)
     participant_rng = np.random.default_rng(participant_ss)
@@ -417,7 +421,8 @@ def _close_record(recorder: SessionRecorder, out: _Outcome, policy: Policy, stan
     result = out.result(recorder)
     recorder.close(out.status, out.code, total_score=out.session.total if out.session else 0, error=out.error,
                    policy_summary=out.summary or None,
-                   eeg_turns=result.eeg_turns if result.eeg_on else None)  # how many counted turns had EEG
+                   eeg_turns=result.eeg_turns if result.eeg_on else None,  # how many counted turns had EEG
+                   eeg_stream=getattr(out.monitor, "stream_identity", None))  # which stream; simulated or not
 
 
 def _policy_state(policy: Policy, config: StudyConfig, fresh: bool, progress: TextIO | None) -> dict[str, Any] | None:

@@ -180,3 +180,38 @@ def test_import_into_a_missing_folder_is_refused_and_creates_nothing(dataset_roo
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and f"the folder {target.parent.parent} does not exist" in err
     assert not (tmp_path / "nonexistent").exists()
+
+
+def test_the_table_of_a_cluster_of_one_session_prints_dashes_not_a_type_error():
+    """Issue 17: `fit` with a cluster of one session ended in a TypeError (cli/fit.py, no CV for one session)."""
+    from nao_trainer.cli.fit import format_table
+
+    one = {"id": 1, "size": 1, "p": [1.0, 0.5, None, 0.25], "e": [0.1, 0.2, 0.3, 0.4], "rmse_performance": 0.1,
+           "cv_rmse_performance": None, "rmse_engagement": 0.2, "cv_rmse_engagement": None}
+    lines = format_table({"clusters": [one]}).splitlines()
+    assert len(lines) == 2 and lines[1].split()[:2] == ["1", "1"] and lines[1].count(" -") >= 3
+
+
+def test_fit_filters_by_study_and_input_and_refuses_simulated_participants_silently(tmp_path, capsys):
+    from nao_trainer.data.dataset import COLUMNS, TurnTable, write_table
+
+    rows = []
+    for k, (study, kind) in enumerate((("paper", "tactile"), ("paper", "simulated"), ("demo", "simulated"))):
+        for turn in range(1, 4):
+            row = {c: (0.5 if t is float else (0 if t is int else "")) for c, t in COLUMNS.items()}
+            row.update(session=f"S{k}", pseudonym=f"P{k}", study=study, input=kind, turn=turn, state=4 + 27,
+                       length=5, level=2, sequence="ABCAB", response="ABCAB", success=1, score=2, signed_score=2)
+            rows.append(row)
+    table = tmp_path / "t.csv"
+    write_table(TurnTable.from_rows(rows), table, {"compat": None})
+    assert main(["fit", str(table), "--out", str(tmp_path / "m"), "--no-figures"]) == 2
+    err = capsys.readouterr().err
+    assert "2 of 3 sessions had a simulated participant" in err and "--exclude-simulated" in err
+    assert "sessions by study/input: demo/simulated 1, paper/simulated 1, paper/tactile 1" in err
+    assert "--include-simulated" in err and err.count("error:") == 1
+    main(["fit", str(table), "--out", str(tmp_path / "m"), "--no-figures", "--exclude-simulated"])
+    err = capsys.readouterr().err
+    assert "S1: left out by the filter (study 'paper', input 'simulated')" in err and "simulated participant" not in err
+    main(["fit", str(table), "--out", str(tmp_path / "m"), "--no-figures", "--study", "demo"])
+    err = capsys.readouterr().err
+    assert "S0: left out by the filter" in err and "1 of 1 sessions had a simulated participant" in err

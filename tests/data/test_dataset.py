@@ -123,18 +123,30 @@ def test_bad_sessions_are_reported_and_the_rest_import(corrupted):
 
 def test_cli_import_exit_codes_and_one_line_messages(corrupted, tmp_path, capsys):
     out = tmp_path / "out" / "turns.csv"
-    assert main(["import", str(corrupted), "--out", str(out), "-q"]) == 0
+    assert main(["import", str(corrupted), "--out", str(out), "-q"]) == 6  # written, but sessions skipped
     err = capsys.readouterr().err
+    assert "exit 6: 4 sessions were skipped" in err.splitlines()[-1]
     skipped = [ln for ln in err.splitlines() if "skipped" in ln and "user_" in ln and ":" in ln]
     assert len([ln for ln in skipped if ln.startswith("nao-trainer import: user_")]) == 4
     assert "Traceback" not in err
     assert len(read_table(out)) == 25
+    assert main(["import", str(corrupted), "--out", str(out), "-q", "--allow-skipped"]) == 0
+    assert "exit 6" not in capsys.readouterr().err
     shutil.rmtree(corrupted / SAMPLE[4])
     assert main(["import", str(corrupted), "--out", str(tmp_path / "none.csv"), "-q", "--no-cache"]) == 2
     err = capsys.readouterr().err
     assert "none of 4 sessions could be imported" in err and "Traceback" not in err
     assert main(["import", str(tmp_path / "nowhere"), "--out", str(tmp_path / "x.csv")]) == 2
     assert "no such folder" in capsys.readouterr().err
+
+
+def test_import_into_an_existing_folder_fails_before_reading_naming_the_folder(tmp_path, capsys):
+    """Issue 17: `--out EXISTING_DIR` failed only after reading everything, naming a temp file."""
+    missing_root = tmp_path / "nowhere"  # never read: the --out check comes first
+    assert main(["import", str(missing_root), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and f"--out {tmp_path}: is a folder" in err and "turns.csv" in err
+    assert "tmp" not in err.replace(str(tmp_path), "") and "no such folder" not in err
 
 
 def test_cache_reuses_unchanged_sessions_only(dataset_root, tmp_path):

@@ -152,6 +152,13 @@ def test_study_table_and_figure(study, tmp_path, capsys):
     for r in rows:
         turns = _rows(study / r["session"] / "turns.csv")
         assert int(r["eeg_turns"]) == (0 if r["engagement"] == "" else sum(t["engagement"] != "" for t in turns))
+    assert all(r["study"] == "own-data" and r["input"] == "simulated" for r in rows)  # issue 17: said per session
+    assert "3 sessions (3 simulated)" in err
+    code, _, err = _cli(["study", str(study), "--out", str(tmp_path / "f"), "--no-figure", "--input", "tactile"], capsys)
+    assert code == 2 and "the filter left none of the 3 sessions" in err
+    code, _, err = _cli(["study", str(study), "--out", str(tmp_path / "g"), "--no-figure", "--study", "own-data"],
+                        capsys)
+    assert code == 0 and len(_rows(tmp_path / "g" / "study.csv")) == 3
     assert (tmp_path / "study.png").stat().st_size > 10_000
 
 
@@ -202,7 +209,7 @@ def test_torn_row_missing_eeg_unknown_version_and_left_out_turns(study, tmp_path
     (third / "session.json").write_text(json.dumps(dict(info, format_version=99)))
 
     code, _, err = _cli(["import", str(root), "--out", str(tmp_path / "t.csv"), "--no-cache"], capsys)
-    assert code == 0
+    assert code == 6  # the table is written; one session was skipped
     lines = [ln for ln in err.splitlines() if ln.startswith("nao-trainer import: ")]
     assert any(f"{third.name}: skipped: " in ln and "format_version 99 is unknown" in ln for ln in lines)
     assert any(f"{p1.name}: turns.csv line 7 torn" in ln for ln in lines)
@@ -230,9 +237,13 @@ def test_a_root_mixing_both_layouts_imports_both_and_says_so(study, dataset_root
     table = read_table(tmp_path / "t.csv")
     assert set(table.sessions) == {"user_1/session_4", _session(study, "P1").name}
     assert set(table["pseudonym"].tolist()) == {"user_1", "P1"}
+    # issue 17: each row says which study and who answered; the summary says what the table mixes
+    assert {(str(s), str(i)) for s, i in zip(table["study"], table["input"])} == {("published", "published"),
+                                                                                  ("own-data", "simulated")}
+    assert "sessions by study/input: own-data/simulated 1, published/published 1" in err
     code, _, err = _cli(["import", str(root), "--out", str(tmp_path / "c.csv"), "--compat", "authors2018", "-q"],
                         capsys)
-    assert code == 0 and "applies to the published layout only" in err
+    assert code == 6 and "applies to the published layout only" in err  # written, one session skipped
 
 
 def test_fuzzed_session_files_never_give_a_traceback(study, tmp_path, capsys):
@@ -259,7 +270,7 @@ def test_fuzzed_session_files_never_give_a_traceback(study, tmp_path, capsys):
             except SystemExit as exc:  # argparse only
                 code = exc.code
             out, err = capsys.readouterr()
-            assert code in (0, 2), (case, args, err)
+            assert code in (0, 2, 6), (case, args, err)
             assert "Traceback" not in err and "unexpected" not in err, (case, args, err)
             if code == 2:
                 assert len([ln for ln in err.splitlines() if "error" in ln]) == 1, err

@@ -83,7 +83,9 @@ def test_inlet_finds_simulated_muse_and_drops_aux():
             assert x.shape[1] == 4 and len(ts) >= 256
             import pylsl
 
-            assert abs(ts[-1] - pylsl.local_clock()) < 1.0  # on this machine's LSL clock
+            # on this machine's LSL clock, not wall-clock time (which differs by decades of seconds); the
+            # margin is for samples still queued on a loaded machine, not a speed requirement
+            assert abs(ts[-1] - pylsl.local_clock()) < 60.0
             assert np.allclose(np.diff(ts), 1 / 256, atol=1e-4)
             assert inlet.wall_clock is False
         finally:
@@ -179,7 +181,7 @@ def test_cli_simulate_muse_runs_until_sigint():
         info = resolve_eeg(StreamQuery("EEG", source_id=sid), 5.0)
         assert info is not None and info.channel_count() == 5
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(10) == 0
+        assert proc.wait(10) == 130  # an interrupt, as the README promises for every command
         assert "stopped after" in proc.stderr.read()
     finally:
         if proc.poll() is None:
@@ -203,8 +205,29 @@ def test_resolve_prefers_muse_and_honours_its_timeout():
         info = resolve_eeg(StreamQuery(kind), 5.0)
         assert info is not None and info.name() == "Muse"
         assert resolve_eeg(StreamQuery(kind, name="Other"), 5.0).name() == "Other"
-        t0 = time.monotonic()
-        assert resolve_eeg(StreamQuery(kind, name="Absent"), 0.5) is None
-        assert time.monotonic() - t0 < 2.5  # liblsl's one-shot resolve may overrun to ~5.5 s
     finally:
         del other, muse
+
+
+def test_resolve_gives_up_when_its_own_clock_passes_the_timeout(monkeypatch):
+    """The timeout is honoured on the clock resolve_eeg reads (injected here), never on a wall-clock bound:
+    with nothing matching, it polls until the clock passes the deadline and then returns None."""
+    import nao_trainer.eeg.inlet as inlet_mod
+
+    now = [1000.0]
+    polls = []
+
+    def clock() -> float:
+        return now[0]
+
+    def sleep(s: float) -> None:  # each poll advances the injected clock
+        polls.append(s)
+        now[0] += 0.1
+
+    monkeypatch.setattr(inlet_mod.time, "monotonic", clock)
+    monkeypatch.setattr(inlet_mod.time, "sleep", sleep)
+    assert resolve_eeg(StreamQuery(_uid("EEGtype"), name="Absent"), 0.5) is None
+    assert 4 <= len(polls) <= 6  # stopped once 0.5 s had passed on its clock, not later, not at once
+    polls.clear()
+    assert resolve_eeg(StreamQuery(_uid("EEGtype"), name="Absent"), 2.0) is None
+    assert 19 <= len(polls) <= 21

@@ -195,3 +195,19 @@ def test_too_few_engagement_turns_in_a_cluster_is_a_one_line_user_error():
     states = np.array([30, 31, 32, 33, 34])
     with pytest.raises(UserError, match=r"only 5 turns with engagement.*smaller --k"):
         TestedEngagementModel().fit(states, np.ones(5), np.full(5, 0.3))
+
+
+@pytest.mark.parametrize("value", ["abc", [0.5, 0.5], {"x": 1}])
+def test_a_user_model_with_text_in_its_tables_names_the_file(tmp_path, value):
+    """Issue 17: a string in p_success gave a message without the file name."""
+    from pathlib import Path
+
+    shipped = Path(__file__).resolve().parents[2] / "sim" / "participants" / "level2.json"
+    data = json.loads(shipped.read_text())
+    data["p_success"][3] = value
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(DataError) as err:
+        artifacts.load_simulator_file(path)
+    msg = str(err.value)
+    assert msg.startswith(f"{path}: ") and "must hold numbers" in msg and "\n" not in msg

