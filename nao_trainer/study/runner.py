@@ -95,8 +95,8 @@ def plan_next(study: Study, pseudonym: str, flags: dict[str, Any], now: dt.datet
 
 def plan_resume(study: Study, pseudonym: str) -> NextSession:
     """Continue the participant's last session when it was interrupted (its folder, configuration, seed and
-    learning state, through ``session.wiring.prepare_resume``); ``DataError`` when there is none."""
-    from nao_trainer.session.wiring import prepare_resume
+    learning state, through ``session.resume.prepare_resume``); ``DataError`` when there is none."""
+    from nao_trainer.session.resume import prepare_resume
 
     study.check_study_config()
     p = study.participant(pseudonym)
@@ -252,7 +252,7 @@ def blinded_console(plan: NextSession, options: Any, progress: TextIO) -> Iterat
     from nao_trainer.session.wiring import LOOPBACK
 
     try:
-        from nao_trainer.console.server import Console
+        from nao_trainer.console.launch import open_console
     except ImportError as exc:
         raise ConfigError(f"--console needs the console extra ({exc}); pip install -e '.[console]'") from None
     bind = options.console_bind or plan.config.console.bind
@@ -261,9 +261,10 @@ def blinded_console(plan: NextSession, options: Any, progress: TextIO) -> Iterat
                           "ADDRESS is given on the command line")
     commands = options.commands or CommandQueue()
     port = options.console_port if options.console_port is not None else plan.config.console.port
-    console = Console.start(commands, bind, port)
-    print(f"console: {console.link} (open it in a browser on this machine; the arm is not shown)",
-          file=progress, flush=True)
+    # TLS beyond loopback and the printed link follow the session's own console (console.launch)
+    console = open_console(commands, bind, port, lambda *_, **__: None, progress, options.console_insecure,
+                           options.console_tls)
+    print("console: the arm is not shown", file=progress, flush=True)
     try:
         yield dataclasses.replace(options, console=False, console_port=None, console_bind=None, commands=commands,
                                   observer=BlindObserver(console.hub)), console

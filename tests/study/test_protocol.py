@@ -213,7 +213,7 @@ def test_a_blinded_study_serves_a_console_without_the_arm(tmp_path, capsys):
             break
     link = urllib.parse.urlsplit(lines[-1].split()[1])
     token = urllib.parse.parse_qs(link.query)["token"][0]
-    request = urllib.request.Request(f"{link.scheme}://{link.netloc}/state", headers={HEADER: token})
+    request = urllib.request.Request(f"{link.scheme}://{link.netloc}{link.path}state", headers={HEADER: token})
     state: dict = {}
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not state.get("rows"):  # the page's state once a turn is played
