@@ -23,7 +23,7 @@ sys.path.insert(0, str(ROOT / "tests"))  # the in-memory robot (tests/fakes.py)
 
 from fakes import FakeRobot, ScriptedAnswers  # noqa: E402
 from nao_trainer.console.server import COOKIE, Console, ConsoleHub  # noqa: E402
-from nao_trainer.learn.usp import load_policy  # noqa: E402
+from nao_trainer.policies.learned import load_policy  # noqa: E402
 from nao_trainer.ports import CommandQueue, NullObserver  # noqa: E402
 from nao_trainer.session.behaviors import load_behaviors  # noqa: E402
 from nao_trainer.session.config import load_config  # noqa: E402

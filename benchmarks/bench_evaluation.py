@@ -13,7 +13,7 @@ import sys
 import time
 
 from nao_trainer.core import baselines, evaluation
-from nao_trainer.learn import artifacts, usp
+from nao_trainer.learn import artifacts, policy_files
 
 TARGET_MS = 1.0
 
@@ -34,8 +34,8 @@ def main() -> int:
     ap.add_argument("--repeat", type=int, default=200)
     args = ap.parse_args()
     sim = artifacts.load_simulator("2")
-    path = usp.default_policies_dir() / usp.policy_filename("2", "qaug")
-    learner = usp.learner_from_payload(usp.read_policy_file(path), path)
+    path = policy_files.default_policies_dir() / policy_files.policy_filename("2", "qaug")
+    learner = policy_files.learner_from_payload(policy_files.read_policy_file(path), path)
     table = baselines.learner_table(learner)
     p, e = sim.p_success, sim.engagement
     ok = True

@@ -14,7 +14,7 @@ import argparse
 import sys
 import time
 
-from nao_trainer.learn import sweep
+from nao_trainer.experiments import sweep
 from nao_trainer.learn.users import cluster_user_set
 
 FULL_POINTS, TARGET_S = 400, 600.0

@@ -9,6 +9,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from nao_trainer.errors import ConfigError, UserError
 
 #: The checkout that holds config/, dialogue/, behaviors/ and sim/ beside the package.
@@ -46,8 +48,6 @@ def read_yaml(path: str | os.PathLike, missing: str = "file not found", fix: str
     Unreadable files, syntax errors, characters YAML forbids, values a tag cannot convert
     (``!!int notanumber``) and keys given twice raise ``ConfigError`` with file and line, in one line.
     """
-    import yaml
-
     text = read_text(path, ConfigError, missing, fix)
     loader = None
     try:
@@ -91,8 +91,6 @@ def _yaml_loader() -> Any:
     """PyYAML's SafeLoader, made to report a value its tag cannot convert with the node's line."""
     global _LOADER
     if _LOADER is None:
-        import yaml
-
         class Loader(yaml.SafeLoader):
             def construct_object(self, node: Any, deep: bool = False) -> Any:
                 try:
@@ -114,8 +112,6 @@ def _collect_lines(node: Any, prefix: str, out: dict[str, int] | None, path: Any
 
     Mappings inside lists are checked for repeated keys too, without recording lines.
     """
-    import yaml
-
     if isinstance(node, yaml.MappingNode):
         seen: dict[str, int] = {}
         for key_node, value_node in node.value:

@@ -6,7 +6,9 @@ session.
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable, Protocol, runtime_checkable
 
@@ -317,16 +319,12 @@ class CommandQueue:
     """
 
     def __init__(self) -> None:
-        import threading
-
         self._cond = threading.Condition()
         self._items: list[Command] = []
         self._next_id = 1
 
     def submit(self, kind: str, args: dict | None = None, source: str = "api") -> Command:
         """Queue a command; ValueError for an unknown kind (the caller reports it)."""
-        from datetime import datetime, timezone
-
         if kind not in COMMAND_KINDS:
             raise ValueError(f"unknown command {kind!r}; use one of {', '.join(COMMAND_KINDS)}")
         with self._cond:

@@ -20,7 +20,10 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("data",),
     ("robot", "eeg", "answers", "console"),
     ("learn",),
+    ("policies",),
+    ("experiments",),
     ("session",),
+    ("study",),
     ("plots",),
     ("cli", "__main__"),
 )

@@ -19,8 +19,8 @@ import numpy as np
 from nao_trainer.answers.inputs import TactileAnswers
 from nao_trainer.core import task
 from nao_trainer.core.simulation import UserSimulator
-from nao_trainer.ports import (Answer, EngagementMonitor, Intention, NullMonitor, Press, RobotConnectionLost,
-                                TurnContext)
+from nao_trainer.errors import RobotUnavailable
+from nao_trainer.ports import Answer, EngagementMonitor, Intention, NullMonitor, Press, RobotConnectionLost, TurnContext
 
 #: Relative frequency of mistake kinds when a turn fails.
 MISTAKES: dict[str, float] = {"substitute": 0.6, "swap": 0.25, "omit": 0.15}
@@ -189,7 +189,6 @@ class StandInButtons:
         self._lock = threading.Lock()
 
     def __call__(self, letter: str) -> None:
-        from nao_trainer.errors import RobotUnavailable
         from nao_trainer.robot.standin import StandInClient
 
         with self._lock:
@@ -219,7 +218,6 @@ class StandInButtons:
     @classmethod
     def probe(cls, url: str, deadline_s: float = 3.0) -> "StandInButtons | None":
         """A presser when ``url`` serves the stand-in's control service, else None (a real NAO)."""
-        from nao_trainer.errors import RobotUnavailable
         from nao_trainer.robot.standin import StandInClient
 
         buttons = cls(url, deadline_s)

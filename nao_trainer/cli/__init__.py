@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import os
 import sys
 
@@ -59,8 +60,6 @@ def entry_point() -> None:
         # Python service objects on its own threads, which aborted about 2 % of exits (SIGABRT, "terminate
         # called without an active exception", in qi_python's shared-pointer release): leave without it.
         # Only where qi was loaded: other commands keep the teardown (it stops worker pools, for one).
-        import logging
-
         logging.shutdown()  # flush and close log files, as the skipped atexit would
         sys.stdout.flush()
         sys.stderr.flush()

@@ -5,7 +5,8 @@ import argparse
 from pathlib import Path
 
 from nao_trainer.eeg.settings import MODES as EEG_MODES
-from nao_trainer.session.config import INPUTS
+from nao_trainer.errors import ConfigError
+from nao_trainer.session.config import INPUTS, load_config
 
 
 def register(sub) -> None:
@@ -29,9 +30,7 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from nao_trainer.errors import ConfigError
     from nao_trainer.session.check import exit_code, plan_from_config, run_checks
-    from nao_trainer.session.config import load_config
 
     if not 0.5 <= args.seconds <= 60:
         raise ConfigError(f"--seconds must be between 0.5 and 60, got {args.seconds:g}")

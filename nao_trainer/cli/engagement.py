@@ -5,6 +5,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from nao_trainer.errors import ConfigError, DataError
+from nao_trainer.files import write_text_atomic
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -36,12 +39,10 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from nao_trainer.errors import ConfigError, DataError
     from nao_trainer.data.dataset import discover
-    from nao_trainer.data.engagement import (OfflineSettings, SessionProblem, check_options, session_engagement_many,
+    from nao_trainer.data.engagement import (EngagementFailure, OfflineSettings, check_options, session_engagement_many,
                                              to_csv, to_json)
     from nao_trainer.data.own import own_session_engagement
-    from nao_trainer.files import write_text_atomic
 
     # every option checked before the (long) computation
     check_options(args.compat, args.source, args.answer)
@@ -76,13 +77,13 @@ def run(args: argparse.Namespace) -> int:
         sid = path.name
         if args.compat or args.source == "bands":
             opt = "--compat authors2018" if args.compat else "--source bands"
-            problems.append(SessionProblem(sid, f"{opt} needs Muse band lines; sessions written by `run` have raw "
+            problems.append(EngagementFailure(sid, f"{opt} needs Muse band lines; sessions written by `run` have raw "
                                                 "EEG (drop the option)"))
             continue
         try:
             results.append(own_session_engagement(path, answer=args.answer))
         except DataError as exc:
-            problems.append(SessionProblem(sid, str(exc)))
+            problems.append(EngagementFailure(sid, str(exc)))
     for prob in problems:
         print(f"nao-trainer engagement: skipped {prob.session}: {prob.message}", file=sys.stderr)
     if not results:

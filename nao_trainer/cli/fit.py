@@ -5,7 +5,9 @@ import argparse
 import json
 import sys
 from pathlib import Path
+
 from nao_trainer.cli._checks import require_matplotlib
+from nao_trainer.errors import ConfigError
 
 
 def register(sub) -> None:
@@ -35,7 +37,6 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from nao_trainer.errors import ConfigError
     from nao_trainer.learn.fit_source import fit_and_save
 
     if args.k < 1:

@@ -5,6 +5,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from nao_trainer.errors import ConfigError
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -29,7 +31,6 @@ def register(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nao_trainer.data.dataset import cache_dir, import_dataset, write_table
-    from nao_trainer.errors import ConfigError
 
     folder = args.out.resolve().parent
     if not folder.is_dir() and not folder.parent.is_dir():  # the output's own folder is made, never a whole tree

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 
 def register(sub) -> None:
@@ -32,8 +33,6 @@ def register(sub) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    import sys
-
     from nao_trainer.robot.standin import serve  # imports qi: keep `nao-trainer --help` fast
 
     return serve(args.listen, speed=args.speed, transcript_path=args.transcript, allow_remote=args.allow_remote,

@@ -7,6 +7,8 @@ import sys
 import time
 from pathlib import Path
 
+from nao_trainer.errors import ConfigError
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -42,7 +44,6 @@ def register(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from nao_trainer.errors import ConfigError
     from nao_trainer.eeg.lsl_scope import configure_lsl
     from nao_trainer.eeg.simulated_muse import ReplayMuse, SimulatedMuse
 

@@ -5,6 +5,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from nao_trainer.errors import DataError
+from nao_trainer.files import write_text_atomic
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -24,8 +27,6 @@ def register(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from nao_trainer.data.study import read_study
-    from nao_trainer.errors import DataError
-    from nao_trainer.files import write_text_atomic
 
     out = args.out or args.root
     study = read_study(args.root)

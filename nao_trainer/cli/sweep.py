@@ -39,7 +39,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from nao_trainer.learn import sweep, users
+    from nao_trainer.experiments import reports, sweep
+    from nao_trainer.learn import users
     from nao_trainer.learn.parallel import check_backend
 
     spec = sweep.make_spec(args.param, args.method, args.seeds, args.episodes, seed=args.seed, process=args.mdp)
@@ -57,27 +58,15 @@ def run(args) -> int:
     results = sweep.run(spec, user_list, args.workers, args.backend)
     seconds = time.perf_counter() - t0
     argv = getattr(args, "argv", None) or ["sweep"]
-    report = {"command": "nao-trainer " + " ".join(shlex.quote(a) for a in argv), "method": spec.method,
-              "mdp": args.mdp, "params": {n: list(v) for n, v in spec.params}, "seeds": spec.seeds,
-              "episodes": spec.episodes, "seed": spec.seed, "seconds": round(seconds, 2), "results": results}
-    from nao_trainer.files import write_json_atomic, write_text_atomic
-
-    out = Path(args.out)
-    write_json_atomic(out / "sweep.json", report)
-    names = [n for n, _ in spec.params]
-    lines = [",".join(["user", *names, "method", "score", "score_lo", "score_hi", "engagement", "training_tail_score"])]
-    for r in results:
-        ci = r["score_ci"] or [r["score"], r["score"]]
-        lines.append(",".join([r["user"], *(f"{r[n]:.6g}" for n in names), r["method"], f"{r['score']:.6g}",
-                               f"{ci[0]:.6g}", f"{ci[1]:.6g}", f"{r['engagement']:.6g}", f"{r['training_tail_score']:.6g}"]))
-    write_text_atomic(out / "sweep.csv", "\n".join(lines) + "\n")
-    paths = [out / "sweep.json", out / "sweep.csv"]
+    report, lines, paths = reports.write_sweep(Path(args.out), results, spec, seconds=seconds,
+                                               command="nao-trainer " + " ".join(shlex.quote(a) for a in argv))
     if not args.no_plots:
         from nao_trainer.plots.evaluation import plot_sweep
 
+        names = [n for n, _ in spec.params]
         points = [{**r, "value": r[names[0]]} for r in results] if len(names) == 1 else None
         if points is not None:
-            paths.append(plot_sweep(points, names[0], out / "sweep.png"))
+            paths.append(plot_sweep(points, names[0], Path(args.out) / "sweep.png"))
     print(f"sweep: {turns / 1e9:.2f} G turns in {seconds:.1f} s ({turns / max(seconds, 1e-9) / 1e6:.1f} M turns/s)",
           file=sys.stderr)
     if args.json:

@@ -30,6 +30,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
+from nao_trainer.errors import ConfigError
 from nao_trainer.ports import COMMAND_KINDS, CommandQueue
 
 STATIC = Path(__file__).parent / "static"
@@ -274,8 +275,6 @@ class Console:
               log: Callable[..., None] | None = None, hub: ConsoleHub | None = None) -> "Console":
         """Serve the console on ``bind:port`` (0 = a free port); returns once it accepts connections."""
         import uvicorn
-
-        from nao_trainer.errors import ConfigError
 
         hub = hub or ConsoleHub()
         token = secrets.token_urlsafe(24)

@@ -31,27 +31,38 @@ Pure: no I/O. The pipeline (paper, section 6 and Figure 9, plus a per-participan
    candidate itself does not change. This is expected value over the remaining turns with a short
    look-ahead; greedy choice among candidates alone never leaves a level the prior likes.
 
-``mode="map"`` is the paper's pipeline for comparison: after the assessment, the most likely model
+``mode=Choice.MOST_LIKELY`` (``"map"``) is the paper's pipeline for comparison: after the assessment, the most likely model
 under the plain posterior (``kappa = inf``) is taken and its policy followed to the end.
 
 ``Personaliser`` runs ``n`` participants at once (``core.evaluation.EpisodePolicy``, for Monte
-Carlo); the live policy (``learn.personalised``) runs one.
+Carlo); the live policy (``policies.personalised``) runs one.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from enum import Enum
+from math import comb
+from typing import Any, Sequence
 
 import numpy as np
 
-from nao_trainer.core import mdp, mdps, task
+from nao_trainer.core import mdp, processes, task
 from nao_trainer.core.posterior import FLOOR, ModelSet, log_likelihood, normalise, shifts
 
 DEFAULT_LEVELS: tuple[int, ...] = (2, 3, 4)
 #: d(expected score of a level-l turn) / d(success rate) = l + 1 (+l on success, -1 on failure).
 _SCORE_SLOPE = np.arange(2, 6, dtype=float)
 DEFAULT_LENGTH = 6
-MODES: tuple[str, ...] = ("ev", "map")
+
+
+class Choice(str, Enum):
+    """How the personaliser chooses the candidate to follow after the assessment."""
+
+    EXPECTED_VALUE = "ev"  #: the posterior expected value over the remaining turns, with probes (the pipeline)
+    MOST_LIKELY = "map"  #: the most likely model's own policy, kept to the end (the paper's pipeline)
+
+
+MODES: tuple[str, ...] = tuple(c.value for c in Choice)
 
 
 def assessment_schedule(length: int = DEFAULT_LENGTH, levels: Sequence[int] = DEFAULT_LEVELS) -> tuple[int, ...]:
@@ -71,25 +82,25 @@ def assessment_schedule(length: int = DEFAULT_LENGTH, levels: Sequence[int] = DE
 
 
 def value_tables(policy: np.ndarray, p_success: np.ndarray, turns: int,
-                 process: "str | mdps.DecisionProcess" = "paper") -> tuple[np.ndarray, np.ndarray]:
+                 process: "str | processes.DecisionProcess" = "paper") -> tuple[np.ndarray, np.ndarray]:
     """(V, N) of a stationary policy on a user: V[r, x] expected score, N[r, x, l] expected turns at
-    level l+1, over the next ``r`` turns (0..turns) from full state ``x`` (``core.mdps``).
+    level l+1, over the next ``r`` turns (0..turns) from full state ``x`` (``core.processes``).
 
     ``V[turns, START_FULL]`` equals ``core.evaluation.evaluate(...).score``.
     """
-    proc = mdps.get(process)
+    proc = processes.get(process)
     table = np.asarray(policy, dtype=float)
     if table.shape != (proc.n_states, mdp.N_ACTIONS):
         raise ValueError(f"policy table of shape {table.shape} does not fit the {proc.name} MDP")
-    valid = mdps.NEXT_TURN >= 0
-    nxt = np.where(valid, mdps.NEXT_TURN, 0)  # (217, 6)
+    valid = processes.NEXT_TURN >= 0
+    nxt = np.where(valid, processes.NEXT_TURN, 0)  # (217, 6)
     pi = np.where(valid, table[proc.obs], 0.0)
     p = np.asarray(p_success, dtype=float)[nxt]
     reward = p * mdp.SCORE[nxt, 1] + (1.0 - p) * mdp.SCORE[nxt, 0]
     onehot = np.eye(4)[mdp.LEVEL[nxt] - 1]  # (217, 6, 4)
     fail, win = 2 * nxt, 2 * nxt + 1
-    v = np.zeros((turns + 1, mdps.N_FULL))
-    n = np.zeros((turns + 1, mdps.N_FULL, 4))
+    v = np.zeros((turns + 1, processes.N_FULL))
+    n = np.zeros((turns + 1, processes.N_FULL, 4))
     for r in range(1, turns + 1):
         v[r] = (pi * (reward + p * v[r - 1][win] + (1.0 - p) * v[r - 1][fail])).sum(axis=1)
         cont = p[..., None] * n[r - 1][win] + (1.0 - p)[..., None] * n[r - 1][fail]
@@ -109,7 +120,7 @@ class Candidate:
 class Personaliser:
     """The pipeline of the module docstring for ``n`` participants at once.
 
-    ``own_policy[k]``: index in ``candidates`` of model k's user-specific policy (``mode="map"``).
+    ``own_policy[k]``: index in ``candidates`` of model k's user-specific policy (``Choice.MOST_LIKELY``).
     ``start_log_w``, ``start_wins``, ``start_turns``: where a returning participant's posterior
     stands (default: the prior, no turns).
     """
@@ -120,7 +131,7 @@ class Personaliser:
     kappa: float = 10.0
     margin: float = 0.5
     turns: int = 25
-    mode: str = "ev"
+    mode: Choice | str = Choice.EXPECTED_VALUE
     own_policy: tuple[int, ...] = ()
     process: str = "paper"
     start_log_w: np.ndarray | None = None
@@ -128,27 +139,27 @@ class Personaliser:
     start_turns: np.ndarray | None = None
     start_map_log_w: np.ndarray | None = None
     probes: tuple[int, ...] = (1, 2, 3)
-    bonus: np.ndarray | None = None  # (n, C) added to the candidates' values in the next decisions
     _v: np.ndarray = field(init=False, repr=False)
     _n: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
             raise ValueError(f"personaliser mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        self.mode = Choice(self.mode)
         if not self.candidates:
             raise ValueError("the personaliser needs at least one candidate policy")
         if self.kappa <= 0:
             raise ValueError(f"kappa must be > 0 (inf: no per-level learning), got {self.kappa}")
         if self.margin < 0:
             raise ValueError(f"margin must be >= 0, got {self.margin}")
-        if self.mode == "map" and len(self.own_policy) != self.models.k:
+        if self.mode is Choice.MOST_LIKELY and len(self.own_policy) != self.models.k:
             raise ValueError("mode 'map' needs own_policy: one candidate index per model")
         c, k, t = len(self.candidates), self.models.k, self.turns
-        self._v = np.zeros((c, k, t + 1, mdps.N_FULL))
-        self._n = np.zeros((c, k, t + 1, mdps.N_FULL, 4))
+        self._v = np.zeros((c, k, t + 1, processes.N_FULL))
+        self._n = np.zeros((c, k, t + 1, processes.N_FULL, 4))
         for i in range(c):
             self._tables_for(i)
-        self.reset(1, mdps.get(self.process))
+        self.reset(1, processes.get(self.process))
 
     def _tables_for(self, i: int) -> None:
         for k in range(self.models.k):
@@ -162,17 +173,17 @@ class Personaliser:
 
     # -- core.evaluation.EpisodePolicy ------------------------------------------------------------
 
-    def reset(self, n: int, process: "mdps.DecisionProcess | str") -> None:
-        self._proc = mdps.get(process)
+    def reset(self, n: int, process: "processes.DecisionProcess | str") -> None:
+        self._proc = processes.get(process)
         k = self.models.k
         lw = np.log(self.models.prior) if self.start_log_w is None else np.asarray(self.start_log_w, dtype=float)
         self.log_w = np.tile(lw, (n, 1))
-        # the plain posterior (kappa = inf), for mode "map"
+        # the plain posterior (kappa = inf), for Choice.MOST_LIKELY
         self.map_log_w = self.log_w.copy() if self.start_map_log_w is None else np.tile(
             np.asarray(self.start_map_log_w, dtype=float), (n, 1))
         self.wins = np.tile(np.zeros(4) if self.start_wins is None else np.asarray(self.start_wins, float), (n, 1))
         self.played = np.tile(np.zeros(4) if self.start_turns is None else np.asarray(self.start_turns, float), (n, 1))
-        self.full = np.full(n, mdps.START_FULL)
+        self.full = np.full(n, processes.START_FULL)
         self.current = np.full(n, -1)
         self.switches = np.zeros(n, dtype=np.int64)
         self.probes_played = np.zeros(n, dtype=np.int64)
@@ -217,8 +228,6 @@ class Personaliser:
         choice among candidates alone never does. Needs a finite ``kappa`` (with the models as
         fitted nothing is learned about the participant's own rates).
         """
-        from math import comb
-
         from scipy.special import gammaln as glab  # lazy: scipy is slow to import
 
         n_ep = self.log_w.shape[0]
@@ -253,17 +262,18 @@ class Personaliser:
                 out[:, level - 1] = np.maximum(out[:, level - 1], total)
         return out
 
-    def decide(self, turn: int) -> np.ndarray:
-        """The candidate each participant follows from this turn on (the anti-flip-flop rule)."""
-        if self.mode == "map":
+    def decide(self, turn: int, bonus: np.ndarray | None = None) -> np.ndarray:
+        """The candidate each participant follows from this turn on (the anti-flip-flop rule);
+        ``bonus`` (n, C) is added to the candidates' values first (e.g. the supervisor's guidance)."""
+        if self.mode is Choice.MOST_LIKELY:
             fresh = self.current < 0
             if fresh.any():
                 best = normalise(self.map_log_w[fresh]).argmax(axis=1)
                 self.current[fresh] = np.asarray(self.own_policy)[best]
             return self.current
         ev = self.expected_values(turn)
-        if self.bonus is not None:  # e.g. the supervisor's guidance (learn.personalised)
-            ev = ev + self.bonus
+        if bonus is not None:
+            ev = ev + bonus
         self.last_ev = ev
         best = ev.argmax(axis=1)
         rows = np.arange(len(best))
@@ -274,19 +284,20 @@ class Personaliser:
         self.current = np.where(switch, best, self.current)
         return self.current
 
-    def act(self, obs: np.ndarray, turn: int, rng: np.random.Generator) -> np.ndarray:
+    def act(self, obs: np.ndarray, turn: int, rng: np.random.Generator,
+            bonus: np.ndarray | None = None) -> np.ndarray:
         obs = np.asarray(obs, dtype=np.int64)
         if self.in_assessment(turn):
             self.probing = np.zeros(len(obs), dtype=bool)
             return np.full(len(obs), self.schedule[turn] - 1)
-        chosen = self.decide(turn)
+        chosen = self.decide(turn, bonus)
         tables = np.stack([c.table for c in self.candidates])  # (C, n_states, 6)
         probs = tables[chosen, obs]  # (n, 6)
         cum = np.cumsum(probs, axis=1)
         u = rng.random(len(obs)) * cum[:, -1]
         action = np.minimum((cum < u[:, None]).sum(axis=1), mdp.N_ACTIONS - 1)
         self.probing = np.zeros(len(obs), dtype=bool)
-        if self.mode == "ev" and self.probes and np.isfinite(self.kappa):
+        if self.mode is Choice.EXPECTED_VALUE and self.probes and np.isfinite(self.kappa):
             probe = self.probe_values(turn)  # (n, 4)
             commit = self.last_ev[np.arange(len(obs)), chosen]
             self.probing = probe.max(axis=1) > commit + self.margin
@@ -314,6 +325,24 @@ class Personaliser:
         self.wins[rows, lv] += success
         self.full = state * 2 + success
         self.turn += 1
+
+    # -- one participant's state (a live session saves and restores it) ---------------------------
+
+    def snapshot(self, row: int = 0) -> dict[str, Any]:
+        """Participant ``row``'s whole state as JSON-ready values (``restore`` goes back to it)."""
+        return {"log_w": self.log_w[row].tolist(), "map_log_w": self.map_log_w[row].tolist(),
+                "wins": self.wins[row].tolist(), "played": self.played[row].tolist(),
+                "current": int(self.current[row]), "switches": int(self.switches[row]), "full": int(self.full[row]),
+                "turn": self.turn, "schedule": list(self.schedule)}
+
+    def restore(self, data: dict[str, Any], row: int = 0) -> None:
+        """Participant ``row`` back to a ``snapshot`` (its assessment schedule and turn included)."""
+        self.log_w[row] = data["log_w"]
+        self.map_log_w[row] = data["map_log_w"]
+        self.wins[row], self.played[row] = data["wins"], data["played"]
+        self.current[row], self.switches[row], self.full[row] = data["current"], data["switches"], data["full"]
+        self.turn = int(data["turn"])
+        self.schedule = tuple(int(x) for x in data["schedule"])
 
     # -- what it believes (for the record and the console) ----------------------------------------
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nao_trainer.core import mdp, mdps
+from nao_trainer.core import mdp, processes
 from nao_trainer.core.evaluation import evaluate, fixed_level_policy, uniform_policy
 from nao_trainer.core.qlearning import QLearner, choose_columns, inverse_temperature, policy_probabilities
 
@@ -45,7 +45,7 @@ class Staircase:
     start: int = 2
     _level: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64), repr=False)
     _streak: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64), repr=False)
-    _process: mdps.DecisionProcess | None = field(default=None, repr=False)
+    _process: processes.DecisionProcess | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if self.rule not in STAIRCASE_RULES:
@@ -57,7 +57,7 @@ class Staircase:
     def name(self) -> str:
         return f"staircase-{self.rule}@{self.start}"
 
-    def reset(self, n: int, process: mdps.DecisionProcess) -> None:
+    def reset(self, n: int, process: processes.DecisionProcess) -> None:
         self._level = np.full(n, self.start, dtype=np.int64)
         self._streak = np.zeros(n, dtype=np.int64)
         self._process = process
@@ -84,9 +84,9 @@ class Staircase:
         pass
 
 
-def learner_table(learner: QLearner, process: "str | mdps.DecisionProcess" = "paper") -> np.ndarray:
+def learner_table(learner: QLearner, process: "str | processes.DecisionProcess" = "paper") -> np.ndarray:
     """The frozen policy of a Q-learner: P(a | s) for every state (its softmax at its temperatures)."""
-    proc = mdps.get(process)
+    proc = processes.get(process)
     if learner.q.shape[0] != proc.n_states:
         raise ValueError(f"the learner has {learner.q.shape[0]} states, the {proc.name} MDP {proc.n_states}")
     values = learner.q + (learner.config.beta2 * learner.h if learner.method == "qaug" else 0.0)
@@ -108,7 +108,7 @@ class KeepLearning:
         self._beta1 = cfg.shaping_weight(learner.method)
         self._beta2 = cfg.augment_weight(learner.method)
 
-    def reset(self, n: int, process: mdps.DecisionProcess) -> None:
+    def reset(self, n: int, process: processes.DecisionProcess) -> None:
         lr = self.learner
         if lr.q.shape[0] != process.n_states:
             raise ValueError(f"the learner has {lr.q.shape[0]} states, the {process.name} MDP {process.n_states}")

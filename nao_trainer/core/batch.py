@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nao_trainer.core import mdp
+from nao_trainer.core import mdp, processes, qkernel
 from nao_trainer.core.qlearning import QConfig, check_method, choose_columns, column_max, inverse_temperature
 
 _N_LEVEL_ACTIONS = len(mdp.LEVEL_ACTIONS)
@@ -43,7 +43,7 @@ class BatchLearner:
     ``[..., 1]`` the outcome: success when ``u < p_success[s']``), so its result does not depend on
     the other agents in the batch nor on the block size.
 
-    ``process``: the decision process (``core.mdps``: ``paper`` or ``informed``); the agents' tables
+    ``process``: the decision process (``core.processes``: ``paper`` or ``informed``); the agents' tables
     are over its observed states. ``engine``: ``numpy`` (all agents in lock-step, vectorised),
     ``numba`` (``core.qkernel``, one agent at a time, compiled) or ``auto`` (numba when installed).
     Both give the same tables for the same random numbers.
@@ -51,15 +51,13 @@ class BatchLearner:
     In the numpy loop all agents start every episode in ``START`` at the same step, which makes the
     start-state mask a row slice. Per-agent tables are stored flat with the agent's offset added to
     the state index so every step is a handful of ``np.take`` calls over the agents. The full state
-    of an agent is a *code* ``x = s * 2 + o`` (``core.mdps``), stored with a stride of 218 per agent.
+    of an agent is a *code* ``x = s * 2 + o`` (``core.processes``), stored with a stride of 218 per agent.
     """
 
     ENGINES = ("auto", "numpy", "numba")
 
     def __init__(self, p_success: np.ndarray, engagement: np.ndarray, methods: Sequence[str],
                  config: QConfig = QConfig(), process: str = "paper", engine: str = "numpy") -> None:
-        from nao_trainer.core import mdps
-
         p = np.asarray(p_success, dtype=float)
         e = np.asarray(engagement, dtype=float)
         n = len(methods)
@@ -71,7 +69,7 @@ class BatchLearner:
             raise ValueError(f"engine must be one of {', '.join(self.ENGINES)}, got {engine!r}")
         self.methods = [check_method(m) for m in methods]
         self.config = config
-        self.process = mdps.get(process)
+        self.process = processes.get(process)
         self.engine = engine
         self.n = n
         self._p = p
@@ -79,13 +77,11 @@ class BatchLearner:
 
     def _local_tables(self) -> dict[str, np.ndarray]:
         """Per-code tables shared by all agents (codes 0..217, see the class docstring)."""
-        from nao_trainer.core import mdps
-
         C, A = 2 * mdp.N_STATES, mdp.N_ACTIONS
         nt = np.zeros((C, A), dtype=np.int64)
-        nt[: mdps.N_FULL] = 2 * np.where(mdps.NEXT_TURN < 0, 0, mdps.NEXT_TURN)
+        nt[: processes.N_FULL] = 2 * np.where(processes.NEXT_TURN < 0, 0, processes.NEXT_TURN)
         obs = np.zeros(C, dtype=np.int64)
-        obs[: mdps.N_FULL] = self.process.obs
+        obs[: processes.N_FULL] = self.process.obs
         score = np.zeros(C)
         score[: 2 * mdp.N_TURN_STATES] = mdp.SCORE.ravel()
         return {"nt": nt, "obs": obs, "score": score}
@@ -99,8 +95,6 @@ class BatchLearner:
             raise ValueError(f"episodes, turns and block must be >= 1, got {episodes}, {turns}, {block}")
         engine = self.engine
         if engine == "auto":
-            from nao_trainer.core import qkernel
-
             engine = "numba" if qkernel.available() else "numpy"
         if engine == "numba":
             return self._run_compiled(episodes, turns, rngs, progress)
@@ -207,8 +201,6 @@ class BatchLearner:
 
     def _run_compiled(self, episodes: int, turns: int, rngs: Sequence[np.random.Generator],
                       progress: Callable[[int, int], None] | None) -> BatchResult:
-        from nao_trainer.core import qkernel
-
         run_agent = qkernel.kernel()
         cfg, n = self.config, self.n
         S, A = self.process.n_states, mdp.N_ACTIONS

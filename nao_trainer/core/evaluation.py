@@ -2,11 +2,11 @@
 
 Pure: no I/O. A *user* is a pair of tables over ``core.mdp``'s turn states: ``p_success`` (108,)
 and ``engagement`` (108, 2). A *tabular policy* is a probability table over the observed states of
-a decision process (``core.mdps``) x actions, either stationary ``(n_states, 6)`` or per turn
+a decision process (``core.processes``) x actions, either stationary ``(n_states, 6)`` or per turn
 ``(turns, n_states, 6)``.
 
 Exact evaluation (``evaluate``) is a forward recursion over the distribution of the full state
-``x = (turn state, outcome)`` (``core.mdps``): at each turn the mass moves through the policy and
+``x = (turn state, outcome)`` (``core.processes``): at each turn the mass moves through the policy and
 ``NEXT_TURN`` to the next turn state ``s'`` (``m_t(s')``, the probability that turn t is played in
 ``s'``), then splits by ``p_success[s']``. Every reported quantity is linear in ``sum_t m_t``:
 
@@ -29,10 +29,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from nao_trainer.core import mdp, mdps
+from nao_trainer.core import mdp, processes
 
 #: Full states that are turns (not START), and their turn state and outcome.
-_X = np.arange(mdps.N_FULL - 1)
+_X = np.arange(processes.N_FULL - 1)
 _X_TURN, _X_OUT = _X // 2, _X % 2
 
 
@@ -77,7 +77,7 @@ def check_user(p_success: np.ndarray, engagement: np.ndarray) -> tuple[np.ndarra
     return p, e
 
 
-def check_policy(table: np.ndarray, process: mdps.DecisionProcess, turns: int) -> np.ndarray:
+def check_policy(table: np.ndarray, process: processes.DecisionProcess, turns: int) -> np.ndarray:
     """The table as (turns, n_states, 6) float; ValueError saying what does not fit the process."""
     t = np.asarray(table, dtype=float)
     n = process.n_states
@@ -93,31 +93,31 @@ def check_policy(table: np.ndarray, process: mdps.DecisionProcess, turns: int) -
     return t
 
 
-def _transition_matrix(policy: np.ndarray, process: mdps.DecisionProcess) -> np.ndarray:
+def _transition_matrix(policy: np.ndarray, process: processes.DecisionProcess) -> np.ndarray:
     """M[x, s']: probability that the next turn is played in s' from full state x under ``policy``."""
     probs = policy[process.obs]  # (217, 6)
-    valid = mdps.NEXT_TURN >= 0
-    rows = np.broadcast_to(np.arange(mdps.N_FULL)[:, None], valid.shape)[valid]
-    m = np.zeros(mdps.N_FULL * mdp.N_TURN_STATES)
-    np.add.at(m, rows * mdp.N_TURN_STATES + mdps.NEXT_TURN[valid], probs[valid])
-    return m.reshape(mdps.N_FULL, mdp.N_TURN_STATES)
+    valid = processes.NEXT_TURN >= 0
+    rows = np.broadcast_to(np.arange(processes.N_FULL)[:, None], valid.shape)[valid]
+    m = np.zeros(processes.N_FULL * mdp.N_TURN_STATES)
+    np.add.at(m, rows * mdp.N_TURN_STATES + processes.NEXT_TURN[valid], probs[valid])
+    return m.reshape(processes.N_FULL, mdp.N_TURN_STATES)
 
 
 def turn_visits(policy: np.ndarray, p_success: np.ndarray, turns: int,
-                process: "str | mdps.DecisionProcess" = "paper") -> np.ndarray:
+                process: "str | processes.DecisionProcess" = "paper") -> np.ndarray:
     """V(s') = expected number of turns played in each turn state over an episode (108,)."""
-    proc = mdps.get(process)
+    proc = processes.get(process)
     table = check_policy(policy, proc, turns)
     p = np.asarray(p_success, dtype=float)
     stationary = np.shares_memory(table, table[0]) and table.strides[0] == 0
     m_static = _transition_matrix(table[0], proc) if stationary else None
-    dist = np.zeros(mdps.N_FULL)
-    dist[mdps.START_FULL] = 1.0
+    dist = np.zeros(processes.N_FULL)
+    dist[processes.START_FULL] = 1.0
     total = np.zeros(mdp.N_TURN_STATES)
     for t in range(turns):
         m = dist @ (m_static if stationary else _transition_matrix(table[t], proc))
         total += m
-        dist = np.empty(mdps.N_FULL)
+        dist = np.empty(processes.N_FULL)
         dist[0:-1:2] = m * (1.0 - p)
         dist[1:-1:2] = m * p
         dist[-1] = 0.0
@@ -138,7 +138,7 @@ def summarise(visits: np.ndarray, p_success: np.ndarray, engagement: np.ndarray,
 
 
 def evaluate(policy: np.ndarray, p_success: np.ndarray, engagement: np.ndarray, turns: int = 25,
-             process: "str | mdps.DecisionProcess" = "paper") -> Outcome:
+             process: "str | processes.DecisionProcess" = "paper") -> Outcome:
     """Exact expected results of a tabular policy on a user (no sampling; see the module docstring)."""
     p, e = check_user(p_success, engagement)
     return summarise(turn_visits(policy, p, turns, process), p, e, turns)
@@ -152,7 +152,7 @@ class Optimum:
     policy: np.ndarray
 
 
-def optimal(p_success: np.ndarray, turns: int = 25, process: "str | mdps.DecisionProcess" = "paper",
+def optimal(p_success: np.ndarray, turns: int = 25, process: "str | processes.DecisionProcess" = "paper",
             engagement: np.ndarray | None = None, engagement_weight: float = 0.0) -> Optimum:
     """Backward induction for the highest expected episode score (+ weight x engagement per turn).
 
@@ -160,14 +160,14 @@ def optimal(p_success: np.ndarray, turns: int = 25, process: "str | mdps.Decisio
     it is p(s) whatever the history, so the optimum over observed states is exact. Ties go to the
     lowest action index.
     """
-    proc = mdps.get(process)
+    proc = processes.get(process)
     p = np.asarray(p_success, dtype=float)
     reward = p * mdp.SCORE[:, 1] + (1 - p) * mdp.SCORE[:, 0]
     if engagement is not None and engagement_weight:
         e = np.asarray(engagement, dtype=float)
         reward = reward + engagement_weight * (p * e[:, 1] + (1 - p) * e[:, 0])
     belief = proc.beliefs(p)  # (n, 217)
-    nxt = np.where(mdps.NEXT_TURN < 0, 0, mdps.NEXT_TURN)  # (217, 6)
+    nxt = np.where(processes.NEXT_TURN < 0, 0, processes.NEXT_TURN)  # (217, 6)
     obs_fail, obs_win = proc.obs[2 * nxt], proc.obs[2 * nxt + 1]
     policy = np.zeros((turns, proc.n_states, mdp.N_ACTIONS))
     value = np.zeros(proc.n_states)
@@ -189,7 +189,7 @@ def optimal(p_success: np.ndarray, turns: int = 25, process: "str | mdps.Decisio
 class EpisodePolicy(Protocol):
     """A policy run on ``n`` episodes at once; it may keep any per-episode memory."""
 
-    def reset(self, n: int, process: mdps.DecisionProcess) -> None: ...
+    def reset(self, n: int, process: processes.DecisionProcess) -> None: ...
 
     def act(self, obs: np.ndarray, turn: int, rng: np.random.Generator) -> np.ndarray: ...
 
@@ -204,7 +204,7 @@ class TablePolicy:
     table: np.ndarray
     _cum: np.ndarray | None = field(default=None, repr=False)
 
-    def reset(self, n: int, process: mdps.DecisionProcess) -> None:
+    def reset(self, n: int, process: processes.DecisionProcess) -> None:
         t = np.asarray(self.table, dtype=float)
         self._cum = np.cumsum(t, axis=-1)
 
@@ -220,14 +220,14 @@ class TablePolicy:
 
 def monte_carlo(policy: EpisodePolicy, p_success: np.ndarray, engagement: np.ndarray, episodes: int,
                 rng: np.random.Generator, turns: int = 25,
-                process: "str | mdps.DecisionProcess" = "paper") -> Outcome:
+                process: "str | processes.DecisionProcess" = "paper") -> Outcome:
     """Mean results over ``episodes`` simulated episodes with 95 % t-intervals over episodes."""
-    proc = mdps.get(process)
+    proc = processes.get(process)
     p, e = check_user(p_success, engagement)
     if episodes < 2:
         raise ValueError(f"episodes must be >= 2 for an interval, got {episodes}")
     policy.reset(episodes, proc)
-    full = np.full(episodes, mdps.START_FULL)
+    full = np.full(episodes, processes.START_FULL)
     score = np.zeros(episodes)
     eng = np.zeros(episodes)
     wins = np.zeros(episodes)
@@ -238,7 +238,7 @@ def monte_carlo(policy: EpisodePolicy, p_success: np.ndarray, engagement: np.nda
         a = np.asarray(policy.act(obs, t, rng), dtype=np.int64)
         if not np.all(proc.action_mask[obs, a]):
             raise ValueError(f"policy chose an action not allowed in the {proc.name} MDP")
-        s2 = mdps.NEXT_TURN[full, a]
+        s2 = processes.NEXT_TURN[full, a]
         o2 = (rng.random(episodes) < p[s2]).astype(np.int64)
         r = mdp.SCORE[s2, o2].astype(float)
         en = e[s2, o2]
@@ -272,17 +272,17 @@ def _scaled(ci: tuple[float, float] | None, turns: int) -> tuple[float, float] |
     return None if ci is None else (ci[0] / turns, ci[1] / turns)
 
 
-def uniform_policy(process: "str | mdps.DecisionProcess" = "paper") -> np.ndarray:
+def uniform_policy(process: "str | processes.DecisionProcess" = "paper") -> np.ndarray:
     """Uniform over the allowed actions of every state."""
-    mask = mdps.get(process).action_mask.astype(float)
+    mask = processes.get(process).action_mask.astype(float)
     return mask / mask.sum(axis=1, keepdims=True)
 
 
-def fixed_level_policy(level: int, process: "str | mdps.DecisionProcess" = "paper") -> np.ndarray:
+def fixed_level_policy(level: int, process: "str | processes.DecisionProcess" = "paper") -> np.ndarray:
     """Always play a new sequence of ``level`` (1..4), never give feedback."""
     if level not in (1, 2, 3, 4):
         raise ValueError(f"level must be 1..4, got {level!r}")
-    proc = mdps.get(process)
+    proc = processes.get(process)
     table = np.zeros((proc.n_states, mdp.N_ACTIONS))
     table[:, level - 1] = 1.0
     return table

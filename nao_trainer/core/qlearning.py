@@ -45,10 +45,11 @@ the first action whose cumulative weight reaches ``u`` times the total.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 
-from nao_trainer.core import mdp
+from nao_trainer.core import mdp, processes
 from nao_trainer.core.settings import SettingError, setting, settings
 
 METHODS: tuple[str, ...] = ("performance", "shaping", "qaug")
@@ -232,13 +233,11 @@ class QLearner:
     h: np.ndarray | None = None
     h_counts: np.ndarray | None = None
     visits: np.ndarray | None = None
-    process: str = "paper"  # the decision process (core.mdps): its states index the tables
+    process: str = "paper"  # the decision process (core.processes): its states index the tables
 
     def __post_init__(self) -> None:
-        from nao_trainer.core import mdps
-
         check_method(self.method)
-        self._proc = mdps.get(self.process)
+        self._proc = processes.get(self.process)
         n_states = self._proc.n_states
         shape = (n_states, mdp.N_ACTIONS)
         self.q = _table(self.q, shape, 0.0, float, "q")
@@ -308,6 +307,30 @@ class QLearner:
         self.visits[state] += 1
         return target
 
+    #: The tables that are the agent's lasting state (saved in policy and participant files, in this order).
+    TABLES = ("q", "h", "h_counts", "visits")
+
+    def state_dict(self, transient: bool = False) -> dict[str, Any]:
+        """The agent's state as JSON-ready lists: the ``TABLES``; with ``transient`` also the softmax
+        shift of the next choice (``shift``), which a session checkpoint carries so that a resumed
+        session draws exactly the actions the uninterrupted one would."""
+        out: dict[str, Any] = {key: getattr(self, key).tolist() for key in self.TABLES}
+        if transient:
+            out["shift"] = list(self._shift) if self._shift is not None else None
+        return out
+
+    def load_state_dict(self, data: dict[str, Any]) -> None:
+        """Put back a ``state_dict``: KeyError for a missing table, ValueError naming a table of the wrong
+        shape or with non-finite values. Without ``shift`` the next choice starts unshifted."""
+        if any(data[key] is None for key in self.TABLES):
+            raise ValueError(f"{next(k for k in self.TABLES if data[k] is None)} is null")
+        tables = {key: _table(data[key], getattr(self, key).shape, None, getattr(self, key).dtype.type, key)
+                  for key in self.TABLES}
+        for key, value in tables.items():
+            setattr(self, key, value)
+        shift = data.get("shift")
+        self._shift = (int(shift[0]), float(shift[1])) if shift else None
+
     def _check_state(self, state: int) -> None:
         if not 0 <= state < self._proc.n_states:
             raise ValueError(f"state must be in 0..{self._proc.n_states - 1}, got {state!r}")
@@ -319,6 +342,6 @@ def _table(value, shape, fill, dtype, name) -> np.ndarray:
     arr = np.array(value, dtype=dtype)
     if arr.shape != shape:
         raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
-    if dtype is float and not np.all(np.isfinite(arr)):
+    if np.issubdtype(arr.dtype, np.floating) and not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} has non-finite values")
     return arr

@@ -26,6 +26,12 @@ TIME_QUANTILES = np.linspace(0.0, 1.0, 21)
 FORMAT_VERSION = 1
 #: The simulator file's header (checked by ``from_dict``; pure: files.JsonFormat only compares dicts here).
 SIMULATOR_FILE = JsonFormat("nao-trainer/user-simulator", FORMAT_VERSION, "user simulator", "simulator")
+
+
+class DefinitionMismatch(ValueError):
+    """A simulator made for another state/action definition than ``core.mdp.DEFINITION`` (refit it)."""
+
+
 #: Significant digits of the table values that enter the fingerprint. A refit on another machine
 #: (or with another BLAS thread count) differs in the last bits only; 9 digits ignore that noise
 #: while any real change of a model (a refit on other data, an edit) still changes the fingerprint.
@@ -126,7 +132,7 @@ class UserSimulator:
         """Rebuild from ``to_dict`` output; ValueError naming ``source`` on any mismatch."""
         SIMULATOR_FILE.check(data, source, ValueError)
         if data.get("mdp_definition") != mdp.DEFINITION:
-            raise ValueError(f"{source}: made for another state/action definition; refit it with `nao-trainer fit`")
+            raise DefinitionMismatch(f"{source}: made for another state/action definition")
         try:
             sim = cls(
                 name=str(data["name"]),

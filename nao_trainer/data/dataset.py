@@ -35,15 +35,17 @@ import json
 import os
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from nao_trainer.data import published
+import nao_trainer
 from nao_trainer.core import mdp
 from nao_trainer.core.task import LENGTHS, level_of, score, signed_score
+from nao_trainer.data import engagement as offline
+from nao_trainer.data import own, published
 from nao_trainer.errors import DataError, UserError
 from nao_trainer.files import read_text, write_text_atomic
 
@@ -77,7 +79,7 @@ COLUMNS: dict[str, type] = {
 
 
 @dataclass(frozen=True)
-class SessionProblem:
+class SkippedSession:
     """A session that was not imported, with the one-line reason."""
 
     session: str
@@ -220,10 +222,8 @@ def _check_turns(log: list[published.LogRow], states: list[published.StateRow]) 
 
 def _engagement(session_dir: Path, n: int, compat: str | None) -> list[tuple[float, float, float, float, str]]:
     """Per turn: (engagement_index, engagement, quality, contact, note) from ``data.engagement``."""
-    from nao_trainer.data.engagement import session_engagement
-
     nan = float("nan")
-    eng = session_engagement(session_dir, compat=compat)
+    eng = offline.session_engagement(session_dir, compat=compat)
     out = []
     for t in eng.turns[:n]:
         out.append((
@@ -270,9 +270,6 @@ def import_session(session_dir: Path, compat: str | None = None) -> list[dict[st
 def engagement_definition() -> str:
     """What the cached engagement columns depend on besides the files: the package version and the
     offline engagement settings (``data.engagement.OfflineSettings``). A change invalidates the cache."""
-    import nao_trainer
-    from nao_trainer.data import engagement as offline
-
     return f"nao-trainer {nao_trainer.__version__}|{offline.OfflineSettings()!r}"
 
 
@@ -307,7 +304,7 @@ def _from_json(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 @dataclass
 class ImportResult:
     table: TurnTable
-    problems: list[SessionProblem]
+    problems: list[SkippedSession]
     cached: int = 0
     provenance: dict[str, Any] = field(default_factory=dict)
     excluded: list[Any] = field(default_factory=list)  # data.own.Excluded: turns kept out of the table
@@ -346,8 +343,6 @@ class Discovered:
 
 def discover(root: Path) -> Discovered:
     """Session folders of both layouts under ``root`` (or ``root`` itself); DataError when none."""
-    from nao_trainer.data import own
-
     root = Path(root)
     if not root.exists():
         raise DataError(f"{root}: no such folder (give a session folder, a study folder or a dataset root)")
@@ -363,15 +358,11 @@ def discover(root: Path) -> Discovered:
 
 
 def session_name(layout: str, path: Path) -> str:
-    from nao_trainer.data import own
-
     return published.session_id(path) if layout == "published" else own.session_id(path)
 
 
 def import_own_session(session_dir: Path) -> tuple[list[dict[str, Any]], list[Any], list[str]]:
     """(rows, excluded turns, notes) of one session written by ``run``; DataError when unreadable."""
-    from nao_trainer.data import own
-
     sess = own.read_session(session_dir)
     eng = own.own_session_engagement(session_dir)
     rows, excluded = own.table_rows(sess, {t.turn: t for t in eng.turns})
@@ -383,12 +374,10 @@ def import_own_session(session_dir: Path) -> tuple[list[dict[str, Any]], list[An
 
 def import_dataset(root: Path, compat: str | None = None, cache_dir: Path | None = None,
                    progress: Callable[[str], None] | None = None) -> ImportResult:
-    """Import every session under ``root``; unreadable sessions become :class:`SessionProblem` lines.
+    """Import every session under ``root``; unreadable sessions become :class:`SkippedSession` lines.
 
     Raises DataError when no session folder exists or none could be imported.
     """
-    from nao_trainer.data.own import Excluded
-
     if compat not in COMPAT_MODES:
         known = ", ".join(str(c) for c in COMPAT_MODES[1:])
         raise DataError(f"unknown compatibility mode {compat!r}: use one of {known} (or none)")
@@ -404,14 +393,14 @@ def import_dataset(root: Path, compat: str | None = None, cache_dir: Path | None
                   file=sys.stderr)
             cache_dir = None
     rows: list[dict[str, Any]] = []
-    problems: list[SessionProblem] = []
-    excluded: list[Excluded] = []
+    problems: list[SkippedSession] = []
+    excluded: list[own.Excluded] = []
     notes: list[str] = [n for n in (found.mixed_note(root),) if n]
     cached = 0
     for k, (layout, sdir) in enumerate(sessions, 1):
         sid = session_name(layout, sdir)
         if layout == "own" and compat is not None:
-            problems.append(SessionProblem(sid, f"--compat {compat} applies to the published layout only "
+            problems.append(SkippedSession(sid, f"--compat {compat} applies to the published layout only "
                                                 "(sessions written by `run` have raw EEG, not Muse band lines)"))
             continue
         key = _session_key(sdir, compat) if cache_dir is not None else ""
@@ -420,7 +409,7 @@ def import_dataset(root: Path, compat: str | None = None, cache_dir: Path | None
             if hit is not None:
                 srows, sexcl, snotes = hit
                 rows.extend(srows)
-                excluded.extend(Excluded(**e) for e in sexcl)
+                excluded.extend(own.Excluded(**e) for e in sexcl)
                 notes.extend(f"{sid}: {n}" for n in snotes)
                 cached += 1
                 continue
@@ -431,14 +420,14 @@ def import_dataset(root: Path, compat: str | None = None, cache_dir: Path | None
             else:
                 srows, sexcl, snotes = import_own_session(sdir)
         except DataError as exc:
-            problems.append(SessionProblem(sid, str(exc)))
+            problems.append(SkippedSession(sid, str(exc)))
             continue
         except Exception as exc:  # noqa: BLE001 - one odd session must not stop the import
-            problems.append(SessionProblem(sid, f"unexpected {type(exc).__name__}: {exc}".replace("\n", " ")))
+            problems.append(SkippedSession(sid, f"unexpected {type(exc).__name__}: {exc}".replace("\n", " ")))
             continue
         if not srows:
             why = f"no completed turn ({len(sexcl)} left out)" if sexcl else "no turns"
-            problems.append(SessionProblem(sid, why))
+            problems.append(SkippedSession(sid, why))
             excluded.extend(sexcl)
             continue
         rows.extend(srows)
@@ -478,8 +467,6 @@ def _read_cache(path: Path, key: str) -> tuple[list[dict[str, Any]], list[dict[s
 
 def _write_cache(path: Path, key: str, rows: list[dict[str, Any]], excluded: list[Any] = (),
                  notes: list[str] = ()) -> None:
-    from dataclasses import asdict
-
     try:
         write_text_atomic(path, json.dumps({"key": key, "rows": _json_safe(rows),
                                             "excluded": [asdict(e) for e in excluded], "notes": list(notes)}))

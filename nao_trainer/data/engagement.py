@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import json
 import math
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
@@ -36,9 +37,9 @@ import numpy as np
 
 from nao_trainer.core import engagement as core
 from nao_trainer.core import phase
-from nao_trainer.errors import DataError
 from nao_trainer.core.eeg import CHANNELS, RAW_RATE_HZ, Processing
 from nao_trainer.data.published import Recording, find_sessions, read_recording, read_state_eeg, session_id
+from nao_trainer.errors import DataError
 
 COMPAT_MODES: tuple[str, ...] = ("authors2018",)
 SOURCES: tuple[str, ...] = ("bands", "raw")
@@ -277,13 +278,8 @@ def _mean(v: np.ndarray) -> float | None:
     return float(v.mean()) if v.size else None
 
 
-def session_engagement(
-    session_dir: Path,
-    compat: str | None = None,
-    source: str | None = None,
-    settings: OfflineSettings = OfflineSettings(),
-    answer: bool = False,
-) -> SessionEngagement:
+def session_engagement(session_dir: Path, compat: str | None = None, source: str | None = None,
+                       settings: OfflineSettings = OfflineSettings(), answer: bool = False) -> SessionEngagement:
     """Per-turn listening-phase engagement of one session folder of the published layout.
 
     ``compat``: None (the project's definitions) or ``"authors2018"`` (the published tables).
@@ -381,13 +377,8 @@ def _baseline_values(session_dir: Path, src: str, settings: OfflineSettings) -> 
     return ph.smoothed
 
 
-def _normalise_own(
-    session_dir: Path,
-    listening: list[_Phase],
-    answers: list[_Phase] | None,
-    src: str,
-    settings: OfflineSettings,
-) -> tuple[str, list[np.ndarray | None], list[np.ndarray | None] | None]:
+def _normalise_own(session_dir: Path, listening: list[_Phase], answers: list[_Phase] | None, src: str,
+                   settings: OfflineSettings) -> tuple[str, list[np.ndarray | None], list[np.ndarray | None] | None]:
     """The project's rule: intro baseline plus running bounds in recording order; else the session itself."""
     normaliser = phase.EngagementNormaliser()
     why = ""
@@ -415,33 +406,27 @@ def _normalise_own(
 
 
 @dataclass(frozen=True)
-class SessionProblem:
+class EngagementFailure:
     """A session that could not be computed at all (its ``state_EEG`` is missing or malformed)."""
 
     session: str
     message: str
 
 
-def _one(args: tuple) -> "SessionEngagement | SessionProblem":
+def _one(args: tuple) -> "SessionEngagement | EngagementFailure":
     path, compat, source, settings, answer, skip = args
     try:
         return _session_engagement(path, compat, source, settings, answer)
     except DataError as exc:
         if not skip:
             raise
-        return SessionProblem(session_id(path), str(exc))
+        return EngagementFailure(session_id(path), str(exc))
 
 
-def session_engagement_many(
-    root: Path,
-    compat: str | None = None,
-    source: str | None = None,
-    settings: OfflineSettings = OfflineSettings(),
-    workers: int = 2,
-    progress: Callable[[int, int, str], None] | None = None,
-    answer: bool = False,
-    problems: list[SessionProblem] | None = None,
-) -> list[SessionEngagement]:
+def session_engagement_many(root: Path, compat: str | None = None, source: str | None = None,
+                            settings: OfflineSettings = OfflineSettings(), workers: int = 2,
+                            progress: Callable[[int, int, str], None] | None = None, answer: bool = False,
+                            problems: list[EngagementFailure] | None = None) -> list[SessionEngagement]:
     """:func:`session_engagement` for every session under ``root``, in natural order.
 
     ``workers > 1`` spreads sessions over processes. ``progress(done, total, session_id)`` is called after
@@ -452,29 +437,26 @@ def session_engagement_many(
     sessions = find_sessions(Path(root))
     skip = problems is not None
     jobs = [(p, compat, source, settings, answer, skip) for p in sessions]
-    done: list[SessionEngagement | SessionProblem] = []
+    done: list[SessionEngagement | EngagementFailure] = []
     if workers <= 1 or len(jobs) <= 1:
         for k, job in enumerate(jobs, 1):
             done.append(_one(job))
             if progress:
                 progress(k, len(jobs), done[-1].session)
     else:
-        from concurrent.futures import ProcessPoolExecutor
-
         with ProcessPoolExecutor(max_workers=workers) as pool:
             for k, res in enumerate(pool.map(_one, jobs, chunksize=max(1, len(jobs) // (4 * workers))), 1):
                 done.append(res)
                 if progress:
                     progress(k, len(jobs), res.session)
     if problems is not None:
-        problems.extend(r for r in done if isinstance(r, SessionProblem))
+        problems.extend(r for r in done if isinstance(r, EngagementFailure))
     return [r for r in done if isinstance(r, SessionEngagement)]
 
 
 # ----------------------------------------------------------------------------------------------
 # Output
 # ----------------------------------------------------------------------------------------------
-
 
 
 def _cell(v) -> str:

@@ -24,6 +24,7 @@ from nao_trainer.eeg.lsl_scope import configure_lsl
 from nao_trainer.eeg.markers import MarkerOutlet, marker_source_id
 from nao_trainer.eeg.monitor import LslMonitor
 from nao_trainer.eeg.settings import EEGSettings
+from nao_trainer.eeg.simulated_muse import SimulatedMuse, fake_mac
 from nao_trainer.errors import EEGUnavailable
 from nao_trainer.ports import EngagementMonitor, NullMonitor
 
@@ -63,8 +64,6 @@ def open_monitor(mode: str, eeg_cfg: EEGSettings | Mapping[str, Any] | None, ses
     simulator = None
     query = StreamQuery(settings.stream_type, settings.stream_name, settings.source_id)
     if settings.mode == "simulated":
-        from nao_trainer.eeg.simulated_muse import SimulatedMuse, fake_mac
-
         # The simulator draws from its own generator (seeded from the session's) in its own thread,
         # so the session's random stream stays reproducible.
         sim_rng = np.random.default_rng(int(rng.integers(0, 2**63 - 1)))

@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import logging
 import os
+import tempfile
 
 from nao_trainer.errors import ConfigError
+from nao_trainer.files import write_text_atomic
 
 log = logging.getLogger(__name__)
 
@@ -67,10 +69,6 @@ def config_file(scope: str = "machine") -> str:
     ``LSLAPICFG`` when the environment sets it; otherwise the project's config for ``scope``, written
     once to the temporary folder. Such a liblsl reads only a file, never ``pylsl.set_config_content``.
     """
-    import tempfile
-
-    from nao_trainer.files import write_text_atomic
-
     if scope not in SCOPES:
         raise ValueError(f"LSL scope must be one of {', '.join(SCOPES)}, got {scope!r}")
     cfg = os.environ.get("LSLAPICFG")

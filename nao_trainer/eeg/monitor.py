@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time as _time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -31,13 +32,13 @@ import numpy as np
 
 from nao_trainer.core.engagement import OnlineEngagement, QualityThresholds, WindowResult
 from nao_trainer.core.phase import EngagementNormaliser, summarise_phase
-from nao_trainer.ports import PhaseEngagement
 from nao_trainer.eeg.inlet import EEGInlet, StreamQuery
-from nao_trainer.eeg.settings import EEGSettings
 from nao_trainer.eeg.markers import MarkerOutlet, event_name
 from nao_trainer.eeg.session_files import (EVENTS_HEADER, GAPS_HEADER, PHASES_HEADER, SEGMENTS_HEADER, WINDOWS_HEADER,
-                                          SessionFiles,
-                                          fmt)
+                                           SessionFiles, fmt)
+from nao_trainer.eeg.settings import EEGSettings
+from nao_trainer.eeg.xdf import XdfRecorder, XdfUnavailable
+from nao_trainer.ports import PhaseEngagement
 
 log = logging.getLogger(__name__)
 
@@ -184,8 +185,6 @@ class LslMonitor:
         if not self._xdf_wanted or self.xdf is not None or self.inlet is None:
             return
         self._xdf_wanted = False
-        from nao_trainer.eeg.xdf import XdfRecorder, XdfUnavailable
-
         path = self.files.dir.parent / "session.xdf"
         for k in range(2, 1000):  # a resumed session keeps the first file: session_2.xdf, ...
             if not path.exists():
@@ -225,8 +224,6 @@ class LslMonitor:
     # -- reader thread --------------------------------------------------------------------------
 
     def _run(self) -> None:
-        import time as _time
-
         cpu0 = _time.thread_time()
         consecutive = 0
         while not self._stop.is_set():

@@ -20,10 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
-from nao_trainer.errors import DataError
 from nao_trainer.core.eeg import CHANNELS, RAW_RATE_HZ
+from nao_trainer.data.own import find_own_sessions, is_own_session, read_raw
 from nao_trainer.data.published import read_recording
 from nao_trainer.eeg.lsl_scope import configure_lsl
+from nao_trainer.errors import DataError
+from nao_trainer.files import read_json
 
 MUSE_LABELS = CHANNELS + ("Right AUX",)
 MUSE_RATE_HZ = 256.0
@@ -304,8 +306,6 @@ class ReplayMuse(_Publisher):
               fs: float = RAW_RATE_HZ, chunk: int = MUSE_CHUNK, loop: bool = False,
               wall_clock: bool = False, scope: str = "machine") -> "ReplayMuse":
         """Read every raw file of ``session_dir`` (errors name file:line) and start publishing."""
-        from nao_trainer.data.own import find_own_sessions, is_own_session
-
         session_dir = Path(session_dir)
         labels: tuple[str, ...] = CHANNELS
         if is_own_session(session_dir):
@@ -352,9 +352,6 @@ def load_raw_session(session_dir: Path) -> tuple[np.ndarray, list[tuple[str, int
 
 def load_own_session(session_dir: Path) -> tuple[np.ndarray, list[tuple[str, int]], float, tuple[str, ...]]:
     """The scalp samples a ``nao-trainer run`` session saved (``eeg/raw.csv``), its rate and channel names."""
-    from nao_trainer.data.own import read_raw
-    from nao_trainer.files import read_json
-
     eeg = Path(session_dir) / "eeg"
     if not (eeg / "raw.csv").is_file():
         raise DataError(f"{session_dir}: no eeg/raw.csv to replay (EEG was off, or eeg.processing.record_raw false)")
@@ -374,8 +371,6 @@ def load_own_study(study_dir: Path) -> tuple[np.ndarray, list[tuple[str, int]], 
 
     Sessions without ``eeg/raw.csv`` are passed over; DataError when none has EEG.
     """
-    from nao_trainer.data.own import find_own_sessions
-
     parts, boundaries, start, shape = [], [], 0, None
     for folder in find_own_sessions(study_dir):
         if not (folder / "eeg" / "raw.csv").is_file():

@@ -36,6 +36,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from nao_trainer.eeg.lsl_scope import config_file
 from nao_trainer.errors import EEGUnavailable
 
 INSTALL_HINT = "pip install 'nao-trainer[xdf]'"
@@ -78,8 +79,6 @@ class XdfRecorder:
         :class:`XdfUnavailable` (one line, with the fix) when the engine is missing or the recorder
         ended (no such stream, no engine, a bad file name).
         """
-        from nao_trainer.eeg.lsl_scope import config_file
-
         if not available():
             raise XdfUnavailable(f"session.xdf not recorded: LabRecorder's engine is not installed; {INSTALL_HINT}")
         path, ids = Path(path), tuple(source_ids)

@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import os
 import platform
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
 from nao_trainer.core.simulation import FORMAT_VERSION as SIMULATOR_FORMAT_VERSION
-from nao_trainer.core.simulation import UserSimulator
+from nao_trainer.core.simulation import DefinitionMismatch, UserSimulator
 from nao_trainer.errors import DataError, UserError
 from nao_trainer.files import PROJECT_ROOT, JsonFormat, read_json, write_json_atomic
 
@@ -40,8 +41,6 @@ def default_models_dir() -> Path:
 
 
 def library_versions() -> dict[str, str]:
-    from importlib.metadata import PackageNotFoundError, version
-
     out = {"python": platform.python_version()}
     for dist in ("nao-trainer", "numpy", "scikit-learn", "scipy"):
         try:
@@ -113,6 +112,8 @@ def load_simulator_file(path: Path) -> UserSimulator:
         raise DataError(f"{path}: not a user simulator (expected a JSON object)")
     try:
         return UserSimulator.from_dict(data, source=str(path))
+    except DefinitionMismatch as exc:
+        raise DataError(f"{exc}; refit it with `nao-trainer fit`") from None
     except ValueError as exc:
         raise DataError(str(exc)) from None
 

@@ -13,8 +13,12 @@ from typing import Any
 import numpy as np
 
 from nao_trainer.core import mdp
+from nao_trainer.data import dataset, published
+from nao_trainer.data.dataset import COMPAT_MODES
+from nao_trainer.data.engagement import session_engagement
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import read_json
+from nao_trainer.learn import artifacts
 from nao_trainer.learn.fitting import FEATURE_ENCODING, FitOptions, FitResult, Turns, fit_dataset
 
 
@@ -24,8 +28,6 @@ def table_provenance(csv_path: Path, compat: str | None) -> tuple[str | None, li
     Without a sidecar: ``compat`` as given and no skipped list. A ``compat`` that contradicts the
     sidecar is a ConfigError: the table's engagement column was computed in the sidecar's mode.
     """
-    from nao_trainer.data.dataset import COMPAT_MODES
-
     sidecar = Path(csv_path).with_name(Path(csv_path).name + ".json")
     if not sidecar.exists():
         return compat, []
@@ -65,9 +67,6 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
     ``cache``: a folder, ``"default"`` (:func:`nao_trainer.data.dataset.cache_dir`) or None (no cache). For a turn-table
     CSV, the compat mode and skipped sessions come from its sidecar (:func:`table_provenance`).
     """
-    from nao_trainer.learn import artifacts
-    from nao_trainer.data import dataset
-
     say = progress or (lambda _m: None)
     source, out = Path(source), Path(out_dir)
     skipped: list[str] = []
@@ -119,9 +118,6 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
 
 def engagement_signals(root: Path, compat: str | None) -> Callable[[str], dict[int, np.ndarray] | None]:
     """Per-sample normalised engagement of a session of ``root`` (for Figure 4), None if unreadable."""
-    from nao_trainer.data import published
-    from nao_trainer.data.engagement import session_engagement
-
     dirs = {published.session_id(d): d for d in published.find_sessions(root)}
 
     def signal_of(session: str) -> dict[int, np.ndarray] | None:

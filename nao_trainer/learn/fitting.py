@@ -32,6 +32,7 @@ from nao_trainer.core import mdp
 from nao_trainer.core.simulation import TIME_QUANTILES, UserSimulator
 from nao_trainer.core.usermodel import Clustering, UserModels, cluster_users, user_models
 from nao_trainer.errors import DataError
+from nao_trainer.learn.effects import TestedEngagementModel, TestedPerformanceModel, TooFewTurns, effect_report
 
 #: How states are turned into regression inputs (stored in the artifacts' metadata).
 FEATURE_ENCODING = (
@@ -315,8 +316,6 @@ def _session_folds(sessions: np.ndarray, folds: int, rng: np.random.Generator) -
 def _fit_tables(turns: Turns, options: FitOptions, tested: bool) -> tuple[np.ndarray, np.ndarray, Any, Any]:
     """(P table, engagement table, performance model, engagement model) of the chosen fit."""
     if tested:
-        from nao_trainer.learn.effects import TestedEngagementModel, TestedPerformanceModel
-
         pm = TestedPerformanceModel().fit(turns.state, turns.success)
         em = TestedEngagementModel().fit(turns.state, turns.success, turns.engagement)
     else:
@@ -347,8 +346,6 @@ def cross_validate(turns: Turns, options: FitOptions, rng: np.random.Generator,
         perf_n += float(held_pm.counts_[seen].sum())
         if np.isfinite(train.engagement).any() and np.isfinite(held.engagement).any():
             if tested:
-                from nao_trainer.learn.effects import TestedEngagementModel, TooFewTurns
-
                 try:
                     e_table = TestedEngagementModel().fit(train.state, train.success, train.engagement).table_
                 except TooFewTurns:  # a fold too small to fit: it adds nothing to the engagement RMSE
@@ -385,8 +382,6 @@ def fit_cluster(turns: Turns, cluster_id: int, options: FitOptions, rng: np.rand
     cv_p, cv_e = cross_validate(turns, options, rng, tested)
     extra: dict[str, Any] = {}
     if tested:
-        from nao_trainer.learn.effects import effect_report
-
         extra = {"effects": effect_report(pm, em), "model": "tested effects (learn.effects)"}
         mle = PerformanceModel(0.0).fit(turns.state, turns.success)
         seen = mle.counts_ > 0

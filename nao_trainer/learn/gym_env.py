@@ -21,9 +21,9 @@ except ImportError as exc:  # pragma: no cover - exercised only without the extr
         "nao_trainer.learn.gym_env needs gymnasium: pip install 'nao-trainer[gym]' (or pip install gymnasium)"
     ) from exc
 
-from nao_trainer.core import mdp, mdps
-from nao_trainer.core import mdp as _mdp
+from nao_trainer.core import mdp, processes
 from nao_trainer.core.simulation import UserSimulator
+from nao_trainer.learn.artifacts import load_simulator
 
 ENV_ID = "NaoTrainer/SequenceLearning-v0"
 
@@ -48,7 +48,7 @@ class SequenceLearningEnv(gym.Env):
     ``(level-1)*27 + RF*9 + PR+4`` (``nao_trainer.core.mdp.decode``), or 108 = START before the
     first turn. The played turn's outcome is hidden: it shows only as the next state's PR.
     With ``mdp="informed"``: ``Discrete(217)``, the turn state and its outcome, ``index * 2 + outcome``
-    (``nao_trainer.core.mdps``), START = 216.
+    (``nao_trainer.core.processes``), START = 216.
 
     ## Starting State
     Always START (108; 216 in the informed MDP).
@@ -67,17 +67,15 @@ class SequenceLearningEnv(gym.Env):
     ## Arguments
     ``simulator``: a ``UserSimulator`` or a spec for ``nao_trainer.learn.artifacts.load_simulator``
     (cluster id or JSON path); ``turns``: episode length; ``render_mode``: None or ``"ansi"``;
-    ``mdp``: ``"paper"`` (default) or ``"informed"`` (``nao_trainer.core.mdps``).
+    ``mdp``: ``"paper"`` (default) or ``"informed"`` (``nao_trainer.core.processes``).
     """
 
     metadata = {"render_modes": ["ansi"], "render_fps": 4}
 
     def __init__(self, simulator: UserSimulator | str = "1", turns: int = 25, render_mode: str | None = None,
                  mdp: str = "paper"):
-        self.process = mdps.get(mdp)
+        self.process = processes.get(mdp)
         if isinstance(simulator, str):
-            from nao_trainer.learn.artifacts import load_simulator
-
             simulator = load_simulator(simulator)
         if not isinstance(simulator, UserSimulator):
             raise TypeError(f"simulator must be a UserSimulator or a model spec, got {type(simulator).__name__}")
@@ -89,9 +87,9 @@ class SequenceLearningEnv(gym.Env):
         self.turns = int(turns)
         self.render_mode = render_mode
         self.observation_space = spaces.Discrete(self.process.n_states)
-        self.action_space = spaces.Discrete(_mdp.N_ACTIONS)
+        self.action_space = spaces.Discrete(self.process.action_mask.shape[1])  # the parameter `mdp` hides the module here
         self.state = self.process.start
-        self._full = mdps.START_FULL
+        self._full = processes.START_FULL
         self.turn = 0
         self._success = False
         self._last: dict[str, Any] = {}
@@ -99,7 +97,7 @@ class SequenceLearningEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[int, dict[str, Any]]:
         super().reset(seed=seed)
         self.state = self.process.start
-        self._full = mdps.START_FULL
+        self._full = processes.START_FULL
         self.turn = 0
         self._success = False
         self._last = {}
@@ -114,7 +112,7 @@ class SequenceLearningEnv(gym.Env):
         invalid = not self.process.action_mask[self.state, a]
         if invalid:
             a = 0
-        nxt = int(mdps.NEXT_TURN[self._full, a])
+        nxt = int(processes.NEXT_TURN[self._full, a])
         success = self.simulator.sample_success(nxt, self.np_random)
         self._full = 2 * nxt + int(success)
         self.state, self._success = int(self.process.obs[self._full]), success

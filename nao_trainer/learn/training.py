@@ -2,7 +2,7 @@
 
 ``train_grid`` trains one Q-learner per (cluster, method, seed) with ``core.batch.BatchLearner``,
 split over worker processes, and summarises the runs; ``write_outputs`` writes the figures, CSV
-tables, ``results.json`` and one policy file per (cluster, method) (format: ``nao_trainer.learn.usp``).
+tables, ``results.json`` and one policy file per (cluster, method) (format: ``nao_trainer.learn.policy_files``).
 
 Reproducibility: agent (cluster, method, seed index) draws from
 ``SeedSequence(base_seed, spawn_key=(cluster_key, method_index, seed_index))`` where
@@ -21,6 +21,7 @@ means over seeds with the same per-episode 95 % t-interval.
 """
 from __future__ import annotations
 
+import gzip
 import hashlib
 import io
 import math
@@ -32,11 +33,13 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from nao_trainer.core import mdp
+from nao_trainer.core import evaluation, mdp, processes
 from nao_trainer.core.batch import BatchLearner
 from nao_trainer.core.qlearning import METHODS, QConfig, QLearner, expected_scores
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.files import write_json_atomic, write_text_atomic
+from nao_trainer.learn import policy_files
+from nao_trainer.learn.parallel import check_backend, fan_out
 
 
 @dataclass(frozen=True)
@@ -52,18 +55,15 @@ class TrainingSpec:
     config: QConfig = field(default_factory=QConfig)
     tail: float = 0.1  # fraction of final episodes summarised
     block: int = 200  # episodes of random numbers drawn per agent at a time (speed only)
-    process: str = "paper"  # the decision process (core.mdps): paper or informed
+    process: str = "paper"  # the decision process (core.processes): paper or informed
     engine: str = "auto"  # numpy, numba or auto (numba when installed); same results
     backend: str | None = None  # None: local processes; dask://HOST:PORT: a dask.distributed cluster
 
     def __post_init__(self) -> None:
-        from nao_trainer.core import mdps
-        from nao_trainer.learn.parallel import check_backend
-
         try:
-            mdps.get(self.process)
+            processes.get(self.process)
         except ValueError:
-            raise ValueError(f"mdp must be one of {', '.join(mdps.NAMES)}, got {self.process!r}") from None
+            raise ValueError(f"mdp must be one of {', '.join(processes.NAMES)}, got {self.process!r}") from None
         if self.engine not in BatchLearner.ENGINES:
             raise ValueError(f"engine must be one of {', '.join(BatchLearner.ENGINES)}, got {self.engine!r}")
         check_backend(self.backend)
@@ -181,8 +181,6 @@ class GridResult:
         """Expected score of the optimum and of uniform play on cluster c's simulator, in this MDP."""
         if self.spec.process == "paper":
             return expected_scores(self.simulators[c].p_success, self.spec.turns)
-        from nao_trainer.core import evaluation
-
         sim = self.simulators[c]
         best = evaluation.optimal(sim.p_success, self.spec.turns, self.spec.process).value
         uniform = evaluation.evaluate(evaluation.uniform_policy(self.spec.process), sim.p_success, sim.engagement,
@@ -306,8 +304,6 @@ def train_grid(simulators: Sequence[UserSimulator], clusters: Sequence[str], spe
               f"agents, {spec.episodes} episodes x {spec.turns} turns ({total / 1e6:.1f} M turns) "
               f"on {n_workers} worker(s)", file=sys.stderr, flush=True)
     t0 = time.perf_counter()
-    from nao_trainer.learn.parallel import fan_out
-
     outputs = fan_out(_run_chunk, chunks, n_workers, spec.backend)
     seconds = time.perf_counter() - t0
     parts = [o[0] for o in outputs]
@@ -340,8 +336,6 @@ def write_curves_csv(result: GridResult, path: Path) -> None:
     curves = result.curves()
     cols = ["score_mean", "score_lo", "score_hi", "engagement_mean", "engagement_lo", "engagement_hi"]
     episodes = np.arange(1, result.spec.episodes + 1)
-    import gzip
-
     # mtime=0: the same run gives the same bytes; level 6 is much faster than the default 9, nearly as small.
     with gzip.GzipFile(path, "wb", compresslevel=6, mtime=0) as raw, io.TextIOWrapper(raw, encoding="utf-8") as fh:
         fh.write("cluster,method,episode," + ",".join(cols) + "\n")
@@ -382,14 +376,12 @@ def write_outputs(result: GridResult, out_dir: Path, models_source: str, command
 
     The figures are the command's business: ``plots.learning.write_figures(result, out_dir)``.
     """
-    from nao_trainer.learn import usp
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"curves": out / CURVES_CSV, "s0": out / S0_CSV, "results": out / RESULTS_JSON}
     write_curves_csv(result, paths["curves"])
     write_s0_csv(result, paths["s0"])
-    policy_files = {}
+    written: dict[str, str] = {}
     for c, cluster in enumerate(result.clusters):
         for m, method in enumerate(result.spec.methods):
             k = result.representative_seed(c, m)
@@ -400,20 +392,20 @@ def write_outputs(result: GridResult, out_dir: Path, models_source: str, command
                 "command": command, "tail_score_mean": score, "tail_engagement_mean": eng,
                 "selection": "seed whose final score is closest to the median over seeds",
             }
-            path = out / usp.policy_filename(cluster, method)
-            usp.save_policy_file(path, usp.make_payload(result.learner(c, m, k), cluster,
-                                                        result.simulators[c], provenance))
-            policy_files[f"{cluster}:{method}"] = path.name
+            path = out / policy_files.policy_filename(cluster, method)
+            policy_files.save_policy_file(path, policy_files.make_payload(result.learner(c, m, k), cluster,
+                                                                          result.simulators[c], provenance))
+            written[f"{cluster}:{method}"] = path.name
     summary = result.summary_json()
     summary["default_method"] = default_methods(result)
     summary["spec"] = {"methods": list(result.spec.methods), "seeds": result.spec.seeds, "mdp": result.spec.process,
                        "episodes": result.spec.episodes, "turns": result.spec.turns, "seed": result.spec.seed,
                        "hyperparameters": result.spec.config.to_dict(), "models": models_source,
                        "command": command}
-    summary["policies"] = policy_files
+    summary["policies"] = written
     summary["simulators"] = {cl: {"name": s.name, "fingerprint": s.fingerprint()}
                              for cl, s in zip(result.clusters, result.simulators)}
     write_json_atomic(paths["results"], summary)
-    usp.write_manifest(out, {cl: result.spec.methods for cl in result.clusters}, summary["default_method"],
-                       policy_files)
+    policy_files.write_manifest(out, {cl: result.spec.methods for cl in result.clusters}, summary["default_method"],
+                                written)
     return paths

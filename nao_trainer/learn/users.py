@@ -26,7 +26,13 @@ import numpy as np
 
 from nao_trainer.core import mdp
 from nao_trainer.core.simulation import UserSimulator
+from nao_trainer.core.usermodel import cluster_users, user_models
+from nao_trainer.data import dataset
 from nao_trainer.errors import ConfigError, DataError
+from nao_trainer.learn import artifacts
+from nao_trainer.learn.fit_source import table_provenance
+from nao_trainer.learn.fitting import FitOptions, Turns, fit_cluster
+from nao_trainer.learn.parallel import fan_out
 
 USER_SETS: tuple[str, ...] = ("clusters", "level-only", "sessions")
 
@@ -54,8 +60,6 @@ def level_only(sim: UserSimulator, success: np.ndarray, engagement: np.ndarray, 
 
 def cluster_user_set(models_dir: Path | None = None, variant: str = "clusters") -> list[User]:
     """``clusters`` or ``level-only`` users of a model folder (see the module docstring)."""
-    from nao_trainer.learn import artifacts
-
     manifest = artifacts.load_manifest(models_dir)
     users = []
     for row in manifest.get("clusters", []):
@@ -147,8 +151,6 @@ def hold_out(turns: Any, session: str, k: int, n_init: int, seed: int) -> HeldOu
 
     The one rule of leave-one-session-out: what is fitted never sees the held-out session's turns.
     """
-    from nao_trainer.core.usermodel import cluster_users, user_models
-
     mine = turns.session == session
     rest, own = turns.subset(~mine), turns.subset(mine)
     um = user_models(rest.session, rest.level, rest.success, rest.engagement)
@@ -162,8 +164,6 @@ def hold_out(turns: Any, session: str, k: int, n_init: int, seed: int) -> HeldOu
 
 def _loso_one(turns: Any, session: str, k: int, n_init: int, seed: int) -> User:
     """The user of ``session`` with its training simulator fitted without it (module docstring)."""
-    from nao_trainer.learn.fitting import FitOptions, fit_cluster
-
     split = hold_out(turns, session, k, n_init, seed)
     cid = split.cluster
     members = split.rest.subset(split.labels == cid)
@@ -176,9 +176,6 @@ def _loso_one(turns: Any, session: str, k: int, n_init: int, seed: int) -> User:
 def session_user_set(source: Path, compat: str | None = None, k: int = 3, n_init: int = 50, seed: int = 0,
                      workers: int = 2, backend: str | None = None, limit: int | None = None) -> list[User]:
     """Leave-one-session-out users of a dataset root or turn-table CSV (module docstring)."""
-    from nao_trainer.learn.fitting import Turns
-    from nao_trainer.learn.parallel import fan_out
-
     turns = Turns.from_columns(read_turns(Path(source), compat).columns)
     sessions = sorted(np.unique(turns.session).tolist())
     if len(sessions) < 2 * k + 1:
@@ -190,9 +187,6 @@ def session_user_set(source: Path, compat: str | None = None, k: int = 3, n_init
 
 def read_turns(source: Path, compat: str | None):
     """The turn table of a dataset root (imported through the cache) or of a turn-table CSV."""
-    from nao_trainer.data import dataset
-    from nao_trainer.learn.fit_source import table_provenance
-
     if not source.exists():
         raise ConfigError(f"{source}: no such dataset root or turn table; give --users clusters|level-only|sessions "
                           "or a dataset root")
@@ -205,8 +199,6 @@ def read_turns(source: Path, compat: str | None):
 def load_users(which: str, models_dir: Path | None = None, data: Path | None = None, workers: int = 2,
                backend: str | None = None, seed: int = 0, limit: int | None = None) -> tuple[str, list[User]]:
     """(user-set name, users) for ``--users``: a name of ``USER_SETS`` or a dataset root (sessions)."""
-    from nao_trainer.learn import artifacts
-
     if which in ("clusters", "level-only"):
         return which, cluster_user_set(models_dir, which)
     if which == "sessions":

@@ -1,6 +1,8 @@
 """Figures (matplotlib, imported lazily by the commands that draw)."""
 from __future__ import annotations
 
+from nao_trainer.errors import UserError
+
 PLOTS_HINT = "pip install 'nao-trainer[plots]'"
 
 
@@ -9,8 +11,6 @@ def pyplot():
     try:
         import matplotlib
     except ImportError:
-        from nao_trainer.errors import UserError
-
         raise UserError(f"figures need matplotlib: {PLOTS_HINT}") from None
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

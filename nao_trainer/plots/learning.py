@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from nao_trainer.core import mdp
+from nao_trainer.learn.training import FIGURE7, FIGURE8
 from nao_trainer.plots import pyplot
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -103,7 +104,5 @@ def plot_s0_policies(result: "GridResult", path: Path) -> Path:
 
 def write_figures(result: "GridResult", out_dir: Path) -> dict[str, Path]:
     """Figures 7 and 8 of a training run, next to the files of ``training.write_outputs``."""
-    from nao_trainer.learn.training import FIGURE7, FIGURE8
-
     out = Path(out_dir)
     return {"figure7": plot_learning_curves(result, out / FIGURE7), "figure8": plot_s0_policies(result, out / FIGURE8)}

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from nao_trainer.learn.fit_source import FittedSource
+from nao_trainer.core.usermodel import mds_projection
+from nao_trainer.learn.fit_source import FittedSource, engagement_signals
 from nao_trainer.learn.fitting import FitResult, Turns
 from nao_trainer.plots import pyplot
 
@@ -112,9 +113,6 @@ def plot_all(result: FitResult, turns: Turns, mds: np.ndarray, out_dir: Path,
 
 def draw_fit(fitted: "FittedSource", out_dir: Path) -> list[Path]:
     """The figures of ``nao-trainer fit``: MDS of the user models, example users with their signal."""
-    from nao_trainer.core.usermodel import mds_projection
-    from nao_trainer.learn.fit_source import engagement_signals
-
     result = fitted.result
     mds = mds_projection(result.user_models.features, seed=fitted.seed)
     signal_of = None if fitted.source.is_file() else engagement_signals(fitted.source, fitted.compat)

@@ -24,6 +24,7 @@ from nao_trainer.core.settings import (Rule, SettingError, UnknownKey, build, ch
 from nao_trainer.eeg.settings import EEGSettings
 from nao_trainer.errors import ConfigError
 from nao_trainer.files import PROJECT_ROOT, read_yaml
+from nao_trainer.policies.participant_state import state_file
 from nao_trainer.session import config_rules as rules
 from nao_trainer.session.config_rules import DESKTOP, INPUTS, MOCK, is_robot_address  # noqa: F401 (importable from here)
 
@@ -53,7 +54,13 @@ class StudySection:
 
 @settings
 class ParticipantSection:
-    pseudonym: str = setting(kind=str, check=rules.pseudonym, doc="names the session folder; never a real name")
+    pseudonym: str = setting(kind=str, nullable=True, check=rules.pseudonym,
+                             doc="names the session folder; never a real name; null = entered per session")
+
+    def __post_init__(self) -> None:
+        # "simulated" when none was entered (session.participant refuses that when a person answers)
+        if self.pseudonym is None:
+            object.__setattr__(self, "pseudonym", "simulated")
 
 
 @settings
@@ -138,18 +145,15 @@ class PolicySection:
     learning: bool = setting(kind=bool, doc="learning policies keep learning during the session")
     state_path: str | None = setting(kind=str, nullable=True, check=rules.state_path, doc="where learning state lives")
     guidance: float = setting(kind=NUMBER, min=0, max=10, doc="preference for the supervisor's overrides")
-    # personalised (learn.personalised, docs/personalisation.md)
+    # personalised (policies.personalised, docs/personalisation.md)
     assessment: tuple[int, ...] = setting(kind=list, item=int, check=rules.assessment, doc="levels of the first turns")
     kappa: float = setting(kind=NUMBER, min=0.01, doc="strength of the per-level Beta priors")
     margin: float = setting(kind=NUMBER, min=0, doc="expected-value gain a new policy needs")
 
     def state_file(self, pseudonym: str, output: Path) -> Path | None:
         """Where a learning policy keeps its state across sessions: by default the participant's
-        folder ``<output>/participants/<pseudonym>/policy_state.json``; None = the session folder."""
-        if self.state_path == "{session}":
-            return None
-        template = self.state_path or str(Path("{output}") / "participants" / "{pseudonym}" / "policy_state.json")
-        return Path(template.format(pseudonym=pseudonym, output=output)).expanduser().resolve()
+        folder (``policies.participant_state.state_file``); None = the session folder."""
+        return state_file(self.kind, self.state_path, pseudonym, output)
 
 
 @settings

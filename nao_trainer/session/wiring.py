@@ -24,6 +24,7 @@ from nao_trainer.answers.simulated import SimulatedParticipant, StandInButtons
 from nao_trainer.console.keys import KeyReader
 from nao_trainer.errors import ConfigError, EEGUnavailable, Interrupted, RobotUnavailable, UserError
 from nao_trainer.files import PROJECT_ROOT, write_text_atomic
+from nao_trainer.policies.factory import make_policy
 from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, NullObserver, Policy, Robot,
                                RobotConnectionLost, SessionObserver)
 from nao_trainer.robot.address import redact_url
@@ -32,9 +33,9 @@ from nao_trainer.session.behaviors import Behaviors, load_behaviors
 from nao_trainer.session.check import check_disk, check_eeg, check_robot, plan_from_config
 from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig
 from nao_trainer.session.dialogue import Dialogue, load_dialogue
+from nao_trainer.session.participant import check_pseudonym, session_lock
 from nao_trainer.session.engine import EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session, who_stopped
 from nao_trainer.session.parts import Randomness, Script, SessionPorts
-from nao_trainer.session.policies import make_policy
 from nao_trainer.session.record import SessionRecorder, ensure_output_dir, os_error_in, versions, write_failure
 from nao_trainer.session.resume import Resumption
 from nao_trainer.session.stage import leave_robot_safe
@@ -136,6 +137,7 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
     continues an interrupted session folder instead of creating one.
     """
     progress = None if options.quiet else (progress or sys.stderr)
+    check_pseudonym(config)  # refused in one line when a person answers and nobody entered a pseudonym
     language = config.session.language
     dialogue = load_dialogue(config.session.dialogue_path)
     if dialogue.language != language:
@@ -146,20 +148,20 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
     seed = int(seed) if seed is not None else secrets.randbelow(2**31)
     simulator = build_simulator(config) if config.answers.input == "simulated" else None
     console_bind = _console_bind(config, options)
-    # Loaded once, before the robot moves: a missing or stale policy, or a torn/foreign learning-state
-    # file, is found here. Per participant by default (policy.state_path); "{session}" = the session folder,
-    # bound once the folder exists (_run_wired).
-    policy = make_policy(config.policy.kind, list(config.policy.schedule), config.policy.learning,
-                         config.policy_state_file(), config.policy.guidance, options.fresh_policy,
-                         study=config)
-    if resume is not None:
-        resume.check_policy(policy)  # a tampered learning state is refused before anything is written
-    # Not closed on failure here: closing a learning policy saves it, and nothing is written before the robot answers.
-    ensure_output_dir(config.output_dir())  # an unusable output folder is found before the robot moves
-    preflight(config, progress)  # robot, disk and a required EEG stream, before any session folder exists
-
-    with _signals_as_interrupt():
-        return _run_wired(config, progress, dialogue, behaviors, seed, simulator, policy, options, resume, console_bind)
+    with session_lock(config, progress):  # one session at a time per participant state
+        # Loaded once, before the robot moves: a missing or stale policy, or a torn/foreign learning-state
+        # file, is found here. Per participant by default (policy.state_path); "{session}" = the session folder,
+        # bound once the folder exists (_run_wired).
+        policy = make_policy(config.policy, config.participant.pseudonym, config.output_dir(),
+                             turns=config.session.turns, fresh=options.fresh_policy)
+        if resume is not None:
+            resume.check_policy(policy)  # a tampered learning state is refused before anything is written
+        # Not closed on failure here: closing a learning policy saves it, and nothing is written before the robot answers.
+        ensure_output_dir(config.output_dir())  # an unusable output folder is found before the robot moves
+        preflight(config, progress)  # robot, disk and a required EEG stream, before any session folder exists
+        with _signals_as_interrupt():
+            return _run_wired(config, progress, dialogue, behaviors, seed, simulator, policy, options, resume,
+                              console_bind)
 
 
 def _console_bind(config: StudyConfig, options: RunOptions) -> str | None:
@@ -424,7 +426,7 @@ def _policy_state(policy: Policy, config: StudyConfig, fresh: bool, progress: Te
     """Which learning state the policy starts from (the session logs it as ``policy_state``), None when it does not learn."""
     if not (config.policy.learning and config.policy.kind.startswith("usp:")):
         return None
-    from nao_trainer.learn.usp import LivePolicy
+    from nao_trainer.policies.learned import LivePolicy  # the learning stack is imported only for learned policies
 
     assert isinstance(policy, LivePolicy)
     loaded, target = policy.loaded_from, config.policy_state_file()

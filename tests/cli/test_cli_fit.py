@@ -156,7 +156,7 @@ def test_fit_from_a_table_follows_its_provenance_sidecar(dataset_root, tmp_path_
 def test_a_refit_writes_identical_files_and_the_shipped_policies_still_load(fitted, dataset_root, tmp_path_factory,
                                                                            tmp_path, monkeypatch):
     """Refitting as documented must not invalidate the shipped policies (issue: `make demo` exited 2)."""
-    from nao_trainer.learn import usp
+    from nao_trainer.policies import learned
 
     _, out, _, _ = fitted
     again = tmp_path / "refit"
@@ -166,8 +166,8 @@ def test_a_refit_writes_identical_files_and_the_shipped_policies_still_load(fitt
         assert (again / name).read_bytes() == (out / name).read_bytes(), name
     monkeypatch.setenv(artifacts.MODELS_ENV, str(again))
     for cluster in ("1", "2", "3"):
-        for method in usp.METHODS:
-            policy = usp.load_policy(f"usp:{cluster}:{method}", learning=False, state_path=None)
+        for method in learned.METHODS:
+            policy = learned.load_policy(f"usp:{cluster}:{method}", learning=False, state_path=None)
             policy.close()
     shipped = artifacts.load_simulator("2", artifacts.DEFAULT_MODELS_DIR)
     assert artifacts.load_simulator("2", again).fingerprint() == shipped.fingerprint()

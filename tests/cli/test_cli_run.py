@@ -105,7 +105,7 @@ def test_keyboard_answers_end_to_end(tmp_path):
     """A person typing: the right answer (after keys typed too early), a wrong one with an invalid key,
     one key too many, and no answer at all."""
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", "--input", "keyboard", "--turns", "4",
+    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", "--input", "keyboard", "--pseudonym", "P1", "--turns", "4",
                              "--speed", "20", "--no-practice", "--out", str(out), "--seed", "4", "--eeg", "off"],
                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=dict(os.environ, QI_LOG_LEVEL="silent"))
@@ -161,7 +161,7 @@ def test_naoqi_29_credentials_come_from_the_environment_and_stay_out_of_files(tm
     env = {k: v for k, v in os.environ.items() if k not in ("NAO_USER", "NAO_PASSWORD")}
     env["QI_LOG_LEVEL"] = "silent"
     base = [sys.executable, "-m", "nao_trainer", "run", "--config", DEFAULT_STUDY, "--robot", f"tcps://127.0.0.1:{port}",
-            "--out", str(tmp_path / "a")]
+            "--out", str(tmp_path / "a"), "--pseudonym", "P1"]
     res = subprocess.run(base, capture_output=True, text=True, env=env, timeout=60)
     assert res.returncode == 2 and "NAO_USER" in res.stderr and "NAO_PASSWORD" in res.stderr
     secret = "pw-0f9e8d7c"
@@ -185,7 +185,7 @@ def test_tactile_answers_from_any_naoqi_endpoint(tmp_path):
 
     robot, url = spawn_standin(speed=20)
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", "--config", DEFAULT_STUDY, "--robot", url, "--input", "tactile",
+    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", "--config", DEFAULT_STUDY, "--robot", url, "--input", "tactile", "--pseudonym", "P1",
                              "--turns", "2", "--speed", "20", "--no-practice", "--out", str(out), "--seed", "8"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=dict(os.environ, QI_LOG_LEVEL="silent"))
@@ -238,7 +238,7 @@ def test_an_output_folder_that_cannot_be_created_is_one_line_before_the_robot_co
     blocker = tmp_path / "a_file"
     blocker.write_text("not a folder")
     res = cli("--config", DEFAULT_STUDY, "--out", str(blocker / "sub"), "--turns", "2", "--speed", "50",
-              "--robot", "tcp://127.0.0.1:1")
+              "--robot", "tcp://127.0.0.1:1", "--pseudonym", "P1")
     assert res.returncode == 2, res.stderr
     assert res.stderr.strip() == (f"nao-trainer run: error: session.output: cannot create the folder {blocker / 'sub'} "
                                   "(Not a directory); point session.output (or --out) at a folder you can write to")

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nao_trainer.core import assessment, evaluation, mdp, mdps, posterior
+from nao_trainer.core import assessment, evaluation, mdp, processes, posterior
 
 
 def level_only(rates):
@@ -31,8 +31,8 @@ def test_value_tables_equal_exact_evaluation_from_the_start():
     table /= table.sum(axis=1, keepdims=True)
     v, n = assessment.value_tables(table, p, 25)
     out = evaluation.evaluate(table, p, e, 25)
-    assert v[25, mdps.START_FULL] == pytest.approx(out.score, abs=1e-9)
-    assert n[25, mdps.START_FULL] == pytest.approx(out.visits, abs=1e-9)
+    assert v[25, processes.START_FULL] == pytest.approx(out.score, abs=1e-9)
+    assert n[25, processes.START_FULL] == pytest.approx(out.visits, abs=1e-9)
     assert np.allclose(n[7].sum(axis=1), 7.0)
     # From a later state: a fixed level on a level-only user is r turns of (level + 1) p - 1.
     pl, _ = level_only([0.9, 0.8, 0.5, 0.3])
@@ -89,7 +89,7 @@ def test_anti_flip_flop_margin():
 def test_assessment_turns_follow_the_schedule_then_the_choice():
     models, cands = hand_built()
     pol = assessment.Personaliser(models, cands, schedule=(2, 3, 4), kappa=10.0, turns=25)
-    pol.reset(5, mdps.get("paper"))
+    pol.reset(5, processes.get("paper"))
     rng = np.random.default_rng(1)
     obs = np.full(5, mdp.START)
     assert list(pol.act(obs, 0, rng)) == [1] * 5 and list(pol.act(obs, 2, rng)) == [3] * 5

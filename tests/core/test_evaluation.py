@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nao_trainer.core import baselines, evaluation, mdp, mdps
+from nao_trainer.core import baselines, evaluation, mdp, processes
 from nao_trainer.core.qlearning import QLearner, expected_scores
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.learn import artifacts
@@ -57,7 +57,7 @@ def test_the_informed_optimum_uses_the_last_outcome_by_hand():
 
 def test_the_optimum_policy_evaluates_to_its_value_in_both_processes():
     p, e = _informed_case()
-    for proc in mdps.NAMES:
+    for proc in processes.NAMES:
         opt = evaluation.optimal(p, 2, proc)
         assert evaluation.evaluate(opt.policy, p, e, 2, proc).score == pytest.approx(opt.value)
 
@@ -84,12 +84,12 @@ def test_optimum_equals_the_existing_dynamic_programme_and_bounds_every_policy(s
 
 def _learner(process: str, seed: int = 0) -> QLearner:
     rng = np.random.default_rng(seed)
-    n = mdps.get(process).n_states
+    n = processes.get(process).n_states
     return QLearner("qaug", q=rng.normal(0, 1, (n, 6)), h=rng.uniform(0, 1, (n, 6)),
                     h_counts=np.ones((n, 6), dtype=np.int64), visits=rng.integers(0, 400, n), process=process)
 
 
-@pytest.mark.parametrize("process", mdps.NAMES)
+@pytest.mark.parametrize("process", processes.NAMES)
 def test_monte_carlo_agrees_with_the_exact_values(shipped, process):
     sim = shipped[1]
     for table in (evaluation.uniform_policy(process), baselines.learner_table(_learner(process), process)):
@@ -103,7 +103,7 @@ def test_monte_carlo_agrees_with_the_exact_values(shipped, process):
 
 def test_a_1u1d_staircase_in_the_informed_mdp_matches_its_exact_table(shipped):
     """With the outcome in the state, 1-up/1-down is stationary: Monte Carlo must agree with exact."""
-    proc = mdps.get("informed")
+    proc = processes.get("informed")
     table = np.zeros((proc.n_states, 6))
     table[proc.start, 2 - 1] = 1.0
     for x in range(proc.n_states - 1):
@@ -145,13 +145,13 @@ def test_tables_that_do_not_fit_the_process_are_refused():
     with pytest.raises(ValueError, match="not allowed"):
         evaluation.evaluate(bad, p, e)
     with pytest.raises(ValueError, match="must be one of paper, informed"):
-        mdps.get("pomdp")
+        processes.get("pomdp")
     with pytest.raises(ValueError, match="learner has 109 states"):
         baselines.learner_table(_learner("paper"), "informed")
 
 
 def test_one_simulator_fits_both_processes():
     sim = UserSimulator.from_level_rates("x", [0.9, 0.8, 0.5, 0.2])
-    for proc in mdps.NAMES:
+    for proc in processes.NAMES:
         out = evaluation.evaluate(evaluation.fixed_level_policy(2, proc), sim.p_success, sim.engagement, 25, proc)
         assert out.score == pytest.approx(25 * (0.8 * 2 - 0.2))

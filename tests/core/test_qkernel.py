@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nao_trainer.core import mdp, mdps
+from nao_trainer.core import mdp, processes
 from nao_trainer.core.batch import BatchLearner
 from nao_trainer.core.qlearning import METHODS, QConfig, QLearner
 from nao_trainer.core.simulation import UserSimulator
@@ -21,7 +21,7 @@ def _users():
     return np.repeat(p, 3, axis=0), np.repeat(e, 3, axis=0), list(METHODS) * 2
 
 
-@pytest.mark.parametrize("process", mdps.NAMES)
+@pytest.mark.parametrize("process", processes.NAMES)
 def test_compiled_kernel_is_bit_identical_to_numpy(process):
     p, e, methods = _users()
     cfg = QConfig(n_half=20.0)  # cools fast: many near-deterministic choices, the hard case for equality
@@ -30,12 +30,12 @@ def test_compiled_kernel_is_bit_identical_to_numpy(process):
             for engine in ("numpy", "numba")]
     for key in ("q", "h", "h_counts", "visits", "episode_score", "episode_engagement"):
         assert np.array_equal(getattr(runs[0], key), getattr(runs[1], key)), key
-    assert runs[0].q.shape == (6, mdps.get(process).n_states, 6)
+    assert runs[0].q.shape == (6, processes.get(process).n_states, 6)
 
 
 def test_informed_batch_equals_a_single_agent_step_by_step():
     p, e, methods = _users()
-    proc = mdps.get("informed")
+    proc = processes.get("informed")
     episodes, turns = 60, 25
     res = BatchLearner(p[:3], e[:3], methods[:3], process="informed", engine="numba").run(
         episodes, turns, [np.random.default_rng(i) for i in range(3)])
@@ -46,7 +46,7 @@ def test_informed_batch_equals_a_single_agent_step_by_step():
             x = proc.start
             for t in range(turns):
                 a = ql.choose(x, u[k, t, 0])
-                s2 = int(mdps.NEXT_TURN[x, a])
+                s2 = int(processes.NEXT_TURN[x, a])
                 o2 = int(u[k, t, 1] < p[i, s2])
                 x2 = 2 * s2 + o2
                 ql.update(x, a, float(mdp.SCORE[s2, o2]), e[i, s2, o2], x2,

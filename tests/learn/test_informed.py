@@ -4,10 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nao_trainer.core import mdp, mdps
+from nao_trainer.core import mdp, processes
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import DataError
-from nao_trainer.learn import usp
+from nao_trainer.learn import policy_files
+from nao_trainer.policies import learned
 from nao_trainer.learn.training import TrainingSpec, train_grid
 
 
@@ -22,7 +23,7 @@ def test_gym_env_shows_the_outcome_in_the_informed_state():
     check_env(env, skip_render_check=True)
     assert env.observation_space.n == 217
     obs, info = env.reset(seed=1)
-    assert obs == mdps.START_FULL and not info["action_mask"][4:].any()
+    assert obs == processes.START_FULL and not info["action_mask"][4:].any()
     for a in (1, 4, 0, 5, 3, 2):
         obs, r, *_, info = env.step(a)
         assert obs % 2 == int(info["success"]) and mdp.LEVEL[obs // 2] == info["level"]
@@ -50,24 +51,24 @@ def informed_policies(tmp_path_factory):
 
 def test_informed_policy_files_record_their_mdp_and_load_back(informed_policies):
     out, result = informed_policies
-    path = out / usp.policy_filename("1", "qaug")
-    payload = usp.read_policy_file(path, "informed")
-    assert payload["mdp_definition"] == mdps.INFORMED_DEFINITION and len(payload["states"]) == 217
-    learner = usp.learner_from_payload(payload, path)
+    path = out / policy_files.policy_filename("1", "qaug")
+    payload = policy_files.read_policy_file(path, "informed")
+    assert payload["mdp_definition"] == processes.INFORMED_DEFINITION and len(payload["states"]) == 217
+    learner = policy_files.learner_from_payload(payload, path)
     assert learner.process == "informed" and learner.q.shape == (217, 6)
     assert result.q.shape[-2:] == (217, 6)
 
 
 def test_an_informed_policy_is_refused_by_the_paper_mdp_and_the_live_session(informed_policies):
     out, _ = informed_policies
-    path = out / usp.policy_filename("1", "performance")
+    path = out / policy_files.policy_filename("1", "performance")
     with pytest.raises(DataError, match="made for the informed MDP, not the paper MDP"):
-        usp.read_policy_file(path)
+        policy_files.read_policy_file(path)
     with pytest.raises(DataError, match="made for the informed MDP") as exc:
-        usp.load_policy("usp:1:performance", learning=False, state_path=None, policies_dir=out)
+        learned.load_policy("usp:1:performance", learning=False, state_path=None, policies_dir=out)
     assert "\n" not in str(exc.value)
     with pytest.raises(DataError, match="made for the paper MDP, not the informed MDP"):
-        usp.read_policy_file(usp.default_policies_dir() / usp.policy_filename("1", "qaug"), "informed")
+        policy_files.read_policy_file(policy_files.default_policies_dir() / policy_files.policy_filename("1", "qaug"), "informed")
 
 
 def test_training_rejects_an_unknown_mdp():
@@ -79,4 +80,4 @@ def test_training_rejects_an_unknown_mdp():
 def test_the_commands_list_the_same_mdps_as_the_core():
     from nao_trainer.cli import evaluate, sweep, train  # noqa: F401 - the parsers' choices
 
-    assert evaluate.MDPS == sweep.MDPS == mdps.NAMES
+    assert evaluate.MDPS == sweep.MDPS == processes.NAMES

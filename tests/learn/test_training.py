@@ -10,7 +10,7 @@ import pytest
 
 from nao_trainer.learn import artifacts
 
-from nao_trainer.learn import usp
+from nao_trainer.learn import policy_files
 from nao_trainer.cli import main
 from nao_trainer.core import mdp
 from nao_trainer.core.simulation import UserSimulator
@@ -126,13 +126,13 @@ def test_write_outputs(small_run, tmp_path):
     assert float(s0[0]["s0_visits_mean"]) == pytest.approx(s0_visits, abs=0.05)
     summary = json.loads(paths["results"].read_text())
     assert set(summary["default_method"]) == {"1", "2"}
-    manifest = usp.read_manifest(tmp_path)
+    manifest = policy_files.read_manifest(tmp_path)
     for name in manifest["files"].values():
-        payload = usp.read_policy_file(tmp_path / name)
+        payload = policy_files.read_policy_file(tmp_path / name)
         assert payload["simulator"]["fingerprint"] in {s.fingerprint() for s in simulators()}
     # The shipped file is the representative seed's learner.
     k = small_run.representative_seed(1, 2)
-    payload = usp.read_policy_file(tmp_path / usp.policy_filename("2", "qaug"))
+    payload = policy_files.read_policy_file(tmp_path / policy_files.policy_filename("2", "qaug"))
     assert np.array_equal(np.array(payload["q"]), small_run.q[1, 2, k])
     assert payload["training"]["seed_index"] == k
 

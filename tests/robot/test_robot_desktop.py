@@ -94,7 +94,7 @@ def test_audio_output_choice(monkeypatch):
 def test_a_person_plays_a_session_on_the_keyboard_with_the_desktop_robot(tmp_path):
     """Prompt at the beep, keys echoed, practice result shown; every utterance and beep kept as WAV."""
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", "--robot", "desktop", "--input", "keyboard",
+    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", "--robot", "desktop", "--input", "keyboard", "--pseudonym", "P1",
                              "--turns", "1", "--speed", "10", "--eeg", "off", "--policy", "schedule", "--out", str(out),
                              "--seed", "3"],
                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -153,7 +153,7 @@ def test_a_person_plays_a_session_on_the_keyboard_with_the_desktop_robot(tmp_pat
 
 
 def test_desktop_refuses_head_button_answers(tmp_path):
-    res = subprocess.run([sys.executable, "-m", "nao_trainer", "run", "--robot", "desktop", "--input", "tactile",
+    res = subprocess.run([sys.executable, "-m", "nao_trainer", "run", "--robot", "desktop", "--input", "tactile", "--pseudonym", "P1",
                           "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=60)
     assert res.returncode == 2 and "--robot desktop has no head buttons" in res.stderr
     assert "Traceback" not in res.stderr and not list((tmp_path / "out").glob("*"))  # no session folder

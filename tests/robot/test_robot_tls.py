@@ -64,7 +64,7 @@ def test_a_session_runs_over_tls_from_the_command_line(tls, tmp_path):
     env = dict(os.environ, NAO_USER=USER, NAO_PASSWORD=PASSWORD, QI_LOG_LEVEL="silent")
     study = str(PROJECT_ROOT / "config" / "default.yaml")  # a robot address needs a study (never the demo)
     res = subprocess.run([sys.executable, "-m", "nao_trainer", "run", "--config", study, "--robot", proxy.url, "--turns", "2",
-                          "--speed", "50", "--eeg", "off", "--policy", "schedule", "--input", "simulated",
+                          "--speed", "50", "--eeg", "off", "--policy", "schedule", "--input", "simulated", "--pseudonym", "P1",
                           "--out", str(out), "--seed", "1"], capture_output=True, text=True, env=env, timeout=120)
     assert res.returncode == 0, res.stderr
     (folder,) = out.glob("*")

@@ -19,7 +19,7 @@ from nao_trainer.session.dialogue import load_dialogue
 from nao_trainer.session.engine import EXIT_OK, EXIT_OPERATOR_STOP, Session
 from nao_trainer.session.parts import Randomness, Script, SessionPorts
 from nao_trainer.session.machine import TRANSITIONS
-from nao_trainer.session.policies import FixedSchedule
+from nao_trainer.policies.fixed import FixedSchedule
 from nao_trainer.session.record import SessionRecorder, read_events, read_turns
 
 PAUSE_LINE = "Sorry, I need a short break. Please wait a moment."

@@ -127,7 +127,7 @@ def outcome(path: Path, out: Path) -> tuple[str, int, str]:
     try:
         with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
             code = main(["run", "--config", str(path), "--robot", "tcp://127.0.0.1:1", "--turns", "1",
-                         "--out", str(out), "--quiet"])
+                         "--out", str(out), "--quiet", "--pseudonym", "P1"])
     except BaseException:  # noqa: BLE001 - what the fuzz looks for
         return "traceback", -1, traceback.format_exc()
     text = err.getvalue().strip()

@@ -15,8 +15,8 @@ from nao_trainer.session.behaviors import load_behaviors
 from nao_trainer.session.config import load_config
 from nao_trainer.session.dialogue import load_dialogue
 from nao_trainer.session.engine import EXIT_INTERRUPTED, EXIT_OK, EXIT_ROBOT_LOST, Session
+from nao_trainer.policies.fixed import FixedSchedule
 from nao_trainer.session.parts import Randomness, Script, SessionPorts
-from nao_trainer.session.policies import FixedSchedule
 from nao_trainer.session.record import SessionRecorder, read_events, read_turns
 
 

@@ -5,7 +5,7 @@ import numpy as np
 
 from fakes import ScriptedAnswers
 from nao_trainer.core import mdp
-from nao_trainer.learn.usp import load_policy
+from nao_trainer.policies.learned import load_policy
 from nao_trainer.ports import Transition
 from nao_trainer.session.record import read_turns
 from test_commands import make, run
@@ -53,7 +53,7 @@ def test_an_override_is_executed_and_learned_off_policy_and_guidance_is_saved(tm
     assert policy.learner.q[mdp.START, L4] != q_before  # the update used the overridden action
     policy.close()
     again = load_policy("usp:2", True, tmp_path / "state.json", guidance=1.0)
-    assert again.guided[mdp.START, L4] == 1 and margin(again.choice_values(mdp.START), L4, mdp.START) >= 1.0
+    assert again.guidance.counts[mdp.START, L4] == 1 and margin(again.choice_values(mdp.START), L4, mdp.START) >= 1.0
 
 
 def test_a_turn_marked_invalid_leaves_the_learner_unchanged(tmp_path):

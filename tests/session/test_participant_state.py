@@ -80,7 +80,7 @@ def test_corrupt_or_foreign_state_is_refused_in_one_line(tmp_path):
     lines = res.stderr.strip().splitlines()
     assert res.returncode == 2 and len(lines) == 1 and str(state) in lines[0] and "Traceback" not in res.stderr
     # the state of another policy (cluster 1) under this participant
-    from nao_trainer.learn.usp import DEFAULT_POLICIES_DIR, policy_filename
+    from nao_trainer.learn.policy_files import DEFAULT_POLICIES_DIR, policy_filename
 
     state.write_text((DEFAULT_POLICIES_DIR / policy_filename("1", "performance")).read_text())
     res = cli("--out", str(out), "--pseudonym", "P7", "--turns", "2", "--speed", "50", "--eeg", "off",

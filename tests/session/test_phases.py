@@ -13,7 +13,7 @@ from nao_trainer.session.config import load_config
 from nao_trainer.session.dialogue import load_dialogue
 from nao_trainer.session.engine import Session
 from nao_trainer.session.parts import Randomness, Script, SessionPorts
-from nao_trainer.session.policies import FixedSchedule
+from nao_trainer.policies.fixed import FixedSchedule
 from nao_trainer.session.record import SessionRecorder, read_events
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nao_trainer.session.policies import StatelessPolicy
+from nao_trainer.policies.base import StatelessPolicy
 from nao_trainer.session import engine as sess
 from nao_trainer.session import machine
 from nao_trainer.session.parts import Randomness, Script, SessionPorts
@@ -18,7 +18,7 @@ from nao_trainer.core import mdp, task
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.session.dialogue import load_dialogue
 from nao_trainer.answers.simulated import SimulatedParticipant
-from nao_trainer.session.policies import FixedSchedule, UniformRandom
+from nao_trainer.policies.fixed import FixedSchedule, UniformRandom
 from nao_trainer.session.record import SessionRecorder, read_events, read_turns
 
 

@@ -20,7 +20,8 @@ from nao_trainer.robot.standin import spawn_standin
 
 def run_cli(*args: str) -> subprocess.Popen:
     env = dict(os.environ, QI_LOG_LEVEL="silent", PYTHONUNBUFFERED="1")
-    return subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", *args], stdout=subprocess.PIPE,
+    pseudonym = () if "--pseudonym" in args else ("--pseudonym", "P1")  # a robot address needs an entered one
+    return subprocess.Popen([sys.executable, "-m", "nao_trainer", "run", *args, *pseudonym], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env)
 
 

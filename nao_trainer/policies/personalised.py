@@ -14,13 +14,11 @@ per-level counts, the learners' tables and one line per session. A returning par
 from it and skips the assessment (the carried-over posterior already holds it). The file is
 refused in one line when it was made for another MDP, with other user models or policies
 (fingerprint), or is torn; ``--fresh-policy`` keeps the old file as ``personalised.json.replaced-<time>``
-and starts from the prior. Nothing is reset silently.
+(``policies.base.set_aside``) and starts from the prior. Nothing is reset silently.
 """
 from __future__ import annotations
 
 import hashlib
-import os
-import sys
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Sequence
@@ -28,20 +26,26 @@ from typing import Any, Sequence
 import numpy as np
 
 from nao_trainer.core import assessment, baselines, evaluation, mdp
+from nao_trainer.core.assessment import Choice
 from nao_trainer.core.posterior import ModelSet
 from nao_trainer.core.qlearning import QLearner
 from nao_trainer.errors import DataError
 from nao_trainer.files import JsonFormat
+from nao_trainer.learn import artifacts, policy_files
+from nao_trainer.policies.base import Guidance, log
+from nao_trainer.policies.participant_state import session_state_file, set_aside, state_file
 from nao_trainer.ports import Transition
 
 FRESH = "start afresh with --fresh-policy (the old file is kept beside it)"
 PARTICIPANT_FILE = JsonFormat("nao-trainer/participant-personalisation", 1, "participant personalisation state",
                               "participant state", FRESH)
-FILENAME = "personalised.json"
 
 
 def participant_file(output: Path, pseudonym: str) -> Path:
-    return Path(output) / "participants" / pseudonym / FILENAME
+    """The participant's state file by default (``policies.base.state_file``)."""
+    path = state_file("personalised", None, pseudonym, output)
+    assert path is not None
+    return path
 
 
 def models_fingerprint(models: ModelSet, fingerprints: Sequence[str], policy_digests: Sequence[str]) -> str:
@@ -59,23 +63,25 @@ class PersonalisedPolicy:
 
     def __init__(self, models: ModelSet, learners: list[tuple[str, QLearner]], fingerprint: str, path: Path | None,
                  turns: int, schedule: tuple[int, ...], kappa: float, margin: float, learning: bool,
-                 saved: dict[str, Any] | None = None, use_engagement: bool = False, guidance: float = 0.0) -> None:
+                 saved: dict[str, Any] | None = None, use_engagement: bool = False, guidance: float = 0.0,
+                 pseudonym: str | None = None) -> None:
         self.models = models
+        self.pseudonym = pseudonym  # whose state this is (stored in the file; another participant's is refused)
         self.learners = learners
         self.fingerprint = fingerprint
         self.path = Path(path) if path is not None else None  # None: the session folder, once it exists
-        self.guided = np.zeros((mdp.N_STATES, mdp.N_ACTIONS), dtype=np.int64)
         self.learning = learning
         self.use_engagement = use_engagement
-        self.guidance = float(guidance)
         self.saved = saved or {}
+        self.guidance = Guidance(guidance, self.saved.get("guided"))
         history = list(self.saved.get("sessions", []))
         if history:  # a returning participant: the posterior carried over already holds an assessment
             schedule = ()
         cands = [assessment.Candidate(f"usp:{c}", baselines.learner_table(lr)) for c, lr in learners]
         cands += [assessment.Candidate(f"fixed:{lv}", evaluation.fixed_level_policy(lv)) for lv in (1, 2, 3, 4)]
         self.pers = assessment.Personaliser(
-            models, cands, schedule, kappa, margin, turns, "ev", tuple(range(len(learners))), "paper",
+            models, cands, schedule, kappa, margin, turns, mode=Choice.EXPECTED_VALUE,
+            own_policy=tuple(range(len(learners))), process="paper",
             start_log_w=self.saved.get("log_w"), start_wins=self.saved.get("wins"),
             start_turns=self.saved.get("played"), start_map_log_w=self.saved.get("map_log_w"))
         self.history = history
@@ -89,22 +95,18 @@ class PersonalisedPolicy:
 
     def act(self, state: int, rng: np.random.Generator) -> int:
         self.last_action_phase = "assessment" if self.pers.in_assessment(self.turn) else "personalised"
-        self.pers.bonus = self.guidance_bonus(state)
-        return int(self.pers.act(np.array([state]), self.turn, rng)[0])
+        return int(self.pers.act(np.array([state]), self.turn, rng, bonus=self.guidance_bonus(state))[0])
 
     def guidance_bonus(self, state: int) -> np.ndarray | None:
-        """(1, C): the supervisor's overrides in ``state`` as extra value for the candidates that play them.
-
-        ``G_c = guidance * sum_a pi_c(a | s) n(s, a) / n(s) * (spread of the candidates' values + 1)``,
-        the rule of the learning policies (``learn.usp``): with guidance 1 a candidate that always
-        plays the action the supervisor always chose here is preferred; 0 turns it off.
-        """
-        n = self.guided[state]
-        if not (self.guidance and n.sum()):
+        """(1, C): the supervisor's overrides in ``state`` as extra value for the candidates that play them
+        (the rule of ``policies.base``, per candidate over the candidates' expected values): with
+        guidance 1 a candidate that always plays the action the supervisor always chose here is
+        preferred; 0 turns it off."""
+        if not self.guidance.active(state):
             return None
-        share = np.array([c.table[state] @ n for c in self.pers.candidates]) / n.sum()
-        ev = self.pers.expected_values(self.turn)[0]
-        return (self.guidance * share * (ev.max() - ev.min() + 1.0))[None]
+        bonus = self.guidance.bonus(state, self.pers.expected_values(self.turn)[0],
+                                    [c.table[state] for c in self.pers.candidates])
+        return None if bonus is None else bonus[None]
 
     def observe(self, transition: Transition) -> None:
         if self._closed:
@@ -122,7 +124,7 @@ class PersonalisedPolicy:
     def bind_state_dir(self, folder: Path) -> None:
         self.session_dir = Path(folder)  # named in the participant's session history
         if self.path is None:  # policy.state_path "{session}": nothing carried over, saved with the session
-            self.path = self.session_dir / FILENAME
+            self.path = session_state_file(self.name, self.session_dir)
 
     def probabilities(self, state: int) -> np.ndarray | None:
         """P(a | state) of the next choice: the assessment's level, else the followed candidate's."""
@@ -140,32 +142,28 @@ class PersonalisedPolicy:
         turned into extra value for the candidates that play it (``guidance_bonus``); the candidate
         learners learn the overridden turn in ``observe`` like any other (off-policy)."""
         if self.learning:
-            self.guided[state, action] += 1
+            self.guidance.record(state, action)
 
     def snapshot(self) -> dict | None:
         """The whole state (a session checkpoint carries it; ``restore`` goes back to it)."""
-        return {**self.payload(), "turn": self.turn, "current": int(self.pers.current[0]),
-                "switches": int(self.pers.switches[0]), "full": int(self.pers.full[0]),
-                "schedule": list(self.pers.schedule), "history": self.history, "started": self.started}
+        pers = self.pers.snapshot()
+        return {**self.payload(), "turn": self.turn, **{k: pers[k] for k in ("current", "switches", "full", "schedule")},
+                "history": self.history, "started": self.started}
 
     def restore(self, data: dict | None) -> None:
         if not data:
             return
-        p = self.pers
-        p.log_w[0] = data["log_w"]
-        p.map_log_w[0] = data["map_log_w"]
-        p.wins[0], p.played[0] = data["wins"], data["played"]
-        p.current[0], p.switches[0], p.full[0] = data["current"], data["switches"], data["full"]
-        self.turn = p.turn = int(data["turn"])
         # this session's own assessment and the sessions before it (the participant file already
         # holds the interrupted session itself, which is not a previous one)
-        p.schedule = tuple(int(x) for x in data["schedule"])
+        self.pers.restore(data)
+        self.turn = self.pers.turn
         self.history = list(data["history"])
         self.started = str(data["started"])
-        self.guided = np.array(data.get("guided", self.guided.tolist()), dtype=np.int64)
+        if "guided" in data:
+            self.guidance.counts = np.array(data["guided"], dtype=np.int64)
         restore_learners(self.learners, data["learners"], self.path or Path("checkpoint"))
         for i, (_c, learner) in enumerate(self.learners):
-            p.set_candidate_table(i, baselines.learner_table(learner))
+            self.pers.set_candidate_table(i, baselines.learner_table(learner))
 
     def close(self) -> None:
         if not self._closed:
@@ -199,18 +197,17 @@ class PersonalisedPolicy:
 
     def payload(self) -> dict[str, Any]:
         p = self.pers
+        pers = p.snapshot()
         entry = {"started": self.started, "session": str(self.session_dir) if self.session_dir else None,
                  "turns": self.turn, "assessment": len(p.schedule), **{k: v for k, v in self.status().items()
                                                                        if k in ("matched", "match_probability",
                                                                                 "following", "switches")}}
         return {
-            "mdp_definition": mdp.DEFINITION, "models_fingerprint": self.fingerprint,
+            "pseudonym": self.pseudonym, "mdp_definition": mdp.DEFINITION, "models_fingerprint": self.fingerprint,
             "models": list(self.models.names), "kappa": p.kappa, "margin": p.margin,
-            "log_w": p.log_w[0].tolist(), "map_log_w": p.map_log_w[0].tolist(),
-            "wins": p.wins[0].tolist(), "played": p.played[0].tolist(),
-            "learners": {c: {"q": lr.q.tolist(), "h": lr.h.tolist(), "h_counts": lr.h_counts.tolist(),
-                             "visits": lr.visits.tolist()} for c, lr in self.learners},
-            "sessions": self.history + [entry], "guided": self.guided.tolist(),
+            **{k: pers[k] for k in ("log_w", "map_log_w", "wins", "played")},
+            "learners": {c: lr.state_dict() for c, lr in self.learners},
+            "sessions": self.history + [entry], "guided": self.guidance.counts.tolist(),
             "updated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         }
 
@@ -225,9 +222,14 @@ class PersonalisedPolicy:
                             "make session.output writable") from None
 
 
-def read_state(path: Path, fingerprint: str) -> dict[str, Any]:
-    """A participant's saved state, checked; DataError in one line otherwise (module docstring)."""
+def read_state(path: Path, fingerprint: str, pseudonym: str | None = None) -> dict[str, Any]:
+    """A participant's saved state, checked; DataError in one line otherwise (module docstring).
+    A state that names another participant than ``pseudonym`` is refused (a file copied between folders)."""
     saved = PARTICIPANT_FILE.read(path, DataError)
+    owner = saved.get("pseudonym")
+    if pseudonym is not None and owner is not None and owner != pseudonym:
+        raise DataError(f"{path}: the participant state of {owner!r}, not of {pseudonym!r} (copied from another "
+                        f"participant's folder?); {FRESH}")
     if saved.get("mdp_definition") != mdp.DEFINITION:
         raise DataError(f"{path}: participant state made for another MDP ({str(saved.get('mdp_definition'))[:40]}...); "
                         f"{FRESH}")
@@ -241,18 +243,6 @@ def read_state(path: Path, fingerprint: str) -> dict[str, Any]:
     return saved
 
 
-def set_aside(path: Path) -> Path:
-    """``--fresh-policy``: keep the old file as ``<name>.replaced-<time>`` (never deleted)."""
-    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    target = path.with_name(f"{path.name}.replaced-{stamp}")
-    n = 2
-    while target.exists():
-        target = path.with_name(f"{path.name}.replaced-{stamp}_{n}")
-        n += 1
-    os.replace(path, target)
-    return target
-
-
 def restore_learners(learners: list[tuple[str, QLearner]], tables: dict[str, Any], path: Path) -> None:
     """Put saved tables back into the candidate learners; DataError naming ``path`` when they do not fit."""
     for cid, learner in learners:
@@ -260,11 +250,7 @@ def restore_learners(learners: list[tuple[str, QLearner]], tables: dict[str, Any
         if saved is None:
             raise DataError(f"{path}: participant state lacks the learner of cluster {cid}; {FRESH}")
         try:
-            for key, dtype in (("q", float), ("h", float), ("h_counts", np.int64), ("visits", np.int64)):
-                value = np.array(saved[key], dtype=dtype)
-                if value.shape != getattr(learner, key).shape:
-                    raise ValueError(f"{key} has shape {value.shape}")
-                setattr(learner, key, value)
+            learner.load_state_dict(saved)
         except (KeyError, TypeError, ValueError) as exc:
             raise DataError(f"{path}: invalid learner tables of cluster {cid} ({exc}); {FRESH}") from None
 
@@ -277,8 +263,6 @@ def load_personalised(path: Path | None, pseudonym: str, turns: int, schedule: S
     participant's saved state at ``path`` (None: kept in the session folder, nothing carried over);
     see the module docstring. ``guidance``: how much the supervisor's overrides weigh in the choice
     (``PersonalisedPolicy.guidance_bonus``)."""
-    from nao_trainer.learn import artifacts, usp
-
     manifest = artifacts.load_manifest(models_dir)
     rows = manifest.get("clusters", [])
     if not rows:
@@ -288,18 +272,18 @@ def load_personalised(path: Path | None, pseudonym: str, turns: int, schedule: S
     models = ModelSet(tuple(s.name for s in sims), np.stack([s.p_success for s in sims]),
                       np.stack([s.engagement for s in sims]), sizes,
                       np.array([float(r.get("rmse_engagement") or 0.13) for r in rows]) if use_engagement else None)
-    folder = Path(policies_dir) if policies_dir else usp.default_policies_dir()
-    pman = usp.read_manifest(folder)
+    folder = Path(policies_dir) if policies_dir else policy_files.default_policies_dir()
+    pman = policy_files.read_manifest(folder)
     learners, digests = [], []
     for r, sim in zip(rows, sims):
         cid = str(r["id"])
         method = pman.get("default_method", {}).get(cid)
         if method is None:
             raise DataError(f"{folder}: no trained policy for cluster {cid}; train with `nao-trainer train --out {folder}`")
-        policy_path = folder / usp.policy_filename(cid, method)
-        payload = usp.read_policy_file(policy_path)
-        usp.check_simulator(payload, sim, policy_path)
-        learners.append((cid, usp.learner_from_payload(payload, policy_path)))
+        policy_path = folder / policy_files.policy_filename(cid, method)
+        payload = policy_files.read_policy_file(policy_path)
+        policy_files.check_simulator(payload, sim, policy_path)
+        learners.append((cid, policy_files.learner_from_payload(payload, policy_path)))
         digests.append(f"{cid}:{method}:{payload['simulator']['fingerprint']}")
     fingerprint = models_fingerprint(models, [s.fingerprint() for s in sims], digests)
     saved = None
@@ -307,15 +291,11 @@ def load_personalised(path: Path | None, pseudonym: str, turns: int, schedule: S
         path = Path(path)
         if fresh:
             kept = set_aside(path)
-            print(f"policy personalised: starting fresh from the prior; the previous state was moved to {kept}",
-                  file=sys.stderr)
+            log.warning("policy personalised: starting fresh from the prior; the previous state was moved to %s", kept)
         else:
-            saved = read_state(path, fingerprint)
+            saved = read_state(path, fingerprint, pseudonym)
             restore_learners(learners, saved["learners"], path)
-            print(f"policy personalised: {pseudonym} returns after {len(saved['sessions'])} session(s): starting from "
-                  f"the saved posterior ({path}); no assessment", file=sys.stderr)
-    policy = PersonalisedPolicy(models, learners, fingerprint, path, turns, tuple(int(x) for x in schedule), kappa,
-                                margin, learning, saved, use_engagement, guidance)
-    if saved is not None and "guided" in saved:
-        policy.guided = np.array(saved["guided"], dtype=np.int64)
-    return policy
+            log.warning("policy personalised: %s returns after %d session(s): starting from the saved posterior (%s); "
+                        "no assessment", pseudonym, len(saved["sessions"]), path)
+    return PersonalisedPolicy(models, learners, fingerprint, path, turns, tuple(int(x) for x in schedule), kappa,
+                              margin, learning, saved, use_engagement, guidance, pseudonym)

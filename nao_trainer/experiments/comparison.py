@@ -23,14 +23,17 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
-from nao_trainer.core import baselines, evaluation, mdps
+from nao_trainer.core import baselines, evaluation, processes
 from nao_trainer.core.batch import BatchLearner
 from nao_trainer.core.qlearning import METHODS, QConfig, QLearner
 from nao_trainer.errors import ConfigError
+from nao_trainer.learn import policy_files
+from nao_trainer.learn.parallel import fan_out
 from nao_trainer.learn.users import User
 
 DEFAULT_POLICIES: tuple[str, ...] = (
@@ -73,7 +76,7 @@ class EvalSpec:
     def __post_init__(self) -> None:
         for p in self.policies:
             parse_policy(p)
-        mdps.get(self.process)
+        processes.get(self.process)
         for name in ("turns", "seeds", "episodes"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"--{name} must be >= 1, got {getattr(self, name)}")
@@ -111,7 +114,7 @@ def evaluate_user(user: User, spec: EvalSpec, given: dict[str, list[QLearner]] |
 
     ``given``: trained learners per method (e.g. read from policy files) instead of training here.
     """
-    proc = mdps.get(spec.process)
+    proc = processes.get(spec.process)
     truth = user.truth
     p, e, T = truth.p_success, truth.engagement, spec.turns
     oracle = evaluation.optimal(p, T, proc)
@@ -155,8 +158,6 @@ def evaluate_user(user: User, spec: EvalSpec, given: dict[str, list[QLearner]] |
 def run(users: Sequence[User], spec: EvalSpec, workers: int = 2, backend: str | None = None,
         given: dict[str, dict[str, list[QLearner]]] | None = None) -> list[dict[str, Any]]:
     """All rows, users fanned out through ``learn.parallel``; ``given[user name]``: see ``evaluate_user``."""
-    from nao_trainer.learn.parallel import fan_out
-
     given = given or {}
     parts = fan_out(evaluate_user, [(u, spec, given.get(u.name)) for u in users], workers, backend)
     return [row for part in parts for row in part]
@@ -168,19 +169,15 @@ def policy_file_learners(users: Sequence[User], folder: Any, spec: EvalSpec) -> 
     Each file must be made for ``spec.process`` and trained on the user's training simulator
     (fingerprint); otherwise a one-line DataError.
     """
-    from pathlib import Path
-
-    from nao_trainer.learn import usp
-
     methods = sorted({arg for s in spec.policies for kind, arg in [parse_policy(s)] if kind.startswith("usp")},
                      key=METHODS.index)
     out: dict[str, dict[str, list[QLearner]]] = {}
     for user in users:
         for method in methods:
-            path = Path(folder) / usp.policy_filename(user.cluster, method)
-            payload = usp.read_policy_file(path, spec.process)
-            usp.check_simulator(payload, user.train, path)
-            out.setdefault(user.name, {})[method] = [usp.learner_from_payload(payload, path)]
+            path = Path(folder) / policy_files.policy_filename(user.cluster, method)
+            payload = policy_files.read_policy_file(path, spec.process)
+            policy_files.check_simulator(payload, user.train, path)
+            out.setdefault(user.name, {})[method] = [policy_files.learner_from_payload(payload, path)]
     return out
 
 

@@ -1,4 +1,4 @@
-"""Sweeps (learn.sweep, `nao-trainer sweep`) and the fan-out to local processes or a dask cluster (learn.parallel)."""
+"""Sweeps (experiments.sweep, `nao-trainer sweep`) and the fan-out to local processes or a dask cluster (learn.parallel)."""
 from __future__ import annotations
 
 import json
@@ -10,7 +10,8 @@ import pytest
 
 from nao_trainer.cli import main
 from nao_trainer.errors import ConfigError
-from nao_trainer.learn import parallel, sweep
+from nao_trainer.experiments import sweep
+from nao_trainer.learn import parallel
 from nao_trainer.learn.training import TrainingSpec, train_grid
 from nao_trainer.learn.users import cluster_user_set
 

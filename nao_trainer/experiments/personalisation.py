@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -38,8 +39,12 @@ import numpy as np
 from nao_trainer.core import assessment, baselines, evaluation, mdp, posterior
 from nao_trainer.core.qlearning import METHODS, QConfig
 from nao_trainer.core.simulation import UserSimulator
-from nao_trainer.errors import ConfigError
-from nao_trainer.learn.users import User
+from nao_trainer.core.assessment import Choice
+from nao_trainer.errors import ConfigError, DataError
+from nao_trainer.experiments.comparison import EvalSpec, train_learners
+from nao_trainer.learn.fitting import FitOptions, Turns, fit_cluster
+from nao_trainer.learn.parallel import fan_out
+from nao_trainer.learn.users import User, hold_out, level_only, read_turns, session_user
 
 PIPELINES: tuple[str, ...] = ("paper", "posterior-ev", "personalised")
 
@@ -132,8 +137,6 @@ def _engagement_sigma(sim: UserSimulator, turns: Any) -> float:
 def own_rates_user(name: str, own: Any, prior: UserSimulator, kappa: float, cluster: str) -> User:
     """A level-only user from the session's own success per level, shrunk toward ``prior``'s level
     rates by ``kappa`` pseudo-turns, with ``learn.users.session_user``'s engagement."""
-    from nao_trainer.learn.users import level_only
-
     p_level = np.zeros(4)
     for lv in (1, 2, 3, 4):
         mine = own.level == lv
@@ -149,9 +152,6 @@ def own_rates_user(name: str, own: Any, prior: UserSimulator, kappa: float, clus
 
 def held_out(turns: Any, session: str, k: int, n_init: int, seed: int, session_prior: float | None = None) -> HeldOut:
     """Fit everything without ``session`` (see the module docstring)."""
-    from nao_trainer.learn.fitting import FitOptions, fit_cluster
-    from nao_trainer.learn.users import hold_out, session_user
-
     split = hold_out(turns, session, k, n_init, seed)
     rest, own, labels, cid = split.rest, split.own, split.labels, split.cluster
     options = FitOptions(k=k, seed=seed, cv_folds=1)
@@ -192,8 +192,6 @@ def _rng(spec: PersonaliseSpec, user: str, *key: int) -> np.random.Generator:
 
 def _train(sim: UserSimulator, name: str, spec: PersonaliseSpec, index: int) -> np.ndarray:
     """The frozen table of a Q-learner trained on ``sim`` (the first of ``spec.seeds``)."""
-    from nao_trainer.learn.comparison import EvalSpec, train_learners
-
     es = EvalSpec(policies=("fixed:2",), turns=spec.turns, seeds=spec.seeds, episodes=spec.episodes,
                   seed=spec.seed + 1000 * index, config=spec.config)
     learner = train_learners(User(name, sim, sim, str(index)), [spec.method], es)[spec.method][0]
@@ -235,9 +233,9 @@ def score_held_out(h: HeldOut, spec: PersonaliseSpec) -> list[dict[str, Any]]:
     for length in spec.lengths:
         schedule = assessment.assessment_schedule(length, spec.levels)
         for i, name in enumerate(PIPELINES):
-            mode = "map" if name == "paper" else "ev"
+            mode = Choice.MOST_LIKELY if name == "paper" else Choice.EXPECTED_VALUE
             kappa = spec.kappa if name == "personalised" else float("inf")
-            pers = assessment.Personaliser(models, list(cands), schedule, kappa, spec.margin, T, mode, own)
+            pers = assessment.Personaliser(models, list(cands), schedule, kappa, spec.margin, T, mode=mode, own_policy=own)
             out = evaluation.monte_carlo(pers, p, e, spec.mc_episodes, _rng(spec, h.user.name, i, length), T)
             add(f"{name}", out, length, switches=round(float(pers.switches.mean()), 4),
                 matched=float(np.mean(pers.posterior().argmax(axis=1) == h.cluster_index)))
@@ -268,13 +266,6 @@ def _one(turns: Any, session: str, k: int, n_init: int, seed: int, spec: Persona
 def run(source: Any, spec: PersonaliseSpec, compat: str | None = None, k: int = 3, n_init: int = 50,
         workers: int = 2, backend: str | None = None, limit: int | None = None) -> dict[str, Any]:
     """Rows, engagement measurements and user tables of every held-out session of a dataset."""
-    from pathlib import Path
-
-    from nao_trainer.errors import DataError
-    from nao_trainer.learn.fitting import Turns
-    from nao_trainer.learn.parallel import fan_out
-    from nao_trainer.learn.users import read_turns
-
     turns = Turns.from_columns(read_turns(Path(source), compat).columns)
     sessions = sorted(np.unique(turns.session).tolist())
     if len(sessions) < 2 * k + 1:

@@ -108,7 +108,7 @@ def get(name: "str | DecisionProcess") -> DecisionProcess:
     if isinstance(name, DecisionProcess):
         return name
     if name not in _PROCESSES:
-        raise ValueError(f"--mdp must be one of {', '.join(NAMES)}, got {name!r}")
+        raise ValueError(f"mdp must be one of {', '.join(NAMES)}, got {name!r}")
     return _PROCESSES[name]
 
 

@@ -8,8 +8,8 @@ import pytest
 
 from nao_trainer.cli import main
 from nao_trainer.core import mdp
-from nao_trainer.learn import comparison, usp, users
-from nao_trainer.learn import effects
+from nao_trainer.experiments import comparison
+from nao_trainer.learn import effects, policy_files, users
 from nao_trainer.learn.fitting import Turns
 
 
@@ -85,7 +85,7 @@ def test_evaluate_on_clusters_writes_table_and_figure(tmp_path, capsys):
     assert by["best-fixed"]["score"] >= by["fixed:2"]["score"] - 1e-9
     assert report["claims"][0]["a"] == "usp:shaping" and report["claims"][0]["n"] == 6
     assert (out / "evaluation.png").stat().st_size > 0 and (out / "evaluation.csv").read_text().startswith("policy,")
-    from nao_trainer.cli.evaluate import read_rows
+    from nao_trainer.experiments.reports import read_rows
 
     rows = read_rows(out / "evaluation_rows.csv.gz")
     assert len(rows) == 3 * (2 + 1 + 2 * 2 + 2 + 1)  # baselines 1 row per user, usp kinds 2 seeds
@@ -95,14 +95,14 @@ def test_evaluate_on_clusters_writes_table_and_figure(tmp_path, capsys):
 
 
 def test_policy_files_for_the_other_mdp_are_refused_with_one_line(tmp_path, capsys):
-    rc = main(["evaluate", "--users", "clusters", "--mdp", "informed", "--policy-files", str(usp.default_policies_dir()),
+    rc = main(["evaluate", "--users", "clusters", "--mdp", "informed", "--policy-files", str(policy_files.default_policies_dir()),
                "--policies", "usp:qaug", "--out", str(tmp_path / "ev")])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "made for the paper MDP, not the informed MDP" in err[0]
 
 
 def test_shipped_policy_files_evaluate_on_the_shipped_models(tmp_path, capsys):
-    rc = main(["evaluate", "--users", "level-only", "--policy-files", str(usp.default_policies_dir()), "--policies",
+    rc = main(["evaluate", "--users", "level-only", "--policy-files", str(policy_files.default_policies_dir()), "--policies",
                "usp:qaug,best-fixed", "--out", str(tmp_path / "ev"), "--no-plots", "--json"])
     assert rc == 0
     report = json.loads(capsys.readouterr().out)

@@ -6,7 +6,7 @@ import pytest
 
 from nao_trainer.core import mdp, task
 from nao_trainer.errors import DataError
-from nao_trainer.learn import personalised
+from nao_trainer.policies import personalised
 from nao_trainer.ports import Transition
 
 
@@ -121,3 +121,18 @@ def test_guidance_feeds_in_and_a_snapshot_restores():
     assert other.status()["following"] == plain.status()["following"]
     for (_c, a), (_d, b) in zip(plain.learners, other.learners):
         assert np.array_equal(a.q, b.q)
+
+
+def test_a_state_belongs_to_its_pseudonym(tmp_path):
+    first = load(tmp_path)
+    play(first, [True] * 4)
+    own = personalised.participant_file(tmp_path, "p01")
+    assert personalised.read_state(own, first.fingerprint, "p01")["pseudonym"] == "p01"
+    other = personalised.participant_file(tmp_path, "p02")
+    other.parent.mkdir(parents=True)
+    other.write_bytes(own.read_bytes())  # p01's file copied into p02's folder
+    with pytest.raises(DataError) as exc:
+        personalised.load_personalised(other, "p02", 8, (2, 3, 4), 10.0, 0.5, True, False)
+    assert one_line(exc) and "'p01', not of 'p02'" in str(exc.value)
+    fresh = personalised.load_personalised(other, "p02", 8, (2, 3, 4), 10.0, 0.5, True, True)  # --fresh-policy
+    assert fresh.pers.schedule == (2, 3, 4) and list(other.parent.glob("personalised.json.replaced-*"))

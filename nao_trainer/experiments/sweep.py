@@ -13,6 +13,7 @@ results do not depend on where they ran.
 """
 from __future__ import annotations
 
+import hashlib
 import itertools
 from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
@@ -21,8 +22,9 @@ import numpy as np
 
 from nao_trainer.core import baselines, evaluation
 from nao_trainer.core.batch import BatchLearner
-from nao_trainer.core.qlearning import METHODS, QConfig
+from nao_trainer.core.qlearning import METHODS, QConfig, QLearner
 from nao_trainer.errors import ConfigError
+from nao_trainer.learn.parallel import fan_out
 from nao_trainer.learn.users import User
 
 PARAMETERS: tuple[str, ...] = tuple(QConfig.__dataclass_fields__)
@@ -107,8 +109,6 @@ def make_spec(param_texts: Sequence[str], method: str | None = None, seeds: int 
 
 
 def _user_key(name: str) -> int:
-    import hashlib
-
     return int.from_bytes(hashlib.sha256(name.encode()).digest()[:4], "little")
 
 
@@ -121,8 +121,6 @@ def run_point(spec: SweepSpec, point: dict[str, float], user: User) -> dict[str,
             for k in range(n)]
     res = BatchLearner(np.stack([sim.p_success] * n), np.stack([sim.engagement] * n), [spec.method] * n, config,
                        spec.process, "auto").run(spec.episodes, spec.turns, rngs)
-    from nao_trainer.core.qlearning import QLearner
-
     scores, engagement = [], []
     for k in range(n):
         lr = QLearner(spec.method, config, res.q[k], res.h[k], res.h_counts[k], res.visits[k], spec.process)
@@ -140,7 +138,5 @@ def run_point(spec: SweepSpec, point: dict[str, float], user: User) -> dict[str,
 
 def run(spec: SweepSpec, users: Sequence[User], workers: int = 2, backend: str | None = None) -> list[dict[str, Any]]:
     """Every (point, user) result, in grid order (points outer, users inner)."""
-    from nao_trainer.learn.parallel import fan_out
-
     tasks = [(spec, point, user) for point in spec.points() for user in users]
     return fan_out(run_point, tasks, workers, backend)

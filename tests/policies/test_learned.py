@@ -1,4 +1,4 @@
-"""User-specific policy files and the live learning policy (`--policy usp:CLUSTER[:METHOD]`)."""
+"""The live learned policy (policies.learned): learning in a session, its state file, what it refuses."""
 from __future__ import annotations
 
 import json
@@ -8,7 +8,8 @@ import pytest
 
 from nao_trainer.learn import artifacts
 
-from nao_trainer.learn import usp
+from nao_trainer.learn import policy_files
+from nao_trainer.policies import learned
 from nao_trainer.core import mdp
 from nao_trainer.core.qlearning import QConfig, QLearner
 from nao_trainer.core.simulation import UserSimulator
@@ -39,7 +40,7 @@ def trained(tmp_path_factory):
 
 def load(trained, spec="usp:1:qaug", learning=True, state_path=None):
     models, policies = trained
-    return usp.load_policy(spec, learning, state_path, policies_dir=policies,
+    return learned.load_policy(spec, learning, state_path, policies_dir=policies,
                            models_dir=models)
 
 
@@ -49,70 +50,15 @@ def random_learner(method="shaping") -> QLearner:
                     rng.integers(0, 9, (109, 6)), rng.integers(0, 99, 109))
 
 
-def test_policy_file_round_trip(tmp_path):
-    ql = random_learner()
-    sim = simulators()[0]
-    path = tmp_path / "p.json"
-    usp.save_policy_file(path, usp.make_payload(ql, "1", sim, {"episodes": 5}))
-    payload = usp.read_policy_file(path)
-    back = usp.learner_from_payload(payload, path)
-    assert back.method == "shaping" and back.config == ql.config
-    for key in ("q", "h", "h_counts", "visits"):
-        assert np.array_equal(getattr(back, key), getattr(ql, key))
-    assert payload["simulator"]["fingerprint"] == sim.fingerprint()
-    assert payload["states"][S0] == "(5, 1, -2)" and payload["actions"][4] == "RF1"
-    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp file left
-
-
-def _rewrite(path, edit):
-    doc = json.loads(path.read_text())
-    edit(doc)
-    path.write_text(json.dumps(doc))
-
-
-def test_torn_and_corrupt_files_are_detected(tmp_path):
-    path = tmp_path / "p.json"
-    usp.save_policy_file(path, usp.make_payload(random_learner(), "1", simulators()[0], {}))
-    text = path.read_text()
-    torn = tmp_path / "torn.json"
-    torn.write_text(text[: len(text) // 2])
-    with pytest.raises(DataError, match=r"torn.json:\d+: policy file is not valid JSON.*torn or corrupt"):
-        usp.read_policy_file(torn)
-    empty = tmp_path / "empty.json"
-    empty.write_text("")
-    with pytest.raises(DataError, match="not valid JSON"):
-        usp.read_policy_file(empty)
-    altered = tmp_path / "altered.json"
-    altered.write_text(text)
-    _rewrite(altered, lambda d: d["payload"]["q"][S0].__setitem__(2, 99.0))
-    with pytest.raises(DataError, match="altered.json: checksum mismatch"):
-        usp.read_policy_file(altered)
-    with pytest.raises(DataError, match="no such policy file.*nao-trainer train"):
-        usp.read_policy_file(tmp_path / "missing.json")
-
-
-def test_other_state_action_definition_is_refused(tmp_path):
-    payload = usp.make_payload(random_learner(), "1", simulators()[0], {})
-    payload["mdp_definition"] = payload["mdp_definition"].replace("PR in -4..4", "PR in -3..3")
-    usp.save_policy_file(tmp_path / "def.json", payload)  # valid checksum, other definition
-    with pytest.raises(DataError, match="another state/action definition.*nao-trainer train"):
-        usp.read_policy_file(tmp_path / "def.json")
-    payload = usp.make_payload(random_learner(), "1", simulators()[0], {})
-    payload["actions"] = ["L1", "L2", "L3", "L4", "RF2", "RF1"]
-    usp.save_policy_file(tmp_path / "act.json", payload)
-    with pytest.raises(DataError, match="actions"):
-        usp.read_policy_file(tmp_path / "act.json")
-
-
 def test_simulator_fingerprint_mismatch_is_refused(trained, tmp_path):
     models, policies = trained
     refit = tmp_path / "models"
     changed = UserSimulator.from_level_rates("cluster-1", [0.9, 0.8, 0.35, 0.06], [0.3, 0.4, 0.5, 0.6])
     artifacts.save_models(refit, [changed, simulators()[1]], [{"id": 1}, {"id": 2}], {"k": 2})
     with pytest.raises(DataError, match=r"usp_1_qaug.json: trained on user model 'cluster-1'.*fingerprint.*retrain"):
-        usp.load_policy("usp:1:qaug", True, None, policies_dir=policies, models_dir=refit)
+        learned.load_policy("usp:1:qaug", True, None, policies_dir=policies, models_dir=refit)
     # Cluster 2 did not change: its policy still loads.
-    usp.load_policy("usp:2:qaug", False, None, policies_dir=policies, models_dir=refit)
+    learned.load_policy("usp:2:qaug", False, None, policies_dir=policies, models_dir=refit)
 
 
 def test_spec_parsing_and_default_method(trained):
@@ -140,7 +86,7 @@ def test_live_policy_learns_and_saves_after_every_observe(trained, tmp_path):
                          policy.learner.h_counts.copy(), policy.learner.visits.copy())
     policy.observe(Transition(mdp.START, a, 2, 0.7, s1, False))
     reference.update(mdp.START, a, 2, 0.7, s1, False)
-    saved = usp.read_policy_file(state)
+    saved = policy_files.read_policy_file(state)
     assert saved["live"]["turns_learned"] == 1
     assert np.array_equal(np.array(saved["q"]), reference.q)  # the same update as in training
     assert not np.array_equal(reference.q, before)
@@ -148,7 +94,7 @@ def test_live_policy_learns_and_saves_after_every_observe(trained, tmp_path):
     s2 = int(mdp.NEXT_STATE[s1, a2, 1])
     policy.observe(Transition(s1, a2, -1, None, s2, False))  # EEG dropped: plain reward, no H update
     reference.update(s1, a2, -1, None, s2, False)
-    saved = usp.read_policy_file(state)
+    saved = policy_files.read_policy_file(state)
     assert saved["live"] == {**saved["live"], "turns_learned": 2, "turns_without_engagement": 1}
     assert np.array_equal(np.array(saved["q"]), reference.q)
     assert np.array_equal(np.array(saved["h_counts"]), reference.h_counts)
@@ -201,11 +147,11 @@ def test_unwritable_state_path_is_a_clear_error(trained, tmp_path):
 
 def test_shipped_policies_match_the_shipped_user_models():
     """The policies in sim/policies were trained on the models in sim/models (retrain after a refit)."""
-    if not (usp.DEFAULT_POLICIES_DIR / usp.MANIFEST).exists():
+    if not (policy_files.DEFAULT_POLICIES_DIR / policy_files.MANIFEST).exists():
         pytest.skip("no shipped policies")
-    manifest = usp.read_manifest(usp.DEFAULT_POLICIES_DIR)
+    manifest = policy_files.read_manifest(policy_files.DEFAULT_POLICIES_DIR)
     for cluster in manifest["default_method"]:
-        policy = usp.load_policy(f"usp:{cluster}", False, None, policies_dir=usp.DEFAULT_POLICIES_DIR,
+        policy = learned.load_policy(f"usp:{cluster}", False, None, policies_dir=policy_files.DEFAULT_POLICIES_DIR,
                                  models_dir=artifacts.DEFAULT_MODELS_DIR)
         assert abs(policy.probabilities(S0).sum() - 1) < 1e-9
 
@@ -225,11 +171,11 @@ def _run_session(tmp_path, *extra):
 
 def test_session_with_a_shipped_policy_keeps_learning(tmp_path):
     """`nao-trainer run --policy usp:1:performance` plays a real (stand-in) session and learns from it."""
-    if not (usp.DEFAULT_POLICIES_DIR / usp.MANIFEST).exists():
+    if not (policy_files.DEFAULT_POLICIES_DIR / policy_files.MANIFEST).exists():
         pytest.skip("no shipped policies")
     folder = _run_session(tmp_path, "--policy", "usp:1:performance")
-    state = usp.read_policy_file(folder / "policy_state.json")
-    shipped = usp.read_policy_file(usp.DEFAULT_POLICIES_DIR / usp.policy_filename("1", "performance"))
+    state = policy_files.read_policy_file(folder / "policy_state.json")
+    shipped = policy_files.read_policy_file(policy_files.DEFAULT_POLICIES_DIR / policy_files.policy_filename("1", "performance"))
     assert state["live"]["turns_learned"] == 3
     assert np.array(state["visits"]).sum() == np.array(shipped["visits"]).sum() + 3
     assert not np.array_equal(np.array(state["q"]), np.array(shipped["q"]))
@@ -246,23 +192,12 @@ def test_a_crash_while_saving_leaves_the_previous_state_intact(trained, tmp_path
     def crash(src, dst):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(usp.os, "replace", crash)
+    monkeypatch.setattr(policy_files.os, "replace", crash)
     with pytest.raises(DataError, match="cannot save the policy's state"):
         policy.observe(Transition(mdp.encode(5, 0, 0), 2, -1, 0.4, mdp.encode(7, 0, 2), False))
     assert state.read_bytes() == before  # the last complete state, still valid
-    assert usp.read_policy_file(state)["live"]["turns_learned"] == 1
+    assert policy_files.read_policy_file(state)["live"]["turns_learned"] == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["learner.json"]
-
-
-def test_a_broken_policy_manifest_is_a_one_line_error(tmp_path):
-    (tmp_path / usp.MANIFEST).mkdir()
-    with pytest.raises(DataError, match=r"manifest.json: cannot read \(Is a directory\)"):
-        usp.read_manifest(tmp_path)
-    (tmp_path / usp.MANIFEST).rmdir()
-    (tmp_path / usp.MANIFEST).write_text(json.dumps({"format": usp.MANIFEST_FORMAT, "format_version": 1,
-                                                     "default_method": []}))
-    with pytest.raises(DataError, match="unknown version or shape"):
-        usp.read_manifest(tmp_path)
 
 
 def test_a_learning_policy_gets_its_state_path_when_it_first_saves(trained, tmp_path):
@@ -274,7 +209,7 @@ def test_a_learning_policy_gets_its_state_path_when_it_first_saves(trained, tmp_
         policy.observe(step)
     policy.bind_state_dir(tmp_path)
     policy.observe(step)
-    assert usp.read_policy_file(tmp_path / "policy_state.json")["live"]["turns_learned"] >= 1
+    assert policy_files.read_policy_file(tmp_path / "policy_state.json")["live"]["turns_learned"] >= 1
     configured = load(trained, "usp:1:shaping", state_path=tmp_path / "own.json")
     configured.bind_state_dir(tmp_path / "elsewhere")  # a configured state file is kept
     assert configured.state_path == tmp_path / "own.json"
@@ -285,7 +220,7 @@ def test_a_resumed_policy_is_loaded_once_per_session(tmp_path):
     import subprocess
     import sys
 
-    if not (usp.DEFAULT_POLICIES_DIR / usp.MANIFEST).exists():
+    if not (policy_files.DEFAULT_POLICIES_DIR / policy_files.MANIFEST).exists():
         pytest.skip("no shipped policies")
     state = tmp_path / "p_state.json"
     study = tmp_path / "study.yaml"
@@ -299,4 +234,4 @@ def test_a_resumed_policy_is_loaded_once_per_session(tmp_path):
     assert second.returncode == 0, second.stderr
     resumed = [ln for ln in second.stderr.splitlines() if "resuming from" in ln]
     assert resumed == [f"policy usp:1:performance: resuming from {state} (2 live turns learned)"], second.stderr
-    assert usp.read_policy_file(state)["live"]["turns_learned"] == 4
+    assert policy_files.read_policy_file(state)["live"]["turns_learned"] == 4

@@ -1,0 +1,71 @@
+"""Where a participant's learning state lives, and how a replaced one is kept.
+
+A learning policy keeps a participant's state in ``<output>/participants/<pseudonym>/<file>``
+(``state_file``; ``<file>`` is ``personalised.json`` for the personalised policy and
+``policy_state.json`` for a learned one). ``policy.state_path`` may name another file, with
+``{pseudonym}`` and ``{output}``, or be ``{session}`` to keep it in the session folder (nothing
+carried over). ``--fresh-policy`` never deletes a state file: ``set_aside`` renames it to
+``<file>.replaced-<UTC time>``. Standard library only: the configuration imports this module and
+``nao-trainer --help`` stays fast.
+"""
+from __future__ import annotations
+
+import os
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Protocol, Sequence
+
+#: ``policy.state_path`` that keeps the state in the session folder (nothing carried over).
+SESSION_FOLDER = "{session}"
+#: The state file's name per policy kind (learned policies: ``policy_state.json``).
+STATE_FILENAMES: dict[str, str] = {"personalised": "personalised.json"}
+DEFAULT_STATE_FILENAME = "policy_state.json"
+
+
+class PolicySettings(Protocol):
+    """The ``policy`` section of a study configuration (``session.config.PolicySection``)."""
+
+    kind: str
+    schedule: Sequence[str]
+    learning: bool
+    state_path: str | None
+    guidance: float
+    assessment: Sequence[int]
+    kappa: float
+    margin: float
+
+
+def state_filename(kind: str) -> str:
+    """The name of the state file of a policy ``kind`` ("personalised", "usp:2", ...)."""
+    return STATE_FILENAMES.get(kind, DEFAULT_STATE_FILENAME)
+
+
+def state_file(kind: str, state_path: str | None, pseudonym: str, output: Path) -> Path | None:
+    """Where a policy of ``kind`` keeps the participant ``pseudonym``'s state across sessions.
+
+    ``state_path`` None: ``<output>/participants/<pseudonym>/<state_filename(kind)>``; a template
+    with ``{pseudonym}`` and ``{output}`` names another file; ``"{session}"`` gives None (the
+    policy saves into the session folder once it exists, ``session_state_file``).
+    """
+    if state_path == SESSION_FOLDER:
+        return None
+    template = state_path or str(Path("{output}") / "participants" / "{pseudonym}" / state_filename(kind))
+    return Path(template.format(pseudonym=pseudonym, output=output)).expanduser().resolve()
+
+
+def session_state_file(kind: str, folder: Path) -> Path:
+    """The state file of a policy that keeps its state in the session ``folder``."""
+    return Path(folder) / state_filename(kind)
+
+
+def set_aside(path: Path) -> Path:
+    """``--fresh-policy``: rename ``path`` to ``<name>.replaced-<UTC time>[_n]`` (never deleted); the new name."""
+    path = Path(path)
+    stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
+    target = path.with_name(f"{path.name}.replaced-{stamp}")
+    n = 2
+    while target.exists():
+        target = path.with_name(f"{path.name}.replaced-{stamp}_{n}")
+        n += 1
+    os.replace(path, target)
+    return target
