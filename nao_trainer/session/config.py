@@ -294,13 +294,14 @@ def _validate(values: dict, schema: dict, prefix: str, locs: dict[str, _Loc]) ->
             values[key] = float(values[key])
 
 
-def _rule_at(dotted: str) -> Rule | None:
+def _schema_at(dotted: str) -> Rule | dict | None:
+    """The rule of a dotted key, the schema of a nested section (``eeg.processing``), or None when unknown."""
     node: Any = SCHEMA
     for part in dotted.split("."):
         if not isinstance(node, dict) or part not in node:
             return None
         node = node[part]
-    return node if isinstance(node, Rule) else None
+    return node if isinstance(node, (Rule, dict)) and "." in dotted else None
 
 
 def _set_dotted(values: dict, dotted: str, value: Any) -> None:
@@ -333,12 +334,19 @@ def load_config(study: str | Path | None = None, overrides: Mapping[str, Any] | 
         if value is None:
             continue
         flag_loc = _Loc(f"command line ({dotted})", None)
-        spec = _rule_at(dotted)
+        spec = _schema_at(dotted)
         if spec is None:
             raise ConfigError(f"command line: unknown configuration key '{dotted}'")
-        problem = check_value(value, spec)
-        if problem:
-            raise ConfigError(f"{flag_loc}: key '{dotted}' {problem}")
+        if isinstance(spec, dict):  # a nested section given whole (eeg.processing): replaces the files' one
+            section: dict[str, Any] = {}
+            flag_locs: dict[str, _Loc] = {}
+            _merge(section, value, spec, dotted, flag_locs, str(flag_loc))
+            locs.update({key: flag_loc for key in flag_locs})  # every key of it was set here
+            value = section
+        else:
+            problem = check_value(value, spec)
+            if problem:
+                raise ConfigError(f"{flag_loc}: key '{dotted}' {problem}")
         _set_dotted(values, dotted, value)
         locs[f"@{dotted}"] = flag_loc
         digest.update(f"{dotted}={value!r}".encode())

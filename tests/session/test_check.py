@@ -162,3 +162,20 @@ def test_disk_space_and_exit_codes(tmp_path):
     optional = CheckResult("eeg", False, "no stream", "start it", required=False)
     assert exit_code([ok, optional]) == 0
     assert exit_code([ok, optional, CheckResult("robot", False, "gone"), full]) == 3
+
+
+def test_every_folder_the_session_writes_is_tried_not_inferred(tmp_path, monkeypatch):
+    import errno
+    import tempfile
+
+    (tmp_path / "blocker").write_text("a file where the participant's folder would go")
+    blocked = check_disk(tmp_path / "out", write_dirs=(tmp_path / "blocker" / "P1",))
+    assert not blocked.ok and blocked.exit_code == 2
+    assert f"{tmp_path / 'blocker' / 'P1'}: cannot write there ({tmp_path / 'blocker'} is a file, not a folder)" in blocked.line()
+
+    def read_only(*args, **kw):  # a read-only file system (root passes permission bits: the write is tried)
+        raise OSError(errno.EROFS, "Read-only file system")
+
+    monkeypatch.setattr(tempfile, "mkstemp", read_only)
+    ro = check_disk(tmp_path / "out")
+    assert not ro.ok and "cannot write there (the file system is read-only)" in ro.line()

@@ -255,3 +255,12 @@ def test_a_relation_between_keys_names_the_key_and_its_line(tmp_path):
         load_config(path)
     with pytest.raises(ConfigError, match=r"command line \(eeg.mode\): key 'eeg.mode' must be one of off, simulated, lsl"):
         load_config(None, {"eeg.mode": "bluetooth"})
+
+
+def test_a_nested_section_given_whole_on_the_command_line_is_checked_key_by_key():
+    cfg = load_config(None, {"eeg.processing": {"window_s": 1.0}})
+    assert cfg.eeg.processing.window_s == 1.0 and cfg.values["eeg"]["processing"] == {"window_s": 1.0}
+    with pytest.raises(ConfigError, match=r"^command line \(eeg.processing\): unknown key 'eeg.processing.windw'"):
+        load_config(None, {"eeg.processing": {"windw": 1}})
+    with pytest.raises(ConfigError, match=r"^command line \(eeg.processing\): key 'eeg.processing.hop_s' must not exceed"):
+        load_config(None, {"eeg.processing": {"hop_s": 9.0}})
