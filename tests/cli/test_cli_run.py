@@ -336,7 +336,7 @@ def test_a_person_answering_refuses_a_simulated_stream_with_exit_4(tmp_path):
     muse = SimulatedMuse.start(np.random.default_rng(0), source_id=sid)
     try:
         res = cli("--input", "tactile", "--eeg", "lsl", "--eeg-source-id", sid, "--turns", "1", "--speed", "50",
-                  "--out", str(tmp_path / "out"), "--config", _study(tmp_path, "eeg: {required: false}\n"))
+                  "--pseudonym", "P1", "--out", str(tmp_path / "out"), "--config", _study(tmp_path, "eeg: {required: false}\n"))
     finally:
         muse.stop()
     assert res.returncode == 4, res.stderr

@@ -28,7 +28,7 @@ def test_bad_sweep_specifications_are_refused_before_any_work(param, message, mo
     def no_work(*args, **kwargs):
         raise AssertionError("work started")
 
-    monkeypatch.setattr(parallel, "fan_out", no_work)
+    monkeypatch.setattr(sweep, "fan_out", no_work)  # the module's own name: a patch of learn.parallel would leak into modules first imported meanwhile
     monkeypatch.setattr(sweep, "run", no_work)
     assert main(["sweep", "--param", param, "--out", str(tmp_path / "s"), "--no-plots"]) == 2
     err = capsys.readouterr().err

@@ -26,7 +26,7 @@ def nao(command: str, url: str, out: Path, *extra: str, wait: bool = True):
     args = [sys.executable, "-m", "nao_trainer", command, "--config", STUDY, "--robot", url, "--eeg", "off",
             "--out", str(out)]
     if command == "run":
-        args += ["--speed", "50", "--policy", "schedule", "--input", "simulated", "--seed", "3", *extra]
+        args += ["--speed", "50", "--policy", "schedule", "--input", "simulated", "--seed", "3", "--pseudonym", "P1", *extra]
     env = dict(os.environ, QI_LOG_LEVEL="silent", PYTHONUNBUFFERED="1")
     if wait:
         return subprocess.run(args, capture_output=True, text=True, env=env, timeout=180)
@@ -155,7 +155,7 @@ def test_a_link_frozen_8_s_in_an_answer_window_gives_an_interrupted_replayed_tur
         res = subprocess.run(
             [sys.executable, "-m", "nao_trainer", "run", "--config", STUDY, "--robot", standin.url, "--eeg", "off",
              "--out", str(tmp_path / "out"), "--speed", "20", "--policy", "schedule", "--input", "simulated",
-             "--seed", "5", "--turns", "2", "--no-practice"],
+             "--seed", "5", "--turns", "2", "--no-practice", "--pseudonym", "P1"],
             capture_output=True, text=True, env=dict(os.environ, QI_LOG_LEVEL="silent"), timeout=180)
     finally:
         standin.stop()
@@ -189,7 +189,7 @@ def test_a_hand_held_3_s_on_the_head_mid_session_only_matters_with_life_left_on(
         proc = subprocess.Popen(
             [sys.executable, "-m", "nao_trainer", "run", "--config", str(study), "--robot", standin.url,
              "--eeg", "off", "--out", str(tmp_path / "out"), "--speed", "50", "--policy", "schedule",
-             "--input", "simulated", "--seed", "2", "--turns", "8", "--no-practice"],
+             "--input", "simulated", "--seed", "2", "--turns", "8", "--no-practice", "--pseudonym", "P1"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ, QI_LOG_LEVEL="silent"))
         folder = wait_first_row(tmp_path / "out", proc)
         held = standin.hold("B", 3.0)
