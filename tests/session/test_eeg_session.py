@@ -122,8 +122,13 @@ def test_session_survives_stream_loss_and_return(tmp_path):
         if p["engagement_index"] == "":
             assert turns[int(p["turn"])]["engagement"] == ""
             assert turns[int(p["turn"])]["engagement_note"].startswith("stream lost")
-    events = [e["event"] for e in _rows(result.path / "eeg" / "events.csv")]
-    assert events.count("eeg_stream_lost") == 1 and events.count("eeg_stream_restored") == 1
+    events = _rows(result.path / "eeg" / "events.csv")
+    names = [e["event"] for e in events]
+    # every loss is followed by its return; one of them is the real drop-out (the spurious ~0 s ones of a
+    # loaded machine are left out, as for gaps.csv above)
+    assert names.count("eeg_stream_lost") == names.count("eeg_stream_restored") >= 1
+    real = [e for e in events if e["event"] == "eeg_stream_restored" and float(e["detail"].split()[1]) > 1.0]
+    assert len(real) == 1
 
 
 def _wait_for(probe, timeout_s: float):
