@@ -39,9 +39,13 @@ Computation
     tables), so the value of a layer is a flat array and a child ``c + e_j`` is found by its rank.
     The posterior weights are carried along the enumeration as partial products (a step changes
     the last one or two counts, so a state costs about K multiplications, not 2L K), and a layer
-    is split into chunks run in parallel. Memory: two value layers (the largest holds
-    C(H + 2L - 1, 2L - 1) doubles, 27 MB for H = 25, L = 4) and the action table, one byte per
-    decision state (13.9 MB). A live decision is a table lookup (``Plan.decide``).
+    is split into chunks run in parallel. Posterior means need no sum over the models: with the
+    unnormalised weight ``Z(c) = sum_k pi_k prod_l p^s (1-p)^f``, ``pbar_l(c) = Z(c + e_s)/Z(c)``
+    and the posterior mean of ``p^2`` is ``Z(c + 2 e_s)/Z(c)``; only Z costs K operations per
+    state. Memory while solving: up to three Z layers and two value layers (the largest layer,
+    n = H + 1, holds C(H + 2L, 2L - 1) doubles: 34 MB for H = 25, L = 4); kept: the action table,
+    one byte per decision state (layers 0..H-1: 10.5 M states, 10.5 MB). A live decision is a
+    table lookup (``Plan.decide``).
 
 ``evaluate_plan`` runs the solved policy forward on users with known rates over the states it
 can reach, exactly, giving each user's expected utility, turns per level and success rate.
