@@ -1,0 +1,1 @@
+"""Offline research questions (what `nao-trainer evaluate` and the results measure)."""
