@@ -20,6 +20,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("data",),
     ("robot", "eeg", "answers", "console"),
     ("learn",),
+    ("policies",),
+    ("experiments",),
     ("session",),
     ("plots",),
     ("cli", "__main__"),

@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from nao_trainer.errors import ConfigError, DataError
+from nao_trainer.cli import ceiling_report
 from nao_trainer.cli._checks import make_output_dir, require_matplotlib
 
 MDPS = ("paper", "informed")  # core.mdps.NAMES, repeated so that --help does not import numpy
@@ -70,6 +71,7 @@ def register(sub) -> None:
                         "(e.g. 2: the session's own rates)")
     g.add_argument("--export-users", type=Path, default=None, metavar="DIR",
                    help="also write every held-out session's user simulator to DIR (usable as --user-model FILE)")
+    ceiling_report.add_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -85,6 +87,7 @@ def run(args) -> int:
         raise ConfigError("--policies: give at least one policy")
     spec = comparison.EvalSpec(policies=policies, process=args.mdp, seeds=args.seeds, episodes=args.episodes,
                                mc_episodes=args.mc_episodes, seed=args.seed)
+    ceiling_report.check(args)
     check_backend(args.backend)
     if args.workers < 1 or (args.limit is not None and args.limit < 1):
         raise ConfigError("--workers and --limit must be >= 1")
@@ -110,8 +113,9 @@ def run(args) -> int:
                  "hyperparameters": spec.config.to_dict(),
                  "policy_files": None if args.policy_files is None else str(args.policy_files)},
         "summary": summary, "claims": comparison.claims(rows), "rows_file": ROWS_FILE,
-        "seconds": round(time.perf_counter() - t0, 2),
     }
+    report["ceiling"] = ceiling_report.comparison_section(args, user_list, rows, spec.turns)
+    report["seconds"] = round(time.perf_counter() - t0, 2)
     from nao_trainer.files import write_json_atomic, write_text_atomic
 
     out = Path(args.out)
@@ -128,6 +132,7 @@ def run(args) -> int:
         print(json.dumps(report))
     else:
         print(format_table(summary, report["claims"]))
+        print(ceiling_report.format_section(report["ceiling"]))
         if args.per_user:
             print(per_user_table(rows))
         for path in paths:
@@ -242,6 +247,7 @@ def run_personalise(args) -> int:
                                        session_prior=session_prior,
                                        margin=args.margin, episodes=args.episodes, seeds=1,
                                        mc_episodes=args.mc_episodes, seed=args.seed)
+    ceiling_report.check(args)
     check_backend(args.backend)
     if args.workers < 1 or (args.limit is not None and args.limit < 1):
         raise ConfigError("--workers and --limit must be >= 1")
@@ -269,7 +275,8 @@ def run_personalise(args) -> int:
                        "margin": spec.margin, "method": spec.method, "episodes": spec.episodes,
                        "mc_episodes": spec.mc_episodes, "turns": spec.turns, "seed": spec.seed},
               "summary": summary, "engagement_information": engagement, "rows_file": PERSONALISE_ROWS_FILE,
-              "seconds": round(time.perf_counter() - t0, 2)}
+              "ceiling": ceiling_report.personalise_section(args, result, spec.turns)}
+    report["seconds"] = round(time.perf_counter() - t0, 2)
     write_json_atomic(out / "personalise.json", report)
     write_text_atomic(out / "personalise.csv", personalise_csv(summary))
     write_personalise_rows(result["rows"], out / PERSONALISE_ROWS_FILE)
@@ -290,6 +297,7 @@ def run_personalise(args) -> int:
         print(json.dumps({k: v for k, v in report.items() if k != "rows"}))
     else:
         print(format_personalise(summary, engagement))
+        print(ceiling_report.format_section(report["ceiling"]))
         for path in paths:
             print(f"  {path}")
     return 0

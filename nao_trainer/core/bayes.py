@@ -30,7 +30,8 @@ with the posterior means ``pbar_l(c) = sum_k w_k p[k, l]`` and ``ubar_l(c) = sum
 ``-(p - R)^2``, not the utility of the posterior mean). ``G(c) = C max_l ubar_l(c)`` is the value
 of committing to the posterior-best level for C more turns after the session (C = 0 for one
 session; C = (S - 1) H for "explore this session, then commit for S - 1 sessions"). Ties go to the
-lower level. ``V(0)`` is the Bayes value: the highest expected utility of any policy that is not
+lower level; counts that no model with prior weight can produce (Z = 0, possible only with rates
+of exactly 0 or 1) get value 0 and the lowest level. ``V(0)`` is the Bayes value: the highest expected utility of any policy that is not
 told which model the participant is, and, with the prior uniform over a set of users, the mean
 over those users of what that policy earns, which is the *ceiling* of ``evaluate``.
 

@@ -60,12 +60,13 @@ def plan_row(name: str, cluster: str, policy: str, p: np.ndarray, e: np.ndarray 
              i: int, turns: int, obj: Objective, oracle_score: float) -> dict[str, Any]:
     visits = value.visits[i]
     score = float(visits @ (p * np.arange(2, 6) - 1.0))
-    eng = float(visits @ e / turns) if e is not None else float("nan")
-    return {"user": name, "cluster": cluster, "policy": policy, "seed": None, "assessment": None,
-            "score": round(score, 9), "engagement": round(eng, 9),
-            "success": round(float(value.successes[i]) / turns, 9), "regret": round(oracle_score - score, 9),
-            "visits": np.round(visits, 4).tolist(), "samples": 0,
-            "utility": round(float(value.session[i]), 9), "objective": str(obj)}
+    row = {"user": name, "cluster": cluster, "policy": policy, "seed": None, "assessment": None,
+           "score": round(score, 9), "success": round(float(value.successes[i]) / turns, 9),
+           "regret": round(oracle_score - score, 9), "visits": np.round(visits, 4).tolist(), "samples": 0,
+           "utility": round(float(value.session[i]), 9), "objective": str(obj)}
+    if e is not None:
+        row["engagement"] = round(float(visits @ e / turns), 9)
+    return row
 
 
 def bayes_rows(names: Sequence[str], clusters: Sequence[str], p: np.ndarray, e: np.ndarray | None,
@@ -87,6 +88,38 @@ def bayes_rows(names: Sequence[str], clusters: Sequence[str], p: np.ndarray, e: 
     return rows
 
 
+def prior_rows(priors: dict[str, tuple[np.ndarray, np.ndarray]], rates: dict[str, np.ndarray],
+               clusters: dict[str, str], obj: Objective, turns: int = 25, cache: Path | None = None,
+               policy: str = "bayes") -> list[dict[str, Any]]:
+    """The planner with each user's own prior (``priors[name] = (p (K, 4), weights)``, e.g. the
+    clusters fitted without the user, as the live ``bayes`` policy uses them), run on the user."""
+    out = []
+    for name, (pk, wk) in priors.items():
+        p = rates[name]
+        plan = _solve(np.asarray(pk, dtype=float), np.asarray(wk, dtype=float), obj, turns, 0, cache)
+        v = bayes.evaluate_plan(plan, p[None])
+        out.append(plan_row(name, clusters.get(name, ""), policy, p, None, v, 0, turns, obj,
+                           evaluation.optimal(_table(p), turns).value))
+    return out
+
+
+def report(rows: list[dict[str, Any]], rates: dict[str, np.ndarray], train_rates: dict[str, np.ndarray],
+           clusters: dict[str, str], obj: Objective, turns: int = 25, loo: bool = False,
+           priors: dict[str, tuple[np.ndarray, np.ndarray]] | None = None, cache: Path | None = None
+           ) -> dict[str, Any]:
+    """Every policy of an evaluation (``rows``, not changed) beside the ceiling, under ``obj``: the
+    ``achievable`` summary and the rows added here (ceiling, bayes, fixed levels, oracle)."""
+    mine = [dict(r) for r in rows if r["user"] in rates]
+    add_utility(mine, rates, obj)
+    names = list(rates)
+    p = np.array([rates[n] for n in names])
+    extra = objective_rows(rates, train_rates, clusters, obj, turns, {r["policy"] for r in mine})
+    extra += bayes_rows(names, [clusters.get(n, "") for n in names], p, None, obj, turns, loo, cache)
+    if priors:
+        extra += prior_rows(priors, rates, clusters, obj, turns, cache)
+    return {"objective": str(obj), "turns": turns, "summary": achievable(mine + extra), "rows": extra}
+
+
 def _table(p_level: np.ndarray) -> np.ndarray:
     return np.clip(np.asarray(p_level, dtype=float)[mdp.LEVEL - 1], 0.0, 1.0)
 
@@ -102,21 +135,33 @@ def add_utility(rows: list[dict[str, Any]], rates: dict[str, np.ndarray], obj: O
         r["objective"] = str(obj)
 
 
-def oracle_rows(rates: dict[str, np.ndarray], clusters: dict[str, str], obj: Objective, turns: int,
-                policy: str = "oracle-objective") -> list[dict[str, Any]]:
-    """Per-user optimum under the objective (always the user's best level), as rows."""
+def objective_rows(rates: dict[str, np.ndarray], train_rates: dict[str, np.ndarray], clusters: dict[str, str],
+                   obj: Objective, turns: int, have: Sequence[str] = ()) -> list[dict[str, Any]]:
+    """Fixed-level rows judged under the objective: ``fixed:L`` (those not in ``have``),
+    ``best-fixed-objective`` (the level best under the objective on the user's training rates),
+    ``pooled-fixed`` (the level best on average over the evaluated users) and ``oracle-objective``
+    (each user's own best level)."""
+    pooled = int(np.argmax(np.round(np.mean([obj.utility(p) for p in rates.values()], axis=0), 12)))
     out = []
     for name, p in rates.items():
-        u = obj.utility(p)
-        lv = int(np.argmax(np.round(u, 12)))
-        visits = np.zeros(4)
-        visits[lv] = turns
-        score = float(visits @ (p * np.arange(2, 6) - 1.0))
-        out.append({"user": name, "cluster": clusters.get(name, ""), "policy": policy, "seed": None,
-                    "assessment": None, "score": round(score, 9), "engagement": float("nan"),
-                    "success": round(float(p[lv]), 9), "regret": 0.0, "visits": visits.tolist(), "samples": 0,
-                    "utility": round(turns * float(u[lv]), 9), "objective": str(obj), "level": lv + 1})
+        choices = {f"fixed:{lv + 1}": lv for lv in range(4) if f"fixed:{lv + 1}" not in have}
+        choices["best-fixed-objective"] = int(np.argmax(np.round(obj.utility(train_rates[name]), 12)))
+        choices["pooled-fixed"] = pooled
+        choices["oracle-objective"] = int(np.argmax(np.round(obj.utility(p), 12)))
+        for policy, lv in choices.items():
+            out.append(_level_row(name, clusters.get(name, ""), policy, p, lv, obj, turns))
     return out
+
+
+def _level_row(name: str, cluster: str, policy: str, p: np.ndarray, lv: int, obj: Objective, turns: int
+               ) -> dict[str, Any]:
+    u = obj.utility(p)
+    visits = np.zeros(4)
+    visits[lv] = turns
+    score = float(visits @ (p * np.arange(2, 6) - 1.0))
+    return {"user": name, "cluster": cluster, "policy": policy, "seed": None, "assessment": None,
+            "score": round(score, 9), "success": round(float(p[lv]), 9), "visits": visits.tolist(), "samples": 0,
+            "utility": round(turns * float(u[lv]), 9), "objective": str(obj), "level": lv + 1}
 
 
 def _by_user(rows: list[dict[str, Any]], policy: str, key: str, length: Any = None) -> dict[str, float]:
@@ -149,8 +194,8 @@ def share_of_gap(rows: list[dict[str, Any]], policy: str, key: str, top: str, re
             "gap": float(gap.mean())}
 
 
-def achievable(rows: list[dict[str, Any]], key: str = "utility", reference: str = "best-fixed",
-               oracle: str = "oracle") -> list[dict[str, Any]]:
+def achievable(rows: list[dict[str, Any]], key: str = "utility", reference: str = "best-fixed-objective",
+               oracle: str = "oracle-objective") -> list[dict[str, Any]]:
     """Per (policy, assessment length): mean ``key`` with a 95 % t-interval over users (seeds
     averaged), the paired difference to ``reference`` and to the ceiling, and the shares of the
     achievable gap (to ``ceiling``) and of the oracle gap."""
