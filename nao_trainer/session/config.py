@@ -128,6 +128,7 @@ class PolicySection:
     assessment: tuple[int, ...]
     kappa: float
     margin: float
+    objective: str = "score"
 
     def state_file(self, pseudonym: str, output: Path) -> Path | None:
         """Where a learning policy keeps its state across sessions: by default the participant's

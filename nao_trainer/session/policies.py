@@ -125,6 +125,12 @@ def make_policy(spec: str, schedule: Sequence[str], learning: bool, state_path: 
             else state_path
         return load_personalised(path, study.participant.pseudonym, study.session.turns, pol.assessment,
                                  float(pol.kappa), float(pol.margin), learning, fresh, guidance=guidance)
+    if spec == "bayes":  # the exact Bayes-adaptive planner (policies/bayes.py)
+        from nao_trainer.policies.bayes import load_bayes
+
+        path = state_path.with_name("bayes.json") if state_path is not None and not study.policy.state_path \
+            else state_path
+        return load_bayes(path, study.participant.pseudonym, study.session.turns, study.policy.objective, fresh)
     if spec == "schedule":
         return FixedSchedule(schedule)
     if spec == "random":
@@ -136,4 +142,4 @@ def make_policy(spec: str, schedule: Sequence[str], learning: bool, state_path: 
             raise ConfigError(f"policy {spec!r}: learned policies are not available in this install ({exc}); "
                               "use --policy schedule or random") from None
         return load_policy(spec, learning, state_path, guidance=guidance, fresh=fresh)
-    raise ConfigError(f"policy {spec!r}: use 'schedule', 'random', 'personalised' or 'usp:CLUSTER[:METHOD]'")
+    raise ConfigError(f"policy {spec!r}: use 'schedule', 'random', 'personalised', 'bayes' or 'usp:CLUSTER[:METHOD]'")

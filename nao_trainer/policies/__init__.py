@@ -1,0 +1,1 @@
+"""Live policies a session can follow (being gathered here from session/ and learn/)."""
