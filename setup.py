@@ -35,9 +35,11 @@ setup(
         "cluster": ["joblib>=1.3", "dask[distributed]>=2024.1"],
         # session.xdf: LabRecorder's engine (a release candidate, binary wheels) and the reader
         "xdf": ["labrecorder>=1.0.0rc0", "pyxdf>=1.16"],
-        "test": ["pytest>=7", "pytest-xdist>=3", "playwright>=1.40", "pyxdf>=1.16"],
+        # QUEST+ baseline beside the Bayes ceiling (experiments.adaptive)
+        "psychophysics": ["questplus>=2023.1"],
+        "test": ["pytest>=7", "pytest-xdist>=3", "playwright>=1.40", "pyxdf>=1.16", "questplus>=2023.1"],
         "all": ["matplotlib>=3.7", "gymnasium>=1.0", "starlette>=0.37", "uvicorn>=0.29", "numba>=0.60", "joblib>=1.3",
-                "dask[distributed]>=2024.1", "labrecorder>=1.0.0rc0", "pyxdf>=1.16"],
+                "dask[distributed]>=2024.1", "labrecorder>=1.0.0rc0", "pyxdf>=1.16", "questplus>=2023.1"],
     },
     # The console's page and the vendored uPlot (MIT; version and licence in console/static/).
     package_data={"nao_trainer.console": ["static/*"]},

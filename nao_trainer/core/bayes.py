@@ -454,21 +454,45 @@ class PlanValue:
 def evaluate_plan(plan: Plan, p_true: np.ndarray) -> PlanValue:
     """Exact expected results of ``plan`` on each user (rows of ``p_true``, (U, L)), under the plan's
     objective."""
-    p_true = np.atleast_2d(np.asarray(p_true, dtype=float))
-    u_true = utility_table(p_true, plan.coef)
-    levels = plan.levels
-    if p_true.shape[1] != levels or u_true.shape != p_true.shape:
-        raise ValueError(f"users need {levels} levels of success rates and utilities")
-    n_users, m = p_true.shape[0], 2 * levels
-    off = _offsets(plan.horizon, levels)
     offsets = plan.offsets
+    off = _offsets(plan.horizon, plan.levels)
+
+    def choose(states: np.ndarray, n: int) -> np.ndarray:
+        return plan.action[offsets[n] + rank_many(states, off)].astype(np.int64)
+
+    p_true = np.atleast_2d(np.asarray(p_true, dtype=float))
+    value, visits, succ, _, states, mass = _forward(choose, p_true, plan.coef, plan.horizon)
+    commit = np.zeros(len(value))
+    if plan.commit > 0:  # the posterior-best level, played for ``commit`` turns after the session
+        u_true = utility_table(p_true, plan.coef)
+        for i, c in enumerate(states):
+            lv = int(np.argmax(np.round(posterior_weights(plan.p, plan.weights, c) @ plan.utility, 12)))
+            commit += plan.commit * mass[i] * u_true[:, lv]
+    return PlanValue(value, commit, visits, succ)
+
+
+def evaluate_rule(choose: Any, p_true: np.ndarray, coef: np.ndarray, horizon: int) -> PlanValue:
+    """Exact expected results of any policy that depends on the counts only: ``choose(states (R, 2L),
+    n) -> level indices (R,)`` for the states of layer n it can reach; run forward on each user."""
+    value, visits, succ = _forward(choose, np.atleast_2d(np.asarray(p_true, float)), coef, horizon)[:3]
+    return PlanValue(value, np.zeros_like(value), visits, succ)
+
+
+def _forward(choose: Any, p_true: np.ndarray, coef: np.ndarray, horizon: int) -> tuple:
+    p_true = np.atleast_2d(np.asarray(p_true, dtype=float))
+    u_true = utility_table(p_true, coef)
+    levels = p_true.shape[1]
+    off = _offsets(horizon, levels)
+    if np.asarray(coef).shape != (levels, 3):
+        raise ValueError(f"users need {np.asarray(coef).shape[0]} levels of success rates")
+    n_users, m = p_true.shape[0], 2 * levels
     states = np.zeros((1, m), dtype=np.int64)
     mass = np.ones((1, n_users))
     value = np.zeros(n_users)
     visits = np.zeros((n_users, levels))
     succ = np.zeros(n_users)
-    for n in range(plan.horizon):
-        a = plan.action[offsets[n] + rank_many(states, off)].astype(np.int64)
+    for n in range(horizon):
+        a = np.asarray(choose(states, n), dtype=np.int64)
         pa = p_true[:, a].T  # (R, U)
         value += (mass * u_true[:, a].T).sum(axis=0)
         succ += (mass * pa).sum(axis=0)
@@ -488,10 +512,4 @@ def evaluate_plan(plan: Plan, p_true: np.ndarray) -> PlanValue:
         for u in range(n_users):
             new[:, u] = np.bincount(inv, weights=cmass[:, u], minlength=len(uniq))
         states, mass = cand[first], new
-    commit = np.zeros(n_users)
-    if plan.commit > 0:
-        for i, c in enumerate(states):
-            w = posterior_weights(plan.p, plan.weights, c)
-            lv = int(np.argmax(np.round(w @ plan.utility, 12)))
-            commit += plan.commit * mass[i] * u_true[:, lv]
-    return PlanValue(value, commit, visits, succ)
+    return value, visits, succ, None, states, mass

@@ -117,7 +117,30 @@ def report(rows: list[dict[str, Any]], rates: dict[str, np.ndarray], train_rates
     extra += bayes_rows(names, [clusters.get(n, "") for n in names], p, None, obj, turns, loo, cache)
     if priors:
         extra += prior_rows(priors, rates, clusters, obj, turns, cache)
+    extra += adaptive_rows(rates, clusters, obj, turns)
     return {"objective": str(obj), "turns": turns, "summary": achievable(mine + extra), "rows": extra}
+
+
+def adaptive_rows(rates: dict[str, np.ndarray], clusters: dict[str, str], obj: Objective, turns: int = 25,
+                  start: int = 2) -> list[dict[str, Any]]:
+    """Staircases 2-down/1-up and 3-down/1-up and QUEST+ (``experiments.adaptive``), exact."""
+    from nao_trainer.experiments import adaptive
+
+    names = list(rates)
+    p = np.array([rates[n] for n in names])
+    out = []
+    for need in (2, 3):
+        for n in names:
+            r = adaptive.staircase_exact(need, start, rates[n], turns, obj)
+            out.append({"user": n, "cluster": clusters.get(n, ""), "policy": f"staircase-{need}d1u@{start}",
+                        "seed": None, "assessment": None, "score": round(r["score"], 9),
+                        "success": round(r["success"], 9), "visits": np.round(r["visits"], 4).tolist(),
+                        "samples": 0, "utility": round(r["utility"], 9), "objective": str(obj)})
+    qv = adaptive.questplus_values(p, obj, turns)
+    for i, n in enumerate(names):
+        out.append(plan_row(n, clusters.get(n, ""), "questplus", p[i], None, qv, i, turns, obj,
+                            evaluation.optimal(_table(p[i]), turns).value))
+    return out
 
 
 def _table(p_level: np.ndarray) -> np.ndarray:
