@@ -132,7 +132,7 @@ def format_section(section: dict[str, Any] | None) -> str:
                      f"{_ci(s['d_ceiling_ci'], digits):>18} {_share(s['achievable_share']):>22} "
                      f"{_share(s['oracle_share']):>20}")
     for m in section.get("multi_session", []):
-        if m["policy"] == "best-fixed":
+        if m["policy"] == "pooled-fixed":
             lines.append(f"  {m['sessions']} session(s) of the same participant (value per session):")
         share = "" if m["oracle_share"] is None else f"{100 * m['oracle_share']:.0f} % of the oracle gap"
         lines.append(f"    {m['policy']:<20} {m['value_per_session']:8.{digits}f} {_ci(m['value_ci'], digits):>18} "

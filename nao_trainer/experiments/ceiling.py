@@ -248,7 +248,7 @@ def multi_session(p: np.ndarray, obj: Objective, turns: int = 25, sessions: Sequ
                   cache: Path | None = None, loo: bool = False) -> list[dict[str, Any]]:
     """Value per session (mean over S sessions, per user) of S sessions of the same participant:
 
-    ``best-fixed``  the level best for the population (mean utility over the users), every session;
+    ``pooled-fixed``  the level best for the population (mean utility over the users), every session;
     ``explore-commit``  the Bayes-optimal first session given that the posterior-best level is then
                     played for the S - 1 other sessions (prior uniform over the users; with ``loo``
                     also the other users only), a policy a study can run;
@@ -261,7 +261,7 @@ def multi_session(p: np.ndarray, obj: Objective, turns: int = 25, sessions: Sequ
     one = bayes.evaluate_plan(_solve(p, np.ones(len(p)), obj, turns, 0, cache), p).session
     out = []
     for s in sessions:
-        vals: dict[str, np.ndarray] = {"best-fixed": turns * u[:, best],
+        vals: dict[str, np.ndarray] = {"pooled-fixed": turns * u[:, best],
                                        "oracle": turns * u.max(axis=1),
                                        "bound": (one + (s - 1) * turns * u.max(axis=1)) / s}
         plan = _solve(p, np.ones(len(p)), obj, turns, (s - 1) * turns, cache)
@@ -273,9 +273,9 @@ def multi_session(p: np.ndarray, obj: Objective, turns: int = 25, sessions: Sequ
                 plan_i = _solve(p[others], np.ones(len(others)), obj, turns, (s - 1) * turns, cache)
                 v[i] = bayes.evaluate_plan(plan_i, p[i:i + 1]).total[0] / s
             vals["explore-commit-loo"] = v
-        gap = vals["oracle"] - vals["best-fixed"]
+        gap = vals["oracle"] - vals["pooled-fixed"]
         for name, v in vals.items():
-            d = v - vals["best-fixed"]
+            d = v - vals["pooled-fixed"]
             share = float(d.mean() / gap.mean()) if gap.mean() > 1e-12 else None
             out.append({"sessions": s, "policy": name, "value_per_session": float(v.mean()), "value_ci": _ci(v),
                         "d_best_fixed": float(d.mean()), "d_best_fixed_ci": _ci(d), "oracle_share": share,

@@ -55,7 +55,7 @@ def test_several_sessions_are_ordered_best_fixed_commit_bound_oracle(tmp_path):
     out = ceiling.multi_session(p, objective.SCORE, turns=6, sessions=(1, 3), cache=tmp_path)
     v = {(m["sessions"], m["policy"]): m["value_per_session"] for m in out}
     for s in (1, 3):
-        assert v[(s, "best-fixed")] <= v[(s, "explore-commit")] + 1e-9
+        assert v[(s, "pooled-fixed")] <= v[(s, "explore-commit")] + 1e-9
         assert v[(s, "explore-commit")] <= v[(s, "bound")] + 1e-9 <= v[(s, "oracle")] + 2e-9
     assert v[(1, "explore-commit")] == pytest.approx(v[(1, "bound")])
     assert v[(3, "bound")] > v[(1, "bound")]  # the truth revealed is worth more over more sessions
