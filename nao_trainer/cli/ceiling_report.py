@@ -22,6 +22,9 @@ def add_arguments(p) -> None:
     g.add_argument("--multi-session", default=None, metavar="S1,S2,...",
                    help="also value S sessions of the same participant, e.g. 2,5,10 (level-only users)")
     g.add_argument("--no-ceiling", action="store_true", help="skip the Bayes ceiling")
+    g.add_argument("--user-models", action="store_true",
+                   help="instead: compare the per-level, cluster and pooled psychometric user models by next-turn "
+                        "log-likelihood on held-out sessions (needs --data DATASET_ROOT); writes DIR/user_models.json")
 
 
 def _objective(args):
@@ -138,3 +141,28 @@ def format_section(section: dict[str, Any] | None) -> str:
         lines.append(f"    {m['policy']:<20} {m['value_per_session']:8.{digits}f} {_ci(m['value_ci'], digits):>18} "
                      f"{share}")
     return "\n".join(lines)
+
+
+def run_user_models(args) -> int:
+    """``evaluate --user-models``: experiments.user_models on the held-out sessions."""
+    from pathlib import Path
+
+    from nao_trainer.experiments import user_models
+    from nao_trainer.files import write_json_atomic
+    from nao_trainer.learn import artifacts
+
+    source = args.data if args.users == "sessions" or args.data is not None else Path(args.users)
+    if source is None or not Path(source).exists():
+        raise ConfigError("--user-models needs the dataset: add --data DATASET_ROOT")
+    obj = _objective(args)
+    rate = obj.rate if obj.kind == "target" else 0.75
+    manifest = artifacts.load_manifest(args.models)
+    print(f"evaluate --user-models: held-out sessions of {source}", file=sys.stderr)
+    summary = user_models.run(Path(source), manifest.get("compat"), int(manifest.get("k", 3)), seed=args.seed,
+                              workers=args.workers, rate=rate)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out / "user_models.json", summary)
+    print(user_models.format_summary(summary))
+    print(f"  {out / 'user_models.json'}")
+    return 0

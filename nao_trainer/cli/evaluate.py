@@ -76,6 +76,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    if getattr(args, "user_models", False):
+        return ceiling_report.run_user_models(args)
     if getattr(args, "personalise", False):
         return run_personalise(args)
     from nao_trainer.learn import comparison, users
