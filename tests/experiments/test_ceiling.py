@@ -79,3 +79,13 @@ def test_bad_objective_is_one_line(tmp_path, capsys):
     assert "--objective" in capsys.readouterr().err
     assert main(["evaluate", "--users", "clusters", "--policies", "fixed:2", "--objective", "target:0.7",
                  "--no-plots", "--out", str(tmp_path / "f")]) == 2
+
+
+def test_calibration_bins_and_error():
+    from nao_trainer.experiments import user_models
+
+    pairs = [(0.9, 1)] * 9 + [(0.9, 0)] + [(0.2, 0)] * 4 + [(0.2, 1)] * 6
+    cal = user_models.calibration(pairs)
+    # the 0.9 bin is exact; the 0.2 bin observes 0.6: ECE = 10/20 * 0.4
+    assert cal["ece"] == pytest.approx(0.2)
+    assert [b["n"] for b in cal["bins"]] == [10, 10]
