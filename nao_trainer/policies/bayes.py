@@ -63,13 +63,18 @@ class BayesPolicy:
         self.history: list[dict[str, Any]] = list(saved.get("sessions", []))
         self.carried = np.array(saved.get("counts", [0] * 8), dtype=np.int64)  # earlier sessions
         self.counts = np.zeros(8, dtype=np.int64)  # this session
-        start = bayes.posterior_weights(self.p, self.weights, self.carried)
-        from nao_trainer.learn.bayes_cache import solve_cached
-
-        self.plan = solve_cached(self.p, start, obj.coefficients(4), self.turns, 0, cache)
+        self.cache = cache
+        self.plan = self._solve()
         self.session_dir: Path | None = None
         self.started = datetime.now(timezone.utc).isoformat(timespec="seconds")
         self.last_level = 0
+
+    def _solve(self) -> bayes.Plan:
+        """The table for this session: prior = the posterior after the earlier sessions' counts."""
+        from nao_trainer.learn.bayes_cache import solve_cached
+
+        start = bayes.posterior_weights(self.p, self.weights, self.carried)
+        return solve_cached(self.p, start, self.objective.coefficients(4), self.turns, 0, self.cache)
 
     # -- ports.Policy ------------------------------------------------------------------------------
 
@@ -103,13 +108,20 @@ class BayesPolicy:
         pass  # an override is observed like any turn: the counts, not the plan, change
 
     def snapshot(self) -> dict | None:
-        return {"counts": self.counts.tolist(), "history": self.history, "started": self.started}
+        return {"counts": self.counts.tolist(), "carried": self.carried.tolist(), "history": self.history,
+                "started": self.started}
 
     def restore(self, data: dict | None) -> None:
+        """Back to a checkpoint of this session (``--resume``): the participant file already holds the
+        interrupted session's turns, so the counts before it come from the checkpoint."""
         if data:
+            carried = np.array(data["carried"], dtype=np.int64)
             self.counts = np.array(data["counts"], dtype=np.int64)
             self.history = list(data["history"])
             self.started = str(data["started"])
+            if not np.array_equal(carried, self.carried):
+                self.carried = carried
+                self.plan = self._solve()
 
     def close(self) -> None:
         self.save()

@@ -92,3 +92,22 @@ def test_policy_follows_its_plan_and_counts_overrides(tmp_path):
         state = nxt
     assert pol.counts.tolist() == counts.tolist()
     assert json.loads((tmp_path / "b.json").read_text())["payload"]["counts"] == counts.tolist()
+
+
+def test_restore_from_a_checkpoint_does_not_count_the_session_twice(tmp_path):
+    from nao_trainer.core import objective
+    from nao_trainer.policies.bayes import BayesPolicy
+
+    p = np.array([[0.99, 0.95, 0.2, 0.05], [0.99, 0.95, 0.9, 0.85]])
+    pol = BayesPolicy(("weak", "strong"), p, np.array([1.0, 1.0]), objective.SCORE, 8, tmp_path / "b.json",
+                      cache=tmp_path)
+    for t in range(3):
+        pol.observe(Transition(mdp.START if t == 0 else 31, 2, 3, None, 2 * 27 + 4, False))
+    snap = pol.snapshot()
+    saved = json.loads((tmp_path / "b.json").read_text())["payload"]
+    # a resumed session: the participant file (3 turns at level 3) is read as carried, then the checkpoint
+    again = BayesPolicy(("weak", "strong"), p, np.array([1.0, 1.0]), objective.SCORE, 8, tmp_path / "b.json",
+                        saved=saved, cache=tmp_path)
+    again.restore(snap)
+    assert again.carried.sum() == 0 and again.counts.tolist() == [0, 0, 0, 0, 3, 0, 0, 0]
+    assert again.decide() == pol.decide()
