@@ -224,13 +224,14 @@ def achievable(rows: list[dict[str, Any]], key: str = "utility", reference: str 
     achievable gap (to ``ceiling``) and of the oracle gap."""
     keys = list(dict.fromkeys((r["policy"], r.get("assessment")) for r in rows if key in r))
     ref, top = _by_user(rows, reference, key), _by_user(rows, "ceiling", key)
+    loo = _by_user(rows, "bayes-loo", key)
     out = []
     for pol, length in keys:
         mine = _by_user(rows, pol, key, length)
         v = np.array(list(mine.values()))
         entry: dict[str, Any] = {"policy": pol, "assessment": length, "users": len(v), "value": float(v.mean()),
                                  "value_ci": _ci(v)}
-        for label, other in (("d_reference", ref), ("d_ceiling", top)):
+        for label, other in (("d_reference", ref), ("d_ceiling", top), ("d_bayes_loo", loo)):
             d = np.array([mine[u] - other[u] for u in mine if u in other])
             entry[label], entry[f"{label}_ci"] = (float(d.mean()), _ci(d)) if d.size else (None, None)
         entry["achievable_share"] = share_of_gap(rows, pol, key, "ceiling", reference, length)
