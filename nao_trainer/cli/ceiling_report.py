@@ -74,8 +74,9 @@ def comparison_section(args, users: list, rows: list[dict], turns: int = 25) -> 
 
 
 def personalise_section(args, result: dict, turns: int = 25) -> dict[str, Any] | None:
-    """``evaluate --personalise``: the ceiling, ``bayes`` with the fitted clusters as prior, and
-    (``--loo-bayes``) the planner knowing the other users."""
+    """``evaluate --personalise``: the ceiling, ``bayes`` with the fitted clusters as prior,
+    ``bayes-psychometric`` with the pooled psychometric model fitted on the other sessions as prior,
+    and (``--loo-bayes``) the planner knowing the other users."""
     import numpy as np
 
     from nao_trainer.core.simulation import UserSimulator
@@ -89,7 +90,10 @@ def personalise_section(args, result: dict, turns: int = 25) -> dict[str, Any] |
     fits = result["fits"]
     train = {n: np.array(fits[n]["train_rates"]) for n in rates}
     clusters = {n: str(fits[n]["cluster"]) for n in rates}
-    priors = {n: (np.array(fits[n]["prior"]["p"]), np.array(fits[n]["prior"]["w"])) for n in rates}
+    from nao_trainer.core.psychometric import PooledModel
+
+    priors = {"bayes": {n: (np.array(fits[n]["prior"]["p"]), np.array(fits[n]["prior"]["w"])) for n in rates},
+              "bayes-psychometric": {n: PooledModel(**fits[n]["psychometric"]).mixture() for n in rates}}
     return _section(args, obj, result["rows"], rates, train, clusters, priors, turns)
 
 

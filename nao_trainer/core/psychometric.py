@@ -71,6 +71,13 @@ class PooledModel:
         w = self.posterior(counts)
         return w @ curve(np.asarray(lengths, float)[None, :], THETA[:, None], self.sigma, self.lapse)
 
+    def mixture(self, min_weight: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+        """The prior as a finite mixture of per-level user models (what ``core.bayes`` plans over):
+        success per level (G, 4) at each theta of the grid with prior weight >= ``min_weight``."""
+        w = np.exp(self.log_prior())
+        keep = w >= min_weight * w.max()
+        return curve(LENGTHS[None, :], THETA[keep][:, None], self.sigma, self.lapse), w[keep] / w[keep].sum()
+
     def span(self, counts: np.ndarray, rate: float = 0.75, level: float = 0.9) -> tuple[float, float, float]:
         """Posterior mean and central ``level`` interval of the length succeeded at ``rate``."""
         from statistics import NormalDist
@@ -100,3 +107,13 @@ def fit(counts: np.ndarray) -> PooledModel:
             if total[i] > best:
                 best, arg = float(total[i]), (float(_MU[i[0]]), float(_TAU[i[1]]), float(sigma), float(lapse))
     return PooledModel(*arg)
+
+
+def session_counts(sessions: np.ndarray, levels: np.ndarray, successes: np.ndarray) -> np.ndarray:
+    """(S, 8) per-level (successes, failures) of each session (sorted by name)."""
+    names = sorted(np.unique(sessions).tolist())
+    out = np.zeros((len(names), 8))
+    index = {n: i for i, n in enumerate(names)}
+    for s, lv, ok in zip(sessions, levels, successes):
+        out[index[s], 2 * (int(lv) - 1) + (0 if ok else 1)] += 1
+    return out

@@ -105,18 +105,19 @@ def prior_rows(priors: dict[str, tuple[np.ndarray, np.ndarray]], rates: dict[str
 
 def report(rows: list[dict[str, Any]], rates: dict[str, np.ndarray], train_rates: dict[str, np.ndarray],
            clusters: dict[str, str], obj: Objective, turns: int = 25, loo: bool = False,
-           priors: dict[str, tuple[np.ndarray, np.ndarray]] | None = None, cache: Path | None = None
+           priors: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] | None = None, cache: Path | None = None
            ) -> dict[str, Any]:
     """Every policy of an evaluation (``rows``, not changed) beside the ceiling, under ``obj``: the
-    ``achievable`` summary and the rows added here (ceiling, bayes, fixed levels, oracle)."""
+    ``achievable`` summary and the rows added here (ceiling, bayes, fixed levels, oracle).
+    ``priors[policy][user] = (p (K, 4), weights)``: the planner with that prior, one row per user."""
     mine = [dict(r) for r in rows if r["user"] in rates]
     add_utility(mine, rates, obj)
     names = list(rates)
     p = np.array([rates[n] for n in names])
     extra = objective_rows(rates, train_rates, clusters, obj, turns, {r["policy"] for r in mine})
     extra += bayes_rows(names, [clusters.get(n, "") for n in names], p, None, obj, turns, loo, cache)
-    if priors:
-        extra += prior_rows(priors, rates, clusters, obj, turns, cache)
+    for policy, per_user in (priors or {}).items():  # e.g. "bayes": the fitted clusters, per user
+        extra += prior_rows(per_user, rates, clusters, obj, turns, cache, policy)
     extra += adaptive_rows(rates, clusters, obj, turns)
     return {"objective": str(obj), "turns": turns, "summary": achievable(mine + extra), "rows": extra}
 
