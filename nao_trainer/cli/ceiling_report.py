@@ -131,14 +131,14 @@ def format_section(section: dict[str, Any] | None) -> str:
     lines = [f"against the Bayes ceiling, objective {section['objective']} (per {section['turns']}-turn session; "
              "mean over users [95 % CI]; share = gain over the best fixed level / the ceiling's gain):",
              f"  {'policy':<22} {'A':>3} {'value':>8} {'95% CI':>18} {'d ceiling':>10} {'95% CI':>18} "
-             f"{'share of achievable':>22} {'share of oracle gap':>20} {'d bayes-loo [95% CI]':>24}"]
+             f"{'share of achievable':>22} {'share of oracle gap':>20} {'d bayes-loo [95% CI]':>24} {'share vs pooled level':>20}"]
     for s in section["summary"]:
         a = "" if s["assessment"] is None else str(s["assessment"])
         d = "" if s["d_ceiling"] is None else f"{s['d_ceiling']:+.{digits}f}"
         loo = "" if s.get("d_bayes_loo") is None else f"{s['d_bayes_loo']:+.{digits}f} {_ci(s['d_bayes_loo_ci'], digits)}"
         lines.append(f"  {s['policy']:<22} {a:>3} {s['value']:8.{digits}f} {_ci(s['value_ci'], digits):>18} {d:>10} "
                      f"{_ci(s['d_ceiling_ci'], digits):>18} {_share(s['achievable_share']):>22} "
-                     f"{_share(s['oracle_share']):>20} {loo:>24}")
+                     f"{_share(s['oracle_share']):>20} {loo:>24} {_share(s.get('achievable_share_pooled', {})):>20}")
     for m in section.get("multi_session", []):
         if m["policy"] == "pooled-fixed":
             lines.append(f"  {m['sessions']} session(s) of the same participant (value per session):")

@@ -236,6 +236,9 @@ def achievable(rows: list[dict[str, Any]], key: str = "utility", reference: str 
             d = np.array([mine[u] - other[u] for u in mine if u in other])
             entry[label], entry[f"{label}_ci"] = (float(d.mean()), _ci(d)) if d.size else (None, None)
         entry["achievable_share"] = share_of_gap(rows, pol, key, "ceiling", reference, length)
+        # the same against the level best for the whole population (a fixed level a study can choose
+        # without the participant's data; the project's rule uses their nearest cluster)
+        entry["achievable_share_pooled"] = share_of_gap(rows, pol, key, "ceiling", "pooled-fixed", length)
         entry["oracle_share"] = share_of_gap(rows, pol, key, oracle, reference, length)
         out.append(entry)
     return out
