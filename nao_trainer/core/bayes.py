@@ -61,9 +61,6 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["available", "Plan", "solve", "evaluate_plan", "posterior_weights", "fingerprint", "n_states",
-           "PlanValue"]
-
 _KERNELS: dict[str, Any] = {}
 prange = range  # numba.prange in the compiled kernel
 
@@ -187,22 +184,15 @@ def _v_layer(n, horizon, off, coef, z0, z1, z2, vnext, vcur, act, commit, chunks
     c + 2 e_j come from prefix and suffix sums of the rank's terms (O(1) per child)."""
     m = off.shape[0] + 1
     levels = coef.shape[0]
-    size = vcur.shape[0]
-    terminal = n == horizon
-    quadratic = False
-    for lv in range(levels):
-        if coef[lv, 2] != 0.0:
-            quadratic = True
+    size, terminal = vcur.shape[0], n == horizon
+    quadratic = z2.shape[0] > 1  # c != 0 for some level: Z of layer n + 2 was computed
     for ch in prange(chunks):
         start = ch * size // chunks
         stop = (ch + 1) * size // chunks
         if start >= stop:
             continue
-        c = np.zeros(m, dtype=np.int64)
-        nrem = np.zeros(m, dtype=np.int64)
-        p1 = np.zeros(m, dtype=np.int64)
-        p2 = np.zeros(m, dtype=np.int64)
-        sf = np.zeros(m, dtype=np.int64)
+        c, nrem = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64)
+        p1, p2, sf = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64)
         _unrank(start, n, off, c)
         for idx in range(start, stop):
             if idx > start:
@@ -213,9 +203,7 @@ def _v_layer(n, horizon, off, coef, z0, z1, z2, vnext, vcur, act, commit, chunks
                 if not terminal:
                     act[idx] = 0
                 continue
-            left = n
-            a1 = 0
-            a2 = 0
+            left, a1, a2 = n, 0, 0
             for d in range(m):
                 nrem[d] = left
                 p1[d] = a1
@@ -229,8 +217,7 @@ def _v_layer(n, horizon, off, coef, z0, z1, z2, vnext, vcur, act, commit, chunks
                 sf[d] = acc
                 if d < m - 1:
                     acc += off[d, nrem[d], c[d]]
-            best = -1e300
-            best_a = 0
+            best, best_a = -1e300, 0
             for lv in range(levels):
                 s = 2 * lv
                 rs = p1[s] + off[s, nrem[s] + 1, c[s] + 1] + sf[s]
@@ -483,8 +470,6 @@ def _forward(choose: Any, p_true: np.ndarray, coef: np.ndarray, horizon: int) ->
     u_true = utility_table(p_true, coef)
     levels = p_true.shape[1]
     off = _offsets(horizon, levels)
-    if np.asarray(coef).shape != (levels, 3):
-        raise ValueError(f"users need {np.asarray(coef).shape[0]} levels of success rates")
     n_users, m = p_true.shape[0], 2 * levels
     states = np.zeros((1, m), dtype=np.int64)
     mass = np.ones((1, n_users))
