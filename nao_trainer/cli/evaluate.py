@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from nao_trainer.errors import ConfigError, DataError
+from nao_trainer.cli import ceiling_report
 from nao_trainer.cli._checks import make_output_dir, require_matplotlib
 
 MDPS = ("paper", "informed")  # core.processes.NAMES, repeated so that --help does not import numpy
@@ -63,10 +64,13 @@ def register(sub) -> None:
                         "(e.g. 2: the session's own rates)")
     g.add_argument("--export-users", type=Path, default=None, metavar="DIR",
                    help="also write every held-out session's user simulator to DIR (usable as --user-model FILE)")
+    ceiling_report.add_arguments(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    if getattr(args, "user_models", False):
+        return ceiling_report.run_user_models(args)
     if getattr(args, "personalise", False):
         return run_personalise(args)
     from nao_trainer.experiments import comparison, reports
@@ -79,6 +83,7 @@ def run(args) -> int:
         raise ConfigError("--policies: give at least one policy")
     spec = comparison.EvalSpec(policies=policies, process=args.mdp, seeds=args.seeds, episodes=args.episodes,
                                mc_episodes=args.mc_episodes, seed=args.seed)
+    ceiling_report.check(args)
     check_backend(args.backend)
     if args.workers < 1 or (args.limit is not None and args.limit < 1):
         raise ConfigError("--workers and --limit must be >= 1")
@@ -94,9 +99,10 @@ def run(args) -> int:
         given = comparison.policy_file_learners(user_list, args.policy_files, spec)
     print(f"evaluate: {len(user_list)} {kind} users x {len(policies)} policies, {args.mdp} MDP", file=sys.stderr)
     rows = comparison.run(user_list, spec, args.workers, args.backend, given)
+    ceiling = ceiling_report.comparison_section(args, user_list, rows, spec.turns)
     report, paths = reports.write_comparison(Path(args.out), rows, spec, command=_command(args, ["evaluate"]),
                                              users=kind, n_users=len(user_list), policy_files=args.policy_files,
-                                             started=t0)
+                                             started=t0, extra={"ceiling": ceiling})
     if not args.no_plots:
         from nao_trainer.plots.evaluation import plot_evaluation
 
@@ -106,6 +112,7 @@ def run(args) -> int:
         print(json.dumps(report))
     else:
         print(reports.format_table(report["summary"], report["claims"]))
+        print(ceiling_report.format_section(report["ceiling"]))
         if args.per_user:
             print(reports.per_user_table(rows))
         for path in paths:
@@ -139,6 +146,7 @@ def run_personalise(args) -> int:
                                            session_prior=session_prior,
                                            margin=args.margin, episodes=args.episodes, seeds=1,
                                            mc_episodes=args.mc_episodes, seed=args.seed)
+    ceiling_report.check(args)
     check_backend(args.backend)
     if args.workers < 1 or (args.limit is not None and args.limit < 1):
         raise ConfigError("--workers and --limit must be >= 1")
@@ -156,8 +164,10 @@ def run_personalise(args) -> int:
           file=sys.stderr)
     result = personalisation.run(source, spec, manifest.get("compat"), int(manifest.get("k", 3)),
                                  workers=args.workers, backend=args.backend, limit=args.limit)
+    ceiling = ceiling_report.personalise_section(args, result, spec.turns)
     report, paths = reports.write_personalisation(out, result, spec, command=_command(args, ["evaluate", "--personalise"]),
-                                                  started=t0, export_users=args.export_users)
+                                                  started=t0, export_users=args.export_users,
+                                                  extra={"ceiling": ceiling})
     if not args.no_plots:
         from nao_trainer.plots.personalise import plot_personalise
 
@@ -169,6 +179,7 @@ def run_personalise(args) -> int:
         print(json.dumps(report))
     else:
         print(reports.format_personalise(report["summary"], report["engagement_information"]))
+        print(ceiling_report.format_section(report["ceiling"]))
         for path in paths:
             print(f"  {path}")
     return 0

@@ -39,7 +39,8 @@ def register(sub) -> None:
                    help="simulated participant from a fitted user model (cluster id or simulator JSON)")
     p.add_argument("--policy", metavar="SPEC",
                    help="schedule | random | usp:CLUSTER[:METHOD] | personalised (assess, match the user models, "
-                        "choose by posterior expected value, keep learning; docs/personalisation.md)")
+                        "choose by posterior expected value, keep learning; docs/personalisation.md) | bayes (the "
+                        "exact Bayes-adaptive planner, policy.objective)")
     p.add_argument("--no-learning", action="store_true", help="a learning policy does not update during the session")
     p.add_argument("--no-practice", action="store_true", help="skip the practice round")
     p.add_argument("--quiet", action="store_true", help="no per-turn progress lines")

@@ -8,8 +8,9 @@ Monte Carlo.
 * ``best_fixed_level(p, e)``: the fixed level with the highest expected score on a user model;
 * ``uniform_policy``: uniform over the allowed actions;
 * ``core.evaluation.optimal``: the finite-horizon optimum (an oracle that knows the user's tables);
-* ``Staircase("1u1d" | "2d1u", start)``: level up after one success (``1u1d``) or two successes in
-  a row (``2d1u``), down after one failure, starting at level ``start``; it only ever plays levels.
+* ``Staircase("1u1d" | "2d1u" | "3d1u", start)``: level up after one success (``1u1d``), two
+  (``2d1u``) or three (``3d1u``) successes in a row, down after one failure, starting at level
+  ``start``; it only ever plays levels.
   It reacts to the outcomes the MDP lets a policy know: in the informed MDP the outcome of the turn
   just played, in the paper MDP the previous result of the observed state (one turn later);
 * ``learner_table(learner)``: a trained Q-learner frozen (its softmax at its current temperatures);
@@ -28,13 +29,42 @@ from nao_trainer.core.qlearning import QLearner, choose_columns, inverse_tempera
 __all__ = ["fixed_level_policy", "uniform_policy", "best_fixed_level", "Staircase", "learner_table",
            "KeepLearning", "STAIRCASE_RULES"]
 
-STAIRCASE_RULES: tuple[str, ...] = ("1u1d", "2d1u")
+STAIRCASE_RULES: tuple[str, ...] = ("1u1d", "2d1u", "3d1u")
+#: Successes in a row before a step up; the rule converges where P(up) = P(down): p^n = 1/2
+#: (1u1d: 50 %, 2d1u: 70.7 %, 3d1u: 79.4 %; Levitt 1971, J. Acoust. Soc. Am. 49, 467).
+STAIRCASE_UP_AFTER: dict[str, int] = {"1u1d": 1, "2d1u": 2, "3d1u": 3}
 
 
 def best_fixed_level(p_success: np.ndarray, engagement: np.ndarray, turns: int = 25) -> int:
     """The level (1..4) whose fixed policy has the highest expected score (ties: the lower level)."""
     scores = [evaluate(fixed_level_policy(level), p_success, engagement, turns).score for level in (1, 2, 3, 4)]
     return int(np.argmax(np.round(scores, 12))) + 1
+
+
+def staircase_step(level: np.ndarray, streak: np.ndarray, known: np.ndarray, need: int, top: int
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """One step of an n-up/1-down rule on a ladder 1..top: ``known`` +1 success, -1 failure, 0 none."""
+    streak = np.where(known > 0, streak + 1, np.where(known < 0, 0, streak))
+    up = streak >= need
+    down = known < 0
+    return np.clip(level + up - down, 1, top), np.where(up, 0, streak)
+
+
+def staircase_success_rate(rule: str, p_ladder: np.ndarray, turns: int, rng: np.random.Generator,
+                           start: int = 1, walkers: int = 200) -> float:
+    """Mean success rate of ``rule`` run for ``turns`` turns on a ladder whose step i succeeds with
+    ``p_ladder[i-1]`` (outcomes seen straight away), over ``walkers`` independent runs; the first
+    half of every run is discarded (the rule's convergence, not its approach)."""
+    p = np.asarray(p_ladder, dtype=float)
+    level = np.full(walkers, start)
+    streak = np.zeros(walkers, dtype=np.int64)
+    wins = 0.0
+    for t in range(turns):
+        success = rng.random(walkers) < p[level - 1]
+        if t >= turns // 2:
+            wins += success.sum()
+        level, streak = staircase_step(level, streak, np.where(success, 1, -1), STAIRCASE_UP_AFTER[rule], len(p))
+    return float(wins / (walkers * (turns - turns // 2)))
 
 
 @dataclass
@@ -72,12 +102,7 @@ class Staircase:
 
     def act(self, obs: np.ndarray, turn: int, rng: np.random.Generator) -> np.ndarray:
         known = self._known_outcome(obs, turn)
-        need = 1 if self.rule == "1u1d" else 2
-        streak = np.where(known > 0, self._streak + 1, np.where(known < 0, 0, self._streak))
-        up = streak >= need
-        down = known < 0
-        self._level = np.clip(self._level + up - down, 1, 4)
-        self._streak = np.where(up, 0, streak)
+        self._level, self._streak = staircase_step(self._level, self._streak, known, STAIRCASE_UP_AFTER[self.rule], 4)
         return self._level - 1
 
     def observe(self, *args) -> None:

@@ -36,7 +36,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from nao_trainer.core import assessment, baselines, evaluation, mdp, posterior
+from nao_trainer.core import assessment, baselines, evaluation, mdp, posterior, psychometric
 from nao_trainer.core.qlearning import METHODS, QConfig
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.core.assessment import Choice
@@ -260,8 +260,13 @@ def engagement_information(h: HeldOut, lengths: Sequence[int] = (6, 12, 25)) -> 
 
 def _one(turns: Any, session: str, k: int, n_init: int, seed: int, spec: PersonaliseSpec) -> dict[str, Any]:
     h = held_out(turns, session, k, n_init, seed, spec.session_prior)
+    rest = turns.session != session  # the pooled psychometric model of the other sessions (issue 21)
+    pooled = psychometric.fit(psychometric.session_counts(turns.session[rest], turns.level[rest], turns.success[rest]))
+    means = posterior.level_means(np.stack([s.p_success for s in h.sims]))
     return {"rows": score_held_out(h, spec), "engagement": engagement_information(h),
-            "user": h.user.truth.to_dict(), "best_level": None}
+            "user": h.user.truth.to_dict(), "best_level": None, "cluster": h.user.cluster,
+            "psychometric": dict(pooled.__dict__),
+            "prior": {"p": means.tolist(), "w": h.sizes.tolist()}, "train_rates": means[h.cluster_index].tolist()}
 
 
 def run(source: Any, spec: PersonaliseSpec, compat: str | None = None, k: int = 3, n_init: int = 50,
@@ -276,7 +281,9 @@ def run(source: Any, spec: PersonaliseSpec, compat: str | None = None, k: int = 
     parts = fan_out(_one, [(turns, s, k, n_init, spec.seed, spec) for s in sessions], workers, backend)
     rows = [r for part in parts for r in part["rows"]]
     return {"rows": rows, "engagement": [r for part in parts for r in part["engagement"]],
-            "users": [part["user"] for part in parts]}
+            "users": [part["user"] for part in parts],
+            "fits": {part["user"]["name"]: {k: part[k] for k in ("cluster", "prior", "train_rates", "psychometric")}
+                     for part in parts}}
 
 
 # ----------------------------------------------------------------------------------------------

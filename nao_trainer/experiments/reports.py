@@ -33,9 +33,11 @@ ROW_COLUMNS = ("user", "cluster", "policy", "seed", "score", "engagement", "succ
 
 
 def write_comparison(out: Path, rows: list[dict], spec: comparison.EvalSpec, *, command: str, users: str,
-                     n_users: int, policy_files: Path | None, started: float) -> tuple[dict[str, Any], list[Path]]:
+                     n_users: int, policy_files: Path | None, started: float,
+                     extra: dict[str, Any] | None = None) -> tuple[dict[str, Any], list[Path]]:
     """``evaluation.json``, ``evaluation.csv`` and the row file in ``out``; the report and the paths.
-    ``started``: ``time.perf_counter()`` when the run began (the report's ``seconds``)."""
+    ``started``: ``time.perf_counter()`` when the run began (the report's ``seconds``); ``extra``: more
+    sections of the report (e.g. the Bayes ceiling)."""
     summary = comparison.summarise(rows)
     report = {
         "command": command, "users": users, "n_users": n_users, "mdp": spec.process,
@@ -44,7 +46,7 @@ def write_comparison(out: Path, rows: list[dict], spec: comparison.EvalSpec, *, 
                  "hyperparameters": spec.config.to_dict(),
                  "policy_files": None if policy_files is None else str(policy_files)},
         "summary": summary, "claims": comparison.claims(rows), "rows_file": ROWS_FILE,
-        "seconds": round(time.perf_counter() - started, 2),
+        **(extra or {}), "seconds": round(time.perf_counter() - started, 2),
     }
     out = Path(out)
     write_json_atomic(out / "evaluation.json", report)
@@ -143,7 +145,8 @@ def to_csv(summary: list[dict]) -> str:
 
 def write_personalisation(out: Path, result: dict[str, Any], spec: personalisation.PersonaliseSpec, *,
                           command: str, started: float,
-                          export_users: Path | None = None) -> tuple[dict[str, Any], list[Path]]:
+                          export_users: Path | None = None,
+                          extra: dict[str, Any] | None = None) -> tuple[dict[str, Any], list[Path]]:
     """``personalise.json``, ``personalise.csv``, the row file (and each user's simulator in
     ``export_users``); the report and the paths."""
     summary = personalisation.summarise(result["rows"])
@@ -155,7 +158,7 @@ def write_personalisation(out: Path, result: dict[str, Any], spec: personalisati
                        "margin": spec.margin, "method": spec.method, "episodes": spec.episodes,
                        "mc_episodes": spec.mc_episodes, "turns": spec.turns, "seed": spec.seed},
               "summary": summary, "engagement_information": engagement, "rows_file": PERSONALISE_ROWS_FILE,
-              "seconds": round(time.perf_counter() - started, 2)}
+              **(extra or {}), "seconds": round(time.perf_counter() - started, 2)}
     out = Path(out)
     write_json_atomic(out / "personalise.json", report)
     write_text_atomic(out / "personalise.csv", personalise_csv(summary))

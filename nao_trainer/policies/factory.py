@@ -8,12 +8,12 @@ from nao_trainer.policies.participant_state import PolicySettings, state_file
 from nao_trainer.policies.fixed import FixedSchedule, UniformRandom
 from nao_trainer.ports import Policy
 
-KINDS = "'schedule', 'random', 'personalised' or 'usp:CLUSTER[:METHOD]'"
+KINDS = "'schedule', 'random', 'personalised', 'bayes' or 'usp:CLUSTER[:METHOD]'"
 
 
 def make_policy(section: PolicySettings, participant: str, output: Path, *, turns: int,
                 fresh: bool = False) -> Policy:
-    """The policy ``section.kind`` ("schedule", "random", "usp:CLUSTER[:METHOD]" or "personalised") for
+    """The policy ``section.kind`` ("schedule", "random", "usp:CLUSTER[:METHOD]", "personalised" or "bayes") for
     the participant ``participant`` (pseudonym) of a study writing to ``output``, for sessions of
     ``turns`` turns; ``fresh``: set the participant's saved learning state aside (``--fresh-policy``)."""
     kind = section.kind
@@ -21,12 +21,14 @@ def make_policy(section: PolicySettings, participant: str, output: Path, *, turn
         return FixedSchedule(list(section.schedule))
     if kind == "random":
         return UniformRandom()
-    if kind != "personalised" and not kind.startswith("usp:"):
+    if kind not in ("personalised", "bayes") and not kind.startswith("usp:"):
         raise ConfigError(f"policy {kind!r}: use {KINDS}")
     path = state_file(kind, section.state_path, participant, output)
     try:  # the learning policies need the learning stack (scipy, ...), which a minimal install may lack
         if kind == "personalised":
             from nao_trainer.policies.personalised import load_personalised
+        elif kind == "bayes":  # the exact Bayes-adaptive planner
+            from nao_trainer.policies.bayes import load_bayes
         else:
             from nao_trainer.policies.learned import load_policy
     except ImportError as exc:
@@ -35,4 +37,6 @@ def make_policy(section: PolicySettings, participant: str, output: Path, *, turn
     if kind == "personalised":
         return load_personalised(path, participant, turns, section.assessment, float(section.kappa),
                                  float(section.margin), section.learning, fresh, guidance=section.guidance)
+    if kind == "bayes":
+        return load_bayes(path, participant, turns, section.objective, fresh)
     return load_policy(kind, section.learning, path, guidance=section.guidance, fresh=fresh, pseudonym=participant)

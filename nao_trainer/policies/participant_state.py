@@ -2,7 +2,7 @@
 
 A learning policy keeps a participant's state in ``<output>/participants/<pseudonym>/<file>``
 (``state_file``; ``<file>`` is ``personalised.json`` for the personalised policy and
-``policy_state.json`` for a learned one). ``policy.state_path`` may name another file, with
+``policy_state.json`` for a learned one, ``bayes.json`` for the Bayes planner). ``policy.state_path`` may name another file, with
 ``{pseudonym}`` and ``{output}``, or be ``{session}`` to keep it in the session folder (nothing
 carried over). ``--fresh-policy`` never deletes a state file: ``set_aside`` renames it to
 ``<file>.replaced-<UTC time>``. Standard library only: the configuration imports this module and
@@ -18,7 +18,7 @@ from typing import Protocol, Sequence
 #: ``policy.state_path`` that keeps the state in the session folder (nothing carried over).
 SESSION_FOLDER = "{session}"
 #: The state file's name per policy kind (learned policies: ``policy_state.json``).
-STATE_FILENAMES: dict[str, str] = {"personalised": "personalised.json"}
+STATE_FILENAMES: dict[str, str] = {"personalised": "personalised.json", "bayes": "bayes.json"}
 DEFAULT_STATE_FILENAME = "policy_state.json"
 
 
@@ -33,6 +33,7 @@ class PolicySettings(Protocol):
     assessment: Sequence[int]
     kappa: float
     margin: float
+    objective: str
 
 
 def state_filename(kind: str) -> str:

@@ -147,7 +147,7 @@ class ParticipantModelSection:
 
 @settings
 class PolicySection:
-    kind: str = setting(kind=str, check=rules.policy_spec, doc="schedule | random | usp:CLUSTER[:METHOD] | personalised")
+    kind: str = setting(kind=str, check=rules.policy_spec, doc="schedule | random | usp:CLUSTER[:METHOD] | personalised | bayes")
     schedule: tuple[str, ...] = setting(kind=list, item=str, check=rules.schedule, doc="actions, cycled")
     learning: bool = setting(kind=bool, doc="learning policies keep learning during the session")
     state_path: str | None = setting(kind=str, nullable=True, check=rules.state_path, doc="where learning state lives")
@@ -156,6 +156,9 @@ class PolicySection:
     assessment: tuple[int, ...] = setting(kind=list, item=int, check=rules.assessment, doc="levels of the first turns")
     kappa: float = setting(kind=NUMBER, min=0.01, doc="strength of the per-level Beta priors")
     margin: float = setting(kind=NUMBER, min=0, doc="expected-value gain a new policy needs")
+    # bayes (policies.bayes, core/objective.py)
+    objective: str = setting("score", kind=str, check=rules.objective,
+                             doc="score (equation (1)) | target:R (keep success near rate R)")
 
     def state_file(self, pseudonym: str, output: Path) -> Path | None:
         """Where a learning policy keeps its state across sessions: by default the participant's

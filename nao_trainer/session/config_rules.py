@@ -30,9 +30,15 @@ def is_robot_address(url: str) -> bool:
 
 
 def policy_spec(value: str) -> str | None:
-    if value in ("schedule", "random", "personalised") or re.fullmatch(r"usp:[^:\s]+(:[A-Za-z0-9_-]+)?", value):
+    if value in ("schedule", "random", "personalised", "bayes") or re.fullmatch(r"usp:[^:\s]+(:[A-Za-z0-9_-]+)?", value):
         return None
-    return "must be 'schedule', 'random', 'personalised' or 'usp:CLUSTER[:METHOD]'"
+    return "must be 'schedule', 'random', 'personalised', 'bayes' or 'usp:CLUSTER[:METHOD]'"
+
+
+def objective(value: str) -> str | None:
+    if value == "score" or re.fullmatch(r"target(:(0?\.\d+))?", value):
+        return None
+    return "must be 'score' or 'target:R' with 0 < R < 1, e.g. target:0.75"
 
 
 def schedule(value: list) -> str | None:

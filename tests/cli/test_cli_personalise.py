@@ -95,6 +95,9 @@ def test_evaluate_personalise_on_a_held_out_session(dataset_root, tmp_path, monk
     exact = [s for s in report["summary"] if s["assessment"] is None]
     assert all(oracle["score"] >= s["score"] - 1e-9 for s in exact)
     assert [e["turns"] for e in report["engagement_information"]] == [6, 12, 25]
+    beside = {s["policy"]: s for s in report["ceiling"]["summary"]}  # the Bayes ceiling section (issue 21)
+    assert {"ceiling", "bayes", "bayes-psychometric", "questplus", "staircase-2d1u@2", "oracle-objective"} <= set(beside)
+    assert beside["oracle-objective"]["value"] >= beside["ceiling"]["value"] - 1e-9
     assert (out / "personalise.csv").read_text().startswith("policy,assessment,users,score")
     import gzip
 

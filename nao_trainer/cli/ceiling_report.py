@@ -1,0 +1,173 @@
+"""The ceiling section of ``nao-trainer evaluate`` and ``evaluate --personalise`` (experiments.ceiling).
+
+Kept apart from cli/evaluate.py so that the two merge easily: evaluate.py calls ``add_arguments``
+and ``comparison_section`` / ``personalise_section`` and prints ``format_section``.
+"""
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+from nao_trainer.errors import ConfigError
+
+
+def add_arguments(p) -> None:
+    g = p.add_argument_group("ceiling and objective (docs/evaluation.md, 'What can be won')")
+    g.add_argument("--objective", default="score", metavar="score|target:R",
+                   help="what the policies are judged by: score (equation (1), default) or target:R (keep the "
+                        "participant near success rate R, utility -(p - R)^2 per turn)")
+    g.add_argument("--loo-bayes", action="store_true",
+                   help="also the Bayes planner with the prior made of the other users (one solve per user, "
+                        "about 3-5 s each)")
+    g.add_argument("--multi-session", default=None, metavar="S1,S2,...",
+                   help="also value S sessions of the same participant, e.g. 2,5,10 (level-only users)")
+    g.add_argument("--no-ceiling", action="store_true", help="skip the Bayes ceiling")
+    g.add_argument("--user-models", action="store_true",
+                   help="instead: compare the per-level, cluster and pooled psychometric user models by next-turn "
+                        "log-likelihood on held-out sessions (needs --data DATASET_ROOT); writes DIR/user_models.json")
+
+
+def _objective(args):
+    from nao_trainer.core.objective import parse
+
+    try:
+        return parse(args.objective)
+    except ValueError as exc:
+        raise ConfigError(f"--objective: {exc}") from None
+
+
+def _sessions(args) -> tuple[int, ...]:
+    if not args.multi_session:
+        return ()
+    try:
+        out = tuple(int(x) for x in str(args.multi_session).split(",") if x.strip())
+    except ValueError:
+        out = ()
+    if not out or min(out) < 1:
+        raise ConfigError(f"--multi-session: give session counts >= 1 like 2,5,10, got {args.multi_session!r}")
+    return out
+
+
+def check(args) -> None:
+    """Validate the flags before any work starts."""
+    _objective(args)
+    _sessions(args)
+
+
+def comparison_section(args, users: list, rows: list[dict], turns: int = 25) -> dict[str, Any] | None:
+    """``evaluate``: the ceiling beside the compared policies (level-only users only)."""
+    from nao_trainer.experiments import ceiling
+
+    obj = _objective(args)
+    if args.no_ceiling:
+        return None
+    if not all(ceiling.is_level_only(u.truth) for u in users):
+        if obj.kind != "score":
+            raise ConfigError(f"--objective {obj}: needs level-only users (--users level-only or sessions); these "
+                              "users' success depends on more than the level")
+        return {"note": "no Bayes ceiling: these users' success depends on more than the level "
+                        "(use --users level-only or sessions)"}
+    rates = ceiling.user_rates(users)
+    train = {u.name: ceiling.level_rates(u.train) for u in users}
+    clusters = {u.name: u.cluster for u in users}
+    return _section(args, obj, rows, rates, train, clusters, None, turns)
+
+
+def personalise_section(args, result: dict, turns: int = 25) -> dict[str, Any] | None:
+    """``evaluate --personalise``: the ceiling, ``bayes`` with the fitted clusters as prior,
+    ``bayes-psychometric`` with the pooled psychometric model fitted on the other sessions as prior,
+    and (``--loo-bayes``) the planner knowing the other users."""
+    import numpy as np
+
+    from nao_trainer.core.simulation import UserSimulator
+    from nao_trainer.experiments import ceiling
+
+    obj = _objective(args)
+    if args.no_ceiling:
+        return None
+    sims = [UserSimulator.from_dict(u) for u in result["users"]]
+    rates = {s.name: ceiling.level_rates(s) for s in sims}
+    fits = result["fits"]
+    train = {n: np.array(fits[n]["train_rates"]) for n in rates}
+    clusters = {n: str(fits[n]["cluster"]) for n in rates}
+    from nao_trainer.core.psychometric import PooledModel
+
+    priors = {"bayes": {n: (np.array(fits[n]["prior"]["p"]), np.array(fits[n]["prior"]["w"])) for n in rates},
+              "bayes-psychometric": {n: PooledModel(**fits[n]["psychometric"]).mixture() for n in rates}}
+    return _section(args, obj, result["rows"], rates, train, clusters, priors, turns)
+
+
+def _section(args, obj, rows, rates, train, clusters, priors, turns) -> dict[str, Any]:
+    import numpy as np
+
+    from nao_trainer.experiments import ceiling
+
+    print(f"ceiling: solving the Bayes planner ({obj}, {len(rates)} users"
+          f"{', leave-one-out' if args.loo_bayes else ''})", file=sys.stderr)
+    out = ceiling.report(rows, rates, train, clusters, obj, turns, args.loo_bayes, priors)
+    sessions = _sessions(args)
+    if sessions:
+        p = np.array([rates[n] for n in rates])
+        out["multi_session"] = ceiling.multi_session(p, obj, turns, (1, *sessions), loo=args.loo_bayes)
+    return out
+
+
+def _ci(v, digits: int = 2) -> str:
+    return "" if not v else f"[{v[0]:.{digits}f}, {v[1]:.{digits}f}]"
+
+
+def _share(s: dict) -> str:
+    if s.get("share") is None:
+        return "n/a"
+    return f"{100 * s['share']:.0f} % {_ci([100 * x for x in s['share_ci']], 0)}"
+
+
+def format_section(section: dict[str, Any] | None) -> str:
+    if not section:
+        return ""
+    if "note" in section:
+        return section["note"]
+    digits = 2 if section["objective"] == "score" else 3
+    lines = [f"against the Bayes ceiling, objective {section['objective']} (per {section['turns']}-turn session; "
+             "mean over users [95 % CI]; share = gain over the best fixed level / the ceiling's gain):",
+             f"  {'policy':<22} {'A':>3} {'value':>8} {'95% CI':>18} {'d ceiling':>10} {'95% CI':>18} "
+             f"{'share of achievable':>22} {'share of oracle gap':>20} {'d bayes-loo [95% CI]':>24} {'share vs pooled level':>20}"]
+    for s in section["summary"]:
+        a = "" if s["assessment"] is None else str(s["assessment"])
+        d = "" if s["d_ceiling"] is None else f"{s['d_ceiling']:+.{digits}f}"
+        loo = "" if s.get("d_bayes_loo") is None else f"{s['d_bayes_loo']:+.{digits}f} {_ci(s['d_bayes_loo_ci'], digits)}"
+        lines.append(f"  {s['policy']:<22} {a:>3} {s['value']:8.{digits}f} {_ci(s['value_ci'], digits):>18} {d:>10} "
+                     f"{_ci(s['d_ceiling_ci'], digits):>18} {_share(s['achievable_share']):>22} "
+                     f"{_share(s['oracle_share']):>20} {loo:>24} {_share(s.get('achievable_share_pooled', {})):>20}")
+    for m in section.get("multi_session", []):
+        if m["policy"] == "pooled-fixed":
+            lines.append(f"  {m['sessions']} session(s) of the same participant (value per session):")
+        share = "" if m["oracle_share"] is None else f"{100 * m['oracle_share']:.0f} % of the oracle gap"
+        lines.append(f"    {m['policy']:<20} {m['value_per_session']:8.{digits}f} {_ci(m['value_ci'], digits):>18} "
+                     f"{share}")
+    return "\n".join(lines)
+
+
+def run_user_models(args) -> int:
+    """``evaluate --user-models``: experiments.user_models on the held-out sessions."""
+    from pathlib import Path
+
+    from nao_trainer.experiments import user_models
+    from nao_trainer.files import write_json_atomic
+    from nao_trainer.learn import artifacts
+
+    source = args.data if args.users == "sessions" or args.data is not None else Path(args.users)
+    if source is None or not Path(source).exists():
+        raise ConfigError("--user-models needs the dataset: add --data DATASET_ROOT")
+    obj = _objective(args)
+    rate = obj.rate if obj.kind == "target" else 0.75
+    manifest = artifacts.load_manifest(args.models)
+    print(f"evaluate --user-models: held-out sessions of {source}", file=sys.stderr)
+    summary = user_models.run(Path(source), manifest.get("compat"), int(manifest.get("k", 3)), seed=args.seed,
+                              workers=args.workers, rate=rate)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out / "user_models.json", summary)
+    print(user_models.format_summary(summary))
+    print(f"  {out / 'user_models.json'}")
+    return 0

@@ -1,0 +1,500 @@
+"""The exact Bayes-adaptive planner for per-level success models: the best any policy can do.
+
+Pure: no I/O (the on-disk cache of solved tables is ``learn.bayes_cache``). numba compiles the
+backward induction (imported lazily; ``available()`` says whether it is installed).
+
+Model
+    A participant is one of K user models; model k succeeds at level l with probability
+    ``p[k, l]``, independently from turn to turn (the level-only users of ``learn.users``). The
+    prior is ``pi[k]`` (a finite mixture: the fitted clusters, the training users, or the
+    evaluated users themselves). A turn at level l is worth ``u[k, l]`` to model k
+    (``core.objective``: the expected score ``p (l + 1) - 1``, or ``-(p - R)^2``).
+
+State
+    What has been seen is the vector of per-level counts ``c = (s_1, f_1, ..., s_L, f_L)`` of
+    successes and failures. The order of the outcomes does not matter: the posterior is
+
+        w_k(c) ∝ pi_k  prod_l  p[k,l]^(s_l) (1 - p[k,l])^(f_l)
+
+    so the counts are a sufficient statistic, and the turns played are ``n = sum(c)``. The
+    remaining turns are ``H - n``: every state of a session of H turns is a *weak composition*
+    of some n <= H into 2L parts; with L = 4 and H = 25 there are C(33, 8) = 13,884,156.
+
+Bellman equation (backward over the layers n = H-1, ..., 0)
+
+    Q(c, l) = ubar_l(c) + pbar_l(c) V(c + e_{s_l}) + (1 - pbar_l(c)) V(c + e_{f_l})
+    V(c) = max_l Q(c, l),  V(c) = G(c) when n = H
+
+with the posterior means ``pbar_l(c) = sum_k w_k p[k, l]`` and ``ubar_l(c) = sum_k w_k u[k, l]``
+(both objectives are linear in w; for ``target:R`` ubar is the posterior expectation of
+``-(p - R)^2``, not the utility of the posterior mean). ``G(c) = C max_l ubar_l(c)`` is the value
+of committing to the posterior-best level for C more turns after the session (C = 0 for one
+session; C = (S - 1) H for "explore this session, then commit for S - 1 sessions"). Ties go to the
+lower level; counts that no model with prior weight can produce (Z = 0, possible only with rates
+of exactly 0 or 1) get value 0 and the lowest level. ``V(0)`` is the Bayes value: the highest expected utility of any policy that is not
+told which model the participant is, and, with the prior uniform over a set of users, the mean
+over those users of what that policy earns, which is the *ceiling* of ``evaluate``.
+
+Computation
+    Layer n's states are ranked in lexicographic order (combinatorial number system, ``_OFF``
+    tables), so the value of a layer is a flat array and a child ``c + e_j`` is found by its rank.
+    The posterior weights are carried along the enumeration as partial products (a step changes
+    the last one or two counts, so a state costs about K multiplications, not 2L K), and a layer
+    is split into chunks run in parallel. Posterior means need no sum over the models: with the
+    unnormalised weight ``Z(c) = sum_k pi_k prod_l p^s (1-p)^f``, ``pbar_l(c) = Z(c + e_s)/Z(c)``
+    and the posterior mean of ``p^2`` is ``Z(c + 2 e_s)/Z(c)``; only Z costs K operations per
+    state. Memory while solving: up to three Z layers and two value layers (the largest layer,
+    n = H + 1, holds C(H + 2L, 2L - 1) doubles: 34 MB for H = 25, L = 4); kept: the action table,
+    one byte per decision state (layers 0..H-1: 10.5 M states, 10.5 MB). A live decision is a
+    table lookup (``Plan.decide``).
+
+``evaluate_plan`` runs the solved policy forward on users with known rates over the states it
+can reach, exactly, giving each user's expected utility, turns per level and success rate.
+"""
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+_KERNELS: dict[str, Any] = {}
+prange = range  # numba.prange in the compiled kernel
+
+
+def available() -> bool:
+    """numba is installed (the planner needs it)."""
+    return importlib.util.find_spec("numba") is not None
+
+
+def n_states(horizon: int, levels: int) -> int:
+    """Count states of a session of ``horizon`` turns (all layers, terminal included)."""
+    return math.comb(horizon + 2 * levels, 2 * levels)
+
+
+def _offsets_table(m: int, horizon: int) -> np.ndarray:
+    """OFF[d, nrem, x] = number of weak compositions whose part d is < x, given nrem left for parts d.."""
+    off = np.zeros((m - 1, horizon + 2, horizon + 3), dtype=np.int64)
+    for d in range(m - 1):
+        parts = m - d - 1  # parts after d
+        for nrem in range(horizon + 2):
+            acc = 0
+            for x in range(nrem + 2):
+                off[d, nrem, x] = acc
+                if x <= nrem:
+                    acc += math.comb(nrem - x + parts - 1, parts - 1)
+    return off
+
+
+def layer_sizes(horizon: int, levels: int) -> np.ndarray:
+    m = 2 * levels
+    return np.array([math.comb(n + m - 1, m - 1) for n in range(horizon + 1)], dtype=np.int64)
+
+
+def rank_many(counts: np.ndarray, off: np.ndarray) -> np.ndarray:
+    """Ranks within their layer of count rows (N, 2L) (vectorised ``_rank``)."""
+    c = np.asarray(counts, dtype=np.int64)
+    nrem = c.sum(axis=1)
+    r = np.zeros(len(c), dtype=np.int64)
+    for d in range(c.shape[1] - 1):
+        r += off[d, nrem, c[:, d]]
+        nrem = nrem - c[:, d]
+    return r
+
+
+# ----------------------------------------------------------------------------------------------
+# The compiled backward induction
+# ----------------------------------------------------------------------------------------------
+
+
+def _rank(c, n, off):  # pragma: no cover - compiled
+    r = 0
+    nrem = n
+    for d in range(c.shape[0] - 1):
+        r += off[d, nrem, c[d]]
+        nrem -= c[d]
+    return r
+
+
+def _unrank(r, n, off, c):  # pragma: no cover - compiled
+    m = c.shape[0]
+    nrem = n
+    for d in range(m - 1):
+        x = 0
+        while x + 1 <= nrem and off[d, nrem, x + 1] <= r:
+            x += 1
+        c[d] = x
+        r -= off[d, nrem, x]
+        nrem -= x
+    c[m - 1] = nrem
+
+
+def _successor(c):  # pragma: no cover - compiled
+    """Next weak composition in lexicographic order (in place); returns the first part that changed."""
+    m = c.shape[0]
+    tail = c[m - 1]
+    d = m - 2
+    while tail == 0:
+        tail += c[d]
+        d -= 1
+    c[d] += 1
+    for j in range(d + 1, m - 1):
+        c[j] = 0
+    c[m - 1] = tail - 1
+    return d
+
+
+def _z_layer(n, off, pw, prior, z, chunks):  # pragma: no cover - compiled
+    """Z(c) = sum_k pi_k prod_j pw[j, c_j, k] for every state c of layer n (partial products carried)."""
+    m = off.shape[0] + 1
+    k_models = prior.shape[0]
+    size = z.shape[0]
+    for ch in prange(chunks):
+        start = ch * size // chunks
+        stop = (ch + 1) * size // chunks
+        if start >= stop:
+            continue
+        c = np.zeros(m, dtype=np.int64)
+        _unrank(start, n, off, c)
+        partial = np.empty((m + 1, k_models))
+        partial[0, :] = prior
+        for j in range(m):
+            for k in range(k_models):
+                partial[j + 1, k] = partial[j, k] * pw[j, c[j], k]
+        for idx in range(start, stop):
+            if idx > start:
+                d = _successor(c)
+                for j in range(d, m):
+                    for k in range(k_models):
+                        partial[j + 1, k] = partial[j, k] * pw[j, c[j], k]
+            total = 0.0
+            for k in range(k_models):
+                total += partial[m, k]
+            z[idx] = total
+
+
+def _v_layer(n, horizon, off, coef, z0, z1, z2, vnext, vcur, act, commit, chunks):  # pragma: no cover
+    """Values (and actions) of layer n from layer n + 1. ``z0, z1, z2``: Z on layers n, n+1, n+2.
+
+    With u = a + b p + c p^2 per level: pbar_l = Z(c + e_s)/Z(c) and the posterior mean of p^2 is
+    Z(c + 2 e_s)/Z(c), so no sum over the models is needed here. The ranks of c + e_j and
+    c + 2 e_j come from prefix and suffix sums of the rank's terms (O(1) per child)."""
+    m = off.shape[0] + 1
+    levels = coef.shape[0]
+    size, terminal = vcur.shape[0], n == horizon
+    quadratic = z2.shape[0] > 1  # c != 0 for some level: Z of layer n + 2 was computed
+    for ch in prange(chunks):
+        start = ch * size // chunks
+        stop = (ch + 1) * size // chunks
+        if start >= stop:
+            continue
+        c, nrem = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64)
+        p1, p2, sf = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64)
+        _unrank(start, n, off, c)
+        for idx in range(start, stop):
+            if idx > start:
+                _successor(c)
+            zc = z0[idx]
+            if zc <= 0.0:  # no model can produce these counts
+                vcur[idx] = 0.0
+                if not terminal:
+                    act[idx] = 0
+                continue
+            left, a1, a2 = n, 0, 0
+            for d in range(m):
+                nrem[d] = left
+                p1[d] = a1
+                p2[d] = a2
+                if d < m - 1:
+                    a1 += off[d, left + 1, c[d]]
+                    a2 += off[d, left + 2, c[d]]
+                left -= c[d]
+            acc = 0
+            for d in range(m - 1, -1, -1):
+                sf[d] = acc
+                if d < m - 1:
+                    acc += off[d, nrem[d], c[d]]
+            best, best_a = -1e300, 0
+            for lv in range(levels):
+                s = 2 * lv
+                rs = p1[s] + off[s, nrem[s] + 1, c[s] + 1] + sf[s]
+                ps = z1[rs] / zc
+                u = coef[lv, 0] + coef[lv, 1] * ps
+                if quadratic:
+                    rss = p2[s] + off[s, nrem[s] + 2, c[s] + 2] + sf[s]
+                    u += coef[lv, 2] * (z2[rss] / zc)
+                if terminal:
+                    q = commit * u
+                else:
+                    f = s + 1
+                    if f < m - 1:
+                        rf = p1[f] + off[f, nrem[f] + 1, c[f] + 1] + sf[f]
+                    else:
+                        rf = p1[f]
+                    q = u + ps * vnext[rs] + (1.0 - ps) * vnext[rf]
+                if q > best + 1e-12:
+                    best = q
+                    best_a = lv
+            vcur[idx] = best
+            if not terminal:
+                act[idx] = best_a
+
+
+def _kernels() -> dict[str, Any]:
+    if not _KERNELS:
+        try:
+            import numba
+        except ImportError:  # pragma: no cover - checked by available()
+            raise ImportError("the Bayes planner needs numba: pip install 'nao-trainer[all]'") from None
+        glb = dict(globals())
+        glb["prange"] = numba.prange
+        for name in ("_rank", "_unrank", "_successor"):
+            glb[name] = numba.njit(cache=False, nogil=True)(type(_rank)(globals()[name].__code__, glb, name))
+        for name, fast in (("_z_layer", True), ("_v_layer", False)):  # fastmath: only the sum over models
+            fn = type(_rank)(globals()[name].__code__, glb, name)
+            _KERNELS[name] = numba.njit(cache=False, parallel=True, fastmath=fast)(fn)
+    return _KERNELS
+
+
+# ----------------------------------------------------------------------------------------------
+# Plans
+# ----------------------------------------------------------------------------------------------
+
+
+def _check(p: np.ndarray, weights: np.ndarray, coef: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    p = np.asarray(p, dtype=float)
+    w = np.asarray(weights, dtype=float)
+    cf = np.asarray(coef, dtype=float)
+    if p.ndim != 2 or p.shape[0] < 1 or p.shape[1] < 1:
+        raise ValueError(f"success rates must be a (models, levels) table, got shape {p.shape}")
+    if not np.all((p >= 0) & (p <= 1)):
+        raise ValueError("success rates must lie in [0, 1]")
+    if w.shape != (p.shape[0],) or np.any(w < 0) or not w.sum() > 0 or not np.all(np.isfinite(w)):
+        raise ValueError(f"prior weights must be {p.shape[0]} non-negative numbers with a positive sum")
+    if cf.shape != (p.shape[1], 3) or not np.all(np.isfinite(cf)):
+        raise ValueError(f"utility coefficients must be a finite ({p.shape[1]}, 3) table (a, b, c of a + b p + c p^2)")
+    return p, w / w.sum(), cf
+
+
+def utility_table(p: np.ndarray, coef: np.ndarray) -> np.ndarray:
+    """u[k, l] = a_l + b_l p[k, l] + c_l p[k, l]^2."""
+    p = np.asarray(p, dtype=float)
+    cf = np.asarray(coef, dtype=float)
+    return cf[:, 0] + cf[:, 1] * p + cf[:, 2] * p ** 2
+
+
+def fingerprint(p: np.ndarray, weights: np.ndarray, coef: np.ndarray, horizon: int, commit: int = 0) -> str:
+    """A hash of everything a plan depends on (prior, objective, horizon, commit turns)."""
+    p, w, cf = _check(p, weights, coef)
+    h = hashlib.sha256()
+    h.update(f"bayes-v1|{horizon}|{commit}|{p.shape}".encode())
+    for arr in (p, w, cf):
+        h.update(np.round(arr, 12).astype("<f8").tobytes())
+    return h.hexdigest()
+
+
+@dataclass(frozen=True, eq=False)
+class Plan:
+    """A solved Bayes-adaptive policy: ``action[offsets[n] + rank]`` is the level index (0-based) to
+    play in the state of layer n with that rank; ``value`` = V(0)."""
+
+    p: np.ndarray
+    weights: np.ndarray
+    coef: np.ndarray
+    horizon: int
+    commit: int
+    action: np.ndarray
+    value: float
+    fingerprint: str
+
+    @property
+    def levels(self) -> int:
+        return self.p.shape[1]
+
+    @property
+    def utility(self) -> np.ndarray:
+        return utility_table(self.p, self.coef)
+
+    @property
+    def offsets(self) -> np.ndarray:
+        return np.concatenate([[0], np.cumsum(layer_sizes(self.horizon, self.levels)[:-1])])
+
+    def decide(self, counts: "np.ndarray | list[int]") -> int:
+        """The level (1-based) to play after these per-level (successes, failures) counts."""
+        c = np.asarray(counts, dtype=np.int64).reshape(-1)
+        if c.shape != (2 * self.levels,) or np.any(c < 0):
+            raise ValueError(f"counts must be {2 * self.levels} non-negative numbers (s1, f1, ..., sL, fL)")
+        n = int(c.sum())
+        if n >= self.horizon:
+            raise ValueError(f"the plan covers {self.horizon} turns; {n} have been played")
+        off = _offsets(self.horizon, self.levels)
+        r = 0
+        nrem = n
+        for d in range(len(c) - 1):
+            r += int(off[d, nrem, c[d]])
+            nrem -= int(c[d])
+        return int(self.action[int(self.offsets[n]) + r]) + 1
+
+    def memory_bytes(self) -> int:
+        return int(self.action.nbytes)
+
+
+_OFF_CACHE: dict[tuple[int, int], np.ndarray] = {}
+
+
+def _offsets(horizon: int, levels: int) -> np.ndarray:
+    key = (horizon, levels)
+    if key not in _OFF_CACHE:
+        _OFF_CACHE[key] = _offsets_table(2 * levels, horizon + 2)
+    return _OFF_CACHE[key]
+
+
+def solve(p: np.ndarray, weights: np.ndarray, coef: np.ndarray, horizon: int, commit: int = 0,
+          chunks: int = 64) -> Plan:
+    """Backward induction over every count state (module docstring). ``p``: (K, L) success rates of
+    the models, ``weights``: their prior, ``coef``: (L, 3) utility ``a + b p + c p^2`` per level."""
+    p, w, cf = _check(p, weights, coef)
+    if horizon < 1:
+        raise ValueError(f"the horizon must be at least one turn, got {horizon}")
+    if commit < 0:
+        raise ValueError(f"commit turns must be >= 0, got {commit}")
+    k_models, levels = p.shape
+    m = 2 * levels
+    off = _offsets(horizon, levels)
+    sizes = layer_sizes(horizon + 2, levels)
+    pw = np.empty((m, horizon + 3, k_models))
+    x = np.arange(horizon + 3, dtype=float)[:, None]
+    for lv in range(levels):
+        pw[2 * lv] = np.where(x == 0, 1.0, p[:, lv][None, :] ** x)
+        pw[2 * lv + 1] = np.where(x == 0, 1.0, (1.0 - p[:, lv])[None, :] ** x)
+    kern = _kernels()
+    zl, vl = kern["_z_layer"], kern["_v_layer"]
+
+    def z_of(n: int) -> np.ndarray:
+        z = np.empty(sizes[n])
+        zl(n, off, pw, w, z, max(1, min(chunks, int(sizes[n]))))
+        return z
+
+    offsets = np.concatenate([[0], np.cumsum(sizes[:horizon])])
+    action = np.zeros(int(sizes[:horizon].sum()), dtype=np.int8)
+    quadratic = bool(np.any(cf[:, 2] != 0))
+    empty = np.zeros(1)
+    dummy = np.zeros(1, dtype=np.int8)
+    if commit > 0:  # the terminal layer needs Z on layers H .. H+2
+        z2 = z_of(horizon + 2) if quadratic else empty
+        z1, z0 = z_of(horizon + 1), z_of(horizon)
+        vnext = np.empty(sizes[horizon])
+        vl(horizon, horizon, off, cf, z0, z1, z2, vnext, vnext, dummy, float(commit),
+           max(1, min(chunks, int(sizes[horizon]))))
+    else:  # V = 0 after the last turn
+        z1 = z_of(horizon + 1) if quadratic else empty
+        z0 = z_of(horizon)
+        vnext = np.zeros(sizes[horizon])
+    for n in range(horizon - 1, -1, -1):
+        z2, z1, z0 = (z1 if quadratic else empty), z0, z_of(n)
+        vcur = np.empty(sizes[n])
+        act = action[offsets[n]:offsets[n] + sizes[n]]
+        vl(n, horizon, off, cf, z0, z1, z2, vnext, vcur, act, float(commit), max(1, min(chunks, int(sizes[n]))))
+        vnext = vcur
+    return Plan(p, w, cf, horizon, commit, action, float(vnext[0]), fingerprint(p, w, cf, horizon, commit))
+
+
+def posterior_weights(p: np.ndarray, weights: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """w_k(c) of the module docstring (normalised); counts = (s1, f1, ..., sL, fL)."""
+    p = np.asarray(p, dtype=float)
+    c = np.asarray(counts, dtype=float).reshape(-1)
+    with np.errstate(divide="ignore"):
+        logw = np.log(np.asarray(weights, dtype=float))
+        for lv in range(p.shape[1]):
+            for j, q in ((2 * lv, p[:, lv]), (2 * lv + 1, 1.0 - p[:, lv])):
+                if c[j] > 0:
+                    logw = logw + c[j] * np.log(q)
+    if not np.isfinite(logw).any():
+        raise ValueError("no user model can produce these counts")
+    w = np.exp(logw - logw.max())
+    return w / w.sum()
+
+
+# ----------------------------------------------------------------------------------------------
+# Running a plan on users with known rates
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PlanValue:
+    """Per user (rows): expected utility over the session, over the commit turns after it, turns per
+    level, successes per session."""
+
+    session: np.ndarray  # (U,)
+    commit: np.ndarray  # (U,)
+    visits: np.ndarray  # (U, L)
+    successes: np.ndarray  # (U,)
+
+    @property
+    def total(self) -> np.ndarray:
+        return self.session + self.commit
+
+
+def evaluate_plan(plan: Plan, p_true: np.ndarray) -> PlanValue:
+    """Exact expected results of ``plan`` on each user (rows of ``p_true``, (U, L)), under the plan's
+    objective."""
+    offsets = plan.offsets
+    off = _offsets(plan.horizon, plan.levels)
+
+    def choose(states: np.ndarray, n: int) -> np.ndarray:
+        return plan.action[offsets[n] + rank_many(states, off)].astype(np.int64)
+
+    p_true = np.atleast_2d(np.asarray(p_true, dtype=float))
+    value, visits, succ, _, states, mass = _forward(choose, p_true, plan.coef, plan.horizon)
+    commit = np.zeros(len(value))
+    if plan.commit > 0:  # the posterior-best level, played for ``commit`` turns after the session
+        u_true = utility_table(p_true, plan.coef)
+        for i, c in enumerate(states):
+            lv = int(np.argmax(np.round(posterior_weights(plan.p, plan.weights, c) @ plan.utility, 12)))
+            commit += plan.commit * mass[i] * u_true[:, lv]
+    return PlanValue(value, commit, visits, succ)
+
+
+def evaluate_rule(choose: Any, p_true: np.ndarray, coef: np.ndarray, horizon: int) -> PlanValue:
+    """Exact expected results of any policy that depends on the counts only: ``choose(states (R, 2L),
+    n) -> level indices (R,)`` for the states of layer n it can reach; run forward on each user."""
+    value, visits, succ = _forward(choose, np.atleast_2d(np.asarray(p_true, float)), coef, horizon)[:3]
+    return PlanValue(value, np.zeros_like(value), visits, succ)
+
+
+def _forward(choose: Any, p_true: np.ndarray, coef: np.ndarray, horizon: int) -> tuple:
+    p_true = np.atleast_2d(np.asarray(p_true, dtype=float))
+    u_true = utility_table(p_true, coef)
+    levels = p_true.shape[1]
+    off = _offsets(horizon, levels)
+    n_users, m = p_true.shape[0], 2 * levels
+    states = np.zeros((1, m), dtype=np.int64)
+    mass = np.ones((1, n_users))
+    value = np.zeros(n_users)
+    visits = np.zeros((n_users, levels))
+    succ = np.zeros(n_users)
+    for n in range(horizon):
+        a = np.asarray(choose(states, n), dtype=np.int64)
+        pa = p_true[:, a].T  # (R, U)
+        value += (mass * u_true[:, a].T).sum(axis=0)
+        succ += (mass * pa).sum(axis=0)
+        for lv in range(levels):
+            visits[:, lv] += mass[a == lv].sum(axis=0)
+        rows = np.arange(len(states))
+        win, lose = states.copy(), states.copy()
+        win[rows, 2 * a] += 1
+        lose[rows, 2 * a + 1] += 1
+        cand = np.concatenate([win, lose])
+        cmass = np.concatenate([mass * pa, mass * (1.0 - pa)])
+        keep = cmass.max(axis=1) > 0
+        cand, cmass = cand[keep], cmass[keep]
+        keys = rank_many(cand, off)
+        uniq, first, inv = np.unique(keys, return_index=True, return_inverse=True)
+        new = np.zeros((len(uniq), n_users))
+        for u in range(n_users):
+            new[:, u] = np.bincount(inv, weights=cmass[:, u], minlength=len(uniq))
+        states, mass = cand[first], new
+    return value, visits, succ, None, states, mass

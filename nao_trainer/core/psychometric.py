@@ -1,0 +1,119 @@
+"""A user model that pools across levels: success against sequence length, per participant.
+
+Pure: no I/O. Participant i succeeds on a sequence of length x with probability
+
+    psi(x | theta_i) = (1 - lapse) * Phi((theta_i - x) / sigma)
+
+``theta_i`` is the participant's *span* (the length recalled half the time, before lapses),
+``sigma`` how fast success falls with length and ``lapse`` the rate of failures at any length.
+The prior is hierarchical: ``theta_i ~ Normal(mu, tau^2)`` across participants, with ``mu``,
+``tau``, ``sigma`` and ``lapse`` fitted on the training sessions by maximum marginal likelihood
+over a grid (``fit``); each participant's theta is then integrated over a grid of values, so a
+participant's turns at length 5 inform the prediction at length 9, and any length (not only 3, 5,
+7, 9) can be predicted. Outcomes depend on the length only, so the per-length counts are a
+sufficient statistic, as for the per-level models of ``core.bayes``.
+
+``span(counts, rate)`` is the length at which the participant succeeds with probability
+``rate``: ``x_R = theta - sigma * Phi^-1(rate / (1 - lapse))``, with a posterior interval.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from math import erf, sqrt
+
+import numpy as np
+
+LENGTHS = np.array([3.0, 5.0, 7.0, 9.0])
+THETA = np.linspace(0.0, 14.0, 141)
+_MU = np.arange(3.0, 11.01, 0.25)
+_TAU = np.array([0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0])
+_SIGMA = np.geomspace(0.3, 4.0, 14)
+_LAPSE = np.array([0.0, 0.02, 0.05, 0.1, 0.15])
+
+_phi = np.vectorize(lambda z: 0.5 * (1.0 + erf(z / sqrt(2.0))))
+
+
+def curve(x: np.ndarray, theta: np.ndarray, sigma: float, lapse: float) -> np.ndarray:
+    return (1.0 - lapse) * _phi((np.asarray(theta, float) - np.asarray(x, float)) / sigma)
+
+
+def _log_lik(counts: np.ndarray, sigma: float, lapse: float) -> np.ndarray:
+    """(S, G): log-likelihood of each session's counts (S, 8) at every theta of the grid."""
+    psi = np.clip(curve(LENGTHS[None, :], THETA[:, None], sigma, lapse), 1e-9, 1 - 1e-9)  # (G, 4)
+    c = np.atleast_2d(np.asarray(counts, dtype=float))
+    return c[:, 0::2] @ np.log(psi).T + c[:, 1::2] @ np.log1p(-psi).T
+
+
+def _logsumexp(a: np.ndarray, axis: int) -> np.ndarray:
+    m = a.max(axis=axis, keepdims=True)
+    return (m + np.log(np.exp(a - m).sum(axis=axis, keepdims=True))).squeeze(axis)
+
+
+@dataclass(frozen=True)
+class PooledModel:
+    mu: float
+    tau: float
+    sigma: float
+    lapse: float
+
+    def log_prior(self) -> np.ndarray:
+        lp = -0.5 * ((THETA - self.mu) / self.tau) ** 2
+        return lp - _logsumexp(lp, 0)
+
+    def posterior(self, counts: np.ndarray) -> np.ndarray:
+        """(G,) posterior over theta given one participant's counts (s1, f1, ..., s4, f4)."""
+        lw = self.log_prior() + _log_lik(counts, self.sigma, self.lapse)[0]
+        w = np.exp(lw - lw.max())
+        return w / w.sum()
+
+    def predictive(self, counts: np.ndarray, lengths: np.ndarray = LENGTHS) -> np.ndarray:
+        """P(success) at each length for the participant's next turn."""
+        w = self.posterior(counts)
+        return w @ curve(np.asarray(lengths, float)[None, :], THETA[:, None], self.sigma, self.lapse)
+
+    def mixture(self, min_weight: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+        """The prior as a finite mixture of per-level user models (what ``core.bayes`` plans over):
+        success per level (G, 4) at each theta of the grid with prior weight >= ``min_weight``."""
+        w = np.exp(self.log_prior())
+        keep = w >= min_weight * w.max()
+        return curve(LENGTHS[None, :], THETA[keep][:, None], self.sigma, self.lapse), w[keep] / w[keep].sum()
+
+    def span(self, counts: np.ndarray, rate: float = 0.75, level: float = 0.9) -> tuple[float, float, float]:
+        """Posterior mean and central ``level`` interval of the length succeeded at ``rate``."""
+        from statistics import NormalDist
+
+        q = rate / (1.0 - self.lapse)
+        if not 0.0 < q < 1.0:
+            raise ValueError(f"a participant with lapse rate {self.lapse} never succeeds at rate {rate}")
+        x = THETA - self.sigma * NormalDist().inv_cdf(q)
+        w = self.posterior(counts)
+        cdf = np.cumsum(w)
+        lo = float(x[np.searchsorted(cdf, (1 - level) / 2)])
+        hi = float(x[min(np.searchsorted(cdf, 1 - (1 - level) / 2), len(x) - 1)])
+        return float(w @ x), lo, hi
+
+
+def fit(counts: np.ndarray) -> PooledModel:
+    """Maximum marginal likelihood of (mu, tau, sigma, lapse) over the grid, sessions' counts (S, 8)."""
+    c = np.atleast_2d(np.asarray(counts, dtype=float))
+    best, arg = -np.inf, None
+    lp = -0.5 * ((THETA[None, None, :] - _MU[:, None, None]) / _TAU[None, :, None]) ** 2
+    lp = lp - _logsumexp(lp, 2)[..., None]  # (M, T, G)
+    for sigma in _SIGMA:
+        for lapse in _LAPSE:
+            ll = _log_lik(c, sigma, lapse)  # (S, G)
+            total = _logsumexp(ll[:, None, None, :] + lp[None], 3).sum(axis=0)  # (M, T)
+            i = np.unravel_index(int(np.argmax(total)), total.shape)
+            if total[i] > best:
+                best, arg = float(total[i]), (float(_MU[i[0]]), float(_TAU[i[1]]), float(sigma), float(lapse))
+    return PooledModel(*arg)
+
+
+def session_counts(sessions: np.ndarray, levels: np.ndarray, successes: np.ndarray) -> np.ndarray:
+    """(S, 8) per-level (successes, failures) of each session (sorted by name)."""
+    names = sorted(np.unique(sessions).tolist())
+    out = np.zeros((len(names), 8))
+    index = {n: i for i, n in enumerate(names)}
+    for s, lv, ok in zip(sessions, levels, successes):
+        out[index[s], 2 * (int(lv) - 1) + (0 if ok else 1)] += 1
+    return out

@@ -1,0 +1,321 @@
+"""What personalisation can win: the Bayes ceiling beside every evaluation, for either objective.
+
+For users whose success depends on the level only (the per-session users, the level-only
+clusters), ``core.bayes`` gives exact values:
+
+``ceiling``      the Bayes-adaptive policy whose prior is uniform over the evaluated users
+                 themselves: the highest mean any policy can reach on these users without being
+                 told which user it faces (its per-user values average to that mean);
+``bayes-loo``    the same planner with the prior made of the *other* users only (point masses,
+                 leave one out): what a planner that knows the population, but not this user, earns;
+``oracle``       the per-user optimum under the objective (for level-only users: always the user's
+                 best level), the upper end of the oracle gap.
+
+Every policy of an evaluation is also scored under the chosen objective from its expected turns
+per level (exact for level-only users: a turn's utility depends on its level only), and its
+*share of the achievable gap* is ``mean(policy - best fixed) / mean(ceiling - best fixed)`` with a
+bootstrap 95 % interval over users. ``multi_session`` values S sessions of the same participant
+with the counts carried over (module ``core.bayes``: ``commit``).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from nao_trainer.core import bayes, evaluation, mdp
+from nao_trainer.core.objective import Objective
+from nao_trainer.errors import DataError
+
+
+def level_rates(sim: Any) -> np.ndarray:
+    """Mean success per level over the reachable turn states (4,)."""
+    return np.array([float(sim.p_success[(mdp.LEVEL == lv) & mdp.REACHABLE].mean()) for lv in (1, 2, 3, 4)])
+
+
+def is_level_only(sim: Any, tol: float = 1e-9) -> bool:
+    p = np.asarray(sim.p_success)
+    return all(np.ptp(p[(mdp.LEVEL == lv) & mdp.REACHABLE]) <= tol for lv in (1, 2, 3, 4))
+
+
+def user_rates(users: Sequence[Any]) -> dict[str, np.ndarray]:
+    """name -> success per level of each user's truth; DataError when a user is not level-only."""
+    out = {}
+    for u in users:
+        if not is_level_only(u.truth):
+            raise DataError(f"user {u.name}: its success depends on more than the level, so the per-level Bayes "
+                            "ceiling does not bound it; use level-only or per-session users")
+        out[u.name] = level_rates(u.truth)
+    return out
+
+
+def _solve(p: np.ndarray, w: np.ndarray, obj: Objective, turns: int, commit: int, cache: Path | None) -> bayes.Plan:
+    from nao_trainer.learn.bayes_cache import solve_cached
+
+    return solve_cached(p, w, obj.coefficients(p.shape[1]), turns, commit, cache)
+
+
+def plan_row(name: str, cluster: str, policy: str, p: np.ndarray, e: np.ndarray | None, value: bayes.PlanValue,
+             i: int, turns: int, obj: Objective, oracle_score: float) -> dict[str, Any]:
+    visits = value.visits[i]
+    score = float(visits @ (p * np.arange(2, 6) - 1.0))
+    row = {"user": name, "cluster": cluster, "policy": policy, "seed": None, "assessment": None,
+           "score": round(score, 9), "success": round(float(value.successes[i]) / turns, 9),
+           "regret": round(oracle_score - score, 9), "visits": np.round(visits, 4).tolist(), "samples": 0,
+           "utility": round(float(value.session[i]), 9), "objective": str(obj)}
+    if e is not None:
+        row["engagement"] = round(float(visits @ e / turns), 9)
+    return row
+
+
+def bayes_rows(names: Sequence[str], clusters: Sequence[str], p: np.ndarray, e: np.ndarray | None,
+               obj: Objective, turns: int = 25, loo: bool = False, cache: Path | None = None
+               ) -> list[dict[str, Any]]:
+    """``ceiling`` rows (one solve), and with ``loo`` also ``bayes-loo`` rows (one solve per user)."""
+    p = np.asarray(p, dtype=float)
+    oracle = [evaluation.optimal(_table(pi), turns).value for pi in p]
+    plan = _solve(p, np.ones(len(p)), obj, turns, 0, cache)
+    value = bayes.evaluate_plan(plan, p)
+    rows = [plan_row(n, c, "ceiling", p[i], None if e is None else e[i], value, i, turns, obj, oracle[i])
+            for i, (n, c) in enumerate(zip(names, clusters))]
+    if loo:
+        for i, (n, c) in enumerate(zip(names, clusters)):
+            others = np.delete(np.arange(len(p)), i)
+            plan_i = _solve(p[others], np.ones(len(others)), obj, turns, 0, cache)
+            v = bayes.evaluate_plan(plan_i, p[i:i + 1])
+            rows.append(plan_row(n, c, "bayes-loo", p[i], None if e is None else e[i], v, 0, turns, obj, oracle[i]))
+    return rows
+
+
+def prior_rows(priors: dict[str, tuple[np.ndarray, np.ndarray]], rates: dict[str, np.ndarray],
+               clusters: dict[str, str], obj: Objective, turns: int = 25, cache: Path | None = None,
+               policy: str = "bayes") -> list[dict[str, Any]]:
+    """The planner with each user's own prior (``priors[name] = (p (K, 4), weights)``, e.g. the
+    clusters fitted without the user, as the live ``bayes`` policy uses them), run on the user."""
+    out = []
+    for name, (pk, wk) in priors.items():
+        p = rates[name]
+        plan = _solve(np.asarray(pk, dtype=float), np.asarray(wk, dtype=float), obj, turns, 0, cache)
+        v = bayes.evaluate_plan(plan, p[None])
+        out.append(plan_row(name, clusters.get(name, ""), policy, p, None, v, 0, turns, obj,
+                           evaluation.optimal(_table(p), turns).value))
+    return out
+
+
+def report(rows: list[dict[str, Any]], rates: dict[str, np.ndarray], train_rates: dict[str, np.ndarray],
+           clusters: dict[str, str], obj: Objective, turns: int = 25, loo: bool = False,
+           priors: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] | None = None, cache: Path | None = None
+           ) -> dict[str, Any]:
+    """Every policy of an evaluation (``rows``, not changed) beside the ceiling, under ``obj``: the
+    ``achievable`` summary and the rows added here (ceiling, bayes, fixed levels, oracle).
+    ``priors[policy][user] = (p (K, 4), weights)``: the planner with that prior, one row per user."""
+    mine = [dict(r) for r in rows if r["user"] in rates]
+    add_utility(mine, rates, obj)
+    names = list(rates)
+    p = np.array([rates[n] for n in names])
+    extra = objective_rows(rates, train_rates, clusters, obj, turns, {r["policy"] for r in mine})
+    extra += bayes_rows(names, [clusters.get(n, "") for n in names], p, None, obj, turns, loo, cache)
+    for policy, per_user in (priors or {}).items():  # e.g. "bayes": the fitted clusters, per user
+        extra += prior_rows(per_user, rates, clusters, obj, turns, cache, policy)
+    extra += adaptive_rows(rates, clusters, obj, turns)
+    return {"objective": str(obj), "turns": turns, "summary": achievable(mine + extra), "rows": extra}
+
+
+def adaptive_rows(rates: dict[str, np.ndarray], clusters: dict[str, str], obj: Objective, turns: int = 25,
+                  start: int = 2) -> list[dict[str, Any]]:
+    """Staircases 2-down/1-up and 3-down/1-up and QUEST+ (``experiments.adaptive``), exact."""
+    from nao_trainer.experiments import adaptive
+
+    names = list(rates)
+    p = np.array([rates[n] for n in names])
+    out = []
+    for need in (2, 3):
+        for n in names:
+            r = adaptive.staircase_exact(need, start, rates[n], turns, obj)
+            out.append({"user": n, "cluster": clusters.get(n, ""), "policy": f"staircase-{need}d1u@{start}",
+                        "seed": None, "assessment": None, "score": round(r["score"], 9),
+                        "success": round(r["success"], 9), "visits": np.round(r["visits"], 4).tolist(),
+                        "samples": 0, "utility": round(r["utility"], 9), "objective": str(obj)})
+    qv = adaptive.questplus_values(p, obj, turns)
+    for i, n in enumerate(names):
+        out.append(plan_row(n, clusters.get(n, ""), "questplus", p[i], None, qv, i, turns, obj,
+                            evaluation.optimal(_table(p[i]), turns).value))
+    return out
+
+
+def _table(p_level: np.ndarray) -> np.ndarray:
+    return np.clip(np.asarray(p_level, dtype=float)[mdp.LEVEL - 1], 0.0, 1.0)
+
+
+def add_utility(rows: list[dict[str, Any]], rates: dict[str, np.ndarray], obj: Objective,
+                visits_key: str = "visits") -> None:
+    """Set ``utility`` of every row from its expected turns per level (exact for level-only users)."""
+    for r in rows:
+        if "utility" in r and r.get("objective") == str(obj):
+            continue
+        u = obj.utility(rates[r["user"]])
+        r["utility"] = round(float(np.asarray(r[visits_key], dtype=float) @ u), 9)
+        r["objective"] = str(obj)
+
+
+def objective_rows(rates: dict[str, np.ndarray], train_rates: dict[str, np.ndarray], clusters: dict[str, str],
+                   obj: Objective, turns: int, have: Sequence[str] = ()) -> list[dict[str, Any]]:
+    """Fixed-level rows judged under the objective: ``fixed:L`` (those not in ``have``),
+    ``best-fixed-objective`` (the level best under the objective on the user's training rates),
+    ``pooled-fixed`` (the level best on average over the evaluated users) and ``oracle-objective``
+    (each user's own best level)."""
+    pooled = int(np.argmax(np.round(np.mean([obj.utility(p) for p in rates.values()], axis=0), 12)))
+    out = []
+    for name, p in rates.items():
+        choices = {f"fixed:{lv + 1}": lv for lv in range(4) if f"fixed:{lv + 1}" not in have}
+        choices["best-fixed-objective"] = int(np.argmax(np.round(obj.utility(train_rates[name]), 12)))
+        choices["pooled-fixed"] = pooled
+        choices["oracle-objective"] = int(np.argmax(np.round(obj.utility(p), 12)))
+        for policy, lv in choices.items():
+            out.append(_level_row(name, clusters.get(name, ""), policy, p, lv, obj, turns))
+    return out
+
+
+def _level_row(name: str, cluster: str, policy: str, p: np.ndarray, lv: int, obj: Objective, turns: int
+               ) -> dict[str, Any]:
+    u = obj.utility(p)
+    visits = np.zeros(4)
+    visits[lv] = turns
+    score = float(visits @ (p * np.arange(2, 6) - 1.0))
+    return {"user": name, "cluster": cluster, "policy": policy, "seed": None, "assessment": None,
+            "score": round(score, 9), "success": round(float(p[lv]), 9), "visits": visits.tolist(), "samples": 0,
+            "utility": round(turns * float(u[lv]), 9), "objective": str(obj), "level": lv + 1}
+
+
+def _by_user(rows: list[dict[str, Any]], policy: str, key: str, length: Any = None) -> dict[str, float]:
+    """Mean over seeds of ``key`` per user for one policy (and assessment length)."""
+    acc: dict[str, list[float]] = {}
+    for r in rows:
+        if r["policy"] == policy and r.get("assessment") == length:
+            acc.setdefault(r["user"], []).append(float(r[key]))
+    return {u: float(np.mean(v)) for u, v in acc.items()}
+
+
+def share_of_gap(rows: list[dict[str, Any]], policy: str, key: str, top: str, reference: str,
+                 length: Any = None, boot: int = 2000, seed: int = 0) -> dict[str, Any]:
+    """mean(policy - reference) / mean(top - reference) over users, bootstrap 95 % interval."""
+    ref, hi, mine = _by_user(rows, reference, key), _by_user(rows, top, key), _by_user(rows, policy, key, length)
+    users = sorted(set(ref) & set(hi) & set(mine))
+    if not users:
+        return {"share": None, "share_ci": None, "gap": None}
+    gain = np.array([mine[u] - ref[u] for u in users])
+    gap = np.array([hi[u] - ref[u] for u in users])
+    if gap.mean() <= 1e-12:
+        return {"share": None, "share_ci": None, "gap": float(gap.mean())}
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(len(users), size=(boot, len(users)))
+    g = gap[idx].mean(axis=1)
+    ok = g > 0
+    shares = gain[idx].mean(axis=1)[ok] / g[ok]
+    return {"share": float(gain.mean() / gap.mean()),
+            "share_ci": [float(np.percentile(shares, 2.5)), float(np.percentile(shares, 97.5))],
+            "gap": float(gap.mean())}
+
+
+def achievable(rows: list[dict[str, Any]], key: str = "utility", reference: str = "best-fixed-objective",
+               oracle: str = "oracle-objective") -> list[dict[str, Any]]:
+    """Per (policy, assessment length): mean ``key`` with a 95 % t-interval over users (seeds
+    averaged), the paired difference to ``reference`` and to the ceiling, and the shares of the
+    achievable gap (to ``ceiling``) and of the oracle gap."""
+    keys = list(dict.fromkeys((r["policy"], r.get("assessment")) for r in rows if key in r))
+    ref, top = _by_user(rows, reference, key), _by_user(rows, "ceiling", key)
+    loo = _by_user(rows, "bayes-loo", key)
+    out = []
+    for pol, length in keys:
+        mine = _by_user(rows, pol, key, length)
+        v = np.array(list(mine.values()))
+        entry: dict[str, Any] = {"policy": pol, "assessment": length, "users": len(v), "value": float(v.mean()),
+                                 "value_ci": _ci(v)}
+        for label, other in (("d_reference", ref), ("d_ceiling", top), ("d_bayes_loo", loo)):
+            d = np.array([mine[u] - other[u] for u in mine if u in other])
+            entry[label], entry[f"{label}_ci"] = (float(d.mean()), _ci(d)) if d.size else (None, None)
+        entry["achievable_share"] = share_of_gap(rows, pol, key, "ceiling", reference, length)
+        # the same against the level best for the whole population (a fixed level a study can choose
+        # without the participant's data; the project's rule uses their nearest cluster)
+        entry["achievable_share_pooled"] = share_of_gap(rows, pol, key, "ceiling", "pooled-fixed", length)
+        entry["oracle_share"] = share_of_gap(rows, pol, key, oracle, reference, length)
+        out.append(entry)
+    return out
+
+
+def _ci(v: np.ndarray) -> list[float] | None:
+    ci = evaluation.t_interval(np.asarray(v, dtype=float))
+    return None if ci is None else [float(ci[0]), float(ci[1])]
+
+
+def multi_session(p: np.ndarray, obj: Objective, turns: int = 25, sessions: Sequence[int] = (1, 2, 5, 10),
+                  cache: Path | None = None, loo: bool = False) -> list[dict[str, Any]]:
+    """Value per session (mean over S sessions, per user) of S sessions of the same participant:
+
+    ``pooled-fixed``  the level best for the population (mean utility over the users), every session;
+    ``explore-commit``  the Bayes-optimal first session given that the posterior-best level is then
+                    played for the S - 1 other sessions (prior uniform over the users; with ``loo``
+                    also the other users only), a policy a study can run;
+    ``bound``       the Bayes-optimal first session, then the true rates revealed for free: no policy
+                    that is not told the user can do better;
+    ``oracle``      the user's best level every session."""
+    p = np.asarray(p, dtype=float)
+    u = obj.utility(p)
+    best = int(np.argmax(np.round(u.mean(axis=0), 12)))
+    one = bayes.evaluate_plan(_solve(p, np.ones(len(p)), obj, turns, 0, cache), p).session
+    out = []
+    for s in sessions:
+        vals: dict[str, np.ndarray] = {"pooled-fixed": turns * u[:, best],
+                                       "oracle": turns * u.max(axis=1),
+                                       "bound": (one + (s - 1) * turns * u.max(axis=1)) / s}
+        plan = _solve(p, np.ones(len(p)), obj, turns, (s - 1) * turns, cache)
+        vals["explore-commit"] = bayes.evaluate_plan(plan, p).total / s
+        if loo:
+            v = np.empty(len(p))
+            for i in range(len(p)):
+                others = np.delete(np.arange(len(p)), i)
+                plan_i = _solve(p[others], np.ones(len(others)), obj, turns, (s - 1) * turns, cache)
+                v[i] = bayes.evaluate_plan(plan_i, p[i:i + 1]).total[0] / s
+            vals["explore-commit-loo"] = v
+        gap = vals["oracle"] - vals["pooled-fixed"]
+        for name, v in vals.items():
+            d = v - vals["pooled-fixed"]
+            share = float(d.mean() / gap.mean()) if gap.mean() > 1e-12 else None
+            out.append({"sessions": s, "policy": name, "value_per_session": float(v.mean()), "value_ci": _ci(v),
+                        "d_best_fixed": float(d.mean()), "d_best_fixed_ci": _ci(d), "oracle_share": share,
+                        "objective": str(obj)})
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# The per-session users without the policy training (what the ceiling needs)
+# ----------------------------------------------------------------------------------------------
+
+
+def _session_one(turns: Any, session: str, k: int, n_init: int, seed: int, session_prior: float | None) -> Any:
+    from nao_trainer.learn.fitting import FitOptions, fit_cluster
+    from nao_trainer.experiments.personalisation import own_rates_user
+    from nao_trainer.learn.users import hold_out, session_user
+
+    split = hold_out(turns, session, k, n_init, seed)
+    members = split.rest.subset(split.labels == split.cluster)
+    fit = fit_cluster(members, split.cluster, FitOptions(k=k, seed=seed, cv_folds=1), np.random.default_rng(seed),
+                      np.zeros(4), np.zeros(4), {"compat": None, "left_out": session})
+    name, cid = f"session:{session}", str(split.cluster)
+    if session_prior is None:
+        return session_user(name, split.own, members, fit.simulator, cid, fit.simulator)
+    return own_rates_user(name, split.own, fit.simulator, session_prior, cid)
+
+
+def session_users(source: Path, compat: str | None, k: int = 3, session_prior: float | None = None, seed: int = 0,
+                  workers: int = 2, n_init: int = 50) -> list[Any]:
+    """The held-out per-session users of ``evaluate --personalise`` (same clustering and fits), without
+    training any policy: ``session_prior`` None = the data prior, a number = own rates shrunk by it."""
+    from nao_trainer.learn.fitting import Turns
+    from nao_trainer.learn.parallel import fan_out
+    from nao_trainer.learn.users import read_turns
+
+    turns = Turns.from_columns(read_turns(Path(source), compat).columns)
+    sessions = sorted(np.unique(turns.session).tolist())
+    return fan_out(_session_one, [(turns, s, k, n_init, seed, session_prior) for s in sessions], workers, None)

@@ -1,0 +1,231 @@
+"""The live Bayes-adaptive policy (``policy.kind: bayes``): the exact planner of ``core.bayes``.
+
+The prior is a finite mixture of user models: the shipped cluster models (``sim/models``, each
+reduced to its success per level, weighted by its number of sessions), or a folder of user
+simulator files (``prior_users``: the training users, equal weights). What the policy knows about
+the participant is the per-level counts of successes and failures; they are a sufficient
+statistic, so the plan solved once for the session covers every turn (also after a supervisor's
+override or an invalid turn that is not observed): a decision is a table lookup.
+
+Across sessions the counts of the earlier sessions are carried: the next session's prior is the
+posterior they give, and its table is solved for it (``learn.bayes_cache``: the same prior and
+objective load in milliseconds). They live in ``<output>/participants/<pseudonym>/bayes.json``
+(checksummed, written atomically after every turn). The file is refused in one line when it was
+made with another prior or objective (fingerprint) or is torn or edited; ``--fresh-policy`` keeps
+it as ``bayes.json.replaced-<time>`` and starts from the prior.
+"""
+from __future__ import annotations
+
+import hashlib
+import logging
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from nao_trainer.core import bayes, mdp, objective
+from nao_trainer.core.posterior import level_means
+from nao_trainer.errors import ConfigError, DataError
+from nao_trainer.files import JsonFormat
+from nao_trainer.policies.participant_state import set_aside
+from nao_trainer.ports import Transition
+
+FRESH = "start afresh with --fresh-policy (the old file is kept beside it)"
+STATE_FILE = JsonFormat("nao-trainer/participant-bayes", 1, "participant Bayes state", "participant state", FRESH)
+FILENAME = "bayes.json"
+log = logging.getLogger(__name__)
+
+
+def prior_fingerprint(names: Sequence[str], p: np.ndarray, w: np.ndarray, obj: objective.Objective) -> str:
+    h = hashlib.sha256()
+    h.update(("|".join(names) + f"|{obj}").encode())
+    h.update(np.round(np.asarray(p, float), 12).astype("<f8").tobytes())
+    h.update(np.round(np.asarray(w, float) / np.sum(w), 12).astype("<f8").tobytes())
+    return h.hexdigest()
+
+
+class BayesPolicy:
+    """``ports.Policy`` of the module docstring."""
+
+    name = "bayes"
+
+    def __init__(self, names: Sequence[str], p: np.ndarray, weights: np.ndarray, obj: objective.Objective,
+                 turns: int, path: Path | None, saved: dict[str, Any] | None = None,
+                 cache: Path | None = None) -> None:
+        self.names = tuple(names)
+        self.p = np.asarray(p, dtype=float)
+        self.weights = np.asarray(weights, dtype=float) / np.sum(weights)
+        self.objective = obj
+        self.turns = int(turns)
+        self.path = Path(path) if path is not None else None
+        self.fingerprint = prior_fingerprint(self.names, self.p, self.weights, obj)
+        saved = saved or {}
+        self.history: list[dict[str, Any]] = list(saved.get("sessions", []))
+        self.carried = np.array(saved.get("counts", [0] * 8), dtype=np.int64)  # earlier sessions
+        self.counts = np.zeros(8, dtype=np.int64)  # this session
+        self.cache = cache
+        self.plan = self._solve()
+        self.session_dir: Path | None = None
+        self.started = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        self.last_level = 0
+
+    def _solve(self) -> bayes.Plan:
+        """The table for this session: prior = the posterior after the earlier sessions' counts."""
+        from nao_trainer.learn.bayes_cache import solve_cached
+
+        start = bayes.posterior_weights(self.p, self.weights, self.carried)
+        return solve_cached(self.p, start, self.objective.coefficients(4), self.turns, 0, self.cache)
+
+    # -- ports.Policy ------------------------------------------------------------------------------
+
+    def decide(self) -> int:
+        """The level (1-based) for the next turn: the plan's, or past its horizon the posterior-best."""
+        if int(self.counts.sum()) < self.plan.horizon:
+            return self.plan.decide(self.counts)
+        w = self.posterior()
+        return int(np.argmax(np.round(w @ self.objective.utility(self.p), 12))) + 1
+
+    def act(self, state: int, rng: np.random.Generator) -> int:
+        self.last_level = self.decide()
+        return self.last_level - 1  # actions 0..3 are levels 1..4
+
+    def observe(self, transition: Transition) -> None:
+        level = int(mdp.LEVEL[transition.next_state])
+        self.counts[2 * (level - 1) + (0 if transition.score > 0 else 1)] += 1
+        self.save()
+
+    def bind_state_dir(self, folder: Path) -> None:
+        self.session_dir = Path(folder)
+        if self.path is None:
+            self.path = self.session_dir / FILENAME
+
+    def probabilities(self, state: int) -> np.ndarray | None:
+        out = np.zeros(mdp.N_ACTIONS)
+        out[self.decide() - 1] = 1.0
+        return out
+
+    def guide(self, state: int, action: int) -> None:
+        pass  # an override is observed like any turn: the counts, not the plan, change
+
+    def snapshot(self) -> dict | None:
+        return {"counts": self.counts.tolist(), "carried": self.carried.tolist(), "history": self.history,
+                "started": self.started}
+
+    def restore(self, data: dict | None) -> None:
+        """Back to a checkpoint of this session (``--resume``): the participant file already holds the
+        interrupted session's turns, so the counts before it come from the checkpoint."""
+        if data:
+            carried = np.array(data["carried"], dtype=np.int64)
+            self.counts = np.array(data["counts"], dtype=np.int64)
+            self.history = list(data["history"])
+            self.started = str(data["started"])
+            if not np.array_equal(carried, self.carried):
+                self.carried = carried
+                self.plan = self._solve()
+
+    def close(self) -> None:
+        self.save()
+
+    def posterior(self) -> np.ndarray:
+        return bayes.posterior_weights(self.p, self.weights, self.carried + self.counts)
+
+    def status(self) -> dict[str, Any]:
+        w = self.posterior()
+        est = w @ self.p
+        ranked = sorted(zip(self.names, w), key=lambda x: -x[1])
+        post = " | ".join(f"{n} {x:.2f}" for n, x in ranked[:4])
+        best = int(np.argmax(w))
+        return {
+            "phase": "bayes", "posterior": {n: round(float(x), 4) for n, x in zip(self.names, w)},
+            "matched": self.names[best], "match_probability": round(float(w[best]), 4),
+            "following": f"bayes ({self.objective})", "level_success": [round(float(x), 4) for x in est],
+            "progress": f"           posterior: {post} -> next level {self.decide()}",
+            "summary": (f"Bayes planner ({self.objective}): most likely user model {self.names[best]} "
+                        f"(posterior {w[best]:.2f}; {post}); estimated success by level "
+                        + " ".join(f"L{i + 1} {x:.2f}" for i, x in enumerate(est))),
+        }
+
+    # -- the participant's file ----------------------------------------------------------------------
+
+    def payload(self) -> dict[str, Any]:
+        entry = {"started": self.started, "session": str(self.session_dir) if self.session_dir else None,
+                 "turns": int(self.counts.sum()), "counts": self.counts.tolist()}
+        return {"mdp_definition": mdp.DEFINITION, "prior_fingerprint": self.fingerprint,
+                "objective": str(self.objective), "models": list(self.names),
+                "counts": (self.carried + self.counts).tolist(), "sessions": self.history + [entry],
+                "updated": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+
+    def save(self) -> None:
+        if self.path is None:
+            return
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            STATE_FILE.write(self.path, self.payload())
+        except OSError as exc:
+            raise DataError(f"{self.path}: cannot save the participant's state ({exc.strerror or exc}); "
+                            "make session.output writable") from None
+
+
+def read_state(path: Path, fingerprint: str) -> dict[str, Any]:
+    """A participant's saved counts, checked; DataError in one line otherwise."""
+    saved = STATE_FILE.read(path, DataError)
+    if saved.get("prior_fingerprint") != fingerprint:
+        raise DataError(f"{path}: participant state made with another prior or objective ({saved.get('objective')}, "
+                        f"fingerprint {str(saved.get('prior_fingerprint'))[:12]}..., now {fingerprint[:12]}...); use "
+                        f"the user models and objective it was made with, or {FRESH}")
+    counts = saved.get("counts")
+    if not (isinstance(counts, list) and len(counts) == 8 and all(isinstance(c, int) and c >= 0 for c in counts)):
+        raise DataError(f"{path}: participant state has invalid counts; {FRESH}")
+    if not isinstance(saved.get("sessions"), list):
+        raise DataError(f"{path}: participant state lacks its sessions; {FRESH}")
+    return saved
+
+
+def model_prior(models_dir: Path | None = None, users_dir: Path | None = None
+                ) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+    """(names, success per level (K, 4), weights): the fitted clusters, or every user simulator file
+    of ``users_dir`` with equal weights."""
+    from nao_trainer.learn import artifacts
+
+    if users_dir is not None:
+        from nao_trainer.core.simulation import UserSimulator
+        from nao_trainer.files import read_json
+
+        files = sorted(Path(users_dir).glob("*.json"))
+        if not files:
+            raise ConfigError(f"{users_dir}: no user simulator files (*.json) for the Bayes prior")
+        sims = [UserSimulator.from_dict(read_json(f, DataError), str(f)) for f in files]
+        return tuple(s.name for s in sims), level_means(np.stack([s.p_success for s in sims])), np.ones(len(sims))
+    manifest = artifacts.load_manifest(models_dir)
+    rows = manifest.get("clusters", [])
+    if not rows:
+        raise DataError("the user model folder lists no clusters; refit with `nao-trainer fit`")
+    sims = [artifacts.load_simulator(str(r["id"]), models_dir) for r in rows]
+    sizes = np.array([float(r.get("size") or 1.0) for r in rows])
+    return tuple(s.name for s in sims), level_means(np.stack([s.p_success for s in sims])), sizes
+
+
+def load_bayes(path: Path | None, pseudonym: str, turns: int, objective_text: str, fresh: bool,
+               models_dir: Path | None = None, users_dir: Path | None = None, cache: Path | None = None) -> BayesPolicy:
+    """The Bayes policy for ``pseudonym`` with the participant's saved counts at ``path`` (None: kept
+    in the session folder, nothing carried over)."""
+    if not bayes.available():
+        raise ConfigError("policy 'bayes' needs numba: pip install 'nao-trainer[all]'")
+    try:
+        obj = objective.parse(objective_text)
+    except ValueError as exc:
+        raise ConfigError(f"policy.objective: {exc}") from None
+    names, p, w = model_prior(models_dir, users_dir)
+    fp = prior_fingerprint(names, p, w, obj)
+    saved = None
+    if path is not None and Path(path).exists():
+        path = Path(path)
+        if fresh:
+            kept = set_aside(path)
+            log.warning("policy bayes: starting fresh from the prior; the previous state was moved to %s", kept)
+        else:
+            saved = read_state(path, fp)
+            log.warning("policy bayes: %s returns after %d session(s) with counts %s (%s)", pseudonym,
+                        len(saved["sessions"]), saved["counts"], path)
+    return BayesPolicy(names, p, w, obj, turns, path, saved, cache)
