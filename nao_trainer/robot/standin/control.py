@@ -52,9 +52,9 @@ class Control:
         key = self._key(button)
         self._rec.record("NaoTrainerStandIn", "press", [key])
         if self._touch(key):
-            self._memory._emit(key, 1.0)
+            self._memory.emit(key, 1.0)
             self._rec.wait(PRESS_HOLD_S)
-            self._memory._emit(key, 0.0)
+            self._memory.emit(key, 0.0)
         return key
 
     @qi.bind(qi.String, [qi.String, qi.Float])
@@ -64,9 +64,9 @@ class Control:
         key = self._key(button)
         self._rec.record("NaoTrainerStandIn", "hold", [key, seconds])
         if self._touch(key):
-            self._memory._emit(key, 1.0)
+            self._memory.emit(key, 1.0)
             self._rec.wait(seconds)
-            self._memory._emit(key, 0.0)
+            self._memory.emit(key, 0.0)
             with self._body.lock:
                 life_on = self._body.life in ("solitary", "interactive")
             if life_on and seconds >= SLEEP_HOLD_S:
@@ -82,9 +82,9 @@ class Control:
         key = self._key(button)
         self._rec.record("NaoTrainerStandIn", "bounce", [key, contacts])
         for _ in range(max(1, contacts)):
-            self._memory._emit(key, 1.0)
+            self._memory.emit(key, 1.0)
             self._rec.wait(0.005)
-            self._memory._emit(key, 0.0)
+            self._memory.emit(key, 0.0)
             self._rec.wait(0.005)
 
     @qi.bind(qi.Void, [qi.Int32])

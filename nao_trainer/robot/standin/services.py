@@ -297,12 +297,12 @@ class Memory:
     @qi.bind(qi.Void, [qi.String, qi.Dynamic])
     def raiseEvent(self, key: str, value: Any) -> None:
         self._rec.record("ALMemory", "raiseEvent", [key, value])
-        self._emit(key, value)
+        self.emit(key, value)
 
     @qi.bind(qi.Void, [qi.String, qi.Dynamic])
     def insertData(self, key: str, value: Any) -> None:
         self._rec.record("ALMemory", "insertData", [key, value])
-        self._emit(key, value)
+        self.emit(key, value)
 
     @qi.bind(qi.Dynamic, [qi.String])
     def getData(self, key: str) -> Any:
@@ -316,15 +316,18 @@ class Memory:
         with self._lock:
             return sorted(self._data)
 
-    def _emit(self, key: str, value: Any) -> None:
-        # Like NAOqi, inserting a value also notifies the key's subscribers.
+    @qi.nobind  # the stand-in's own control service raises touches through it; not an ALMemory method
+    def emit(self, key: str, value: Any) -> None:
+        """Set ``key`` and notify its subscribers (like NAOqi, inserting a value also raises the event)."""
         with self._lock:
             self._data[key] = value
             subscribers = list(self._subscribers.get(key, ()))
         for sub in subscribers:
             sub.signal(value)
 
-    def _forget_subscribers(self) -> None:
+    @qi.nobind
+    def forget_subscribers(self) -> None:
+        """Drop every subscriber (the stand-in stops)."""
         with self._lock:
             self._subscribers.clear()
 
