@@ -34,7 +34,7 @@ _LETTER_BUTTONS = {letter: key for key, letter in BUTTON_LETTERS.items()}
 
 
 @qi.multiThreaded()
-class _TextToSpeech:
+class TextToSpeech:
     """ALTextToSpeech: ``say`` blocks for a time proportional to the text."""
 
     def __init__(self, rec: Recorder, speech: Channel, body: Body) -> None:
@@ -102,7 +102,7 @@ class _TextToSpeech:
 
 
 @qi.multiThreaded()
-class _AnimatedSpeech:
+class AnimatedSpeech:
     """ALAnimatedSpeech: ``say(text)`` and ``say(text, configuration)`` (a NAOqi overload)."""
 
     def __init__(self, rec: Recorder, speech: Channel, body: Body) -> None:
@@ -134,7 +134,7 @@ def _strip_annotations(text: str) -> str:
 
 
 @qi.multiThreaded()
-class _AudioPlayer:
+class AudioPlayer:
     """ALAudioPlayer: ``playSine`` blocks for the audio latency, then the beep's duration.
 
     ``latency_s`` (robot seconds, scaled by the speed factor) models the time from the call's
@@ -166,7 +166,7 @@ class _AudioPlayer:
 
 
 @qi.multiThreaded()
-class _Leds:
+class Leds:
     """ALLeds: ``fadeRGB(name, 0xRRGGBB, secs)`` and ``fadeRGB(name, r, g, b, secs)`` block for ``secs``."""
 
     def __init__(self, rec: Recorder) -> None:
@@ -203,7 +203,7 @@ class _Leds:
 
 
 @qi.multiThreaded()
-class _RobotPosture:
+class RobotPosture:
     """ALRobotPosture: ``goToPosture`` takes time inversely proportional to the speed argument."""
 
     def __init__(self, rec: Recorder, body: Body) -> None:
@@ -237,7 +237,7 @@ class _RobotPosture:
 
 
 @qi.multiThreaded()
-class _Motion:
+class Motion:
     """ALMotion (subset): ``wakeUp`` sets the motors on and stands, ``rest`` crouches and sets them off."""
 
     def __init__(self, rec: Recorder, body: Body) -> None:
