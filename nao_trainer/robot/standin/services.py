@@ -13,7 +13,6 @@ from typing import Any
 os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise; must precede `import qi`
 import qi  # noqa: E402
 
-from nao_trainer.errors import ConfigError  # noqa: E402
 from nao_trainer.ports import BUTTON_LETTERS  # noqa: E402
 from nao_trainer.robot.standin.body import Body  # noqa: E402
 from nao_trainer.robot.standin.recorder import Channel, Recorder  # noqa: E402
