@@ -27,6 +27,7 @@ from typing import Any, Iterator, TextIO
 
 from nao_trainer.errors import ConfigError, DataError, UserError
 from nao_trainer.policies.participant_state import participant_template
+from nao_trainer.ports import CommandQueue
 from nao_trainer.session.config import StudyConfig
 from nao_trainer.study.registry import Study, now_iso, open_study, pid_alive, record_session
 
@@ -249,7 +250,6 @@ def blinded_console(plan: NextSession, options: Any, progress: TextIO) -> Iterat
     Steering (pause, resume, stop, override, repeat, mark invalid, notes) works as usual through the
     command queue. The page lacks the live EEG contact panel (the monitor is inside the session layer).
     """
-    from nao_trainer.ports import CommandQueue
     from nao_trainer.session.wiring import LOOPBACK
 
     try:
