@@ -15,8 +15,8 @@ def add_filter_args(p: argparse.ArgumentParser) -> None:
 
 
 def filter_from_args(args: argparse.Namespace):
-    """A ``data.dataset.SessionFilter`` from the flags, or None when none was given."""
-    from nao_trainer.data.dataset import SessionFilter
+    """A ``data.turn_table.SessionFilter`` from the flags, or None when none was given."""
+    from nao_trainer.data.turn_table import SessionFilter
 
     if not (args.study or args.input or args.exclude_simulated):
         return None

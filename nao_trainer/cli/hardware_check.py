@@ -4,6 +4,9 @@ from __future__ import annotations
 import argparse
 import sys
 
+from nao_trainer.errors import ConfigError
+from nao_trainer.files import PROJECT_ROOT
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -23,8 +26,6 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from nao_trainer.errors import ConfigError
-    from nao_trainer.files import PROJECT_ROOT
     from nao_trainer.robot.hardware_check import run_hardware_check, verdict
     from nao_trainer.robot.naoqi import NaoqiRobot, redact_url
     from nao_trainer.session.config import DESKTOP, MOCK, load_config

@@ -38,7 +38,8 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from nao_trainer.data.dataset import cache_dir, import_dataset, write_table
+    from nao_trainer.data.dataset import cache_dir, import_dataset
+    from nao_trainer.data.turn_table import write_table
 
     if args.out.is_dir():  # said before anything is read (it failed after the import, naming a temp file)
         raise ConfigError(f"--out {args.out}: is a folder; give the CSV file to write, e.g. {args.out / 'turns.csv'}")

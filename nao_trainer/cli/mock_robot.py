@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from nao_trainer.errors import ConfigError
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -45,8 +47,6 @@ def _run(args: argparse.Namespace) -> int:
 
     login = None
     if args.listen.strip().lower().startswith("tcps://"):
-        from nao_trainer.errors import ConfigError
-
         creds = credentials_from_env()
         if creds is None:
             raise ConfigError("mock-robot --listen tcps://...: set NAO_USER and NAO_PASSWORD, the login it accepts")

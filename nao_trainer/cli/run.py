@@ -7,6 +7,7 @@ from pathlib import Path
 
 from nao_trainer.eeg.settings import MODES as EEG_MODES
 from nao_trainer.errors import ConfigError
+from nao_trainer.robot.address import redact_url
 from nao_trainer.session.config import INPUTS, is_robot_address, load_config
 
 
@@ -110,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
         if args.config is None and args.robot is not None and is_robot_address(args.robot):
             # The demo study is a simulation (sped up, simulated participant and Muse, pseudonym "demo"):
             # a robot must never run with it by accident.
-            raise ConfigError(f"--robot {args.robot} needs --config FILE: without it the demo study would run "
+            raise ConfigError(f"--robot {redact_url(args.robot)} needs --config FILE: without it the demo study would run "
                               "(speed x25, simulated participant and EEG, pseudonym 'demo'); use --config "
                               "config/studies/paper-2018.yaml or your own study file")
         config = load_config(args.config, overrides)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from nao_trainer.cli._filters import add_filter_args, filter_from_args
 from nao_trainer.eeg.settings import MODES as EEG_MODES
-from nao_trainer.errors import DataError
+from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import write_text_atomic
 from nao_trainer.session.config import INPUTS
 
@@ -162,7 +162,6 @@ def _init(args: argparse.Namespace) -> int:
 
 
 def _enrol(args: argparse.Namespace) -> int:
-    from nao_trainer.errors import ConfigError
     from nao_trainer.study.registry import enrol, open_study
 
     strata = {}
@@ -206,7 +205,6 @@ def _status(args: argparse.Namespace) -> int:
 
 
 def _next(args: argparse.Namespace) -> int:
-    from nao_trainer.errors import ConfigError
     from nao_trainer.session.wiring import RunOptions
     from nao_trainer.study.runner import run_next
 
@@ -239,7 +237,6 @@ def _analyse(args: argparse.Namespace) -> int:
 
 
 def _power(args: argparse.Namespace) -> int:
-    from nao_trainer.errors import ConfigError
     from nao_trainer.study.power import power_study
     from nao_trainer.study.protocol import load_protocol
 
@@ -270,7 +267,6 @@ def _power(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from nao_trainer.errors import ConfigError
     from nao_trainer.study.registry import open_study
 
     if (args.bids is None) == (args.published is None):

@@ -162,8 +162,6 @@ class HostCheck:
         """The loopback names, the bind address, and (bound wider than loopback) this machine's names."""
         names = {"127.0.0.1", "localhost", "::1", bind, *extra}
         if not is_loopback(bind):
-            import socket
-
             names |= {socket.gethostname(), socket.getfqdn()}
         return cls(names)
 

@@ -159,8 +159,7 @@ class UserSimulator:
         except KeyError as exc:
             raise ValueError(f"{source}: missing field {exc.args[0]!r}") from None
         except (TypeError, ValueError) as exc:  # a text or a nested list where a table of numbers belongs
-            raise ValueError(f"{source}: the tables (p_success, engagement, quantiles) must hold numbers ({exc}); "
-                             "refit it with `nao-trainer fit`") from None
+            raise ValueError(f"{source}: the tables (p_success, engagement, quantiles) must hold numbers ({exc})") from None
         if "fingerprint" in data and data["fingerprint"] != sim.fingerprint():
             raise ValueError(f"{source}: tables do not match their fingerprint (file altered or torn)")
         return sim

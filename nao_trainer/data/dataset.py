@@ -13,7 +13,8 @@ Two layouts import into the same columns and encodings (the schema: ``docs/data.
 
 A session that cannot be read is reported in one line and skipped; the others import.
 
-Columns (:data:`COLUMNS`): ``session pseudonym study input turn state length level feedback previous_score action
+Columns (:data:`nao_trainer.data.turn_table.COLUMNS`; the table, its CSV and the session filter
+live in ``data/turn_table.py``): ``session pseudonym study input turn state length level feedback previous_score action
 sequence response success score signed_score reaction_time completion_time engagement_index
 engagement eeg_quality contact eeg_note``. ``action`` is the core.mdp action that produced the turn (a
 level action from START on turn 1; RF1/RF2 when the turn followed robot feedback). ``score`` is
@@ -28,9 +29,7 @@ the names, sizes and modification times of all the session's files; a re-import 
 """
 from __future__ import annotations
 
-import csv
 import hashlib
-import io
 import json
 import os
 import sys
@@ -46,42 +45,14 @@ from nao_trainer.core import mdp
 from nao_trainer.core.task import LENGTHS, level_of, score, signed_score
 from nao_trainer.data import engagement as offline
 from nao_trainer.data import own, published
-from nao_trainer.errors import DataError, UserError
-from nao_trainer.files import read_text, write_text_atomic
+from nao_trainer.data.turn_table import SessionFilter, TurnTable, simulated_sessions
+from nao_trainer.errors import DataError
+from nao_trainer.files import write_text_atomic
 
 IMPORTER_VERSION = 4  # 2: pseudonym column; sessions written by `run`; 3: engagement scaled over the task; 4: study and input columns
 #: ``study`` / ``input`` of a published session: the authors' study; a person answered (how is not recorded).
 PUBLISHED = "published"
 COMPAT_MODES = (None, "authors2018")
-
-#: Columns that label a session (what study, who answered) rather than describe a turn: not fingerprinted.
-LABELS = ("study", "input")
-#: Column name -> kind (str, int, float). The CSV's header is exactly these names in this order.
-COLUMNS: dict[str, type] = {
-    "session": str,
-    "pseudonym": str,
-    "study": str,
-    "input": str,
-    "turn": int,
-    "state": int,
-    "length": int,
-    "level": int,
-    "feedback": int,
-    "previous_score": int,
-    "action": int,
-    "sequence": str,
-    "response": str,
-    "success": int,
-    "score": int,
-    "signed_score": int,
-    "reaction_time": float,
-    "completion_time": float,
-    "engagement_index": float,
-    "engagement": float,
-    "eeg_quality": float,
-    "contact": float,
-    "eeg_note": str,
-}
 
 
 @dataclass(frozen=True)
@@ -93,105 +64,6 @@ class SkippedSession:
 
     def __str__(self) -> str:
         return f"{self.session}: skipped: {self.reason}"
-
-
-@dataclass
-class TurnTable:
-    """Column arrays of the tidy turn table (see :data:`COLUMNS`)."""
-
-    columns: dict[str, np.ndarray]
-
-    def __len__(self) -> int:
-        return len(self.columns["session"])
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self.columns[name]
-
-    @property
-    def sessions(self) -> list[str]:
-        return list(dict.fromkeys(self.columns["session"].tolist()))
-
-    @classmethod
-    def from_rows(cls, rows: list[dict[str, Any]]) -> "TurnTable":
-        cols = {}
-        for name, kind in COLUMNS.items():
-            values = [r[name] for r in rows]
-            cols[name] = np.array(values, dtype=float if kind is float else (np.int64 if kind is int else str))
-        return cls(cols)
-
-    def mix(self) -> str:
-        """``sessions by study/input: demo/simulated 3, paper-2018/tactile 2``: what the table mixes."""
-        counts: dict[str, int] = {}
-        seen: set[str] = set()
-        for sid, study, kind in zip(self["session"], self["study"], self["input"]):
-            if sid not in seen:
-                seen.add(sid)
-                key = f"{study or '?'}/{kind}"
-                counts[key] = counts.get(key, 0) + 1
-        return "sessions by study/input: " + ", ".join(f"{k} {n}" for k, n in sorted(counts.items()))
-
-    def to_csv(self, columns: "tuple[str, ...] | None" = None) -> str:
-        """CSV text (floats as ``repr``, so reading back is exact; NaN as empty) of ``columns`` (default all)."""
-        names = tuple(COLUMNS) if columns is None else columns
-        buf = io.StringIO()
-        w = csv.writer(buf, lineterminator="\n")
-        w.writerow(names)
-        cols = [self.columns[n] for n in names]
-        kinds = [COLUMNS[n] for n in names]
-        for i in range(len(self)):
-            w.writerow(["" if k is float and not np.isfinite(c[i]) else (repr(float(c[i])) if k is float else c[i])
-                        for c, k in zip(cols, kinds)])
-        return buf.getvalue()
-
-    def fingerprint(self) -> str:
-        """SHA-256 of the CSV text of the turn data: identifies the data a model was fitted from.
-
-        The session labels ``study`` and ``input`` (importer v3) are left out, so a model fitted from the
-        same turns before they existed keeps its fingerprint (sim/models)."""
-        return hashlib.sha256(self.to_csv(tuple(c for c in COLUMNS if c not in LABELS)).encode()).hexdigest()
-
-
-def write_table(table: TurnTable, path: Path, provenance: dict[str, Any]) -> Path:
-    """Write the CSV and a JSON sidecar ``<path>.json`` with provenance; returns the CSV path."""
-    path = Path(path)
-    text = table.to_csv()
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        for target, content in ((path, text), (path.with_name(path.name + ".json"),
-                                               json.dumps(provenance, indent=1) + "\n")):
-            write_text_atomic(target, content)
-    except OSError as exc:
-        where = exc.filename or path
-        raise UserError(f"{where}: cannot write the turn table ({exc.strerror}); choose another --out") from None
-    return path
-
-
-def read_table(path: Path) -> TurnTable:
-    """Read a turn table CSV written by :func:`write_table`; DataError naming file:line on problems."""
-    path = Path(path)
-    text = read_text(path, DataError)
-    reader = csv.reader(io.StringIO(text))
-    header = next(reader, None)
-    if header != list(COLUMNS):
-        missing = [c for c in COLUMNS if c not in (header or [])]
-        what = f"missing columns: {', '.join(missing)}" if missing else "columns in another order"
-        raise DataError(f"{path}:1: not a nao-trainer turn table ({what}); create it with `nao-trainer import`")
-    rows = []
-    for lineno, rec in enumerate(reader, 2):
-        if len(rec) != len(COLUMNS):
-            raise DataError(f"{path}:{lineno}: expected {len(COLUMNS)} fields, got {len(rec)}")
-        row: dict[str, Any] = {}
-        for (name, kind), value in zip(COLUMNS.items(), rec):
-            try:
-                row[name] = (float(value) if value else float("nan")) if kind is float else kind(value)
-            except ValueError:
-                raise DataError(f"{path}:{lineno}: column {name!r} must be {kind.__name__}, got {value!r}") from None
-        rows.append(row)
-    table = TurnTable.from_rows(rows)
-    bad = ~np.isin(table["state"], np.arange(mdp.N_TURN_STATES))
-    if bad.any():
-        raise DataError(f"{path}:{int(np.flatnonzero(bad)[0]) + 2}: state must be in 0..107")
-    return table
 
 
 # ------------------------------------------------------------------------------------------------
@@ -342,44 +214,6 @@ class ImportResult:
             kinds[kind] = kinds.get(kind, 0) + 1
         detail = ", ".join(f"{k}: {n}" for k, n in kinds.items())
         return f"{len(self.excluded)} turns left out of the table, kept in their turns.csv ({detail})"
-
-
-@dataclass(frozen=True)
-class SessionFilter:
-    """Which sessions a table keeps, by the study they belong to and who answered (``input``).
-
-    Empty tuples keep every value; ``exclude_simulated`` drops sessions whose participant was simulated.
-    """
-
-    studies: tuple[str, ...] = ()
-    inputs: tuple[str, ...] = ()
-    exclude_simulated: bool = False
-
-    def keeps(self, study: str, input_kind: str) -> bool:
-        return ((not self.studies or study in self.studies) and (not self.inputs or input_kind in self.inputs)
-                and not (self.exclude_simulated and input_kind == "simulated"))
-
-    def apply(self, table: TurnTable) -> tuple[TurnTable, list[str]]:
-        """The rows of the sessions kept, and one line per session left out."""
-        keep = np.array([self.keeps(s, i) for s, i in zip(table["study"], table["input"])], dtype=bool)
-        dropped = list(dict.fromkeys(
-            f"{sid}: left out by the filter (study {str(st)!r}, input {str(inp)!r})"
-            for sid, st, inp, k in zip(table["session"], table["study"], table["input"], keep) if not k))
-        return TurnTable({k: v[keep] for k, v in table.columns.items()}), dropped
-
-    def __str__(self) -> str:
-        parts = ([f"study {' or '.join(self.studies)}"] if self.studies else []) + (
-            [f"input {' or '.join(self.inputs)}"] if self.inputs else []) + (
-            ["simulated participants left out"] if self.exclude_simulated else [])
-        return ", ".join(parts) or "no filter"
-
-    def describe(self) -> dict[str, Any]:
-        return {"studies": list(self.studies), "inputs": list(self.inputs), "exclude_simulated": self.exclude_simulated}
-
-
-def simulated_sessions(table: TurnTable) -> list[str]:
-    """The sessions of ``table`` whose participant was simulated (``input`` simulated)."""
-    return list(dict.fromkeys(s for s, i in zip(table["session"], table["input"]) if i == "simulated"))
 
 
 @dataclass(frozen=True)

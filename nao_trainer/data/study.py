@@ -21,7 +21,7 @@ from nao_trainer.data import own
 from nao_trainer.errors import DataError
 
 if TYPE_CHECKING:
-    from nao_trainer.data.dataset import SessionFilter
+    from nao_trainer.data.turn_table import SessionFilter
 
 STUDY_COLUMNS: tuple[str, ...] = ("session", "pseudonym", "study", "input", "date", "turns", "score", "success_L1",
                                   "success_L2", "success_L3", "success_L4", "engagement", "eeg_turns", "policy",
@@ -90,7 +90,7 @@ def study_session(path: Path) -> StudySession:
 def read_study(root: Path, select: "SessionFilter | None" = None) -> Study:
     """Every session folder written by ``run`` under ``root``, by start time; DataError when none reads.
 
-    ``select`` (``data.dataset.SessionFilter``) keeps some studies / inputs; the others are noted."""
+    ``select`` (``data.turn_table.SessionFilter``) keeps some studies / inputs; the others are noted."""
     root = Path(root)
     if not root.is_dir():
         raise DataError(f"{root}: no such folder (give a study folder holding session folders written by `run`)")

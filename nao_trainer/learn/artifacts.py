@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from nao_trainer.core.simulation import FORMAT_VERSION as SIMULATOR_FORMAT_VERSION
-from nao_trainer.core.simulation import DefinitionMismatch, UserSimulator
+from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import DataError, UserError
 from nao_trainer.files import PROJECT_ROOT, JsonFormat, read_json, write_json_atomic
 
@@ -112,10 +112,8 @@ def load_simulator_file(path: Path) -> UserSimulator:
         raise DataError(f"{path}: not a user simulator (expected a JSON object)")
     try:
         return UserSimulator.from_dict(data, source=str(path))
-    except DefinitionMismatch as exc:
+    except ValueError as exc:  # DefinitionMismatch included; core names the values, the fix is named here
         raise DataError(f"{exc}; refit it with `nao-trainer fit`") from None
-    except ValueError as exc:
-        raise DataError(str(exc)) from None
 
 
 def load_simulator(spec: str, models_dir: Path | None = None) -> UserSimulator:

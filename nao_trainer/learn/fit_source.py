@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from nao_trainer.core import mdp
-from nao_trainer.data import dataset
+from nao_trainer.data import dataset, turn_table
 from nao_trainer.data.dataset import COMPAT_MODES, discover, session_name
 from nao_trainer.data.engagement import session_engagement
 from nao_trainer.data.own import own_session_engagement
@@ -68,7 +68,7 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
 
     ``cache``: a folder, ``"default"`` (:func:`nao_trainer.data.dataset.cache_dir`) or None (no cache). For a turn-table
     CSV, the compat mode and skipped sessions come from its sidecar (:func:`table_provenance`).
-    ``select`` (``data.dataset.SessionFilter``) keeps some studies / inputs. Sessions of a simulated
+    ``select`` (``data.turn_table.SessionFilter``) keeps some studies / inputs. Sessions of a simulated
     participant are refused (ConfigError) unless ``include_simulated``: user models learnt from made-up
     people must never pass for a study's.
     """
@@ -76,7 +76,7 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
     source, out = Path(source), Path(out_dir)
     skipped: list[str] = []
     if source.is_file():
-        table = dataset.read_table(source)
+        table = turn_table.read_table(source)
         compat, skipped = table_provenance(source, compat)
         if select is not None:
             table, dropped = select.apply(table)
@@ -96,7 +96,7 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
         table = imported.table
         say(f"imported {len(table)} turns from {len(table.sessions)} sessions ({imported.cached} from cache)")
     say(f"nao-trainer fit: {table.mix()}")
-    simulated = dataset.simulated_sessions(table)
+    simulated = turn_table.simulated_sessions(table)
     if simulated and not include_simulated:
         raise ConfigError(f"{source}: {len(simulated)} of {len(table.sessions)} sessions had a simulated participant "
                           f"(input simulated, e.g. {simulated[0]}); user models are learnt from people: add "

@@ -218,7 +218,7 @@ class Turns:
 
     @classmethod
     def from_columns(cls, cols: Any) -> "Turns":
-        """From a mapping of columns such as ``dataset.TurnTable`` (names as its CSV header)."""
+        """From a mapping of columns such as ``data.turn_table.TurnTable`` (names as its CSV header)."""
         return cls(
             session=np.asarray(cols["session"], dtype=str),
             state=np.asarray(cols["state"], dtype=int),

@@ -27,7 +27,7 @@ import numpy as np
 from nao_trainer.core import mdp
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.core.usermodel import cluster_users, user_models
-from nao_trainer.data import dataset
+from nao_trainer.data import dataset, turn_table
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.learn import artifacts
 from nao_trainer.learn.fit_source import table_provenance
@@ -192,7 +192,7 @@ def read_turns(source: Path, compat: str | None):
                           "or a dataset root")
     if source.is_file():
         table_provenance(source, compat)
-        return dataset.read_table(source)
+        return turn_table.read_table(source)
     return dataset.import_dataset(source, compat=compat, cache_dir=dataset.cache_dir(source, compat)).table
 
 

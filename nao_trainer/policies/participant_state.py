@@ -50,8 +50,19 @@ def state_file(kind: str, state_path: str | None, pseudonym: str, output: Path) 
     """
     if state_path == SESSION_FOLDER:
         return None
-    template = state_path or str(Path("{output}") / "participants" / "{pseudonym}" / state_filename(kind))
+    template = state_path or participant_template(kind)
     return Path(template.format(pseudonym=pseudonym, output=output)).expanduser().resolve()
+
+
+def participant_template(kind: str) -> str:
+    """``{output}/participants/{pseudonym}/<state_filename(kind)>``: the default ``policy.state_path``
+    of a policy ``kind``, as a template (a study arm whose base file keeps the state per session sets it)."""
+    return str(participant_dir(Path("{output}"), "{pseudonym}") / state_filename(kind))
+
+
+def participant_dir(output: Path, pseudonym: str) -> Path:
+    """The folder of the participant ``pseudonym``'s learning state under ``output`` (the default place)."""
+    return Path(output) / "participants" / pseudonym
 
 
 def session_state_file(kind: str, folder: Path) -> Path:

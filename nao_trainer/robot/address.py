@@ -112,7 +112,7 @@ class _Authenticator:
         return {}
 
 
-class _AuthenticatorFactory:
+class AuthenticatorFactory:
     def __init__(self, creds: Credentials) -> None:
         self._creds = creds
 
@@ -126,7 +126,7 @@ def url_host(url: str) -> str:
     return m.group("host").strip("[]") if m else url
 
 
-def _resolve_host(url: str, deadline_s: float) -> None:
+def resolve_host(url: str, deadline_s: float) -> None:
     """Raise RobotUnavailable when the URL's host name cannot be resolved.
 
     libqi reports an unknown host in ways that read like a login failure; resolving first names

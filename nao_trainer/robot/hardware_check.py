@@ -16,7 +16,7 @@ from typing import Any, Callable, TextIO
 
 from nao_trainer.errors import RobotUnavailable
 from nao_trainer.ports import BUTTON_LETTERS, RobotCallFailed, RobotConnectionLost
-from nao_trainer.robot.lifecycle import TaskLife, read_status
+from nao_trainer.robot.lifecycle import TaskLife
 
 SENTENCE = "Hello. This is the hardware check. Please listen carefully."
 CONFIRM = "If you heard the letters and the beep, touch my front head button."

@@ -23,9 +23,9 @@ from nao_trainer.errors import ConfigError, RobotUnavailable  # noqa: E402
 from nao_trainer.ports import (BUTTON_LETTERS, BeepTiming, RobotCallFailed, RobotConnectionLost,  # noqa: E402
                                check_beep)
 from nao_trainer.robot.qi_calls import (  # noqa: E402,F401
-    STANDIN_HINT, CallTimeouts, _connect_session, _explain, _new_session, _wait, is_connection_lost)
+    STANDIN_HINT, CallTimeouts, connect_session, explain_error, new_session, wait_future, is_connection_lost)
 from nao_trainer.robot.address import (  # noqa: E402,F401 - re-exported: the client's public names
-    PASSWORD_ENV, USER_ENV, Credentials, _AuthenticatorFactory, _resolve_host, credentials_from_env, normalize_url,
+    PASSWORD_ENV, USER_ENV, Credentials, AuthenticatorFactory, resolve_host, credentials_from_env, normalize_url,
     redact_url)
 from nao_trainer.robot.watchdog import LinkWatchdog  # noqa: E402
 
@@ -105,9 +105,9 @@ class NaoqiRobot:
             raise ConfigError(
                 f"robot address {qi_url} is NAOqi 2.9 (tcps): set {USER_ENV} and {PASSWORD_ENV} in the environment"
             )
-        _resolve_host(qi_url, deadline_s)
-        session = _new_session(creds)
-        _connect_session(session, qi_url, deadline_s)
+        resolve_host(qi_url, deadline_s)
+        session = new_session(creds)
+        connect_session(session, qi_url, deadline_s)
         log.info("connected to the robot at %s", qi_url)
         return cls(session, qi_url, creds, timeouts, debounce_s)
 
@@ -139,10 +139,10 @@ class NaoqiRobot:
         if self._session.isConnected():
             self._session.close()
         try:
-            _connect_session(self._session, self.url, max(0.05, deadline - time.monotonic()))
+            connect_session(self._session, self.url, max(0.05, deadline - time.monotonic()))
         except RobotUnavailable:
             # A timed-out connect leaves the session closed mid-handshake; start the next try afresh.
-            self._session = _new_session(self._credentials)
+            self._session = new_session(self._credentials)
             raise
         if callback is not None:
             self._wait_for_service("ALMemory", max(0.5, deadline - time.monotonic()))
@@ -334,7 +334,7 @@ class NaoqiRobot:
                 log.debug("disconnecting %s: %s", key, exc)
         deadline = time.monotonic() + (min(2.0, self.timeouts.subscribe_s) if budget_s is None else budget_s)
         for key, fut in pending:
-            if not _wait(fut, max(0.001, deadline - time.monotonic())):
+            if not wait_future(fut, max(0.001, deadline - time.monotonic())):
                 log.debug("disconnecting %s timed out", key)
 
     def _on_button(self, key: str, value: Any) -> None:
@@ -416,7 +416,7 @@ class NaoqiRobot:
             future = getattr(target, method)(*args, _async=True)
         except RuntimeError as exc:
             raise self._translate(exc, what) from None
-        if not _wait(future, timeout_s):
+        if not wait_future(future, timeout_s):
             raise RobotConnectionLost(
                 f"{what} on the robot at {self.url} did not answer within {budget_s or timeout_s:g} s; "
                 "the robot may be frozen or unreachable"

@@ -15,7 +15,7 @@ os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise; mu
 import qi  # noqa: E402
 
 from nao_trainer.errors import RobotUnavailable  # noqa: E402
-from nao_trainer.robot.address import (PASSWORD_ENV, USER_ENV, Credentials, _AuthenticatorFactory,  # noqa: E402
+from nao_trainer.robot.address import (PASSWORD_ENV, USER_ENV, Credentials, AuthenticatorFactory,  # noqa: E402
                                        redact_url)
 
 STANDIN_HINT = "(no robot at hand? start `nao-trainer mock-robot` and use tcp://127.0.0.1:9559)"
@@ -56,7 +56,7 @@ def is_connection_lost(error: BaseException | str) -> bool:
     return any(marker in text for marker in _LOST_MARKERS)
 
 
-def _explain(error: str, tls: bool = False) -> str:
+def explain_error(error: str, tls: bool = False) -> str:
     """A short, user-facing reading of a qi connect error (``tls``: a NAOqi 2.9 ``tcps://`` login was sent)."""
     text = error.lower()
     if tls and ("auth" in text or "disconnected" in text):
@@ -80,7 +80,7 @@ def _explain(error: str, tls: bool = False) -> str:
 _WAIT_SLICE_S = 0.1
 
 
-def _wait(future: Any, timeout_s: float) -> bool:
+def wait_future(future: Any, timeout_s: float) -> bool:
     """Wait for a qi future; True when it finished within ``timeout_s`` (interruptible by signals)."""
     deadline = time.monotonic() + timeout_s
     while True:
@@ -92,14 +92,14 @@ def _wait(future: Any, timeout_s: float) -> bool:
             return False
 
 
-def _new_session(creds: Credentials | None) -> Any:
+def new_session(creds: Credentials | None) -> Any:
     session = qi.Session()
     if creds is not None:
-        session.setClientAuthenticatorFactory(_AuthenticatorFactory(creds))
+        session.setClientAuthenticatorFactory(AuthenticatorFactory(creds))
     return session
 
 
-def _connect_session(session: Any, url: str, deadline_s: float) -> None:
+def connect_session(session: Any, url: str, deadline_s: float) -> None:
     """Connect ``session`` to ``url`` within ``deadline_s``; close it and raise RobotUnavailable otherwise.
 
     ``Session.connect`` has no timeout of its own against a port that accepts TCP but never
@@ -107,7 +107,7 @@ def _connect_session(session: Any, url: str, deadline_s: float) -> None:
     """
     where = redact_url(url)
     future = session.connect(url, _async=True)
-    if not _wait(future, deadline_s):
+    if not wait_future(future, deadline_s):
         session.close()
         raise RobotUnavailable(
             f"no answer from the robot at {where} within {deadline_s:g} s (something listens there but does not "
@@ -116,7 +116,7 @@ def _connect_session(session: Any, url: str, deadline_s: float) -> None:
     if future.hasError():
         error = future.error()
         session.close()
-        raise RobotUnavailable(f"cannot reach the robot at {where}: {_explain(error, url.startswith('tcps://'))} "
+        raise RobotUnavailable(f"cannot reach the robot at {where}: {explain_error(error, url.startswith('tcps://'))} "
                                f"{STANDIN_HINT}")
 
 

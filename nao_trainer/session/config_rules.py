@@ -82,7 +82,7 @@ def unit_values(value: list) -> str | None:
 
 
 def assessment(value: list) -> str | None:
-    return None if len(value) <= 12 and all(1 <= x <= 4 for x in value) else "levels 1..4, at most 12 turns"
+    return None if len(value) <= 12 and all(1 <= x <= 4 for x in value) else "must list levels 1..4, at most 12 turns"
 
 
 def host(value: str) -> str | None:

@@ -20,6 +20,7 @@ import datetime as dt
 import fcntl
 import hashlib
 import os
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
@@ -28,6 +29,7 @@ import numpy as np
 
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import JsonFormat, read_text, write_text_atomic
+from nao_trainer.policies.participant_state import participant_dir
 from nao_trainer.study.protocol import Protocol, load_protocol, protocol_hash
 
 REGISTRY = JsonFormat("nao-trainer/study-registry", 1, "study registry", "study registry",
@@ -218,8 +220,6 @@ def enrol(root: Path, consent_date: str, consent_version: str, strata: dict[str,
 
 def withdraw(root: Path, pseudonym: str, data: str, reason: str = "") -> tuple[dict[str, Any], list[Path]]:
     """Record a withdrawal; ``data="delete"`` removes the participant's session folders and learning state."""
-    import shutil
-
     if data not in DATA_CHOICES:
         raise ConfigError(f"--data {data!r}: use keep or delete")
     with locked(root) as study:
@@ -228,7 +228,7 @@ def withdraw(root: Path, pseudonym: str, data: str, reason: str = "") -> tuple[d
             raise ConfigError(f"{pseudonym}: already withdrawn on {p['withdrawn']['time']}")
         deleted = [study.sessions_dir / s["folder"] for s in p["sessions"]] if data == "delete" else []
         if data == "delete":
-            deleted.append(study.sessions_dir / "participants" / pseudonym)
+            deleted.append(participant_dir(study.sessions_dir, pseudonym))
         p["withdrawn"] = {"time": now_iso(), "data": data, "reason": reason}
         study.save()  # recorded first: a crash while deleting leaves the decision on file
         for folder in deleted:

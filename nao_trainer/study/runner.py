@@ -26,6 +26,8 @@ from pathlib import Path
 from typing import Any, Iterator, TextIO
 
 from nao_trainer.errors import ConfigError, DataError, UserError
+from nao_trainer.policies.participant_state import participant_template
+from nao_trainer.ports import CommandQueue
 from nao_trainer.session.config import StudyConfig
 from nao_trainer.study.registry import Study, now_iso, open_study, pid_alive, record_session
 
@@ -89,7 +91,7 @@ def plan_next(study: Study, pseudonym: str, flags: dict[str, Any], now: dt.datet
              "participant.pseudonym": pseudonym, "session.output": str(study.sessions_dir.resolve()),
              "session.seed": session_seed(study, pseudonym, number)}
     if "policy.state_path" not in dict(arm.overrides):  # learning state per participant, across sessions
-        extra["policy.state_path"] = str(Path("{output}") / "participants" / "{pseudonym}" / "policy_state.json")
+        extra["policy.state_path"] = participant_template(arm.policy)
     return NextSession(pseudonym, arm.name, number, protocol.arm_config(arm, extra), warning)
 
 
@@ -248,7 +250,6 @@ def blinded_console(plan: NextSession, options: Any, progress: TextIO) -> Iterat
     Steering (pause, resume, stop, override, repeat, mark invalid, notes) works as usual through the
     command queue. The page lacks the live EEG contact panel (the monitor is inside the session layer).
     """
-    from nao_trainer.ports import CommandQueue
     from nao_trainer.session.wiring import LOOPBACK
 
     try:

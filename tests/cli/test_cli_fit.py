@@ -193,7 +193,7 @@ def test_the_table_of_a_cluster_of_one_session_prints_dashes_not_a_type_error():
 
 
 def test_fit_filters_by_study_and_input_and_refuses_simulated_participants_silently(tmp_path, capsys):
-    from nao_trainer.data.dataset import COLUMNS, TurnTable, write_table
+    from nao_trainer.data.turn_table import COLUMNS, TurnTable, write_table
 
     rows = []
     for k, (study, kind) in enumerate((("paper", "tactile"), ("paper", "simulated"), ("demo", "simulated"))):

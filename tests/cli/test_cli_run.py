@@ -256,6 +256,10 @@ def test_a_robot_address_never_runs_the_demo_study(tmp_path):
     assert res.returncode == 2 and "Traceback" not in res.stderr
     assert res.stderr.strip().count("\n") == 0 and "--robot tcp://127.0.0.1:1 needs --config FILE" in res.stderr
     assert "connecting" not in res.stderr and not (tmp_path / "out").exists()
+    # the refusal never echoes a password given in the address
+    res = cli("--robot", "tcps://nao:S3c/ret@PW@127.0.0.1:9", "--input", "tactile", "--out", str(tmp_path / "out"))
+    assert res.returncode == 2 and "--robot tcps://***@127.0.0.1:9 needs --config FILE" in res.stderr
+    assert "S3c" not in res.stderr and "PW" not in res.stderr
     # with a study: a simulated Muse is refused while a person answers
     res = cli("--config", DEFAULT_STUDY, "--robot", "tcp://127.0.0.1:1", "--input", "tactile", "--eeg", "simulated",
               "--out", str(tmp_path / "out"))

@@ -11,7 +11,8 @@ import pytest
 from _usermodels_data import import_published
 from nao_trainer.cli import main
 from nao_trainer.core import mdp
-from nao_trainer.data.dataset import COLUMNS, import_dataset, read_table, write_table
+from nao_trainer.data.dataset import import_dataset
+from nao_trainer.data.turn_table import COLUMNS, read_table, write_table
 from nao_trainer.errors import DataError
 from nao_trainer.data.published import read_turn_table
 

@@ -14,7 +14,7 @@ import pytest
 
 from nao_trainer.cli import main
 from nao_trainer.data import own
-from nao_trainer.data.dataset import COLUMNS, import_dataset, read_table
+from nao_trainer.data.turn_table import COLUMNS, read_table
 
 STUDY = """\
 study: {name: own-data}

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -199,9 +200,8 @@ def test_too_few_engagement_turns_in_a_cluster_is_a_one_line_user_error():
 
 @pytest.mark.parametrize("value", ["abc", [0.5, 0.5], {"x": 1}])
 def test_a_user_model_with_text_in_its_tables_names_the_file(tmp_path, value):
-    """Issue 17: a string in p_success gave a message without the file name."""
-    from pathlib import Path
-
+    """Issue 17: a string in p_success gave a message without the file name. core names the values;
+    the loader adds the fix (issue 16: no command words in core/)."""
     shipped = Path(__file__).resolve().parents[2] / "sim" / "participants" / "level2.json"
     data = json.loads(shipped.read_text())
     data["p_success"][3] = value
@@ -211,3 +211,7 @@ def test_a_user_model_with_text_in_its_tables_names_the_file(tmp_path, value):
         artifacts.load_simulator_file(path)
     msg = str(err.value)
     assert msg.startswith(f"{path}: ") and "must hold numbers" in msg and "\n" not in msg
+    assert msg.endswith("refit it with `nao-trainer fit`")
+    with pytest.raises(ValueError) as core_err:
+        UserSimulator.from_dict(data, source=str(path))
+    assert "must hold numbers" in str(core_err.value) and "nao-trainer" not in str(core_err.value)

@@ -5,7 +5,8 @@ import re
 import time
 from datetime import datetime, timezone
 
-from nao_trainer.policies.participant_state import SESSION_FOLDER, session_state_file, set_aside, state_file
+from nao_trainer.policies.participant_state import (SESSION_FOLDER, participant_dir, participant_template, session_state_file,
+                                                    set_aside, state_file)
 
 
 def test_one_rule_for_every_policy(tmp_path):
@@ -34,3 +35,11 @@ def test_set_aside_keeps_every_replaced_file_with_a_utc_stamp(tmp_path, monkeypa
     time.tzset()
     assert abs((datetime.now(timezone.utc) - when).total_seconds()) < 3600  # UTC, not local time
     assert len({k.name for k in kept}) == 3
+
+
+def test_a_study_arms_template_and_the_withdrawal_folder_follow_the_default_rule(tmp_path):
+    for kind in ("personalised", "usp:2"):
+        default = state_file(kind, None, "P01", tmp_path)
+        assert state_file(kind, participant_template(kind), "P01", tmp_path) == default
+        assert default.parent == participant_dir(tmp_path, "P01").resolve()
+    assert participant_template("personalised").endswith("personalised.json")

@@ -16,7 +16,7 @@ from nao_trainer.robot.naoqi import (
     Credentials,
     MissingService,
     NaoqiRobot,
-    _AuthenticatorFactory,
+    AuthenticatorFactory,
     credentials_from_env,
     is_connection_lost,
     normalize_url,
@@ -353,7 +353,7 @@ def test_tcps_without_credentials_is_a_config_error(monkeypatch):
 
 
 def test_authenticator_sends_user_and_token():
-    auth = _AuthenticatorFactory(Credentials("nao", "pw")).newAuthenticator()
+    auth = AuthenticatorFactory(Credentials("nao", "pw")).newAuthenticator()
     assert auth.initialAuthData() == {"user": "nao", "token": "pw"}
 
 

@@ -402,3 +402,10 @@ def test_spawn_standin_on_a_busy_port_reports_why(standin):
     port = int(standin.url.rsplit(":", 1)[1])
     with pytest.raises(RobotUnavailable, match=f"did not start: .*cannot listen on tcp://127.0.0.1:{port}: the port is already in use"):
         spawn_standin(port=port)
+
+
+def test_almemory_serves_only_what_naoqi_serves(client):
+    """The stand-in's own helpers (emit a touch, forget subscribers on stop) are not on the wire (qi.nobind)."""
+    names = {n for n in dir(client.service("ALMemory")) if not n.startswith("_")}
+    assert {"raiseEvent", "insertData", "getData", "subscriber"} <= names
+    assert not {"emit", "forget_subscribers"} & names

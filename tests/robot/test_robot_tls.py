@@ -12,7 +12,7 @@ import qi
 from _tls_proxy import TlsProxy
 from nao_trainer.errors import ConfigError, RobotUnavailable
 from nao_trainer.files import PROJECT_ROOT
-from nao_trainer.robot.address import _AuthenticatorFactory
+from nao_trainer.robot.address import AuthenticatorFactory
 from nao_trainer.robot.naoqi import Credentials, NaoqiRobot
 from nao_trainer.robot.standin import Login, StandIn
 
@@ -114,7 +114,7 @@ def test_tcps_standin_refuses_a_wrong_login_as_libqi_reports_it(tcps_standin, cr
 def test_raw_qi_client_sees_what_libqi_reports_for_a_refused_login(tcps_standin):
     """What the qi binding itself raises (no adapter in between), so the adapter's reading stays honest."""
     session = qi.Session()
-    session.setClientAuthenticatorFactory(_AuthenticatorFactory(Credentials(USER, "nope")))
+    session.setClientAuthenticatorFactory(AuthenticatorFactory(Credentials(USER, "nope")))
     with pytest.raises(RuntimeError, match="disconnected"):
         session.connect(tcps_standin.url)
     session.close()

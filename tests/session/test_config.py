@@ -75,6 +75,7 @@ def test_unknown_section(tmp_path):
     ("policy:\n  kind: greedy\n", 2, "policy.kind", "'schedule', 'random', 'personalised', 'bayes' or 'usp:CLUSTER"),
     ("participant_model:\n  success_by_level: [1, 1, 1]\n", 2, "participant_model.success_by_level", "4 values"),
     ("participant_model:\n  success_by_level: [1, 1, 1, 1.5]\n", 2, "participant_model.success_by_level", "[0, 1]"),
+    ("policy:\n  assessment: [9, 9]\n", 2, "policy.assessment", "must list levels 1..4, at most 12 turns"),
     ("eeg:\n  required: yes please\n", 2, "eeg.required", "true/false"),
     ("eeg:\n  mode: lsl\n  lsl_scope: universe\n", 3, "eeg.lsl_scope", "machine"),
     ("participant:\n  pseudonym: John Smith\n", 2, "participant.pseudonym", "never a real name"),

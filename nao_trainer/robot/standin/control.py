@@ -12,8 +12,8 @@ from nao_trainer.errors import ConfigError  # noqa: E402
 from nao_trainer.robot.standin.body import (SLEEP_HOLD_S, STOP_ACTIVITY_HOLD_S, AudioDevice,  # noqa: E402
                                              AutonomousLife, Battery, Body, System)
 from nao_trainer.robot.standin.recorder import Channel, Recorder, check_speed  # noqa: E402
-from nao_trainer.robot.standin.services import (PRESS_HOLD_S, Memory, _AnimatedSpeech, _AudioPlayer,  # noqa: E402
-                                                _Leds, _Motion, _RobotPosture, _TextToSpeech, button_key)
+from nao_trainer.robot.standin.services import (PRESS_HOLD_S, Memory, AnimatedSpeech, AudioPlayer,  # noqa: E402
+                                                Leds, Motion, RobotPosture, TextToSpeech, button_key)
 
 
 @qi.multiThreaded()
@@ -24,7 +24,7 @@ class Control:
     battery level, latency of calls (through the link) and of the beep, and a frozen link.
     """
 
-    def __init__(self, rec: Recorder, memory: Memory, body: Body, player: _AudioPlayer) -> None:
+    def __init__(self, rec: Recorder, memory: Memory, body: Body, player: AudioPlayer) -> None:
         self._rec = rec
         self._memory = memory
         self._body = body
@@ -52,9 +52,9 @@ class Control:
         key = self._key(button)
         self._rec.record("NaoTrainerStandIn", "press", [key])
         if self._touch(key):
-            self._memory._emit(key, 1.0)
+            self._memory.emit(key, 1.0)
             self._rec.wait(PRESS_HOLD_S)
-            self._memory._emit(key, 0.0)
+            self._memory.emit(key, 0.0)
         return key
 
     @qi.bind(qi.String, [qi.String, qi.Float])
@@ -64,9 +64,9 @@ class Control:
         key = self._key(button)
         self._rec.record("NaoTrainerStandIn", "hold", [key, seconds])
         if self._touch(key):
-            self._memory._emit(key, 1.0)
+            self._memory.emit(key, 1.0)
             self._rec.wait(seconds)
-            self._memory._emit(key, 0.0)
+            self._memory.emit(key, 0.0)
             with self._body.lock:
                 life_on = self._body.life in ("solitary", "interactive")
             if life_on and seconds >= SLEEP_HOLD_S:
@@ -82,9 +82,9 @@ class Control:
         key = self._key(button)
         self._rec.record("NaoTrainerStandIn", "bounce", [key, contacts])
         for _ in range(max(1, contacts)):
-            self._memory._emit(key, 1.0)
+            self._memory.emit(key, 1.0)
             self._rec.wait(0.005)
-            self._memory._emit(key, 0.0)
+            self._memory.emit(key, 0.0)
             self._rec.wait(0.005)
 
     @qi.bind(qi.Void, [qi.Int32])
@@ -147,16 +147,16 @@ def build_services(rec: Recorder, body: Body | None = None) -> tuple[dict[str, A
     """One stand-in's services by the names a NAO offers them under (+ the control service)."""
     body = body or Body()
     memory = Memory(rec)
-    player = _AudioPlayer(rec, body)
+    player = AudioPlayer(rec, body)
     control = Control(rec, memory, body, player)
     speech = Channel(rec)  # say and animated say share one voice: stopAll cuts both
     services = {
-        "ALTextToSpeech": _TextToSpeech(rec, speech, body),
-        "ALAnimatedSpeech": _AnimatedSpeech(rec, speech, body),
+        "ALTextToSpeech": TextToSpeech(rec, speech, body),
+        "ALAnimatedSpeech": AnimatedSpeech(rec, speech, body),
         "ALAudioPlayer": player,
-        "ALLeds": _Leds(rec),
-        "ALRobotPosture": _RobotPosture(rec, body),
-        "ALMotion": _Motion(rec, body),
+        "ALLeds": Leds(rec),
+        "ALRobotPosture": RobotPosture(rec, body),
+        "ALMotion": Motion(rec, body),
         "ALMemory": memory,
         "ALAutonomousLife": AutonomousLife(rec, body),
         "ALAudioDevice": AudioDevice(rec, body),

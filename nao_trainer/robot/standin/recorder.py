@@ -79,10 +79,14 @@ class Recorder:
         with self._lock:
             self.entries.clear()
 
-    def close(self) -> None:
+    def interrupt(self) -> None:
+        """Cut every pending ``wait`` and channel (say, playSine, ...) short: the stand-in stops."""
         self._stopping.set()
         for channel in self._channels:
             channel.shut()
+
+    def close(self) -> None:
+        self.interrupt()
         with self._lock:
             if self._file is not None:
                 self._file.flush()

@@ -171,10 +171,8 @@ class StandIn:
         if self._stopped:
             return
         self._stopped = True
-        self._rec._stopping.set()  # pending say/playSine/... return at once
-        for channel in self._rec._channels:
-            channel.shut()
-        self._memory._forget_subscribers()
+        self._rec.interrupt()  # pending say/playSine/... return at once
+        self._memory.forget_subscribers()
         try:
             # Unregister before closing: a server session closed with its services registered
             # aborts the process at exit about one time in ten (measured 5/40 vs 0/100).

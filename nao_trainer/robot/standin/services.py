@@ -13,7 +13,6 @@ from typing import Any
 os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise; must precede `import qi`
 import qi  # noqa: E402
 
-from nao_trainer.errors import ConfigError  # noqa: E402
 from nao_trainer.ports import BUTTON_LETTERS  # noqa: E402
 from nao_trainer.robot.standin.body import Body  # noqa: E402
 from nao_trainer.robot.standin.recorder import Channel, Recorder  # noqa: E402
@@ -34,7 +33,7 @@ _LETTER_BUTTONS = {letter: key for key, letter in BUTTON_LETTERS.items()}
 
 
 @qi.multiThreaded()
-class _TextToSpeech:
+class TextToSpeech:
     """ALTextToSpeech: ``say`` blocks for a time proportional to the text."""
 
     def __init__(self, rec: Recorder, speech: Channel, body: Body) -> None:
@@ -102,7 +101,7 @@ class _TextToSpeech:
 
 
 @qi.multiThreaded()
-class _AnimatedSpeech:
+class AnimatedSpeech:
     """ALAnimatedSpeech: ``say(text)`` and ``say(text, configuration)`` (a NAOqi overload)."""
 
     def __init__(self, rec: Recorder, speech: Channel, body: Body) -> None:
@@ -134,7 +133,7 @@ def _strip_annotations(text: str) -> str:
 
 
 @qi.multiThreaded()
-class _AudioPlayer:
+class AudioPlayer:
     """ALAudioPlayer: ``playSine`` blocks for the audio latency, then the beep's duration.
 
     ``latency_s`` (robot seconds, scaled by the speed factor) models the time from the call's
@@ -166,7 +165,7 @@ class _AudioPlayer:
 
 
 @qi.multiThreaded()
-class _Leds:
+class Leds:
     """ALLeds: ``fadeRGB(name, 0xRRGGBB, secs)`` and ``fadeRGB(name, r, g, b, secs)`` block for ``secs``."""
 
     def __init__(self, rec: Recorder) -> None:
@@ -203,7 +202,7 @@ class _Leds:
 
 
 @qi.multiThreaded()
-class _RobotPosture:
+class RobotPosture:
     """ALRobotPosture: ``goToPosture`` takes time inversely proportional to the speed argument."""
 
     def __init__(self, rec: Recorder, body: Body) -> None:
@@ -237,7 +236,7 @@ class _RobotPosture:
 
 
 @qi.multiThreaded()
-class _Motion:
+class Motion:
     """ALMotion (subset): ``wakeUp`` sets the motors on and stands, ``rest`` crouches and sets them off."""
 
     def __init__(self, rec: Recorder, body: Body) -> None:
@@ -297,12 +296,12 @@ class Memory:
     @qi.bind(qi.Void, [qi.String, qi.Dynamic])
     def raiseEvent(self, key: str, value: Any) -> None:
         self._rec.record("ALMemory", "raiseEvent", [key, value])
-        self._emit(key, value)
+        self.emit(key, value)
 
     @qi.bind(qi.Void, [qi.String, qi.Dynamic])
     def insertData(self, key: str, value: Any) -> None:
         self._rec.record("ALMemory", "insertData", [key, value])
-        self._emit(key, value)
+        self.emit(key, value)
 
     @qi.bind(qi.Dynamic, [qi.String])
     def getData(self, key: str) -> Any:
@@ -316,15 +315,18 @@ class Memory:
         with self._lock:
             return sorted(self._data)
 
-    def _emit(self, key: str, value: Any) -> None:
-        # Like NAOqi, inserting a value also notifies the key's subscribers.
+    @qi.nobind  # the stand-in's own control service raises touches through it; not an ALMemory method
+    def emit(self, key: str, value: Any) -> None:
+        """Set ``key`` and notify its subscribers (like NAOqi, inserting a value also raises the event)."""
         with self._lock:
             self._data[key] = value
             subscribers = list(self._subscribers.get(key, ()))
         for sub in subscribers:
             sub.signal(value)
 
-    def _forget_subscribers(self) -> None:
+    @qi.nobind
+    def forget_subscribers(self) -> None:
+        """Drop every subscriber (the stand-in stops)."""
         with self._lock:
             self._subscribers.clear()
 

@@ -1,6 +1,7 @@
 """A self-signed certificate for the stand-in's ``tcps://`` front (libqi does not verify it, as on a NAO)."""
 from __future__ import annotations
 
+import datetime
 import shutil
 import ssl
 import subprocess
@@ -22,8 +23,6 @@ def self_signed_certificate(folder: Path) -> tuple[Path, Path]:
     folder.mkdir(parents=True, exist_ok=True)
     cert, key = folder / "cert.pem", folder / "key.pem"
     try:
-        import datetime
-
         from cryptography import x509
         from cryptography.hazmat.primitives import hashes, serialization
         from cryptography.hazmat.primitives.asymmetric import ec
