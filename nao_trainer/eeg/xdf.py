@@ -42,6 +42,8 @@ from nao_trainer.errors import EEGUnavailable
 INSTALL_HINT = "pip install 'nao-trainer[xdf]'"
 #: ``prctl`` option: the signal a process gets when its parent dies (linux/prctl.h).
 PR_SET_PDEATHSIG = 1
+#: Longest wait for the recording engine to write its footers and stop, once asked to (seconds).
+STOP_LIMIT_S = 20.0
 #: How long the child keeps recording after the stop request: the engine writes in chunks of ~0.5 s.
 FLUSH_S = 1.0
 
@@ -239,13 +241,23 @@ def main(argv: list[str] | None = None) -> int:
     threading.Thread(target=wait_stdin, daemon=True).start()
     while not stop.wait(0.2):
         pass
-    time.sleep(args.flush)  # samples and markers still on their way into the file
-    rec.stop()
-    del rec
+    finished = threading.Event()
+
+    def finish() -> None:
+        time.sleep(args.flush)  # samples and markers still on their way into the file
+        rec.stop()  # footers; liblsl's time-correction queries can hang once the session's streams are gone
+        finished.set()
+
+    threading.Thread(target=finish, daemon=True).start()
+    if not finished.wait(args.flush + STOP_LIMIT_S):
+        print(f"xdf: the recording did not finish within {STOP_LIMIT_S:g} s; the file may lack its footers "
+              "(pyxdf reads it all the same)", flush=True)
+        return 5
     print("xdf: stopped", flush=True)
-    sys.stdout.flush()
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    code = main()
+    sys.stdout.flush()
+    os._exit(code)  # never wait for the recording engine's own threads: the recorder must not outlive its session
