@@ -242,10 +242,13 @@ def main(argv: list[str] | None = None) -> int:
     while not stop.wait(0.2):
         pass
     finished = threading.Event()
+    held = [rec]  # the engine writes the footers when the last reference goes (in ``finish``)
+    del rec
 
     def finish() -> None:
         time.sleep(args.flush)  # samples and markers still on their way into the file
-        rec.stop()  # footers; liblsl's time-correction queries can hang once the session's streams are gone
+        held[0].stop()  # liblsl's time-correction queries can hang once the session's streams are gone
+        held.clear()
         finished.set()
 
     threading.Thread(target=finish, daemon=True).start()
