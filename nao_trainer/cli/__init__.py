@@ -52,6 +52,16 @@ def main(argv: list[str] | None = None) -> int:
     except (KeyboardInterrupt, Interrupted):
         print(f"nao-trainer {args.command}: interrupted", file=sys.stderr)
         return Interrupted.exit_code
+    except BrokenPipeError:  # the reader went away (`nao-trainer study status DIR | head`): nothing to say to it
+        _quiet_stdout()
+        return 0
+
+
+def _quiet_stdout() -> None:
+    """Point stdout at /dev/null, so the interpreter's final flush raises nothing more (Python's SIGPIPE note)."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
 
 
 def entry_point() -> None:
@@ -62,7 +72,10 @@ def entry_point() -> None:
         # called without an active exception", in qi_python's shared-pointer release): leave without it.
         # Only where qi was loaded: other commands keep the teardown (it stops worker pools, for one).
         logging.shutdown()  # flush and close log files, as the skipped atexit would
-        sys.stdout.flush()
-        sys.stderr.flush()
+        try:
+            sys.stdout.flush()
+            sys.stderr.flush()
+        except BrokenPipeError:
+            pass
         os._exit(code)
     sys.exit(code)
