@@ -170,9 +170,11 @@ class BlindStream(io.TextIOBase):
         self.out.flush()
 
     def filter(self, line: str) -> str | None:
+        # The phase tag goes first: a turn line tagged "[assessment]" must be shown without its tag, not
+        # dropped (every arm shows its turn lines, or their absence would name the arm).
+        line = _PHASE_TAG.sub("", line) if line.lstrip().startswith("turn ") else line
         if _REVEALING.search(line):
             return None
-        line = _PHASE_TAG.sub("", line) if line.lstrip().startswith("turn ") else line
         return self._names.sub(BLIND_LABEL, line) if self._names else line
 
 
