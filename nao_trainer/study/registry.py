@@ -20,6 +20,8 @@ import datetime as dt
 import fcntl
 import hashlib
 import os
+import re
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
@@ -136,6 +138,7 @@ def open_study(root: Path) -> Study:
         raise DataError(f"{root}: not a study folder (no {REGISTRY_FILE}); create one with "
                         "`nao-trainer study init PROTOCOL --out STUDY_DIR`")
     registry = REGISTRY.read(root / REGISTRY_FILE, DataError)
+    _check_header(registry, root / REGISTRY_FILE)
     text = read_text(root / PROTOCOL_FILE, DataError, "protocol copy missing", REGISTRY.fix)
     if protocol_hash(text) != registry["protocol"]["sha256"]:
         raise DataError(f"{root / PROTOCOL_FILE}: altered since it was frozen (hash differs from the registry); "
@@ -146,7 +149,64 @@ def open_study(root: Path) -> Study:
         raise DataError(f"{alloc_path}: not the allocation this study was initialised with (hash differs from "
                         f"the registry); {ALLOCATION.fix}")
     protocol = load_protocol(root / PROTOCOL_FILE, base=Path(registry["protocol"]["base"]))
+    _check_participants(registry, allocation, root / REGISTRY_FILE)
     return Study(root, protocol, registry, allocation)
+
+
+def _bad(path: Path, what: str) -> DataError:
+    return DataError(f"{path}: {what}: edited or corrupt; {REGISTRY.fix}")
+
+
+def _check_header(registry: dict[str, Any], path: Path) -> None:
+    """The registry's own shape, before anything reads it (a consistent checksum proves no more than that)."""
+    entry = registry.get("protocol")
+    if not isinstance(entry, dict) or not all(isinstance(entry.get(k), str) for k in
+                                              ("sha256", "base", "study_config", "study_config_sha256")):
+        raise _bad(path, "the protocol entry is missing or malformed")
+    if not isinstance(registry.get("participants"), list) or not isinstance(registry.get("amendments"), list):
+        raise _bad(path, "participants or amendments are not lists")
+    nxt = registry.get("next")
+    if not isinstance(nxt, dict) or not all(type(v) is int and v >= 0 for v in nxt.values()):
+        raise _bad(path, "the allocation position ('next') is malformed")
+
+
+def _check_participants(registry: dict[str, Any], allocation: dict[str, Any], path: Path) -> None:
+    """Every participant well formed and holding the arm the concealed sequence gave them, pseudonyms unique,
+    and the allocation position equal to the number enrolled per stratum."""
+    sequences = allocation.get("sequences")
+    if not isinstance(sequences, dict) or set(sequences) != set(registry["next"]):
+        raise _bad(path, "the allocation position does not match the allocation's strata")
+    pattern = re.compile(r"[A-Za-z0-9]+")  # a folder name and a BIDS label (the prefix may have been amended)
+    seen: set[str] = set()
+    for i, p in enumerate(registry["participants"], 1):
+        if not isinstance(p, dict) or not isinstance(p.get("pseudonym"), str):
+            raise _bad(path, f"participant {i} is malformed")
+        name = p["pseudonym"]
+        if not pattern.fullmatch(name) or name in seen:
+            raise _bad(path, f"participant {i}: pseudonym {name!r} is malformed or repeated")
+        seen.add(name)
+        stratum, index = p.get("stratum"), p.get("allocation_index")
+        if stratum not in sequences or type(index) is not int or not 0 <= index < len(sequences[stratum]):
+            raise _bad(path, f"{name}: stratum or allocation position is malformed")
+        if p.get("arm") != sequences[stratum][index]:
+            raise _bad(path, f"{name}: arm {p.get('arm')!r} is not the one the allocation gave")
+        withdrawn, sessions = p.get("withdrawn"), p.get("sessions")
+        if not (withdrawn is None or (isinstance(withdrawn, dict) and withdrawn.get("data") in DATA_CHOICES
+                                      and isinstance(withdrawn.get("time"), str))):
+            raise _bad(path, f"{name}: the withdrawal entry is malformed")
+        if not isinstance(sessions, list) or not all(_session_ok(s) for s in sessions):
+            raise _bad(path, f"{name}: the sessions are malformed")
+    for stratum, count in Counter(p["stratum"] for p in registry["participants"]).items():
+        if registry["next"][stratum] != count:
+            raise _bad(path, f"stratum {stratum or '(all)'}: {count} enrolled but the allocation is at "
+                             f"{registry['next'][stratum]}")
+
+
+def _session_ok(s: Any) -> bool:
+    folder = s.get("folder") if isinstance(s, dict) else None
+    return (isinstance(folder, str) and bool(folder) and "/" not in folder and "\\" not in folder
+            and folder not in (".", "..") and type(s.get("number")) is int and isinstance(s.get("status"), str)
+            and isinstance(s.get("ended"), str))
 
 
 @contextlib.contextmanager
