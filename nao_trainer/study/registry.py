@@ -209,6 +209,22 @@ def _session_ok(s: Any) -> bool:
             and isinstance(s.get("ended"), str))
 
 
+def study_holding(path: Path) -> Path | None:
+    """The study folder ``path`` lies in (itself or an ancestor holding a study registry), or None.
+
+    A bare ``run`` must not write there: its session would sit among the study's without being in the
+    registry, with another configuration, and could move the participant's learning state."""
+    path = Path(path).resolve()
+    for folder in (path, *path.parents):
+        try:
+            head = (folder / REGISTRY_FILE).read_text(encoding="utf-8", errors="replace")[:200]
+        except OSError:
+            continue
+        if REGISTRY.name in head:
+            return folder
+    return None
+
+
 @contextlib.contextmanager
 def locked(root: Path) -> Iterator[Study]:
     """The study, opened under an exclusive lock for a read-modify-write; saved by the caller."""
