@@ -294,6 +294,10 @@ def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any,
     plan = plan_resume(study, pseudonym) if resume else plan_next(study, pseudonym, flags)
     check_blinding(study, plan, options)
     with participant_lock(study, pseudonym, progress):
+        # Planned again under the lock: a session of this participant that ended between the first plan and
+        # the lock counts, so this one gets the next number (or is refused), never the same one twice.
+        study = open_study(root)
+        plan = plan_resume(study, pseudonym) if resume else plan_next(study, pseudonym, flags)
         if plan.warning:
             print(f"warning: {plan.warning}", file=progress, flush=True)
         resumed = "" if plan.resume is None else " (resumed)"
