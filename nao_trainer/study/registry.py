@@ -19,8 +19,10 @@ import contextlib
 import datetime as dt
 import fcntl
 import hashlib
+import json
 import os
 import re
+import socket
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -302,6 +304,10 @@ def withdraw(root: Path, pseudonym: str, data: str, reason: str = "") -> tuple[d
         p = study.participant(pseudonym)
         if p["withdrawn"]:
             raise ConfigError(f"{pseudonym}: already withdrawn on {p['withdrawn']['time']}")
+        running = _running_session(study.root, pseudonym)
+        if running:
+            raise ConfigError(f"{pseudonym}: a session is running ({running}); stop it (key s or the console), "
+                              "then record the withdrawal")
         deleted = [study.sessions_dir / s["folder"] for s in p["sessions"]] if data == "delete" else []
         if data == "delete":
             deleted.append(study.sessions_dir / "participants" / pseudonym)
@@ -356,6 +362,18 @@ def record_session(root: Path, pseudonym: str, entry: dict[str, Any]) -> None:
         sessions = study.participant(pseudonym)["sessions"]
         sessions[:] = [s for s in sessions if s["folder"] != entry["folder"]] + [entry]
         study.save()
+
+
+def _running_session(root: Path, pseudonym: str) -> str:
+    """'pid N on HOST' when the participant's ``study next`` lock is held by a live process, else ''."""
+    try:
+        held = json.loads((root / "locks" / f"{pseudonym}.lock").read_text(encoding="utf-8"))
+        pid, host = int(held["pid"]), str(held["host"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return ""
+    if host != socket.gethostname() or pid_alive(pid):
+        return f"pid {pid} on {host}"
+    return ""
 
 
 def pid_alive(pid: int) -> bool:
