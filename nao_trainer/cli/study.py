@@ -173,7 +173,7 @@ def _enrol(args: argparse.Namespace) -> int:
         strata[name] = level
     entry = enrol(args.root, args.consent_date, args.consent_version, strata)
     blinded = open_study(args.root).protocol.blinding
-    arm = "arm concealed from the operator (blinding on; in the registry)" if blinded else f"arm {entry['arm']}"
+    arm = "arm concealed from the operator, blinding on" if blinded else f"arm {entry['arm']}"
     print(f"{entry['pseudonym']}: enrolled ({arm}; consent {entry['consent_date']} version "
           f"{entry['consent_version']}). Run the sessions with: nao-trainer study next {args.root} {entry['pseudonym']}")
     return 0
