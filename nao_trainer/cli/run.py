@@ -104,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
             + (["--fresh-policy"] if args.fresh_policy else [])
         if given:
             raise ConfigError(f"--resume continues a session with its own configuration; drop {', '.join(given)}")
+        _refuse_study_folder(Path(args.resume), "--resume", resume=True)
         config, resume = prepare_resume(Path(args.resume))
         print(f"resuming {resume.folder} after turn {resume.checkpoint['completed']} of {config.session.turns}",
               file=sys.stderr)
@@ -115,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
                               "(speed x25, simulated participant and EEG, pseudonym 'demo'); use --config "
                               "config/studies/paper-2018.yaml or your own study file")
         config = load_config(args.config, overrides)
+        _refuse_study_folder(config.session.output_dir, "session.output")
     result = run_session(config, options, resume=resume)
     print(result.summary())
     if args.plot and result.path is not None and result.completed_rows:
@@ -122,3 +124,15 @@ def run(args: argparse.Namespace) -> int:
 
         print(f"plot: {plot_session(result.path)}")
     return result.exit_code
+
+
+def _refuse_study_folder(path: Path, what: str, resume: bool = False) -> None:
+    """A study participant's sessions run through ``study next`` (arm, number, blinding, registry), never a bare run."""
+    from nao_trainer.study.registry import study_holding
+
+    root = study_holding(path)
+    if root is None:
+        return
+    how = f"`nao-trainer study next {root} PSEUDONYM --resume`" if resume else \
+        f"`nao-trainer study next {root} PSEUDONYM` (give another --out for a session outside the study)"
+    raise ConfigError(f"{what} {path}: inside the study folder {root}; a study participant's session runs with {how}")

@@ -172,7 +172,7 @@ def _enrol(args: argparse.Namespace) -> int:
         strata[name] = level
     entry = enrol(args.root, args.consent_date, args.consent_version, strata)
     blinded = open_study(args.root).protocol.blinding
-    arm = "arm concealed from the operator (blinding on; in the registry)" if blinded else f"arm {entry['arm']}"
+    arm = "arm concealed from the operator, blinding on" if blinded else f"arm {entry['arm']}"
     print(f"{entry['pseudonym']}: enrolled ({arm}; consent {entry['consent_date']} version "
           f"{entry['consent_version']}). Run the sessions with: nao-trainer study next {args.root} {entry['pseudonym']}")
     return 0
@@ -249,6 +249,13 @@ def _power(args: argparse.Namespace) -> int:
     if not 0 <= args.drift <= 3:
         raise ConfigError(f"--drift {args.drift}: give a logit SD between 0 and 3")
     protocol = load_protocol(args.protocol)
+    if args.users == "sessions" and args.data is None:
+        raise ConfigError("study power --users sessions needs the published dataset: add --data ROOT (its extracted "
+                          "clean_data folder), or give --users clusters")
+    if args.data is not None and args.data.is_dir() and any(args.data.glob("*.tar.xz")) \
+            and not any(args.data.glob("*/session_*")):
+        raise ConfigError(f"--data {args.data}: holds the dataset's archives, not its sessions; extract one first "
+                          "(README, 'Results on the published data') and give the extracted clean_data folder")
     from nao_trainer.learn.users import load_users
 
     print(f"study power: loading the {args.users} users ...", file=sys.stderr, flush=True)

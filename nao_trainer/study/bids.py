@@ -68,11 +68,22 @@ def _mne() -> tuple[Any, Any]:
     return mne, mne_bids
 
 
+def _ours(out: Path) -> bool:
+    """A dataset this export wrote before (``GeneratedBy`` names nao-trainer): only that one is replaced."""
+    try:
+        generated = json.loads((out / "dataset_description.json").read_text(encoding="utf-8")).get("GeneratedBy")
+        return isinstance(generated, list) and any(isinstance(g, dict) and g.get("Name") == "nao-trainer"
+                                                   for g in generated)
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 def export_bids(study: Study, out: Path) -> str:
     """Write the BIDS dataset; returns a one-line summary. Refuses a non-empty ``out`` it did not write."""
     out = Path(out)
-    if out.exists() and any(out.iterdir()) and not (out / "dataset_description.json").exists():
-        raise DataError(f"{out}: not empty and not a BIDS dataset; give an empty or new folder")
+    if out.exists() and any(out.iterdir()) and not _ours(out):
+        raise DataError(f"{out}: not empty and not a BIDS dataset exported by nao-trainer; give an empty or new "
+                        "folder")
     mne, mne_bids = _mne()
     mne.set_log_level("ERROR")
     if out.exists():

@@ -8,7 +8,8 @@ refused before any participant is enrolled.
 
 Balance: blocked randomisation draws each block as a random permutation of the arms repeated
 ``ratio`` times; a block must therefore hold a whole number of rounds (``block_size`` a multiple of the
-sum of the ratios), and ``target_n`` must give every arm at least one participant.
+sum of the ratios), and ``target_n`` must give every arm at least one participant whatever the draw
+(at least ``block_size`` minus the smallest arm's places in a block, plus one).
 """
 from __future__ import annotations
 
@@ -258,9 +259,12 @@ def _check_balance(arms: tuple[Arm, ...], allocation: Allocation, target: int, w
     if allocation.block_size < round_size or allocation.block_size % round_size:
         raise where.error("allocation.block_size", f"{allocation.block_size} cannot balance {len(arms)} arms with "
                                                    f"ratios {[a.ratio for a in arms]}: use a multiple of {round_size}")
-    if target < round_size:
-        raise where.error("target_n", f"{target} participants leave an arm with no participants possible; "
-                                      f"give at least {round_size}")
+    # The first block may put all of the smallest arm's places last: it is sure of a participant only when
+    # target_n reaches past the block's other places.
+    need = allocation.block_size - min(a.ratio for a in arms) * (allocation.block_size // round_size) + 1
+    if target < need:
+        raise where.error("target_n", f"{target} participants leave an arm with no participants possible (blocks of "
+                                      f"{allocation.block_size}); give at least {need}, or a smaller block size")
 
 
 def _analysis(a: dict, where: _Where, arms: tuple[Arm, ...]) -> Analysis:

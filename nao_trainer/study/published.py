@@ -28,19 +28,29 @@ from nao_trainer.study.registry import Study
 from nao_trainer.study.runner import DONE
 
 SCALP = ("TP9", "AF7", "AF8", "TP10")
+MAPPING_HEADER = "user_id,pseudonym,arm"  # participants.csv: also how a re-export knows its own folder
+
+
+def _ours(out: Path) -> bool:
+    """A folder this export wrote before (its participants.csv header), so replacing it loses nothing else."""
+    try:
+        with open(out / "participants.csv", encoding="utf-8") as fh:
+            return fh.readline().strip() == MAPPING_HEADER
+    except (OSError, UnicodeDecodeError):
+        return False
 
 
 def export_published(study: Study, out: Path) -> str:
     """Write the layout; returns a one-line summary. Refuses a non-empty ``out`` it did not write."""
     out = Path(out)
-    if out.exists() and any(out.iterdir()) and not (out / "participants.csv").exists():
-        raise DataError(f"{out}: not empty and not a study export; give an empty or new folder")
+    if out.exists() and any(out.iterdir()) and not _ours(out):
+        raise DataError(f"{out}: not empty and not a study export of nao-trainer; give an empty or new folder")
     if out.exists():
         shutil.rmtree(out)
     out.mkdir(parents=True)
     kept = [p for p in study.participants if not (p["withdrawn"] and p["withdrawn"]["data"] == "delete")]
     n_sessions = n_eeg = 0
-    mapping = ["user_id,pseudonym,arm"]
+    mapping = [MAPPING_HEADER]
     for p in kept:
         user = int("".join(ch for ch in p["pseudonym"] if ch.isdigit()))
         mapping.append(f"{user},{p['pseudonym']},{p['arm']}")

@@ -19,8 +19,12 @@ import contextlib
 import datetime as dt
 import fcntl
 import hashlib
+import json
 import os
+import re
 import shutil
+import socket
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
@@ -138,6 +142,7 @@ def open_study(root: Path) -> Study:
         raise DataError(f"{root}: not a study folder (no {REGISTRY_FILE}); create one with "
                         "`nao-trainer study init PROTOCOL --out STUDY_DIR`")
     registry = REGISTRY.read(root / REGISTRY_FILE, DataError)
+    _check_header(registry, root / REGISTRY_FILE)
     text = read_text(root / PROTOCOL_FILE, DataError, "protocol copy missing", REGISTRY.fix)
     if protocol_hash(text) != registry["protocol"]["sha256"]:
         raise DataError(f"{root / PROTOCOL_FILE}: altered since it was frozen (hash differs from the registry); "
@@ -148,7 +153,80 @@ def open_study(root: Path) -> Study:
         raise DataError(f"{alloc_path}: not the allocation this study was initialised with (hash differs from "
                         f"the registry); {ALLOCATION.fix}")
     protocol = load_protocol(root / PROTOCOL_FILE, base=Path(registry["protocol"]["base"]))
+    _check_participants(registry, allocation, root / REGISTRY_FILE)
     return Study(root, protocol, registry, allocation)
+
+
+def _bad(path: Path, what: str) -> DataError:
+    return DataError(f"{path}: {what}: edited or corrupt; {REGISTRY.fix}")
+
+
+def _check_header(registry: dict[str, Any], path: Path) -> None:
+    """The registry's own shape, before anything reads it (a consistent checksum proves no more than that)."""
+    entry = registry.get("protocol")
+    if not isinstance(entry, dict) or not all(isinstance(entry.get(k), str) for k in
+                                              ("sha256", "base", "study_config", "study_config_sha256")):
+        raise _bad(path, "the protocol entry is missing or malformed")
+    if not isinstance(registry.get("participants"), list) or not isinstance(registry.get("amendments"), list):
+        raise _bad(path, "participants or amendments are not lists")
+    nxt = registry.get("next")
+    if not isinstance(nxt, dict) or not all(type(v) is int and v >= 0 for v in nxt.values()):
+        raise _bad(path, "the allocation position ('next') is malformed")
+
+
+def _check_participants(registry: dict[str, Any], allocation: dict[str, Any], path: Path) -> None:
+    """Every participant well formed and holding the arm the concealed sequence gave them, pseudonyms unique,
+    and the allocation position equal to the number enrolled per stratum."""
+    sequences = allocation.get("sequences")
+    if not isinstance(sequences, dict) or set(sequences) != set(registry["next"]):
+        raise _bad(path, "the allocation position does not match the allocation's strata")
+    pattern = re.compile(r"[A-Za-z0-9]+")  # a folder name and a BIDS label (the prefix may have been amended)
+    seen: set[str] = set()
+    for i, p in enumerate(registry["participants"], 1):
+        if not isinstance(p, dict) or not isinstance(p.get("pseudonym"), str):
+            raise _bad(path, f"participant {i} is malformed")
+        name = p["pseudonym"]
+        if not pattern.fullmatch(name) or name in seen:
+            raise _bad(path, f"participant {i}: pseudonym {name!r} is malformed or repeated")
+        seen.add(name)
+        stratum, index = p.get("stratum"), p.get("allocation_index")
+        if stratum not in sequences or type(index) is not int or not 0 <= index < len(sequences[stratum]):
+            raise _bad(path, f"{name}: stratum or allocation position is malformed")
+        if p.get("arm") != sequences[stratum][index]:
+            raise _bad(path, f"{name}: arm {p.get('arm')!r} is not the one the allocation gave")
+        withdrawn, sessions = p.get("withdrawn"), p.get("sessions")
+        if not (withdrawn is None or (isinstance(withdrawn, dict) and withdrawn.get("data") in DATA_CHOICES
+                                      and isinstance(withdrawn.get("time"), str))):
+            raise _bad(path, f"{name}: the withdrawal entry is malformed")
+        if not isinstance(sessions, list) or not all(_session_ok(s) for s in sessions):
+            raise _bad(path, f"{name}: the sessions are malformed")
+    for stratum, count in Counter(p["stratum"] for p in registry["participants"]).items():
+        if registry["next"][stratum] != count:
+            raise _bad(path, f"stratum {stratum or '(all)'}: {count} enrolled but the allocation is at "
+                             f"{registry['next'][stratum]}")
+
+
+def _session_ok(s: Any) -> bool:
+    folder = s.get("folder") if isinstance(s, dict) else None
+    return (isinstance(folder, str) and bool(folder) and "/" not in folder and "\\" not in folder
+            and folder not in (".", "..") and type(s.get("number")) is int and isinstance(s.get("status"), str)
+            and isinstance(s.get("ended"), str))
+
+
+def study_holding(path: Path) -> Path | None:
+    """The study folder ``path`` lies in (itself or an ancestor holding a study registry), or None.
+
+    A bare ``run`` must not write there: its session would sit among the study's without being in the
+    registry, with another configuration, and could move the participant's learning state."""
+    path = Path(path).resolve()
+    for folder in (path, *path.parents):
+        try:
+            head = (folder / REGISTRY_FILE).read_text(encoding="utf-8", errors="replace")[:200]
+        except OSError:
+            continue
+        if REGISTRY.name in head:
+            return folder
+    return None
 
 
 @contextlib.contextmanager
@@ -226,6 +304,10 @@ def withdraw(root: Path, pseudonym: str, data: str, reason: str = "") -> tuple[d
         p = study.participant(pseudonym)
         if p["withdrawn"]:
             raise ConfigError(f"{pseudonym}: already withdrawn on {p['withdrawn']['time']}")
+        running = _running_session(study.root, pseudonym)
+        if running:
+            raise ConfigError(f"{pseudonym}: a session is running ({running}); stop it (key s or the console), "
+                              "then record the withdrawal")
         deleted = [study.sessions_dir / s["folder"] for s in p["sessions"]] if data == "delete" else []
         if data == "delete":
             deleted.append(participant_dir(study.sessions_dir, pseudonym))
@@ -280,6 +362,18 @@ def record_session(root: Path, pseudonym: str, entry: dict[str, Any]) -> None:
         sessions = study.participant(pseudonym)["sessions"]
         sessions[:] = [s for s in sessions if s["folder"] != entry["folder"]] + [entry]
         study.save()
+
+
+def _running_session(root: Path, pseudonym: str) -> str:
+    """'pid N on HOST' when the participant's ``study next`` lock is held by a live process, else ''."""
+    try:
+        held = json.loads((root / "locks" / f"{pseudonym}.lock").read_text(encoding="utf-8"))
+        pid, host = int(held["pid"]), str(held["host"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return ""
+    if host != socket.gethostname() or pid_alive(pid):
+        return f"pid {pid} on {host}"
+    return ""
 
 
 def pid_alive(pid: int) -> bool:

@@ -172,9 +172,11 @@ class BlindStream(io.TextIOBase):
         self.out.flush()
 
     def filter(self, line: str) -> str | None:
+        # The phase tag goes first: a turn line tagged "[assessment]" must be shown without its tag, not
+        # dropped (every arm shows its turn lines, or their absence would name the arm).
+        line = _PHASE_TAG.sub("", line) if line.lstrip().startswith("turn ") else line
         if _REVEALING.search(line):
             return None
-        line = _PHASE_TAG.sub("", line) if line.lstrip().startswith("turn ") else line
         return self._names.sub(BLIND_LABEL, line) if self._names else line
 
 
@@ -293,6 +295,10 @@ def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any,
     plan = plan_resume(study, pseudonym) if resume else plan_next(study, pseudonym, flags)
     check_blinding(study, plan, options)
     with participant_lock(study, pseudonym, progress):
+        # Planned again under the lock: a session of this participant that ended between the first plan and
+        # the lock counts, so this one gets the next number (or is refused), never the same one twice.
+        study = open_study(root)
+        plan = plan_resume(study, pseudonym) if resume else plan_next(study, pseudonym, flags)
         if plan.warning:
             print(f"warning: {plan.warning}", file=progress, flush=True)
         resumed = "" if plan.resume is None else " (resumed)"

@@ -194,6 +194,7 @@ def test_a_second_study_next_for_a_running_participant_is_refused_and_a_stale_lo
 
 
 def test_a_blinded_study_serves_a_console_without_the_arm(tmp_path, capsys):
+    import threading
     import time
     import urllib.parse
     import urllib.request
@@ -206,12 +207,20 @@ def test_a_blinded_study_serves_a_console_without_the_arm(tmp_path, capsys):
     proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "study", "next", str(study), "P001", "--console",
                              "--no-keys", "--speed", "10", "--turns", "8"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env)
-    lines = []
-    for line in proc.stderr:  # until the link is printed
-        lines.append(line)
-        if line.startswith("console: http"):
-            break
-    link = urllib.parse.urlsplit(lines[-1].split()[1])
+    lines: list[str] = []
+    linked = threading.Event()
+
+    def drain() -> None:  # every line, in a thread: communicate() after a partial read would lose buffered ones
+        for line in proc.stderr:
+            lines.append(line)
+            if line.startswith("console: http"):
+                linked.set()
+        linked.set()
+
+    reader = threading.Thread(target=drain, daemon=True)
+    reader.start()
+    assert linked.wait(240) and any(x.startswith("console: http") for x in lines), "".join(lines)[-2000:]
+    link = urllib.parse.urlsplit(next(x for x in lines if x.startswith("console: http")).split()[1])
     token = urllib.parse.parse_qs(link.query)["token"][0]
     request = urllib.request.Request(f"{link.scheme}://{link.netloc}{link.path}state", headers={HEADER: token})
     state: dict = {}
@@ -222,8 +231,10 @@ def test_a_blinded_study_serves_a_console_without_the_arm(tmp_path, capsys):
         except OSError:
             break  # the session (and its console) ended
         time.sleep(0.2)
-    out, err = proc.communicate(timeout=240)
-    assert proc.returncode == 0, err[-2000:]
+    proc.wait(timeout=240)
+    reader.join(timeout=60)
+    out, err = proc.stdout.read(), ""
+    assert proc.returncode == 0, "".join(lines)[-2000:]
     assert state.get("rows") and state["session"]["policy"] == "arm (blinded)"
     page = json.dumps(state).lower()
     assert not any(w in page for w in ("personalised", "assessment", "usp:", "probabilities"))
