@@ -14,7 +14,8 @@ participant's turns at length 5 inform the prediction at length 9, and any lengt
 sufficient statistic, as for the per-level models of ``core.bayes``.
 
 ``span(counts, rate)`` is the length at which the participant succeeds with probability
-``rate``: ``x_R = theta - sigma * Phi^-1(rate / (1 - lapse))``, with a posterior interval.
+``rate``: ``x_R = theta - sigma * Phi^-1(rate / (1 - lapse))``, with a posterior interval;
+``session_span`` gives its posterior median and interval for one session (the study outcome).
 """
 from __future__ import annotations
 
@@ -91,6 +92,60 @@ class PooledModel:
         lo = float(x[np.searchsorted(cdf, (1 - level) / 2)])
         hi = float(x[min(np.searchsorted(cdf, 1 - (1 - level) / 2), len(x) - 1)])
         return float(w @ x), lo, hi
+
+
+@dataclass(frozen=True)
+class Span:
+    """A session's span: the sequence length (letters) it succeeds at ``rate``, median and interval."""
+
+    rate: float
+    median: float
+    lo: float
+    hi: float
+    level: float = 0.9  # probability of the interval [lo, hi]
+
+
+def session_span(model: PooledModel, counts: np.ndarray, rate: float = 0.75, level: float = 0.9) -> Span:
+    """Posterior median and central ``level`` interval of the length at which P(success) = ``rate``.
+
+    ``counts`` are the session's (s1, f1, ..., s4, f4): successes and failures at levels 1-4, which
+    are sequences of 3, 5, 7 and 9 letters (only the length matters, so the counts are sufficient).
+    Under ``model`` the session's theta has the grid posterior
+
+        w(theta) ~ N(theta; mu, tau^2) * prod_l psi(x_l | theta)^s_l * (1 - psi(x_l | theta))^f_l
+
+    and its span at rate R solves psi(x | theta) = R:
+
+        x_R(theta) = theta - sigma * Phi^-1(R / (1 - lapse)),
+
+    a shift of theta, so the quantiles of x_R are those of theta moved by a constant. The posterior
+    CDF of theta is taken piecewise linear between grid points (each point's mass centred on it)
+    and the median and the (1 - level)/2, (1 + level)/2 quantiles are read from it. Without turns
+    (all counts 0) this is the prior's span. R must lie in (0, 1 - lapse): a participant who
+    lapses on a fraction ``lapse`` of turns never succeeds more often than 1 - lapse.
+    """
+    from statistics import NormalDist
+
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"interval probability must lie in (0, 1), got {level}")
+    q = rate / (1.0 - model.lapse)
+    if not 0.0 < q < 1.0:
+        raise ValueError(f"a participant with lapse rate {model.lapse} never succeeds at rate {rate}")
+    x = THETA - model.sigma * NormalDist().inv_cdf(q)
+    w = model.posterior(np.asarray(counts, dtype=float))
+    cdf = np.cumsum(w) - w / 2  # the CDF at each grid point, its own mass split in half
+    lo, median, hi = np.interp([(1 - level) / 2, 0.5, (1 + level) / 2], cdf, x)
+    return Span(float(rate), float(median), float(lo), float(hi), float(level))
+
+
+def level_counts(levels: "list[int] | np.ndarray", successes: "list[bool] | np.ndarray") -> np.ndarray:
+    """(8,) per-level (successes, failures) of one session's turns (levels 1-4)."""
+    out = np.zeros(8)
+    for lv, ok in zip(levels, successes):
+        if int(lv) not in (1, 2, 3, 4):
+            raise ValueError(f"level {lv} is not one of 1, 2, 3, 4")
+        out[2 * (int(lv) - 1) + (0 if ok else 1)] += 1
+    return out
 
 
 def fit(counts: np.ndarray) -> PooledModel:

@@ -43,3 +43,42 @@ def test_span_is_where_the_curve_crosses_the_rate():
     assert ps.curve(np.array([mean75]), 6.0, 1.0, 0.0)[0] == pytest.approx(0.75, abs=0.02)
     with pytest.raises(ValueError, match="never succeeds"):
         ps.PooledModel(6.0, 1.0, 1.0, 0.3).span(counts, 0.75)
+
+
+SHIPPED_LIKE = ps.PooledModel(mu=7.0, tau=1.5, sigma=1.2, lapse=0.05)
+
+
+def test_a_strong_session_has_a_longer_span_than_a_weak_one():
+    strong = ps.session_span(SHIPPED_LIKE, ps.level_counts([1] * 6 + [2] * 6 + [3] * 6 + [4] * 6,
+                                                           [True] * 18 + [True] * 5 + [False]))
+    weak = ps.session_span(SHIPPED_LIKE, ps.level_counts([1] * 6 + [2] * 6 + [3] * 6 + [4] * 6,
+                                                         [True] * 5 + [False] + [True] * 2 + [False] * 4
+                                                         + [False] * 12))
+    assert strong.median > weak.median + 1.0
+    for span in (strong, weak):
+        assert span.lo < span.median < span.hi and span.rate == 0.75 and span.level == 0.9
+        assert 1.0 < span.median < 13.0
+
+
+def test_no_turns_give_the_prior_span_and_turns_narrow_it():
+    prior = ps.session_span(SHIPPED_LIKE, np.zeros(8))
+    from statistics import NormalDist
+
+    shift = 1.2 * NormalDist().inv_cdf(0.75 / 0.95)
+    z = NormalDist().inv_cdf(0.95)
+    assert prior.median == pytest.approx(7.0 - shift, abs=0.02)  # the prior's median theta, shifted
+    assert prior.lo == pytest.approx(7.0 - shift - z * 1.5, abs=0.05)
+    assert prior.hi == pytest.approx(7.0 - shift + z * 1.5, abs=0.05)
+    many = ps.session_span(SHIPPED_LIKE, np.array([6, 0, 6, 0, 4, 2, 1, 5]) * 3)
+    assert many.hi - many.lo < prior.hi - prior.lo
+
+
+def test_the_median_is_where_the_posterior_curve_crosses_the_rate():
+    model = ps.PooledModel(mu=6.0, tau=0.25, sigma=1.0, lapse=0.0)
+    span = ps.session_span(model, np.zeros(8), rate=0.5)
+    assert span.median == pytest.approx(6.0, abs=0.02)
+    with pytest.raises(ValueError, match="never succeeds"):
+        ps.session_span(ps.PooledModel(6.0, 1.0, 1.0, 0.3), np.zeros(8))
+    with pytest.raises(ValueError, match="level 5"):
+        ps.level_counts([5], [True])
+    assert list(ps.level_counts([1, 1, 4], [True, False, False])) == [1, 1, 0, 0, 0, 0, 0, 1]
