@@ -31,6 +31,10 @@ def register(sub) -> None:
                    "turn-table CSV the mode recorded in its CSV.json applies")
     p.add_argument("--k", type=int, default=3, help="number of clusters (default 3)")
     p.add_argument("--seed", type=int, default=0, help="seed of K-means, MDS and cross-validation folds")
+    p.add_argument("--psychometric", type=Path, default=None, metavar="FILE",
+                   help="also fit the pooled psychometric user model (span against sequence length, docs/session.md) "
+                        "on the same turns and write it to FILE; the shipped prior sim/psychometric/pooled.json is "
+                        "written this way")
     p.add_argument("--json", action="store_true", help="print the cluster table as JSON on stdout")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument("--cache", type=Path, default=None, metavar="DIR",
@@ -54,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         fitted = fit_and_save(args.source, args.out, compat=args.compat, k=args.k, seed=args.seed,
                               cache=None if args.no_cache else (args.cache or "default"), progress=say,
-                              select=filter_from_args(args), include_simulated=args.include_simulated)
+                              select=filter_from_args(args), include_simulated=args.include_simulated,
+                              psychometric=args.psychometric)
     except TooFewSessions as exc:
         raise exc.naming("--k") from None
     report = fitted.report

@@ -19,7 +19,7 @@ from nao_trainer.data.engagement import session_engagement
 from nao_trainer.data.own import own_session_engagement
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import read_json
-from nao_trainer.learn import artifacts
+from nao_trainer.learn import artifacts, psychometric_prior
 from nao_trainer.learn.fitting import FEATURE_ENCODING, FitOptions, FitResult, Turns, fit_dataset
 
 
@@ -61,7 +61,7 @@ class FittedSource:
 def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int = 3, seed: int = 0,
                  cache: Path | str | None = "default",
                  progress: Callable[[str], None] | None = None, select: Any = None,
-                 include_simulated: bool = False) -> FittedSource:
+                 include_simulated: bool = False, psychometric: Path | None = None) -> FittedSource:
     """Import (or read a turn-table CSV), fit and write the artifacts; returns the report and the fit.
 
     The figures are the command's business (``plots.usermodels.draw_fit``).
@@ -70,7 +70,8 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
     CSV, the compat mode and skipped sessions come from its sidecar (:func:`table_provenance`).
     ``select`` (``data.turn_table.SessionFilter``) keeps some studies / inputs. Sessions of a simulated
     participant are refused (ConfigError) unless ``include_simulated``: user models learnt from made-up
-    people must never pass for a study's.
+    people must never pass for a study's. ``psychometric``: also fit the pooled psychometric prior
+    (``learn.psychometric_prior``) on the same turns and write it to that file.
     """
     say = progress or (lambda _m: None)
     source, out = Path(source), Path(out_dir)
@@ -136,6 +137,15 @@ def fit_and_save(source: Path, out_dir: Path, compat: str | None = None, k: int 
                           {**info, "options": options_dict, "sessions": report["sessions"], "turns": report["turns"],
                            "skipped": skipped, "inertia": report["inertia"]})
     say(f"wrote {out / artifacts.MANIFEST} and {len(result.clusters)} simulators")
+    if psychometric is not None:
+        model, n = psychometric_prior.fit_prior(turns.session, turns.level, turns.success)
+        info_prior = {key: info[key] for key in ("dataset_fingerprint", "dataset_fingerprint_of", "compat")}
+        path = psychometric_prior.save_prior(Path(psychometric), model,
+                                             {**info_prior, "sessions": n, "turns": len(turns.state)})
+        model = psychometric_prior.load_prior(path)  # as saved (rounded), so the report and the file agree
+        report["psychometric"] = {"file": str(path), **model.__dict__}
+        say(f"wrote {path} (pooled psychometric prior: mu {model.mu:g}, tau {model.tau:g}, sigma {model.sigma:.3f}, "
+            f"lapse {model.lapse:g})")
     return FittedSource(report, result, turns, source, compat, seed)
 
 

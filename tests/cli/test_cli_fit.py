@@ -25,7 +25,7 @@ def fitted(dataset_root, tmp_path_factory):
     capture.setattr(sys, "stderr", stderr)
     try:
         rc = main(["fit", str(dataset_root), "--out", str(out), "--compat", "authors2018", "--json",
-                   "--cache", str(cache)])
+                   "--cache", str(cache), "--psychometric", str(out / "psychometric" / "pooled.json")])
     finally:
         capture.undo()
     return rc, out, stdout.getvalue(), stderr.getvalue()
@@ -44,6 +44,21 @@ def test_fit_json_has_the_issue_structure(fitted):
         assert len(c["p"]) == len(c["e"]) == 4 and all(0 <= v <= 1 for v in c["p"] + c["e"])
     means = [sum(c["p"]) / 4 for c in report["clusters"]]
     assert means == sorted(means)  # the documented id rule
+
+
+def test_the_shipped_psychometric_prior_is_what_the_documented_command_writes(fitted):
+    """sim/psychometric/pooled.json = `fit DATA --compat authors2018 --psychometric FILE` on the published data."""
+    from nao_trainer.learn import psychometric_prior
+
+    rc, out, stdout, _ = fitted
+    written = out / "psychometric" / "pooled.json"
+    assert rc == 0 and written.read_bytes() == psychometric_prior.DEFAULT_PRIOR.read_bytes()
+    doc = json.loads(written.read_text())
+    assert doc["dataset_fingerprint"] == artifacts.load_manifest(out)["dataset_fingerprint"]
+    assert (doc["sessions"], doc["turns"]) == (50, 1250)
+    model = psychometric_prior.load_prior()
+    assert json.loads(stdout)["psychometric"] == {"file": str(written), **model.__dict__}
+    assert 5.0 < model.mu < 9.0 and model.sigma > 0
 
 
 def test_fit_writes_loadable_artifacts_and_figures(fitted):
