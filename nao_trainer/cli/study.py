@@ -128,10 +128,15 @@ def run(args: argparse.Namespace) -> int:
 
 def _table(args: argparse.Namespace) -> int:
     from nao_trainer.data.study import read_study
+    from nao_trainer.learn.psychometric_prior import load_prior
 
     out = args.out or args.root
-    study = read_study(args.root, filter_from_args(args))
-    for line in study.problems + study.notes:
+    try:
+        prior, span_note = load_prior(), []
+    except DataError as exc:  # the table is still worth having: its span columns stay empty, and it says why
+        prior, span_note = None, [f"span columns left empty: {exc}"]
+    study = read_study(args.root, filter_from_args(args), prior)
+    for line in study.problems + study.notes + span_note:
         print(f"nao-trainer study: {line}", file=sys.stderr)
     try:
         out.mkdir(parents=True, exist_ok=True)

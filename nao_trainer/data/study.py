@@ -4,8 +4,11 @@ Columns (:data:`STUDY_COLUMNS`): the session folder, pseudonym, the study it ran
 answered (``input``: simulated, tactile, keyboard), start date, completed turns, total score
 (equation (1)), success rate per level (empty when the level was not played), mean listening-phase
 engagement (recomputed from the raw EEG, ``data/own.py``), how many turns had an engagement value (EEG
-lost mid-session shows here), the policy, the session's status and its
-duration in seconds. Turns left out of the turn table (interrupted, invalid) do not count.
+lost mid-session shows here), the policy, the session's status, its
+duration in seconds, and its span (``span``, ``span_lo``, ``span_hi``): the sequence length in letters
+succeeded at 75 % under the pooled psychometric prior given to :func:`read_study`
+(``core.psychometric.session_span``: posterior median and 90 % interval; empty without a prior or
+counted turns). Turns left out of the turn table (interrupted, invalid) do not count.
 """
 from __future__ import annotations
 
@@ -17,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from nao_trainer.core.psychometric import PooledModel, level_counts, session_span
 from nao_trainer.data import own
 from nao_trainer.errors import DataError
 
@@ -25,7 +29,9 @@ if TYPE_CHECKING:
 
 STUDY_COLUMNS: tuple[str, ...] = ("session", "pseudonym", "study", "input", "date", "turns", "score", "success_L1",
                                   "success_L2", "success_L3", "success_L4", "engagement", "eeg_turns", "policy",
-                                  "status", "duration_s")
+                                  "status", "duration_s", "span", "span_lo", "span_hi")
+#: The success rate of the ``span`` columns (as in the run summary, ``session.turn.SPAN_RATE``).
+SPAN_RATE = 0.75
 
 
 @dataclass
@@ -61,8 +67,16 @@ def _when(text: Any) -> dt.datetime | None:
         return None
 
 
-def study_session(path: Path) -> StudySession:
-    """The study row of one session folder; DataError when it cannot be read."""
+def _span(rows: list[dict[str, Any]], prior: PooledModel | None) -> dict[str, float | None]:
+    if prior is None or not rows:
+        return {"span": None, "span_lo": None, "span_hi": None}
+    span = session_span(prior, level_counts([r["level"] for r in rows], [bool(r["success"]) for r in rows]),
+                        SPAN_RATE)
+    return {"span": round(span.median, 2), "span_lo": round(span.lo, 2), "span_hi": round(span.hi, 2)}
+
+
+def study_session(path: Path, prior: PooledModel | None = None) -> StudySession:
+    """The study row of one session folder; DataError when it cannot be read. ``prior``: for the span."""
     sess = own.read_session(path)
     eng = own.own_session_engagement(path)
     rows, _excluded = own.table_rows(sess, {t.turn: t for t in eng.turns})
@@ -82,15 +96,17 @@ def study_session(path: Path) -> StudySession:
         "policy": policy if policy is not None else "",
         "status": sess.status,
         "duration_s": round((ended - started).total_seconds(), 1) if started and ended else None,
+        **_span(rows, prior),
     }
     return StudySession(row, [r["level"] for r in rows], [r["success"] for r in rows],
                         [r["engagement"] for r in rows])
 
 
-def read_study(root: Path, select: "SessionFilter | None" = None) -> Study:
+def read_study(root: Path, select: "SessionFilter | None" = None, prior: PooledModel | None = None) -> Study:
     """Every session folder written by ``run`` under ``root``, by start time; DataError when none reads.
 
-    ``select`` (``data.turn_table.SessionFilter``) keeps some studies / inputs; the others are noted."""
+    ``select`` (``data.turn_table.SessionFilter``) keeps some studies / inputs; the others are noted.
+    ``prior`` (``learn.psychometric_prior.load_prior``) fills the span columns; empty without it."""
     root = Path(root)
     if not root.is_dir():
         raise DataError(f"{root}: no such folder (give a study folder holding session folders written by `run`)")
@@ -100,7 +116,7 @@ def read_study(root: Path, select: "SessionFilter | None" = None) -> Study:
     sessions, problems, notes = [], [], []
     for p in paths:
         try:
-            s = study_session(p)
+            s = study_session(p, prior)
         except DataError as exc:
             problems.append(f"{own.session_id(p)}: skipped: {exc}")
             continue

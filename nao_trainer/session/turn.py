@@ -8,7 +8,13 @@ from typing import Any
 import numpy as np
 
 from nao_trainer.core import mdp, task
+from nao_trainer.core.psychometric import Span, level_counts, session_span
+from nao_trainer.errors import DataError
+from nao_trainer.learn.psychometric_prior import load_prior
 from nao_trainer.ports import Answer, PhaseEngagement
+
+#: The success rate a session's span is reported at (docs/session.md).
+SPAN_RATE = 0.75
 
 @dataclass
 class Turn:
@@ -88,6 +94,7 @@ class SessionResult:
 
     summary_extra: str = ""  # e.g. the resumption this result continues
     policy_summary: str = ""  # what the policy concluded (e.g. the user model the participant matched)
+    span_prior: Path | None = None  # the psychometric prior of the span (default: the shipped one)
 
     @property
     def completed_rows(self) -> list[dict[str, Any]]:
@@ -136,6 +143,33 @@ class SessionResult:
             return "n/a (EEG off)"
         return f"n/a (EEG on, no value in any turn: {_most_common(notes).split('; ')[0]})"
 
+    def span(self) -> Span | None:
+        """The span at :data:`SPAN_RATE` from the counted turns (None without any); DataError when the
+        prior cannot be read."""
+        rows = self.completed_rows
+        if not rows:
+            return None
+        counts = level_counts([r["level"] for r in rows], [bool(r["success"]) for r in rows])
+        return session_span(load_prior(self.span_prior), counts, SPAN_RATE)
+
+    def span_record(self) -> dict[str, Any] | None:
+        """The span for session.json and the console: rate, median, interval (letters); None without turns."""
+        try:
+            span = self.span()
+        except (DataError, ValueError) as exc:  # an unreadable prior, or one whose lapse rules the rate out
+            return {"rate": SPAN_RATE, "error": str(exc)}
+        return None if span is None else span_dict(span)
+
+    def span_line(self) -> str:
+        """``span at 75 %: 6.1 letters [4.9, 7.2]`` (90 % interval); empty without counted turns."""
+        rec = self.span_record()
+        if rec is None:
+            return ""
+        head = f"span at {rec['rate']:.0%}".replace("%", " %")
+        if "error" in rec:
+            return f"{head}: n/a ({rec['error']})"
+        return f"{head}: {rec['median']:.1f} letters [{rec['lo']:.1f}, {rec['hi']:.1f}]"
+
     def summary(self) -> str:
         """A plain-text summary table for the terminal."""
         lines = ["", "level  played  success rate"]
@@ -148,6 +182,7 @@ class SessionResult:
             + f"   total score: {self.total_score}   "
             f"mean engagement: {self._no_engagement() if eng is None else f'{eng:.2f}'}"
             + (f" (EEG in {self.eeg_turns} of {len(self.completed_rows)} turns)" if self.eeg_on and eng is not None else ""),
+            *([span] if (span := self.span_line()) else []),
             f"status: {self.status} (exit {self.exit_code})" + (f": {self.error}" if self.error else ""),
             *([self.summary_extra] if self.summary_extra else []),
             f"session folder: {self.path if self.path else '(none written)'}",
@@ -176,7 +211,13 @@ def summary_data(result: "SessionResult") -> dict[str, Any]:
             "turns_completed": len(result.completed_rows), "mean_engagement": result.mean_engagement,
             "eeg_turns": result.eeg_turns if result.eeg_on else None, "invalid_turns": len(result.invalid_rows),
             "levels": [{"level": lv, "played": n, "success_rate": rate} for lv, n, rate in result.level_table()],
-            "error": result.error, "policy_summary": result.policy_summary}
+            "error": result.error, "policy_summary": result.policy_summary, "span": result.span_record()}
+
+
+def span_dict(span: Span) -> dict[str, Any]:
+    """A span as plain data (session.json, the console): lengths in letters, 3 decimals."""
+    return {"rate": span.rate, "median": round(span.median, 3), "lo": round(span.lo, 3), "hi": round(span.hi, 3),
+            "interval": span.level}
 
 
 def _round(x: float | None, nd: int = 4) -> float | None:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from nao_trainer.data.study import study_session
 from nao_trainer.ports import CommandQueue
 from nao_trainer.session.config import DEFAULT_CONFIG, load_config
@@ -54,3 +56,42 @@ def test_after_a_turn_marked_invalid_the_summary_and_the_study_table_agree(tmp_p
     assert table["turns"] == 3  # 4 played, 1 marked invalid
     assert "(+1 marked invalid, not counted)" in result.summary()
     assert json.loads((result.path / "session.json").read_text())["eeg_turns"] is None  # EEG off
+
+
+def test_the_summary_gives_the_span_from_the_counted_turns_and_nothing_without_turns(tmp_path):
+    from nao_trainer.core.psychometric import level_counts, session_span
+    from nao_trainer.learn.psychometric_prior import load_prior
+
+    rows = [row(i + 1, 1 + i // 6, i % 6 < 5 - i // 6, 0, None, "EEG off") for i in range(24)]
+    rows.append(row(25, 4, True, 4, None, "EEG off", invalid=True))  # not counted: not in the span either
+    result = SessionResult(Path("x"), "completed", 0, rows, 1)
+    want = session_span(load_prior(), level_counts([r["level"] for r in rows[:24]],
+                                                   [r["success"] for r in rows[:24]]), 0.75)
+    line = f"span at 75 %: {want.median:.1f} letters [{want.lo:.1f}, {want.hi:.1f}]"
+    assert line in result.summary().splitlines()
+    assert summary_data(result)["span"] == {"rate": 0.75, "median": round(want.median, 3), "lo": round(want.lo, 3),
+                                            "hi": round(want.hi, 3), "interval": 0.9}
+    stronger = SessionResult(Path("x"), "completed", 0, [{**r, "success": True} for r in rows], 1).span()
+    assert stronger.median > want.median
+    none = SessionResult(Path("x"), "interrupted", 3, [row(1, 1, None, None, None, "interrupted")], 1)
+    assert "span" not in none.summary() and summary_data(none)["span"] is None
+    bad = tmp_path / "pooled.json"
+    bad.write_text("{")
+    broken = SessionResult(Path("x"), "completed", 0, rows, 1, span_prior=bad)
+    assert f"span at 75 %: n/a ({bad}:1: not valid JSON" in broken.summary()  # said, and the summary still prints
+
+
+def test_a_run_writes_its_span_to_session_json_as_the_study_table_computes_it(tmp_path):
+    from nao_trainer.learn.psychometric_prior import load_prior
+
+    cfg = load_config(DEFAULT_CONFIG, {"session.turns": 8, "timing.speed": 50.0, "session.output": str(tmp_path),
+                                       "eeg.mode": "off", "session.practice": False, "participant.pseudonym": "W",
+                                       "session.seed": 3})
+    result = run_session(cfg, RunOptions(quiet=True))
+    assert result.exit_code == 0
+    span = json.loads((result.path / "session.json").read_text())["span"]
+    table = study_session(result.path, load_prior()).row
+    assert [table["span"], table["span_lo"], table["span_hi"]] == pytest.approx([span["median"], span["lo"], span["hi"]],
+                                                                                abs=0.006)
+    assert span["lo"] < span["median"] < span["hi"]
+    assert study_session(result.path).row["span"] is None  # no prior given: the columns stay empty
