@@ -130,7 +130,9 @@ def test_a_bouncing_sensor_emits_several_contacts(standin, client):
     deadline = time.monotonic() + 10
     while len(values) < 6 and time.monotonic() < deadline:
         time.sleep(0.01)
-    assert values == [1.0, 0.0] * 3
+    # three contacts, each a touch and a release; qi delivers a signal's callbacks on its own threads, so
+    # their order across contacts is not guaranteed on a loaded machine
+    assert sorted(values) == [0.0] * 3 + [1.0] * 3
 
 
 # -- the command line: tcps with the login from the environment, SIGUSR1 freezes the link ----------
