@@ -42,8 +42,9 @@ from nao_trainer.errors import EEGUnavailable
 INSTALL_HINT = "pip install 'nao-trainer[xdf]'"
 #: ``prctl`` option: the signal a process gets when its parent dies (linux/prctl.h).
 PR_SET_PDEATHSIG = 1
-#: Longest wait for the recording engine to write its footers and stop, once asked to (seconds).
-STOP_LIMIT_S = 20.0
+#: Longest wait for the recording engine to write its footers and stop, once asked to (seconds). With its
+#: streams gone (a killed session) liblsl's time-correction queries time out one by one: 5-20 s seen.
+STOP_LIMIT_S = 60.0
 #: How long the child keeps recording after the stop request: the engine writes in chunks of ~0.5 s.
 FLUSH_S = 1.0
 
