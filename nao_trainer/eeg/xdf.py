@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import math
 import os
 import signal
 import subprocess
@@ -242,21 +243,15 @@ def main(argv: list[str] | None = None) -> int:
     threading.Thread(target=wait_stdin, daemon=True).start()
     while not stop.wait(0.2):
         pass
-    finished = threading.Event()
-    held = [rec]  # the engine writes the footers when the last reference goes (in ``finish``)
-    del rec
-
-    def finish() -> None:
-        time.sleep(args.flush)  # samples and markers still on their way into the file
-        held[0].stop()  # liblsl's time-correction queries can hang once the session's streams are gone
-        held.clear()
-        finished.set()
-
-    threading.Thread(target=finish, daemon=True).start()
-    if not finished.wait(args.flush + STOP_LIMIT_S):
-        print(f"xdf: the recording did not finish within {STOP_LIMIT_S:g} s; the file may lack its footers "
-              "(pyxdf reads it all the same)", flush=True)
-        return 5
+    # The engine's stop can hang (liblsl's time-correction queries once the session's streams are gone) while
+    # holding the GIL, so no Python thread can end it: SIGALRM's default action ends the process, whatever holds
+    # what. The file then lacks its footers; pyxdf reads it all the same.
+    signal.signal(signal.SIGALRM, signal.SIG_DFL)
+    signal.alarm(int(math.ceil(args.flush + STOP_LIMIT_S)))
+    time.sleep(args.flush)  # samples and markers still on their way into the file
+    rec.stop()
+    del rec  # the footers are written here
+    signal.alarm(0)
     print("xdf: stopped", flush=True)
     return 0
 
