@@ -73,6 +73,18 @@ def _state(console, timeout=10.0):
     return status
 
 
+def _state_with_retries(console, tries: int = 3) -> int:
+    """``/state`` as a browser gets it: a connection reset while the cap evicts an old socket is retried."""
+    for attempt in range(tries):
+        try:
+            return _state(console)
+        except (ConnectionResetError, http.client.RemoteDisconnected):
+            if attempt == tries - 1:
+                raise
+            time.sleep(0.2)
+    raise AssertionError("unreachable")
+
+
 def _closed_by_server(sock: socket.socket, within: float) -> bool:
     sock.settimeout(within)
     try:
@@ -99,7 +111,7 @@ def test_half_open_sockets_are_capped_and_timed_out_and_the_token_holder_still_g
             time.sleep(0.05)
         assert console.protocol.open_connections() <= 8  # the rest were evicted, oldest first
         assert _closed_by_server(socks[0], 10)
-        assert _state(console) == 200  # the token holder gets in
+        assert _state_with_retries(console) == 200  # the token holder gets in (as a browser does, retrying)
         # the header deadline closes a socket that never finishes its headers (uvicorn has none)
         late = socket.create_connection((console.host, console.port), timeout=10)
         late.sendall(b"GET / HTTP/1.1\r\n")
