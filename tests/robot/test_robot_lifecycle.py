@@ -189,7 +189,7 @@ def test_a_hand_held_3_s_on_the_head_mid_session_only_matters_with_life_left_on(
         proc = subprocess.Popen(
             [sys.executable, "-m", "nao_trainer", "run", "--config", str(study), "--robot", standin.url,
              "--eeg", "off", "--out", str(tmp_path / "out"), "--speed", "50", "--policy", "schedule",
-             "--input", "simulated", "--seed", "2", "--turns", "8", "--no-practice", "--pseudonym", "P1"],
+             "--input", "simulated", "--seed", "2", "--turns", "30", "--no-practice", "--pseudonym", "P1"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ, QI_LOG_LEVEL="silent"))
         folder = wait_first_row(tmp_path / "out", proc)
         held = standin.hold("B", 3.0)
