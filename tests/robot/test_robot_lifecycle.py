@@ -184,22 +184,30 @@ def test_a_hand_held_3_s_on_the_head_mid_session_only_matters_with_life_left_on(
 
     study = tmp_path / "study.yaml"
     study.write_text(f"robot: {{autonomous_life: {life}}}\n", encoding="utf-8")
-    standin = StandIn.start(speed=50)
+    standin = StandIn.start(speed=10)
     try:
-        proc = subprocess.Popen(
+        # Armed in the stand-in, the hand comes down as turn 1's beep ends, however loaded the machine.
+        # The participant answers on the head (tactile) and presses nothing else: a simulated one would
+        # press after the hold, and a touch wakes a sleeping NAO. The 3 s hold ends long before the
+        # 17.5 s answer window (both robot time), so NAO is asleep when the session speaks again.
+        standin.hold_after("ALAudioPlayer.playSine", "B", 3.0)
+        res = subprocess.run(
             [sys.executable, "-m", "nao_trainer", "run", "--config", str(study), "--robot", standin.url,
-             "--eeg", "off", "--out", str(tmp_path / "out"), "--speed", "50", "--policy", "schedule",
-             "--input", "simulated", "--seed", "2", "--turns", "30", "--no-practice", "--pseudonym", "P1"],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ, QI_LOG_LEVEL="silent"))
-        folder = wait_first_row(tmp_path / "out", proc)
-        held = standin.hold("B", 3.0)
-        _, err = proc.communicate(timeout=180)
+             "--eeg", "off", "--out", str(tmp_path / "out"), "--speed", "10", "--policy", "schedule",
+             "--input", "tactile", "--seed", "2", "--turns", "2", "--no-practice", "--pseudonym", "P1"],
+            capture_output=True, text=True, env=dict(os.environ, QI_LOG_LEVEL="silent"), timeout=180)
+        held = [e["args"][1] for e in standin.transcript() if e["method"] == "held"]
     finally:
         standin.stop()
-    assert held == ("asleep" if life == "unchanged" else "nothing")
-    assert proc.returncode == ends, err
+    (folder,) = (tmp_path / "out").glob("*_*")
+    assert held == ["asleep" if life == "unchanged" else "nothing"]
+    assert res.returncode == ends, res.stderr
     info = json.loads((folder / "session.json").read_text())
     assert info["status"] == ("robot error" if ends else "completed")
     if ends:
         assert "NAO is asleep" in info["error"]
-    assert all(r["success"] in ("True", "False", "") for r in read_turns(folder))
+    rows = read_turns(folder)
+    assert rows and rows[0]["turn"] == "1" and rows[0]["success"] == "False"  # one press (B), then the timeout
+    assert len(rows) == 2, rows
+    if ends:  # the turn NAO could not speak is kept, unscored
+        assert rows[1]["success"] == "" and rows[1]["score"] == "", rows[1]

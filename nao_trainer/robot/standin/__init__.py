@@ -15,7 +15,7 @@ the client (``nao_trainer.robot.naoqi.NaoqiRobot``) talks to it exactly as it ta
   setOutputVolume, isAudioOutMuted, muteAudioOut; ``ALBattery`` getBatteryCharge; ``ALSystem``
   robotName, systemVersion (``body``)
 * ``NaoTrainerStandIn`` (control, not NAOqi) press(button or letter), hold, bounce, body,
-  set_battery, set_latency, freeze, freeze_after, transcript(), clear(), set_speed(x), speed()
+  hold_after, set_battery, set_latency, freeze, freeze_after, transcript(), clear(), set_speed(x), speed()
 
 Clients reach the qi server through a ``link.Link`` (latency, a frozen link, the tcps login).
 

@@ -15,8 +15,8 @@ NAOqi 2.8.5 SDK documentation (``doc/`` of the SDK; pages named in docs/robot.md
 * ``ALBattery.getBatteryCharge`` (percent), ``ALSystem.robotName`` / ``systemVersion``.
 
 Modelling choices (not documented behaviour): asleep, the stand-in refuses speech and sound with
-"NAO is asleep" and drops head-button events until Autonomous Life is set again or ``wakeUp`` runs.
-"""
+"NAO is asleep" until ``wakeUp`` runs, Autonomous Life is set again, or a head button is touched
+(the touch wakes it and does not reach the task)."""
 from __future__ import annotations
 
 import os

@@ -64,6 +64,9 @@ class StandInClient:
         """A hand on the head for ``seconds`` (robot time): "asleep", "activity stopped" or "nothing"."""
         return self._control.hold(button, float(seconds))
 
+    def hold_after(self, call: str, button: str, seconds: float) -> None:
+        self._control.hold_after(call, button, float(seconds))
+
     def bounce(self, button: str, contacts: int) -> None:
         self._control.bounce(button, int(contacts))
 

@@ -115,6 +115,20 @@ class Control:
         if link is not None:
             self._rec.arm(call, lambda: threading.Timer(0.02, link.freeze, (float(seconds),)).start())
 
+    @qi.bind(qi.Void, [qi.String, qi.String, qi.Float])
+    def hold_after(self, call: str, button: str, seconds: float) -> None:
+        """A hand held on the head for ``seconds`` (robot time), starting once the next ``call`` has
+        returned. Armed inside the stand-in, so the hold falls at a known point of the session however
+        slow the machine is; its outcome is recorded in the transcript as ``held``."""
+        key = self._key(button)
+        self._rec.record("NaoTrainerStandIn", "hold_after", [call, key, seconds])
+
+        def run() -> None:
+            outcome = self.hold(button, seconds)
+            self._rec.record("NaoTrainerStandIn", "held", [key, outcome])
+
+        self._rec.arm(call, lambda: threading.Thread(target=run, name="standin-hold", daemon=True).start())
+
     @qi.bind(qi.Map(qi.String, qi.Dynamic), [])
     def body(self) -> dict[str, Any]:
         """The robot's state as tests read it: life, motors_on, posture, asleep, volume, muted, battery."""

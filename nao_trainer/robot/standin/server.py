@@ -143,6 +143,10 @@ class StandIn:
         """A hand on the head for ``seconds`` of robot time (see ``Control.hold``); returns what it caused."""
         return self._control.hold(button, seconds)
 
+    def hold_after(self, call: str, button: str, seconds: float) -> None:
+        """A hand held ``seconds`` (robot time) once the next ``call`` has returned (``Control.hold_after``)."""
+        self._control.hold_after(call, button, seconds)
+
     def body(self) -> dict[str, Any]:
         """Autonomous Life state, motors, posture, sleep, volume, mute, battery."""
         return self._control.body()
