@@ -42,6 +42,10 @@ def register(sub) -> None:
                    help="schedule | random | usp:CLUSTER[:METHOD] | personalised (assess, match the user models, "
                         "choose by posterior expected value, keep learning; docs/personalisation.md) | bayes (the "
                         "exact Bayes-adaptive planner, policy.objective)")
+    p.add_argument("--prior", metavar="clusters|psychometric|PATH",
+                   help="the bayes policy's prior (policy.prior): the fitted clusters, the pooled psychometric model, "
+                        "a psychometric prior file or a folder of user simulators; default: psychometric under "
+                        "policy.objective target:R, clusters under score")
     p.add_argument("--no-learning", action="store_true", help="a learning policy does not update during the session")
     p.add_argument("--no-practice", action="store_true", help="skip the practice round")
     p.add_argument("--quiet", action="store_true", help="no per-turn progress lines")
@@ -79,6 +83,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, object]:
         "eeg.source_id": args.eeg_source_id,
         "eeg.allow_simulated": True if args.allow_simulated_eeg else None,
         "policy.kind": args.policy,
+        "policy.prior": args.prior,
         "participant_model.user_model": args.user_model,
         "policy.learning": False if args.no_learning else None,
         "session.practice": False if args.no_practice else None,

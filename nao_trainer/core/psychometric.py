@@ -74,10 +74,17 @@ class PooledModel:
 
     def mixture(self, min_weight: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
         """The prior as a finite mixture of per-level user models (what ``core.bayes`` plans over):
-        success per level (G, 4) at each theta of the grid with prior weight >= ``min_weight``."""
+        success per level (G, 4) at each theta of the grid with prior weight >= ``min_weight`` (relative
+        to the largest), and the weights renormalised over those."""
+        _, p, w = self.components(min_weight)
+        return p, w
+
+    def components(self, min_weight: float = 1e-6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``mixture`` with the span theta of each component first: (theta (G,), p (G, 4), w (G,))."""
         w = np.exp(self.log_prior())
         keep = w >= min_weight * w.max()
-        return curve(LENGTHS[None, :], THETA[keep][:, None], self.sigma, self.lapse), w[keep] / w[keep].sum()
+        theta = THETA[keep]
+        return theta, curve(LENGTHS[None, :], theta[:, None], self.sigma, self.lapse), w[keep] / w[keep].sum()
 
     def span(self, counts: np.ndarray, rate: float = 0.75, level: float = 0.9) -> tuple[float, float, float]:
         """Posterior mean and central ``level`` interval of the length succeeded at ``rate``."""

@@ -1,18 +1,31 @@
 """The live Bayes-adaptive policy (``policy.kind: bayes``): the exact planner of ``core.bayes``.
 
-The prior is a finite mixture of user models: the shipped cluster models (``sim/models``, each
-reduced to its success per level, weighted by its number of sessions), or a folder of user
-simulator files (``prior_users``: the training users, equal weights). What the policy knows about
-the participant is the per-level counts of successes and failures; they are a sufficient
-statistic, so the plan solved once for the session covers every turn (also after a supervisor's
-override or an invalid turn that is not observed): a decision is a table lookup.
+The prior (``policy.prior``) is a finite mixture of per-level user models:
+
+``clusters``      the shipped cluster models (``sim/models``), each reduced to its success per level,
+                  weighted by its number of sessions;
+``psychometric``  the pooled psychometric model (``core.psychometric``) fitted on the 50 published
+                  sessions (``sim/psychometric/pooled.json``), as the grid of spans theta it
+                  integrates over (``PooledModel.mixture``): exactly the prior of the evaluation's
+                  ``bayes-psychometric``, there fitted on the other sessions;
+a file ``*.json``  another psychometric prior (``nao-trainer fit ... --psychometric FILE``);
+a folder          user simulator files (e.g. the training users), equal weights.
+
+Unset, it follows the objective: ``psychometric`` for ``target:R`` (it pools a participant's turns
+across lengths and wins most under a target rate), ``clusters`` for ``score`` (the smooth curve
+sends some participants to levels 3-4 too often and loses score; docs/results.md).
+
+What the policy knows about the participant is the per-level counts of successes and failures;
+they are a sufficient statistic, so the plan solved once for the session covers every turn (also
+after a supervisor's override or an invalid turn that is not observed): a decision is a table lookup.
 
 Across sessions the counts of the earlier sessions are carried: the next session's prior is the
 posterior they give, and its table is solved for it (``learn.bayes_cache``: the same prior and
 objective load in milliseconds). They live in ``<output>/participants/<pseudonym>/bayes.json``
-(checksummed, written atomically after every turn). The file is refused in one line when it was
-made with another prior or objective (fingerprint) or is torn or edited; ``--fresh-policy`` keeps
-it as ``bayes.json.replaced-<time>`` and starts from the prior.
+(checksummed, written atomically after every turn, naming its participant). The file is refused in
+one line when it was made with another prior or objective (fingerprint), belongs to another
+participant (copied between folders), or is torn or edited; ``--fresh-policy`` keeps it as
+``bayes.json.replaced-<time>`` and starts from the prior.
 """
 from __future__ import annotations
 
@@ -28,12 +41,15 @@ from nao_trainer.core import bayes, mdp, objective
 from nao_trainer.core.posterior import level_means
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import JsonFormat
-from nao_trainer.policies.participant_state import set_aside
+from nao_trainer.policies.participant_state import check_owner, open_saved
 from nao_trainer.ports import Transition
 
 FRESH = "start afresh with --fresh-policy (the old file is kept beside it)"
 STATE_FILE = JsonFormat("nao-trainer/participant-bayes", 1, "participant Bayes state", "participant state", FRESH)
 FILENAME = "bayes.json"
+#: ``policy.prior`` names (anything else is a psychometric prior file or a folder of user simulators).
+PRIORS = ("clusters", "psychometric")
+SHOWN = 6  # the status lists the posterior of this many most likely models (a psychometric prior has ~60)
 log = logging.getLogger(__name__)
 
 
@@ -52,7 +68,9 @@ class BayesPolicy:
 
     def __init__(self, names: Sequence[str], p: np.ndarray, weights: np.ndarray, obj: objective.Objective,
                  turns: int, path: Path | None, saved: dict[str, Any] | None = None,
-                 cache: Path | None = None) -> None:
+                 cache: Path | None = None, pseudonym: str | None = None, prior: str = "models") -> None:
+        self.pseudonym = pseudonym  # whose state this is (stored in the file; another participant's is refused)
+        self.prior = prior  # what the prior is, in words (the file and the status say it)
         self.names = tuple(names)
         self.p = np.asarray(p, dtype=float)
         self.weights = np.asarray(weights, dtype=float) / np.sum(weights)
@@ -74,7 +92,8 @@ class BayesPolicy:
         """The table for this session: prior = the posterior after the earlier sessions' counts."""
         from nao_trainer.learn.bayes_cache import solve_cached
 
-        start = bayes.posterior_weights(self.p, self.weights, self.carried)
+        # no earlier turns: the prior's own weights, so the plan is the evaluation's for the same prior
+        start = bayes.posterior_weights(self.p, self.weights, self.carried) if self.carried.any() else self.weights
         return solve_cached(self.p, start, self.objective.coefficients(4), self.turns, 0, self.cache)
 
     # -- ports.Policy ------------------------------------------------------------------------------
@@ -137,11 +156,12 @@ class BayesPolicy:
         post = " | ".join(f"{n} {x:.2f}" for n, x in ranked[:4])
         best = int(np.argmax(w))
         return {
-            "phase": "bayes", "posterior": {n: round(float(x), 4) for n, x in zip(self.names, w)},
+            "phase": "bayes", "prior": self.prior,
+            "posterior": {n: round(float(x), 4) for n, x in ranked[:SHOWN]},
             "matched": self.names[best], "match_probability": round(float(w[best]), 4),
             "following": f"bayes ({self.objective})", "level_success": [round(float(x), 4) for x in est],
             "progress": f"           posterior: {post} -> next level {self.decide()}",
-            "summary": (f"Bayes planner ({self.objective}): most likely user model {self.names[best]} "
+            "summary": (f"Bayes planner ({self.objective}, prior {self.prior}): most likely user model {self.names[best]} "
                         f"(posterior {w[best]:.2f}; {post}); estimated success by level "
                         + " ".join(f"L{i + 1} {x:.2f}" for i, x in enumerate(est))),
         }
@@ -151,8 +171,8 @@ class BayesPolicy:
     def payload(self) -> dict[str, Any]:
         entry = {"started": self.started, "session": str(self.session_dir) if self.session_dir else None,
                  "turns": int(self.counts.sum()), "counts": self.counts.tolist()}
-        return {"mdp_definition": mdp.DEFINITION, "prior_fingerprint": self.fingerprint,
-                "objective": str(self.objective), "models": list(self.names),
+        return {"pseudonym": self.pseudonym, "mdp_definition": mdp.DEFINITION, "prior_fingerprint": self.fingerprint,
+                "prior": self.prior, "objective": str(self.objective), "models": list(self.names),
                 "counts": (self.carried + self.counts).tolist(), "sessions": self.history + [entry],
                 "updated": datetime.now(timezone.utc).isoformat(timespec="seconds")}
 
@@ -167,13 +187,16 @@ class BayesPolicy:
                             "make session.output writable") from None
 
 
-def read_state(path: Path, fingerprint: str) -> dict[str, Any]:
-    """A participant's saved counts, checked; DataError in one line otherwise."""
+def read_state(path: Path, fingerprint: str, pseudonym: str | None = None) -> dict[str, Any]:
+    """A participant's saved counts, checked; DataError in one line otherwise. A state that names
+    another participant than ``pseudonym`` is refused (a file copied between folders)."""
     saved = STATE_FILE.read(path, DataError)
+    check_owner(path, saved, pseudonym, FRESH)
     if saved.get("prior_fingerprint") != fingerprint:
-        raise DataError(f"{path}: participant state made with another prior or objective ({saved.get('objective')}, "
+        made = ", ".join(str(x) for x in (saved.get("prior"), saved.get("objective")) if x is not None)
+        raise DataError(f"{path}: participant state made with another prior or objective ({made}, "
                         f"fingerprint {str(saved.get('prior_fingerprint'))[:12]}..., now {fingerprint[:12]}...); use "
-                        f"the user models and objective it was made with, or {FRESH}")
+                        f"the prior (policy.prior) and objective it was made with, or {FRESH}")
     counts = saved.get("counts")
     if not (isinstance(counts, list) and len(counts) == 8 and all(isinstance(c, int) and c >= 0 for c in counts)):
         raise DataError(f"{path}: participant state has invalid counts; {FRESH}")
@@ -182,21 +205,15 @@ def read_state(path: Path, fingerprint: str) -> dict[str, Any]:
     return saved
 
 
-def model_prior(models_dir: Path | None = None, users_dir: Path | None = None
-                ) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
-    """(names, success per level (K, 4), weights): the fitted clusters, or every user simulator file
-    of ``users_dir`` with equal weights."""
+def default_prior(obj: objective.Objective) -> str:
+    """``policy.prior`` when unset: psychometric under a target rate, clusters under the score (module docstring)."""
+    return "psychometric" if obj.kind == "target" else "clusters"
+
+
+def cluster_prior(models_dir: Path | None = None) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+    """(names, success per level (K, 4), weights): the fitted clusters, weighted by their sessions."""
     from nao_trainer.learn import artifacts
 
-    if users_dir is not None:
-        from nao_trainer.core.simulation import UserSimulator
-        from nao_trainer.files import read_json
-
-        files = sorted(Path(users_dir).glob("*.json"))
-        if not files:
-            raise ConfigError(f"{users_dir}: no user simulator files (*.json) for the Bayes prior")
-        sims = [UserSimulator.from_dict(read_json(f, DataError), str(f)) for f in files]
-        return tuple(s.name for s in sims), level_means(np.stack([s.p_success for s in sims])), np.ones(len(sims))
     manifest = artifacts.load_manifest(models_dir)
     rows = manifest.get("clusters", [])
     if not rows:
@@ -206,26 +223,59 @@ def model_prior(models_dir: Path | None = None, users_dir: Path | None = None
     return tuple(s.name for s in sims), level_means(np.stack([s.p_success for s in sims])), sizes
 
 
+def psychometric_prior(file: Path | None = None) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+    """(names, success per level (G, 4), weights): the pooled psychometric model of ``file`` (default:
+    the shipped one) as the mixture over its grid of spans, the same as the evaluation's ``bayes-psychometric``."""
+    from nao_trainer.learn.psychometric_prior import load_prior
+
+    theta, p, w = load_prior(file).components()
+    return tuple(f"span {t:.1f}" for t in theta), p, w
+
+
+def users_prior(users_dir: Path) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+    """(names, success per level (K, 4), equal weights): every user simulator file of ``users_dir``."""
+    from nao_trainer.core.simulation import UserSimulator
+    from nao_trainer.files import read_json
+
+    files = sorted(Path(users_dir).glob("*.json"))
+    if not files:
+        raise ConfigError(f"policy.prior {users_dir}: no user simulator files (*.json) in that folder; "
+                          "give clusters, psychometric, a psychometric prior file or a folder of user simulators")
+    sims = [UserSimulator.from_dict(read_json(f, DataError), str(f)) for f in files]
+    return tuple(s.name for s in sims), level_means(np.stack([s.p_success for s in sims])), np.ones(len(sims))
+
+
+def model_prior(prior: str, models_dir: Path | None = None) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+    """The mixture ``policy.prior`` names: ``clusters``, ``psychometric``, a psychometric prior file or a folder."""
+    if prior == "clusters":
+        return cluster_prior(models_dir)
+    if prior == "psychometric":
+        return psychometric_prior()
+    path = Path(prior).expanduser()
+    if path.is_dir():
+        return users_prior(path)
+    if path.is_file():
+        return psychometric_prior(path)
+    raise ConfigError(f"policy.prior {prior!r}: not clusters, psychometric, a psychometric prior file or a folder of "
+                      "user simulators; fix policy.prior (or --prior)")
+
+
 def load_bayes(path: Path | None, pseudonym: str, turns: int, objective_text: str, fresh: bool,
-               models_dir: Path | None = None, users_dir: Path | None = None, cache: Path | None = None) -> BayesPolicy:
+               prior: str | None = None, models_dir: Path | None = None, cache: Path | None = None) -> BayesPolicy:
     """The Bayes policy for ``pseudonym`` with the participant's saved counts at ``path`` (None: kept
-    in the session folder, nothing carried over)."""
+    in the session folder, nothing carried over); ``prior``: ``policy.prior`` (None: by the objective)."""
     if not bayes.available():
         raise ConfigError("policy 'bayes' needs numba: pip install 'nao-trainer[all]'")
     try:
         obj = objective.parse(objective_text)
     except ValueError as exc:
         raise ConfigError(f"policy.objective: {exc}") from None
-    names, p, w = model_prior(models_dir, users_dir)
+    prior = prior or default_prior(obj)
+    names, p, w = model_prior(prior, models_dir)
     fp = prior_fingerprint(names, p, w, obj)
-    saved = None
-    if path is not None and Path(path).exists():
-        path = Path(path)
-        if fresh:
-            kept = set_aside(path)
-            log.warning("policy bayes: starting fresh from the prior; the previous state was moved to %s", kept)
-        else:
-            saved = read_state(path, fp)
-            log.warning("policy bayes: %s returns after %d session(s) with counts %s (%s)", pseudonym,
-                        len(saved["sessions"]), saved["counts"], path)
-    return BayesPolicy(names, p, w, obj, turns, path, saved, cache)
+    saved = open_saved(path, fresh, lambda f: read_state(f, fp, pseudonym), "bayes", log)
+    if saved is not None:
+        log.warning("policy bayes: %s returns after %d session(s) with counts %s (%s)", pseudonym,
+                    len(saved["sessions"]), saved["counts"], path)
+    return BayesPolicy(names, p, w, obj, turns, Path(path) if path is not None else None, saved, cache, pseudonym,
+                       prior)

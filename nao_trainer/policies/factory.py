@@ -38,5 +38,5 @@ def make_policy(section: PolicySettings, participant: str, output: Path, *, turn
         return load_personalised(path, participant, turns, section.assessment, float(section.kappa),
                                  float(section.margin), section.learning, fresh, guidance=section.guidance)
     if kind == "bayes":
-        return load_bayes(path, participant, turns, section.objective, fresh)
+        return load_bayes(path, participant, turns, section.objective, fresh, section.prior)
     return load_policy(kind, section.learning, path, guidance=section.guidance, fresh=fresh, pseudonym=participant)

@@ -5,15 +5,19 @@ A learning policy keeps a participant's state in ``<output>/participants/<pseudo
 ``policy_state.json`` for a learned one, ``bayes.json`` for the Bayes planner). ``policy.state_path`` may name another file, with
 ``{pseudonym}`` and ``{output}``, or be ``{session}`` to keep it in the session folder (nothing
 carried over). ``--fresh-policy`` never deletes a state file: ``set_aside`` renames it to
-``<file>.replaced-<UTC time>``. Standard library only: the configuration imports this module and
-``nao-trainer --help`` stays fast.
+``<file>.replaced-<UTC time>``. ``open_saved`` is the start-up every persisted policy shares (nothing
+saved, set aside, or read and checked, with ``check_owner`` refusing another participant's file).
+Standard library only: the configuration imports this module and ``nao-trainer --help`` stays fast.
 """
 from __future__ import annotations
 
+import logging
 import os
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Protocol, Sequence
+from typing import Any, Callable, Protocol, Sequence
+
+from nao_trainer.errors import DataError
 
 #: ``policy.state_path`` that keeps the state in the session folder (nothing carried over).
 SESSION_FOLDER = "{session}"
@@ -34,6 +38,7 @@ class PolicySettings(Protocol):
     kappa: float
     margin: float
     objective: str
+    prior: str | None
 
 
 def state_filename(kind: str) -> str:
@@ -81,3 +86,26 @@ def set_aside(path: Path) -> Path:
         n += 1
     os.replace(path, target)
     return target
+
+
+def check_owner(path: Path, saved: dict[str, Any], pseudonym: str | None, fix: str) -> None:
+    """DataError in one line when the state at ``path`` names another participant than ``pseudonym``
+    (a file copied between participants' folders). A file that names no one (older files) passes."""
+    owner = saved.get("pseudonym")
+    if pseudonym is not None and owner is not None and owner != pseudonym:
+        raise DataError(f"{path}: the participant state of {owner!r}, not of {pseudonym!r} (copied from another "
+                        f"participant's folder?); {fix}")
+
+
+def open_saved(path: Path | None, fresh: bool, read: Callable[[Path], dict[str, Any]], kind: str,
+               log: logging.Logger) -> dict[str, Any] | None:
+    """The participant's saved state at ``path`` for a policy ``kind`` starting up: None when there is
+    none (or ``path`` is None: kept in the session folder); with ``fresh`` (``--fresh-policy``) the file
+    is set aside and None returned; otherwise ``read(path)``, which checks it and raises DataError."""
+    if path is None or not Path(path).exists():
+        return None
+    if fresh:
+        kept = set_aside(Path(path))
+        log.warning("policy %s: starting fresh from the prior; the previous state was moved to %s", kind, kept)
+        return None
+    return read(Path(path))

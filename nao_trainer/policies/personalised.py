@@ -34,7 +34,7 @@ from nao_trainer.errors import DataError
 from nao_trainer.files import JsonFormat
 from nao_trainer.learn import artifacts, policy_files
 from nao_trainer.policies.base import Guidance, log
-from nao_trainer.policies.participant_state import session_state_file, set_aside, state_file
+from nao_trainer.policies.participant_state import check_owner, open_saved, session_state_file, state_file
 from nao_trainer.ports import Transition
 
 FRESH = "start afresh with --fresh-policy (the old file is kept beside it)"
@@ -228,10 +228,7 @@ def read_state(path: Path, fingerprint: str, pseudonym: str | None = None) -> di
     """A participant's saved state, checked; DataError in one line otherwise (module docstring).
     A state that names another participant than ``pseudonym`` is refused (a file copied between folders)."""
     saved = PARTICIPANT_FILE.read(path, DataError)
-    owner = saved.get("pseudonym")
-    if pseudonym is not None and owner is not None and owner != pseudonym:
-        raise DataError(f"{path}: the participant state of {owner!r}, not of {pseudonym!r} (copied from another "
-                        f"participant's folder?); {FRESH}")
+    check_owner(path, saved, pseudonym, FRESH)
     if saved.get("mdp_definition") != mdp.DEFINITION:
         raise DataError(f"{path}: participant state made for another MDP ({str(saved.get('mdp_definition'))[:40]}...); "
                         f"{FRESH}")
@@ -288,16 +285,10 @@ def load_personalised(path: Path | None, pseudonym: str, turns: int, schedule: S
         learners.append((cid, policy_files.learner_from_payload(payload, policy_path)))
         digests.append(f"{cid}:{method}:{payload['simulator']['fingerprint']}")
     fingerprint = models_fingerprint(models, [s.fingerprint() for s in sims], digests)
-    saved = None
-    if path is not None and Path(path).exists():
-        path = Path(path)
-        if fresh:
-            kept = set_aside(path)
-            log.warning("policy personalised: starting fresh from the prior; the previous state was moved to %s", kept)
-        else:
-            saved = read_state(path, fingerprint, pseudonym)
-            restore_learners(learners, saved["learners"], path)
-            log.warning("policy personalised: %s returns after %d session(s): starting from the saved posterior (%s); "
-                        "no assessment", pseudonym, len(saved["sessions"]), path)
+    saved = open_saved(path, fresh, lambda f: read_state(f, fingerprint, pseudonym), "personalised", log)
+    if saved is not None:
+        restore_learners(learners, saved["learners"], Path(path))
+        log.warning("policy personalised: %s returns after %d session(s): starting from the saved posterior (%s); "
+                    "no assessment", pseudonym, len(saved["sessions"]), path)
     return PersonalisedPolicy(models, learners, fingerprint, path, turns, tuple(int(x) for x in schedule), kappa,
                               margin, learning, saved, use_engagement, guidance, pseudonym)

@@ -159,6 +159,9 @@ class PolicySection:
     # bayes (policies.bayes, core/objective.py)
     objective: str = setting("score", kind=str, check=rules.objective,
                              doc="score (equation (1)) | target:R (keep success near rate R)")
+    prior: str | None = setting(None, kind=str, nullable=True, check=rules.bayes_prior,
+                                doc="clusters | psychometric | a psychometric prior file | a folder of user simulators; "
+                                    "null = psychometric under target:R, clusters under score")
 
     def state_file(self, pseudonym: str, output: Path) -> Path | None:
         """Where a learning policy keeps its state across sessions: by default the participant's

@@ -1,5 +1,5 @@
-"""The rules of study keys that need more than a type and a range (robot URL, policy spec, schedule,
-state path, pseudonym, console address, level lists).
+"""The rules of study keys that need more than a type and a range (robot URL, policy spec, Bayes prior,
+schedule, state path, pseudonym, console address, level lists).
 
 The keys themselves are declared once, as fields of the section dataclasses of ``session.config``
 (``core.settings.setting``); these functions are the ``check=`` of some of them. Each returns the
@@ -39,6 +39,18 @@ def objective(value: str) -> str | None:
     if value == "score" or re.fullmatch(r"target(:(0?\.\d+))?", value):
         return None
     return "must be 'score' or 'target:R' with 0 < R < 1, e.g. target:0.75"
+
+
+def bayes_prior(value: str) -> str | None:
+    from pathlib import Path
+
+    if value in ("clusters", "psychometric"):
+        return None
+    path = Path(value).expanduser()
+    if path.is_dir() or (path.is_file() and path.suffix == ".json"):
+        return None
+    return (f"must be 'clusters', 'psychometric', a psychometric prior file (*.json) or a folder of user simulator "
+            f"files; {str(path.resolve())!r} does not exist (relative paths resolve against the current folder)")
 
 
 def schedule(value: list) -> str | None:

@@ -43,3 +43,26 @@ def test_a_study_arms_template_and_the_withdrawal_folder_follow_the_default_rule
         assert state_file(kind, participant_template(kind), "P01", tmp_path) == default
         assert default.parent == participant_dir(tmp_path, "P01").resolve()
     assert participant_template("personalised").endswith("personalised.json")
+
+
+def test_open_saved_reads_sets_aside_or_finds_nothing(tmp_path):
+    import logging
+
+    import pytest
+
+    from nao_trainer.errors import DataError
+    from nao_trainer.policies.participant_state import check_owner, open_saved
+
+    log = logging.getLogger("test")
+    path = tmp_path / "bayes.json"
+    read = lambda p: {"text": p.read_text()}  # noqa: E731
+    assert open_saved(None, False, read, "bayes", log) is None  # kept in the session folder
+    assert open_saved(path, False, read, "bayes", log) is None  # nothing saved yet
+    path.write_text("old")
+    assert open_saved(path, False, read, "bayes", log) == {"text": "old"}
+    assert open_saved(path, True, read, "bayes", log) is None  # --fresh-policy: kept beside, not read
+    assert not path.exists() and [p.read_text() for p in tmp_path.glob("bayes.json.replaced-*")] == ["old"]
+    check_owner(path, {"pseudonym": "P1"}, "P1", "fix")
+    check_owner(path, {}, "P1", "fix")  # an older file naming no one passes
+    with pytest.raises(DataError, match=r"the participant state of 'P1', not of 'P2' .*; fix$"):
+        check_owner(path, {"pseudonym": "P1"}, "P2", "fix")
