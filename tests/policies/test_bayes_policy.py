@@ -49,7 +49,7 @@ def test_bayes_live_over_two_sessions_keeps_the_counts_and_refuses_foreign_or_to
         mine = [r for r in rows if int(r["level"]) == lv]
         wins = sum(1 for r in mine if int(r["score"]) > 0)
         assert saved["counts"][2 * lv - 2: 2 * lv] == [wins, len(mine) - wins]
-    assert "Bayes planner (score)" in first.stdout
+    assert "Bayes planner (score, prior clusters)" in first.stdout  # score: the clusters by default
     second = run(tmp_path, out)
     assert second.returncode == 0, second.stderr
     assert "returns after 1 session(s)" in second.stderr
