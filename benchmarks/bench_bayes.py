@@ -60,10 +60,33 @@ def main() -> int:
     ms = 1e3 * float(np.median(decisions))
     print(f"live decision (Plan.decide): median {ms:.3f} ms, max {1e3 * max(decisions):.3f} ms "
           f"(target {TARGET_DECISION_MS:g} ms: {'ok' if ms <= TARGET_DECISION_MS else 'over target'})")
+    live_psychometric(args.turns, rng)
     layer = int(bayes.layer_sizes(args.turns + 2, 4).max())
     print(f"memory: action table {plan.memory_bytes() / 1e6:.1f} MB (kept); while solving also about "
           f"{5 * layer * 8 / 1e6:.0f} MB of value and weight layers")
     return 0
+
+
+def live_psychometric(turns: int, rng: np.random.Generator) -> None:
+    """The live policy as ``run --policy bayes --prior psychometric`` builds it (the shipped pooled
+    prior, ~60 spans), under target:0.75: its solve at start-up and its decisions (``BayesPolicy.decide``)."""
+    from nao_trainer.policies.bayes import load_bayes
+
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        pol = load_bayes(None, "bench", turns, "target:0.75", False, "psychometric", cache=Path(tmp))
+        solve = time.perf_counter() - t0
+    truth = pol.p[len(pol.p) // 2]
+    decisions = []
+    for _ in range(turns):
+        t0 = time.perf_counter()
+        lv = pol.decide()
+        decisions.append(time.perf_counter() - t0)
+        pol.counts[2 * (lv - 1) + int(rng.random() >= truth[lv - 1])] += 1
+    ms = 1e3 * float(np.median(decisions))
+    print(f"live bayes, psychometric prior (target:0.75, {len(pol.p)} spans): start-up solve {solve:.2f} s; "
+          f"decision median {ms:.3f} ms, max {1e3 * max(decisions):.3f} ms "
+          f"(target {TARGET_DECISION_MS:g} ms: {'ok' if ms <= TARGET_DECISION_MS else 'over target'})")
 
 
 if __name__ == "__main__":
