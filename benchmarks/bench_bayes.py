@@ -69,7 +69,7 @@ def main() -> int:
 
 def live_psychometric(turns: int, rng: np.random.Generator) -> None:
     """The live policy as ``run --policy bayes --prior psychometric`` builds it (the shipped pooled
-    prior, ~60 spans), under target:0.75: its solve at start-up and its decisions (``BayesPolicy.decide``)."""
+    prior, 78 spans), under target:0.75: its solve at start-up and its decisions (``BayesPolicy.decide``)."""
     from nao_trainer.policies.bayes import load_bayes
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -49,7 +49,7 @@ STATE_FILE = JsonFormat("nao-trainer/participant-bayes", 1, "participant Bayes s
 FILENAME = "bayes.json"
 #: ``policy.prior`` names (anything else is a psychometric prior file or a folder of user simulators).
 PRIORS = ("clusters", "psychometric")
-SHOWN = 6  # the status lists the posterior of this many most likely models (a psychometric prior has ~60)
+SHOWN = 6  # the status lists the posterior of this many most likely models (the shipped psychometric prior has 78)
 log = logging.getLogger(__name__)
 
 
