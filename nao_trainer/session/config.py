@@ -358,6 +358,7 @@ def load_config(study: str | Path | None = None, overrides: Mapping[str, Any] | 
         digest.update(f"{dotted}={value!r}".encode())
     _validate(values, SCHEMA, "", locs)
     _resolve_input_paths(values, locs)
+    _resolve_prior(values, locs)
     _check_combination(values, locs)
 
     def where(dotted: str) -> _Loc:  # the key's place, else its section's (a relation between two keys)
@@ -388,6 +389,25 @@ def _resolve_input_paths(values: dict, locs: dict[str, _Loc]) -> None:
             rule = "" if given.is_absolute() else f" (relative paths resolve against {base}, the folder of the file that sets them)"
             raise ConfigError(f"{where}: key '{dotted}': {path} is not a file{rule}; fix the path")
         values[section][key] = str(path)
+
+
+def _resolve_prior(values: dict, locs: dict[str, _Loc]) -> None:
+    """``policy.prior`` other than the named priors: a psychometric prior file or a folder of user simulators,
+    resolved like the dialogue file (against the folder of the file that sets it) and stored absolute, so a
+    resumed session finds it from any folder."""
+    prior = values["policy"].get("prior")
+    if prior is None or prior in ("clusters", "psychometric"):
+        return
+    where = locs.get("@policy.prior", _Loc(str(DEFAULT_CONFIG), None))
+    given = Path(os.path.expanduser(prior))
+    base = Path(where.file).parent if Path(where.file).is_file() else Path.cwd()
+    path = Path(os.path.abspath(given if given.is_absolute() else base / given))
+    if not (path.is_dir() or (path.is_file() and path.suffix == ".json")):
+        whose = "the folder of the file that sets it" if Path(where.file).is_file() else "the current folder"
+        rule = "" if given.is_absolute() else f" (a relative path resolves against {base}, {whose})"
+        raise ConfigError(f"{where}: key 'policy.prior' must be 'clusters', 'psychometric', a psychometric prior file "
+                          f"(*.json) or a folder of user simulator files; {path} is neither{rule}")
+    values["policy"]["prior"] = str(path)
 
 
 def _check_combination(values: dict, locs: dict[str, _Loc]) -> None:

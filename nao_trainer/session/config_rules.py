@@ -42,15 +42,8 @@ def objective(value: str) -> str | None:
 
 
 def bayes_prior(value: str) -> str | None:
-    from pathlib import Path
-
-    if value in ("clusters", "psychometric"):
-        return None
-    path = Path(value).expanduser()
-    if path.is_dir() or (path.is_file() and path.suffix == ".json"):
-        return None
-    return (f"must be 'clusters', 'psychometric', a psychometric prior file (*.json) or a folder of user simulator "
-            f"files; {str(path.resolve())!r} does not exist (relative paths resolve against the current folder)")
+    # a path is resolved and checked by session.config (against the folder of the file that sets it)
+    return None if value.strip() else "must be 'clusters', 'psychometric', a psychometric prior file or a folder"
 
 
 def schedule(value: list) -> str | None:

@@ -266,3 +266,15 @@ def test_a_nested_section_given_whole_on_the_command_line_is_checked_key_by_key(
         load_config(None, {"eeg.processing": {"windw": 1}})
     with pytest.raises(ConfigError, match=r"^command line \(eeg.processing\): key 'eeg.processing.hop_s' must not exceed"):
         load_config(None, {"eeg.processing": {"hop_s": 9.0}})
+
+
+def test_policy_prior_path_resolves_against_the_file_that_sets_it(tmp_path, monkeypatch):
+    (tmp_path / "users").mkdir()
+    path = study(tmp_path, "policy:\n  kind: bayes\n  prior: users\n")
+    monkeypatch.chdir(tmp_path.parent)  # not the study's folder: the path is the file's
+    assert load_config(path).policy.prior == str(path.parent / "users")
+    assert load_config(path, {"policy.prior": "psychometric"}).policy.prior == "psychometric"
+    assert load_config(path, {"policy.prior": None}).policy.prior == str(path.parent / "users")
+    with pytest.raises(ConfigError, match=r"^command line \(policy.prior\): key 'policy.prior' .* is neither "
+                                          r"\(a relative path resolves against .*, the current folder\)$"):
+        load_config(path, {"policy.prior": "users"})
