@@ -3,7 +3,8 @@
 Targets (issue 21): the table in at most 5 s on this 2-core machine, at most 1 ms per live
 decision, memory stated. The prior is 50 user models (seeded random per-level success rates, like
 the 50 per-session users; the time does not depend on the rates) under both objectives. Prints
-the compile time (first call, once per process), the solve time (best of ``--repeat``), the
+the first call in a fresh process with an empty numba cache (compiling) and with it filled (loading
+the compiled kernels, as every later process on the machine does), the solve time (best of ``--repeat``), the
 cache load time, the time of one live decision (``Plan.decide``) and the memory of the table.
 
     python benchmarks/bench_bayes.py [--repeat 2] [--turns 25] [--models 50]
@@ -11,6 +12,9 @@ cache load time, the time of one live decision (``Plan.decide``) and the memory 
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -23,6 +27,18 @@ from nao_trainer.learn import bayes_cache
 TARGET_S, TARGET_DECISION_MS = 5.0, 1.0
 
 
+FIRST_CALL = ("import time, numpy as np; from nao_trainer.core import bayes, objective; t = time.perf_counter(); "
+              "bayes.solve(np.array([[0.9, 0.5], [0.6, 0.3]]), np.ones(2), objective.SCORE.coefficients()[:2], 3); "
+              "print(time.perf_counter() - t)")
+
+
+def first_call_s(numba_cache: str) -> float:
+    """Seconds of the first solve in a new process whose numba cache is ``numba_cache``."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=numba_cache)
+    out = subprocess.run([sys.executable, "-c", FIRST_CALL], env=env, capture_output=True, text=True, check=True)
+    return float(out.stdout.strip().splitlines()[-1])
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeat", type=int, default=2)
@@ -32,9 +48,11 @@ def main() -> int:
     rng = np.random.default_rng(0)
     p = np.sort(rng.uniform(0.2, 0.99, (args.models, 4)), axis=1)[:, ::-1]
     w = np.ones(args.models)
-    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as numba_cache:
+        compiled, loaded = first_call_s(numba_cache), first_call_s(numba_cache)
+    print(f"first call in a process: {compiled:.1f} s compiling (empty numba cache, once per machine), "
+          f"{loaded:.2f} s loading the compiled kernels (every later process)")
     bayes.solve(p[:2], w[:2], objective.SCORE.coefficients(), 3)
-    print(f"compile (first call in a process): {time.perf_counter() - t0:.1f} s")
     states = bayes.n_states(args.turns, 4)
     for obj in (objective.SCORE, objective.parse("target:0.75")):
         best = float("inf")

@@ -1,7 +1,8 @@
 """The exact Bayes-adaptive planner for per-level success models: the best any policy can do.
 
 Pure: no I/O (the on-disk cache of solved tables is ``learn.bayes_cache``). numba compiles the
-backward induction (imported lazily; ``available()`` says whether it is installed).
+backward induction (``core.bayes_kernels``, imported lazily, compiled once per machine and cached by
+numba; ``available()`` says whether it is installed).
 
 Model
     A participant is one of K user models; model k succeeds at level l with probability
@@ -62,7 +63,6 @@ from typing import Any
 import numpy as np
 
 _KERNELS: dict[str, Any] = {}
-prange = range  # numba.prange in the compiled kernel
 
 
 def available() -> bool:
@@ -110,152 +110,14 @@ def rank_many(counts: np.ndarray, off: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------
 
 
-def _rank(c, n, off):  # pragma: no cover - compiled
-    r = 0
-    nrem = n
-    for d in range(c.shape[0] - 1):
-        r += off[d, nrem, c[d]]
-        nrem -= c[d]
-    return r
-
-
-def _unrank(r, n, off, c):  # pragma: no cover - compiled
-    m = c.shape[0]
-    nrem = n
-    for d in range(m - 1):
-        x = 0
-        while x + 1 <= nrem and off[d, nrem, x + 1] <= r:
-            x += 1
-        c[d] = x
-        r -= off[d, nrem, x]
-        nrem -= x
-    c[m - 1] = nrem
-
-
-def _successor(c):  # pragma: no cover - compiled
-    """Next weak composition in lexicographic order (in place); returns the first part that changed."""
-    m = c.shape[0]
-    tail = c[m - 1]
-    d = m - 2
-    while tail == 0:
-        tail += c[d]
-        d -= 1
-    c[d] += 1
-    for j in range(d + 1, m - 1):
-        c[j] = 0
-    c[m - 1] = tail - 1
-    return d
-
-
-def _z_layer(n, off, pw, prior, z, chunks):  # pragma: no cover - compiled
-    """Z(c) = sum_k pi_k prod_j pw[j, c_j, k] for every state c of layer n (partial products carried)."""
-    m = off.shape[0] + 1
-    k_models = prior.shape[0]
-    size = z.shape[0]
-    for ch in prange(chunks):
-        start = ch * size // chunks
-        stop = (ch + 1) * size // chunks
-        if start >= stop:
-            continue
-        c = np.zeros(m, dtype=np.int64)
-        _unrank(start, n, off, c)
-        partial = np.empty((m + 1, k_models))
-        partial[0, :] = prior
-        for j in range(m):
-            for k in range(k_models):
-                partial[j + 1, k] = partial[j, k] * pw[j, c[j], k]
-        for idx in range(start, stop):
-            if idx > start:
-                d = _successor(c)
-                for j in range(d, m):
-                    for k in range(k_models):
-                        partial[j + 1, k] = partial[j, k] * pw[j, c[j], k]
-            total = 0.0
-            for k in range(k_models):
-                total += partial[m, k]
-            z[idx] = total
-
-
-def _v_layer(n, horizon, off, coef, z0, z1, z2, vnext, vcur, act, commit, chunks):  # pragma: no cover
-    """Values (and actions) of layer n from layer n + 1. ``z0, z1, z2``: Z on layers n, n+1, n+2.
-
-    With u = a + b p + c p^2 per level: pbar_l = Z(c + e_s)/Z(c) and the posterior mean of p^2 is
-    Z(c + 2 e_s)/Z(c), so no sum over the models is needed here. The ranks of c + e_j and
-    c + 2 e_j come from prefix and suffix sums of the rank's terms (O(1) per child)."""
-    m = off.shape[0] + 1
-    levels = coef.shape[0]
-    size, terminal = vcur.shape[0], n == horizon
-    quadratic = z2.shape[0] > 1  # c != 0 for some level: Z of layer n + 2 was computed
-    for ch in prange(chunks):
-        start = ch * size // chunks
-        stop = (ch + 1) * size // chunks
-        if start >= stop:
-            continue
-        c, nrem = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64)
-        p1, p2, sf = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64)
-        _unrank(start, n, off, c)
-        for idx in range(start, stop):
-            if idx > start:
-                _successor(c)
-            zc = z0[idx]
-            if zc <= 0.0:  # no model can produce these counts
-                vcur[idx] = 0.0
-                if not terminal:
-                    act[idx] = 0
-                continue
-            left, a1, a2 = n, 0, 0
-            for d in range(m):
-                nrem[d] = left
-                p1[d] = a1
-                p2[d] = a2
-                if d < m - 1:
-                    a1 += off[d, left + 1, c[d]]
-                    a2 += off[d, left + 2, c[d]]
-                left -= c[d]
-            acc = 0
-            for d in range(m - 1, -1, -1):
-                sf[d] = acc
-                if d < m - 1:
-                    acc += off[d, nrem[d], c[d]]
-            best, best_a = -1e300, 0
-            for lv in range(levels):
-                s = 2 * lv
-                rs = p1[s] + off[s, nrem[s] + 1, c[s] + 1] + sf[s]
-                ps = z1[rs] / zc
-                u = coef[lv, 0] + coef[lv, 1] * ps
-                if quadratic:
-                    rss = p2[s] + off[s, nrem[s] + 2, c[s] + 2] + sf[s]
-                    u += coef[lv, 2] * (z2[rss] / zc)
-                if terminal:
-                    q = commit * u
-                else:
-                    f = s + 1
-                    if f < m - 1:
-                        rf = p1[f] + off[f, nrem[f] + 1, c[f] + 1] + sf[f]
-                    else:
-                        rf = p1[f]
-                    q = u + ps * vnext[rs] + (1.0 - ps) * vnext[rf]
-                if q > best + 1e-12:
-                    best = q
-                    best_a = lv
-            vcur[idx] = best
-            if not terminal:
-                act[idx] = best_a
-
-
 def _kernels() -> dict[str, Any]:
+    """The compiled layer kernels (``core.bayes_kernels``, imported here: numba is optional)."""
     if not _KERNELS:
         try:
-            import numba
+            from nao_trainer.core import bayes_kernels
         except ImportError:  # pragma: no cover - checked by available()
             raise ImportError("the Bayes planner needs numba: pip install 'nao-trainer[all]'") from None
-        glb = dict(globals())
-        glb["prange"] = numba.prange
-        for name in ("_rank", "_unrank", "_successor"):
-            glb[name] = numba.njit(cache=False, nogil=True)(type(_rank)(globals()[name].__code__, glb, name))
-        for name, fast in (("_z_layer", True), ("_v_layer", False)):  # fastmath: only the sum over models
-            fn = type(_rank)(globals()[name].__code__, glb, name)
-            _KERNELS[name] = numba.njit(cache=False, parallel=True, fastmath=fast)(fn)
+        _KERNELS.update(_z_layer=bayes_kernels.z_layer, _v_layer=bayes_kernels.v_layer)
     return _KERNELS
 
 
