@@ -1,8 +1,11 @@
 """Shared test set-up: LSL in machine scope, qi quiet, the published dataset extracted to a temp folder."""
 from __future__ import annotations
 
+import hashlib
 import os
+import re
 import subprocess
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -10,11 +13,38 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("NAO_TRAINER_SHARED", ROOT.parent / "shared")).resolve()
 DATA = SHARED / "data" / "sequence-learning"
+PORT_RANGE = 128  # as nao_trainer.eeg.lsl_scope.PORT_RANGE (not imported: nothing of the package before this)
+
+
+
+def lsl_config(given: str | None) -> str:
+    """The liblsl config of the tests: ``given`` (or ../shared/lsl_api.cfg, or the project's), machine scope
+    as it says, with the port range widened when it sets none.
+
+    Machine scope finds a stream by asking each port of liblsl's range on 127.0.0.1 (loopback multicast
+    carries nothing here). With liblsl's default of 32 ports, two suites side by side hold more outlets
+    than that, and a recorder then waits in vain for a stream on a random port (seen once under double
+    load). The widened copy is written beside the temporary files, named by its content.
+    """
+    src = Path(given) if given else SHARED / "lsl_api.cfg"
+    if not given and not src.exists():
+        src = ROOT / "config" / "lsl_api.cfg"
+    text = src.read_text(encoding="utf-8")
+    if re.search(r"^\s*PortRange\s*=", text, re.M):
+        return str(src)
+    line = f"PortRange = {PORT_RANGE}\n"
+    text = re.sub(r"^\[ports\]\n", "[ports]\n" + line, text, count=1, flags=re.M) if re.search(
+        r"^\[ports\]$", text, re.M) else text.rstrip("\n") + "\n[ports]\n" + line
+    path = Path(tempfile.gettempdir()) / f"nao-trainer-tests-lsl-{hashlib.sha256(text.encode()).hexdigest()[:12]}.cfg"
+    if not path.exists() or path.read_text(encoding="utf-8") != text:
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, path)
+    return str(path)
+
 
 # Before anything imports pylsl or qi: keep LSL discovery on this machine and qi's logs silent.
-if not os.environ.get("LSLAPICFG"):
-    cfg = SHARED / "lsl_api.cfg"
-    os.environ["LSLAPICFG"] = str(cfg if cfg.exists() else ROOT / "config" / "lsl_api.cfg")
+os.environ["LSLAPICFG"] = lsl_config(os.environ.get("LSLAPICFG"))
 os.environ.setdefault("QI_LOG_LEVEL", "silent")
 
 

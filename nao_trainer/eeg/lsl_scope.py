@@ -3,6 +3,11 @@
 liblsl multicasts stream discovery beyond the machine by default. The project sets machine scope
 before its first stream object: the Muse bridge (muselsl) runs on the same laptop.
 ``LSLAPICFG`` (a liblsl config file) wins when the environment sets it.
+
+Machine scope finds streams through the known peer 127.0.0.1, asking each port of liblsl's port
+range; multicast on the loopback interface often carries nothing (measured here). An outlet beyond
+the range (liblsl's default: 32 ports) binds a random port and cannot be found, so the project's
+config widens the range to ``PORT_RANGE`` (100 outlets on one machine were all found with it).
 """
 from __future__ import annotations
 
@@ -15,16 +20,20 @@ from nao_trainer.files import write_text_atomic
 
 log = logging.getLogger(__name__)
 
+#: Ports liblsl may bind and that a machine-scope resolver asks (liblsl's default is 32).
+PORT_RANGE = 128
+
 MACHINE_SCOPE_CONFIG = """\
 [multicast]
 ResolveScope = machine
 [ports]
 IPv6 = disable
+PortRange = %d
 [lab]
 KnownPeers = {127.0.0.1}
 [log]
 level = -3
-"""
+""" % PORT_RANGE
 
 SCOPES = ("machine", "link", "site", "organization", "global")
 _configured: str | None = None

@@ -4,6 +4,8 @@ from __future__ import annotations
 import csv
 import os
 import re
+import subprocess
+import sys
 import time
 import uuid
 
@@ -409,3 +411,44 @@ def test_live_view_reports_the_index_and_each_channels_contact(tmp_path):
     assert len(names) == 4 and all(good["channels"].values())
     assert faulty["channels"][names[1]] is False and sum(faulty["channels"].values()) == 3
     assert NullMonitor().live() is None
+
+
+MANY_OUTLETS = """
+import sys, pylsl
+from nao_trainer.eeg.lsl_scope import configure_lsl
+configure_lsl("machine")
+outlets = [pylsl.StreamOutlet(pylsl.StreamInfo(f"many{i}", "Probe", 1, 10, "float32", f"{sys.argv[1]}-{i}"))
+           for i in range(40)]
+print("ready", flush=True)
+sys.stdin.readline()
+"""
+
+FIND = """
+import sys, time, pylsl
+from nao_trainer.eeg.lsl_scope import configure_lsl
+configure_lsl("machine")
+wanted = set(sys.argv[1:])
+resolver = pylsl.ContinuousResolver(pred=" or ".join(f"source_id='{s}'" for s in sorted(wanted)))
+deadline = time.monotonic() + 20
+while time.monotonic() < deadline and {i.source_id() for i in resolver.results()} != wanted:
+    time.sleep(0.05)
+print(" ".join(sorted(wanted - {i.source_id() for i in resolver.results()})) or "all found")
+"""
+
+
+def test_the_projects_machine_scope_finds_a_stream_beyond_liblsls_default_32_ports():
+    """Machine scope asks each port of liblsl's range on 127.0.0.1; with the default 32, an outlet beyond
+    them (the 40th of a process here; any beyond 32 on the machine) binds a random port and another process
+    never finds it. The project's config (no LSLAPICFG) widens the range. 40 outlets on loopback, pinned."""
+    env = {k: v for k, v in os.environ.items() if k != "LSLAPICFG"}
+    tag = _uid("many")
+    owner = subprocess.Popen([sys.executable, "-c", MANY_OUTLETS, tag], env=env, stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, text=True)
+    try:
+        assert owner.stdout.readline().strip() == "ready"
+        res = subprocess.run([sys.executable, "-c", FIND, *(f"{tag}-{i}" for i in range(40))], env=env,
+                             capture_output=True, text=True, timeout=120)
+    finally:
+        owner.communicate("\n", timeout=60)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "all found"  # else: the source_ids not found
