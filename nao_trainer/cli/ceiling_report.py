@@ -67,9 +67,7 @@ def comparison_section(args, users: list, rows: list[dict], turns: int = 25) -> 
                               "users' success depends on more than the level")
         return {"note": "no Bayes ceiling: these users' success depends on more than the level "
                         "(use --users level-only or sessions)"}
-    rates = ceiling.user_rates(users)
-    train = {u.name: ceiling.level_rates(u.train) for u in users}
-    clusters = {u.name: u.cluster for u in users}
+    rates, train, clusters = ceiling.comparison_inputs(users)
     return _section(args, obj, rows, rates, train, clusters, None, turns)
 
 
@@ -77,39 +75,22 @@ def personalise_section(args, result: dict, turns: int = 25) -> dict[str, Any] |
     """``evaluate --personalise``: the ceiling, ``bayes`` with the fitted clusters as prior,
     ``bayes-psychometric`` with the pooled psychometric model fitted on the other sessions as prior,
     and (``--loo-bayes``) the planner knowing the other users."""
-    import numpy as np
-
-    from nao_trainer.core.simulation import UserSimulator
     from nao_trainer.experiments import ceiling
 
     obj = _objective(args)
     if args.no_ceiling:
         return None
-    sims = [UserSimulator.from_dict(u) for u in result["users"]]
-    rates = {s.name: ceiling.level_rates(s) for s in sims}
-    fits = result["fits"]
-    train = {n: np.array(fits[n]["train_rates"]) for n in rates}
-    clusters = {n: str(fits[n]["cluster"]) for n in rates}
-    from nao_trainer.core.psychometric import PooledModel
-
-    priors = {"bayes": {n: (np.array(fits[n]["prior"]["p"]), np.array(fits[n]["prior"]["w"])) for n in rates},
-              "bayes-psychometric": {n: PooledModel(**fits[n]["psychometric"]).mixture() for n in rates}}
+    rates, train, clusters, priors = ceiling.personalise_inputs(result)
     return _section(args, obj, result["rows"], rates, train, clusters, priors, turns)
 
 
 def _section(args, obj, rows, rates, train, clusters, priors, turns) -> dict[str, Any]:
-    import numpy as np
-
     from nao_trainer.experiments import ceiling
 
     print(f"ceiling: solving the Bayes planner ({obj}, {len(rates)} users"
           f"{', leave-one-out' if args.loo_bayes else ''})", file=sys.stderr)
-    out = ceiling.report(rows, rates, train, clusters, obj, turns, args.loo_bayes, priors)
-    sessions = _sessions(args)
-    if sessions:
-        p = np.array([rates[n] for n in rates])
-        out["multi_session"] = ceiling.multi_session(p, obj, turns, (1, *sessions), loo=args.loo_bayes)
-    return out
+    return ceiling.evaluation_ceiling(rows, rates, train, clusters, obj, turns, args.loo_bayes, priors,
+                                      _sessions(args))
 
 
 def _ci(v, digits: int = 2) -> str:

@@ -319,3 +319,41 @@ def session_users(source: Path, compat: str | None, k: int = 3, session_prior: f
     turns = Turns.from_columns(read_turns(Path(source), compat).columns)
     sessions = sorted(np.unique(turns.session).tolist())
     return fan_out(_session_one, [(turns, s, k, n_init, seed, session_prior) for s in sessions], workers, None)
+
+
+def evaluation_ceiling(rows: list[dict[str, Any]], rates: dict[str, np.ndarray], train: dict[str, np.ndarray],
+                       clusters: dict[str, str], obj: Objective, turns: int = 25, loo: bool = False,
+                       priors: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] | None = None,
+                       sessions: Sequence[int] = ()) -> dict[str, Any]:
+    """The ceiling section of an evaluation: ``report`` and, for ``sessions`` (e.g. 2, 5, 10), the
+    value of that many sessions of the same participant (``multi_session``)."""
+    out = report(rows, rates, train, clusters, obj, turns, loo, priors)
+    if sessions:
+        p = np.array([rates[n] for n in rates])
+        out["multi_session"] = multi_session(p, obj, turns, (1, *sessions), loo=loo)
+    return out
+
+
+def comparison_inputs(users: Sequence[Any]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, str]]:
+    """Rates, training rates and clusters of the compared users (``evaluate``; level-only users)."""
+    return (user_rates(users), {u.name: level_rates(u.train) for u in users},
+            {u.name: u.cluster for u in users})
+
+
+def personalise_inputs(result: dict[str, Any]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray],
+                                                        dict[str, str], dict[str, dict[str, Any]]]:
+    """Rates, training rates, clusters and the live priors per held-out user (``evaluate --personalise``):
+    ``bayes`` with the fitted clusters, ``bayes-psychometric`` with the pooled psychometric model
+    fitted on the other sessions."""
+    from nao_trainer.core.psychometric import PooledModel
+    from nao_trainer.core.simulation import UserSimulator
+
+    sims = [UserSimulator.from_dict(u) for u in result["users"]]
+    rates = {s.name: level_rates(s) for s in sims}
+    fits = result["fits"]
+    train = {n: np.array(fits[n]["train_rates"]) for n in rates}
+    clusters = {n: str(fits[n]["cluster"]) for n in rates}
+    priors = {"bayes": {n: (np.array(fits[n]["prior"]["p"]), np.array(fits[n]["prior"]["w"])) for n in rates},
+              "bayes-psychometric": {n: PooledModel(**fits[n]["psychometric"]).mixture() for n in rates}}
+    return rates, train, clusters, priors
+
