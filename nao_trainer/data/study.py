@@ -6,7 +6,8 @@ answered (``input``: simulated, tactile, keyboard), start date, completed turns,
 engagement (recomputed from the raw EEG, ``data/own.py``), how many turns had an engagement value (EEG
 lost mid-session shows here), the policy, the session's status, its
 duration in seconds, and its span (``span``, ``span_lo``, ``span_hi``): the sequence length in letters
-succeeded at 75 % under the pooled psychometric prior given to :func:`read_study`
+succeeded at ``span_rate`` (75 %, or R when the study's objective was ``target:R``) under the pooled
+psychometric prior given to :func:`read_study`
 (``core.psychometric.session_span``: posterior median and 90 % interval; empty without a prior or
 counted turns). Turns left out of the turn table (interrupted, invalid) do not count.
 """
@@ -29,8 +30,9 @@ if TYPE_CHECKING:
 
 STUDY_COLUMNS: tuple[str, ...] = ("session", "pseudonym", "study", "input", "date", "turns", "score", "success_L1",
                                   "success_L2", "success_L3", "success_L4", "engagement", "eeg_turns", "policy",
-                                  "status", "duration_s", "span", "span_lo", "span_hi")
-#: The success rate of the ``span`` columns (as in the run summary, ``session.turn.SPAN_RATE``).
+                                  "status", "duration_s", "span", "span_lo", "span_hi", "span_rate")
+#: The success rate of the ``span`` columns when session.json names none (as ``session.turn.SPAN_RATE``);
+#: a session of a ``target:R`` study gives its span at R (``span_rate`` column).
 SPAN_RATE = 0.75
 
 
@@ -67,12 +69,28 @@ def _when(text: Any) -> dt.datetime | None:
         return None
 
 
-def _span(rows: list[dict[str, Any]], prior: PooledModel | None) -> dict[str, float | None]:
+def _span_rate(info: dict[str, Any], path: Path) -> float:
+    """The rate the session gave its span at (session.json ``span.rate``: the study's target), else 75 %."""
+    rec = info.get("span")
+    rate = rec.get("rate") if isinstance(rec, dict) else None
+    if rate is None:
+        return SPAN_RATE
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 0 < rate < 1:
+        raise DataError(f"{path / 'session.json'}: span.rate must be a number between 0 and 1, got {rate!r}")
+    return float(rate)
+
+
+def _span(rows: list[dict[str, Any]], prior: PooledModel | None, rate: float) -> dict[str, float | None]:
+    empty = {"span": None, "span_lo": None, "span_hi": None, "span_rate": rate}
     if prior is None or not rows:
-        return {"span": None, "span_lo": None, "span_hi": None}
-    span = session_span(prior, level_counts([r["level"] for r in rows], [bool(r["success"]) for r in rows]),
-                        SPAN_RATE)
-    return {"span": round(span.median, 2), "span_lo": round(span.lo, 2), "span_hi": round(span.hi, 2)}
+        return empty
+    try:
+        span = session_span(prior, level_counts([r["level"] for r in rows], [bool(r["success"]) for r in rows]),
+                            rate)
+    except ValueError:  # a prior whose lapse rate rules this rate out: no span, as without a prior
+        return empty
+    return {"span": round(span.median, 2), "span_lo": round(span.lo, 2), "span_hi": round(span.hi, 2),
+            "span_rate": rate}
 
 
 def study_session(path: Path, prior: PooledModel | None = None) -> StudySession:
@@ -96,7 +114,7 @@ def study_session(path: Path, prior: PooledModel | None = None) -> StudySession:
         "policy": policy if policy is not None else "",
         "status": sess.status,
         "duration_s": round((ended - started).total_seconds(), 1) if started and ended else None,
-        **_span(rows, prior),
+        **_span(rows, prior, _span_rate(sess.info, Path(path))),
     }
     return StudySession(row, [r["level"] for r in rows], [r["success"] for r in rows],
                         [r["engagement"] for r in rows])

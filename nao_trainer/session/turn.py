@@ -7,14 +7,21 @@ from typing import Any
 
 import numpy as np
 
-from nao_trainer.core import mdp, task
+from nao_trainer.core import mdp, objective, task
 from nao_trainer.core.psychometric import Span, level_counts, session_span
 from nao_trainer.errors import DataError
 from nao_trainer.learn.psychometric_prior import load_prior
 from nao_trainer.ports import Answer, PhaseEngagement
 
-#: The success rate a session's span is reported at (docs/session.md).
+#: The success rate a session's span is reported at (docs/session.md), unless the study's objective is
+#: ``target:R`` (then R: the length that keeps this participant at the study's own target).
 SPAN_RATE = 0.75
+
+
+def span_rate(objective_text: str | None) -> float:
+    """The rate of a session's span: R of a ``target:R`` objective, else :data:`SPAN_RATE`."""
+    obj = objective.parse(objective_text)
+    return float(obj.rate) if obj.kind == "target" else SPAN_RATE
 
 @dataclass
 class Turn:
@@ -95,6 +102,7 @@ class SessionResult:
     summary_extra: str = ""  # e.g. the resumption this result continues
     policy_summary: str = ""  # what the policy concluded (e.g. the user model the participant matched)
     span_prior: Path | None = None  # the psychometric prior of the span (default: the shipped one)
+    span_rate: float = SPAN_RATE  # the success rate the span is given at (``span_rate``)
 
     @property
     def completed_rows(self) -> list[dict[str, Any]]:
@@ -144,20 +152,20 @@ class SessionResult:
         return f"n/a (EEG on, no value in any turn: {_most_common(notes).split('; ')[0]})"
 
     def span(self) -> Span | None:
-        """The span at :data:`SPAN_RATE` from the counted turns (None without any); DataError when the
+        """The span at ``span_rate`` from the counted turns (None without any); DataError when the
         prior cannot be read."""
         rows = self.completed_rows
         if not rows:
             return None
         counts = level_counts([r["level"] for r in rows], [bool(r["success"]) for r in rows])
-        return session_span(load_prior(self.span_prior), counts, SPAN_RATE)
+        return session_span(load_prior(self.span_prior), counts, self.span_rate)
 
     def span_record(self) -> dict[str, Any] | None:
         """The span for session.json and the console: rate, median, interval (letters); None without turns."""
         try:
             span = self.span()
         except (DataError, ValueError) as exc:  # an unreadable prior, or one whose lapse rules the rate out
-            return {"rate": SPAN_RATE, "error": str(exc)}
+            return {"rate": self.span_rate, "error": str(exc)}
         return None if span is None else span_dict(span)
 
     def span_line(self) -> str:

@@ -39,7 +39,7 @@ from nao_trainer.session.record import SessionRecorder, ensure_output_dir, os_er
 from nao_trainer.session.resume import Resumption
 from nao_trainer.session.robot_setup import RobotSetup, connect_robot
 from nao_trainer.session.stage import leave_robot_safe
-from nao_trainer.session.turn import SessionResult, summary_data
+from nao_trainer.session.turn import SPAN_RATE, SessionResult, span_rate, summary_data
 
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
@@ -215,11 +215,12 @@ class _Outcome:
     summary: str = ""  # what the policy concluded
     session: Session | None = None
     monitor: Any = None  # the EEG monitor, for the stream's identity in session.json
+    span_rate: float = SPAN_RATE  # the study's target rate, else 75 % (session.turn.span_rate)
 
     def result(self, recorder: SessionRecorder) -> SessionResult:
         session = self.session
         return SessionResult(recorder.path, self.status, self.code, session.rows if session else [], self.seed,
-                             self.error, policy_summary=self.summary)
+                             self.error, policy_summary=self.summary, span_rate=self.span_rate)
 
 
 def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue, behaviors: Behaviors, seed: int,
@@ -229,7 +230,7 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
 
     Every adapter is built inside one ``ExitStack``: it is closed in the reverse order of building,
     whatever happens (the record is closed last but the stand-in, so every close is logged in it)."""
-    out = _Outcome(seed)
+    out = _Outcome(seed, span_rate=span_rate(config.policy.objective))
     recorder = SessionRecorder(config.output_dir(), config.participant.pseudonym)
     stack = ExitStack()
     try:
@@ -422,7 +423,7 @@ def _close_record(recorder: SessionRecorder, out: _Outcome, policy: Policy, stan
     recorder.close(out.status, out.code, total_score=out.session.total if out.session else 0, error=out.error,
                    policy_summary=out.summary or None,
                    eeg_turns=result.eeg_turns if result.eeg_on else None,  # how many counted turns had EEG
-                   span=result.span_record(),  # the span at 75 % (docs/session.md), None without counted turns
+                   span=result.span_record(),  # the span at the study's rate (docs/session.md), None without turns
                    eeg_stream=getattr(out.monitor, "stream_identity", None))  # which stream; simulated or not
 
 

@@ -2,7 +2,9 @@
 
 Per session (completed, of every participant whose data is kept; intention to treat: withdrawn
 participants' kept sessions count) the outcomes are the total score (equation (1) over the valid turns),
-the mean listening-phase engagement (recomputed from the raw EEG, ``data.study``) and the success rate.
+the mean listening-phase engagement (recomputed from the raw EEG, ``data.study``), the success rate and
+the span (the sequence length succeeded at the study's target rate, 75 % for a score study, under the
+shipped pooled psychometric prior: a per-session measure of working memory, ``data.study``).
 The pre-registered model is a linear mixed model with a random intercept per participant,
 
     y_ij = b0 + sum_a b_a [arm_i = a] + b_s * session_ij + u_i + e_ij,   u_i ~ N(0, s_u^2), e_ij ~ N(0, s_e^2)
@@ -22,6 +24,7 @@ from typing import Any
 from nao_trainer.data.study import study_session
 from nao_trainer.errors import DataError
 from nao_trainer.files import write_text_atomic
+from nao_trainer.learn.psychometric_prior import load_prior
 from nao_trainer.study.registry import Study
 from nao_trainer.study.runner import DONE
 
@@ -41,7 +44,8 @@ class Report:
 
 
 def session_table(study: Study) -> list[dict[str, Any]]:
-    """One row per counted session: participant, arm, session number and the three outcomes."""
+    """One row per counted session: participant, arm, session number and the outcomes."""
+    prior = load_prior()
     out = []
     for p in study.participants:
         if p["withdrawn"] and p["withdrawn"]["data"] == "delete":
@@ -51,7 +55,7 @@ def session_table(study: Study) -> list[dict[str, Any]]:
                 continue
             folder = study.sessions_dir / s["folder"]
             try:
-                sess = study_session(folder)
+                sess = study_session(folder, prior)
             except DataError as exc:
                 raise DataError(f"{folder}: cannot be analysed ({exc}); restore it or withdraw its data") from None
             row, success = sess.row, sum(sess.success)
@@ -59,6 +63,7 @@ def session_table(study: Study) -> list[dict[str, Any]]:
                         "score": float(row["score"]),
                         "engagement": math.nan if row["engagement"] is None else float(row["engagement"]),
                         "success_rate": success / len(sess.success) if sess.success else math.nan,
+                        "span": math.nan if row["span"] is None else float(row["span"]),
                         "turns": int(row["turns"])})
     return out
 
@@ -165,9 +170,10 @@ def _text(study: Study, report: Report) -> str:
         for n in sorted({d["session"] for d in report.data}):
             sel = [d for d in report.data if d["arm"] == arm.name and d["session"] == n]
             if sel:
-                means = {o: _mean([d[o] for d in sel]) for o in ("score", "engagement", "success_rate")}
+                means = {o: _mean([d[o] for d in sel]) for o in ("score", "engagement", "success_rate", "span")}
                 lines.append(f"  {arm.name:<14} session {n}: n={len(sel):<3} score {means['score']:.2f}  engagement "
-                             f"{means['engagement']:.3f}  success rate {means['success_rate']:.3f}")
+                             f"{means['engagement']:.3f}  success rate {means['success_rate']:.3f}  span "
+                             f"{means['span']:.2f}")
     lines += [f"note: {n}" for n in report.notes]
     return "\n".join(lines)
 

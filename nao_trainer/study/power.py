@@ -35,7 +35,7 @@ import numpy as np
 from nao_trainer.core import evaluation, mdp, processes
 from nao_trainer.errors import ConfigError
 from nao_trainer.files import write_json_atomic, write_text_atomic
-from nao_trainer.study.protocol import OUTCOMES, Arm, Protocol
+from nao_trainer.study.protocol import SIMULATED_OUTCOMES, Arm, Protocol
 
 Z80 = 0.8416212335729143  # standard normal quantile of 0.8
 
@@ -96,7 +96,7 @@ class SessionPolicies:
 
 def play_sessions(policy: Any, p: np.ndarray, e: np.ndarray, turns: int, rng: np.random.Generator) -> np.ndarray:
     """Episodes with one user per episode (``p`` (n, 108), ``e`` (n, 108, 2)): (n, 3) score, mean engagement,
-    success rate (the columns of ``OUTCOMES``)."""
+    success rate (the columns of ``SIMULATED_OUTCOMES``)."""
     proc = processes.get("paper")
     n = len(p)
     rows = np.arange(n)
@@ -144,6 +144,7 @@ class PowerReport:
     sd: dict[str, float] = field(default_factory=dict)  # SD of participant means (pooled), largest N
     primary: str = ""
     arms: int = 2
+    notes: list[str] = field(default_factory=list)
 
     def interval(self, p: float) -> tuple[float, float]:
         half = 1.96 * math.sqrt(max(p * (1 - p), 1e-12) / self.reps)
@@ -176,6 +177,7 @@ class PowerReport:
         lines.append("mean estimated effect at the largest N (arm minus reference), SD of participant means:")
         for key in sorted(self.effect):
             lines.append(f"  {key:<40} {self.effect[key][-1]:+.3f}   sd {self.sd[key]:.3f}")
+        lines += [f"note: {n}" for n in self.notes]
         return "\n".join(lines)
 
     def write(self, out: Path) -> None:
@@ -183,7 +185,7 @@ class PowerReport:
         write_json_atomic(out / "power.json", {"protocol": self.name, "protocol_sha256": self.protocol_sha256,
                                                "ns": self.ns, "reps": self.reps, "alpha": self.alpha,
                                                "users": self.users, "drift": self.drift, "power": self.power,
-                                               "effect": self.effect, "sd": self.sd})
+                                               "effect": self.effect, "sd": self.sd, "notes": self.notes})
 
 
 def _z(q: float) -> float:
@@ -233,6 +235,8 @@ def power_study(protocol: Protocol, ns: list[int], reps: int, seed: int, users: 
     report = PowerReport(protocol.name, protocol.sha256, list(ns), reps, protocol.analysis.alpha, users_name, drift,
                          primary=protocol.primary)
     report.arms = len(protocol.arms)
+    report.notes = [f"{o}: not simulated (the simulation plays {', '.join(SIMULATED_OUTCOMES)}); analysed by "
+                    "study analyse" for o in protocol.outcomes if o not in SIMULATED_OUTCOMES]
     rng = np.random.default_rng(seed)
     S = protocol.sessions.per_participant
     for n in ns:
@@ -246,7 +250,7 @@ def power_study(protocol: Protocol, ns: list[int], reps: int, seed: int, users: 
                 episode = pol.start(len(sel), s)
                 p = _drifted(p_users[idx], drift, rng)
                 means.reshape(-1, 3)[sel] += play_sessions(episode, p, e_users[idx], pol.turns, rng) / S
-        for o, outcome in enumerate(OUTCOMES):
+        for o, outcome in enumerate(SIMULATED_OUTCOMES):
             if outcome not in protocol.outcomes:
                 continue
             for a, (diff, se, pval) in arm_tests(means[:, :, o], arms, len(policies), ref).items():

@@ -24,8 +24,10 @@ from nao_trainer.errors import ConfigError
 from nao_trainer.files import read_yaml
 from nao_trainer.session.config import SCHEMA, StudyConfig, check_value, load_config
 
-#: Outcomes per session the analysis and the power simulation know.
-OUTCOMES: tuple[str, ...] = ("score", "engagement", "success_rate")
+#: Outcomes per session the analysis knows; ``span``: the length at the study's rate (``data.study``).
+OUTCOMES: tuple[str, ...] = ("score", "engagement", "success_rate", "span")
+#: The outcomes the power simulation plays (``study.power``); a span needs a posterior per session.
+SIMULATED_OUTCOMES: tuple[str, ...] = ("score", "engagement", "success_rate")
 #: Fixed effects a model may name besides the intercept.
 TERMS: tuple[str, ...] = ("arm", "session")
 _MODEL = re.compile(r"^\s*(\w+)\s*~\s*(.+?)\s*\+\s*\(\s*1\s*\|\s*participant\s*\)\s*$")

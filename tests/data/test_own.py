@@ -157,10 +157,10 @@ def test_study_table_and_figure(study, tmp_path, capsys):
     header = (tmp_path / "study.csv").read_text().splitlines()[0].split(",")
     assert header == ["session", "pseudonym", "study", "input", "date", "turns", "score", "success_L1", "success_L2",
                       "success_L3", "success_L4", "engagement", "eeg_turns", "policy", "status", "duration_s",
-                      "span", "span_lo", "span_hi"]
+                      "span", "span_lo", "span_hi", "span_rate"]
     for r in rows:  # the span: the run summary's (session.json), from the same counted turns and the shipped prior
         span = json.loads((study / r["session"] / "session.json").read_text())["span"]
-        assert span["rate"] == 0.75 and span["interval"] == 0.9
+        assert span["rate"] == 0.75 == float(r["span_rate"]) and span["interval"] == 0.9
         got = [float(r[k]) for k in ("span", "span_lo", "span_hi")]
         assert got == pytest.approx([span["median"], span["lo"], span["hi"]], abs=0.006)
         assert got[1] < got[0] < got[2]

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from nao_trainer.data.study import study_session
+from nao_trainer.errors import DataError
 from nao_trainer.ports import CommandQueue
 from nao_trainer.session.config import DEFAULT_CONFIG, load_config
 from nao_trainer.session.turn import SessionResult, summary_data
@@ -95,3 +96,32 @@ def test_a_run_writes_its_span_to_session_json_as_the_study_table_computes_it(tm
                                                                                 abs=0.006)
     assert span["lo"] < span["median"] < span["hi"]
     assert study_session(result.path).row["span"] is None  # no prior given: the columns stay empty
+
+
+def test_a_target_study_gives_its_span_at_its_own_rate_in_the_summary_session_json_and_the_table(tmp_path):
+    """A study that keeps participants near R (``policy.objective: target:R``) measures its span at R, the
+    length this participant succeeds at R of the time; a score study at 75 %."""
+    from nao_trainer.core.psychometric import level_counts, session_span
+    from nao_trainer.learn.psychometric_prior import load_prior
+
+    cfg = load_config(DEFAULT_CONFIG, {"session.turns": 8, "timing.speed": 50.0, "session.output": str(tmp_path),
+                                       "eeg.mode": "off", "session.practice": False, "participant.pseudonym": "T",
+                                       "session.seed": 3, "policy.objective": "target:0.6"})
+    result = run_session(cfg, RunOptions(quiet=True))
+    assert result.exit_code == 0
+    span = json.loads((result.path / "session.json").read_text())["span"]
+    counted = result.completed_rows
+    want = session_span(load_prior(), level_counts([r["level"] for r in counted], [r["success"] for r in counted]), 0.6)
+    assert span["rate"] == 0.6 and span["median"] == pytest.approx(want.median, abs=0.001)
+    assert "span at 60 %:" in result.summary()
+    at_75 = session_span(load_prior(), level_counts([r["level"] for r in counted], [r["success"] for r in counted]),
+                         0.75)
+    assert want.median > at_75.median  # a lower rate is reached at a longer length
+    table = study_session(result.path, load_prior()).row
+    assert table["span_rate"] == 0.6 and table["span"] == pytest.approx(span["median"], abs=0.006)
+    info = json.loads((result.path / "session.json").read_text())
+    for bad in ("0.6", 1.5, True):  # a crafted rate: one line naming the file
+        info["span"]["rate"] = bad
+        (result.path / "session.json").write_text(json.dumps(info))
+        with pytest.raises(DataError, match=r"session.json: span.rate must be a number between 0 and 1"):
+            study_session(result.path, load_prior())

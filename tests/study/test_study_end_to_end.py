@@ -39,7 +39,7 @@ sessions: {per_participant: 2, interval_days: {min: 0, max: 7}}
 target_n: 12
 allocation: {method: blocked, block_size: 6, seed: 2026}
 blinding: true
-outcomes: {primary: score, secondary: [engagement, success_rate]}
+outcomes: {primary: score, secondary: [engagement, success_rate, span]}
 analysis: {model: "outcome ~ arm + session + (1|participant)", reference_arm: level2}
 """
 ABILITIES = ("sim/participants/level2.json", "sim/participants/level4.json", "1", "3")
@@ -123,6 +123,11 @@ def test_a_three_arm_study_from_init_to_bids(tmp_path):
     for r in primary.values():
         assert float(r["ci_low"]) <= float(r["estimate"]) <= float(r["ci_high"]) and r["n_sessions"] == "24"
     assert (study / "analysis" / "score.png").stat().st_size > 10_000
+    span = {r["term"]: r for r in est if r["role"] == "secondary" and r["outcome"] == "span"}  # issue 21: an outcome
+    assert {"arm[personalised]", "arm[random]", "session"} <= set(span) and span["session"]["n_sessions"] == "24"
+    with open(study / "analysis" / "sessions.csv", newline="") as fh:
+        spans = [float(r["span"]) for r in csv.DictReader(fh)]
+    assert len(spans) == 24 and all(3 <= s <= 12 for s in spans)  # letters, at 75 % (a score study)
 
     res = _cli("study", "power", tmp_path / "protocol.yaml", "--users", "clusters", "--n", "6,12,24", "--reps", "20",
                "--out", tmp_path / "power")
@@ -131,6 +136,7 @@ def test_a_three_arm_study_from_init_to_bids(tmp_path):
     assert power["ns"] == [6, 12, 24] and "score: random vs level2" in power["power"]
     assert all(0 <= p <= 1 for v in power["power"].values() for p in v)
     assert "N=24: 20 studies simulated" in res.stderr and (tmp_path / "power" / "power.png").exists()
+    assert not any(k.startswith("span:") for k in power["power"]) and "span: not simulated" in power["notes"][0]
 
     bids = tmp_path / "bids"
     res = _cli("study", "export", study, "--bids", bids)
