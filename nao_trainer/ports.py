@@ -126,6 +126,20 @@ class Robot(Protocol):
         """Disconnect signals and close the qi session."""
 
 
+class RobotUpkeep(Protocol):
+    """Keeps the robot as the task set it up (``robot.lifecycle.TaskLife``): Autonomous Life, motors."""
+
+    def between_turns(self) -> None:
+        """Check and restore between two turns; reports what it found, never raises."""
+
+
+class NullUpkeep:
+    """No robot to keep (the laptop plays it, or a test's fake)."""
+
+    def between_turns(self) -> None:
+        return None
+
+
 # ----------------------------------------------------------------------------------------------
 # Answers
 # ----------------------------------------------------------------------------------------------

@@ -132,6 +132,30 @@ class TaskLife:
         if self.entered:
             self._apply()
 
+    def between_turns(self) -> None:
+        """Between two turns: the task's state back if something changed it (``ports.RobotUpkeep``).
+
+        Autonomous Life can be switched on mid-session from the robot's web page or Choregraphe, and
+        a double click of the chest button removes the stiffness (NAOqi 2.8 ``ALChestButton``: "At
+        double click, the stiffness is removed"): with life on, a hand resting on the answer buttons
+        would then put NAO to sleep; with the motors off, NAO does not gesture. Two cheap calls; each
+        change found is reported and undone. Never raises: a lost link is the next call's to notice."""
+        if not self.entered:
+            return
+        try:
+            if self.task_state != UNCHANGED and self.found is not None:
+                state = self.robot.call("ALAutonomousLife", "getState")
+                if state != self.task_state:
+                    self.report("autonomous_life_changed", found=state, task=self.task_state)
+                    self._do("set_autonomous_life",
+                             lambda: self.robot.call("ALAutonomousLife", "setState", self.task_state),
+                             state=self.task_state)
+            if self.wake and not self.robot.call("ALMotion", "robotIsWakeUp"):
+                self.report("motors_found_off")
+                self._do("wake_up", lambda: self.robot.call("ALMotion", "wakeUp", timeout_s=60.0))
+        except (RobotCallFailed, RobotUnavailable, RobotConnectionLost) as exc:
+            log.debug("between turns: %s", exc)
+
     def leave(self) -> None:
         """Rest the motors (unless the study says not to) and restore Autonomous Life; never raises."""
         if not self.entered:

@@ -260,6 +260,7 @@ class Session:
         return Turn(self.completed + 1, self.mdp_state, action, state, notes=notes, phase=phase)
 
     def _do_select_action(self) -> str:
+        self.ports.upkeep.between_turns()  # Autonomous Life or the motors changed by someone: set back
         self.turn = turn = self._next_turn()
         st = turn.turn_state
         turn.sequence = task.generate_sequence(self.rng, st.length)

@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, NullObserver, Policy, Robot,
-                               SessionObserver)
+from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, NullObserver, NullUpkeep,
+                               Policy, Robot, RobotUpkeep, SessionObserver)
 from nao_trainer.session.behaviors import Behaviors
 from nao_trainer.session.dialogue import Dialogue
 
@@ -24,6 +24,7 @@ class SessionPorts:
     monitor: EngagementMonitor = field(default_factory=NullMonitor)
     commands: CommandQueue = field(default_factory=CommandQueue)
     observer: SessionObserver = field(default_factory=NullObserver)
+    upkeep: RobotUpkeep = field(default_factory=NullUpkeep)  # Autonomous Life and motors, between turns
 
 
 @dataclass(frozen=True)

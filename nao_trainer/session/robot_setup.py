@@ -32,9 +32,10 @@ class RobotSetup:
         else:
             self.early.append({"event": name, **data})
 
-    def prepare(self, robot: Any, section: RobotSection) -> Any:
+    def prepare(self, robot: Any, section: RobotSection) -> TaskLife:
         """Autonomous Life to the study's state and the motors on (``TaskLife.enter``), the link watchdog's pace;
-        after a reconnection the same state is applied again."""
+        after a reconnection the same state is applied again, and between turns it is kept
+        (``TaskLife.between_turns``)."""
         robot.link_check_s, robot.link_deadline_s = float(section.link_check_s), float(section.link_deadline_s)
         life = TaskLife(robot, section.autonomous_life, section.rest_at_end, self.report)
         self.status = life.enter().as_dict()

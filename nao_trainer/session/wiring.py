@@ -25,8 +25,8 @@ from nao_trainer.console.keys import KeyReader
 from nao_trainer.errors import ConfigError, EEGUnavailable, Interrupted, RobotUnavailable, UserError
 from nao_trainer.files import PROJECT_ROOT, write_text_atomic
 from nao_trainer.policies.factory import make_policy
-from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, NullObserver, Policy, Robot,
-                               RobotConnectionLost, SessionObserver)
+from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, NullObserver, NullUpkeep,
+                               Policy, Robot, RobotConnectionLost, RobotUpkeep, SessionObserver)
 from nao_trainer.robot.address import redact_url
 from nao_trainer.session.behaviors import Behaviors, load_behaviors
 from nao_trainer.session.check import check_disk, check_eeg, check_robot, plan_from_config
@@ -269,8 +269,10 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
     robot = connect_robot(config, connect_url, standin is not None, progress)
     stack.callback(_close_quietly, robot, recorder, out)
     setup = RobotSetup(recorder)
-    if config.robot.url != DESKTOP:  # Autonomous Life and motors as the study says; restored at the end
-        stack.callback(setup.prepare(robot, config.robot).leave)
+    upkeep: RobotUpkeep = NullUpkeep()
+    if config.robot.url != DESKTOP:  # Autonomous Life and motors as the study says; kept; restored at the end
+        upkeep = setup.prepare(robot, config.robot)
+        stack.callback(upkeep.leave)
     stack.callback(_leave_robot_safe, out, robot, behaviors, config, recorder)
     commands = options.commands if options.commands is not None else CommandQueue()  # an empty queue is falsy
     # The console's port is taken before the folder exists: a port in use leaves no empty session folder.
@@ -292,7 +294,7 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
     stack.callback(_close_quietly, answers, recorder, out)
     policy.bind_state_dir(path)
     stack.callback(_close_policy, policy, out, recorder)  # closed (a learning policy saved) once the folder exists
-    ports = SessionPorts(robot, answers, policy, monitor, commands, observer or NullObserver())
+    ports = SessionPorts(robot, answers, policy, monitor, commands, observer or NullObserver(), upkeep)
     session = Session(config, ports, recorder, Script(dialogue, behaviors),
                       Randomness(np.random.default_rng(session_ss), np.random.default_rng(policy_ss),
                                  {"participant": participant_rng}),

@@ -175,11 +175,11 @@ def test_a_link_frozen_8_s_in_an_answer_window_gives_an_interrupted_replayed_tur
     assert info["total_score"] == sum(int(r["score"]) for r in rows[1:])  # the frozen attempt counts nothing
 
 
-@pytest.mark.parametrize("life, ends", [("unchanged", 3), ("disabled", 0)])
-def test_a_hand_held_3_s_on_the_head_mid_session_only_matters_with_life_left_on(tmp_path, life, ends):
+@pytest.mark.parametrize("life", ["unchanged", "disabled"])
+def test_a_hand_held_3_s_on_the_head_mid_session_only_matters_with_life_left_on(tmp_path, life):
     """Why the session disables Autonomous Life: left on ("unchanged"), a hand resting 3 s on the answer
-    buttons puts NAO to sleep and the task cannot go on (a robot error, every turn kept); disabled, it
-    is only a press."""
+    buttons puts NAO to sleep (motors off, crouched); the session finds the motors off before the next
+    turn and wakes them (NAO stands up again in front of the participant). Disabled, it is only a press."""
     from nao_trainer.robot.standin import StandIn
 
     study = tmp_path / "study.yaml"
@@ -189,25 +189,75 @@ def test_a_hand_held_3_s_on_the_head_mid_session_only_matters_with_life_left_on(
         # Armed in the stand-in, the hand comes down as turn 1's beep ends, however loaded the machine.
         # The participant answers on the head (tactile) and presses nothing else: a simulated one would
         # press after the hold, and a touch wakes a sleeping NAO. The 3 s hold ends long before the
-        # 17.5 s answer window (both robot time), so NAO is asleep when the session speaks again.
+        # 17.5 s answer window (both robot time), so NAO is asleep when the turn ends.
         standin.hold_after("ALAudioPlayer.playSine", "B", 3.0)
         res = subprocess.run(
             [sys.executable, "-m", "nao_trainer", "run", "--config", str(study), "--robot", standin.url,
              "--eeg", "off", "--out", str(tmp_path / "out"), "--speed", "10", "--policy", "schedule",
              "--input", "tactile", "--seed", "2", "--turns", "2", "--no-practice", "--pseudonym", "P1"],
             capture_output=True, text=True, env=dict(os.environ, QI_LOG_LEVEL="silent"), timeout=180)
-        held = [e["args"][1] for e in standin.transcript() if e["method"] == "held"]
+        transcript = standin.transcript()
     finally:
         standin.stop()
     (folder,) = (tmp_path / "out").glob("*_*")
+    held = [e["args"][1] for e in transcript if e["method"] == "held"]
     assert held == ["asleep" if life == "unchanged" else "nothing"]
-    assert res.returncode == ends, res.stderr
-    info = json.loads((folder / "session.json").read_text())
-    assert info["status"] == ("robot error" if ends else "completed")
-    if ends:
-        assert "NAO is asleep" in info["error"]
+    assert res.returncode == 0, res.stderr
+    woken = [e for e in read_events(folder) if e["event"] == "motors_found_off"]
+    assert len(woken) == (1 if life == "unchanged" else 0)
+    if woken:  # woken after the hold, before turn 2 spoke
+        calls = [(e["service"], e["method"]) for e in transcript]
+        after = calls[next(i for i, e in enumerate(transcript) if e["method"] == "held"):]
+        assert after.index(("ALMotion", "wakeUp")) < after.index(("ALTextToSpeech", "say"))
     rows = read_turns(folder)
-    assert rows and rows[0]["turn"] == "1" and rows[0]["success"] == "False"  # one press (B), then the timeout
-    assert len(rows) == 2, rows
-    if ends:  # the turn NAO could not speak is kept, unscored
-        assert rows[1]["success"] == "" and rows[1]["score"] == "", rows[1]
+    assert [r["turn"] for r in rows] == ["1", "2"]
+    assert rows[0]["success"] == "False"  # one press (B), then the timeout
+
+
+def test_a_double_click_of_the_chest_button_mid_session_is_undone_before_the_next_turn(tmp_path):
+    """NAOqi 2.8's ALChestButton: "At double click, the stiffness is removed". Done mid-session (armed in
+    the stand-in at turn 1's beep), the session finds the motors off before turn 2, says so in
+    events.jsonl, wakes them and plays on; every turn is played and scored."""
+    from nao_trainer.robot.standin import StandIn
+
+    standin = StandIn.start(speed=50)
+    try:
+        standin.chest_after("ALAudioPlayer.playSine", 2)
+        res = subprocess.run(
+            [sys.executable, "-m", "nao_trainer", "run", "--config", STUDY, "--robot", standin.url, "--eeg", "off",
+             "--out", str(tmp_path / "out"), "--speed", "50", "--policy", "schedule", "--input", "simulated",
+             "--seed", "5", "--turns", "3", "--no-practice", "--pseudonym", "P1"],
+            capture_output=True, text=True, env=dict(os.environ, QI_LOG_LEVEL="silent"), timeout=180)
+        calls = [(e["service"], e["method"]) for e in standin.transcript()]
+    finally:
+        standin.stop()
+    assert res.returncode == 0, res.stderr
+    (folder,) = (tmp_path / "out").glob("*_*")
+    events = read_events(folder)
+    found = [e for e in events if e["event"] == "motors_found_off"]
+    assert len(found) == 1 and found[0]["mono"] <= next(e["mono"] for e in events if e["event"] == "turn_start" and e["turn"] == 2)
+    clicked = calls.index(("NaoTrainerStandIn", "chest"))
+    assert ("ALMotion", "wakeUp") in calls[clicked:]  # woken after the click, before the session's end
+    assert [r["success"] in ("True", "False") for r in read_turns(folder)] == [True] * 3
+
+
+def test_autonomous_life_switched_on_by_someone_is_set_back_between_turns(robot_proc):
+    """Someone turns Autonomous Life on (Choregraphe, the robot's web page) while the task runs with it
+    disabled: between turns ``TaskLife`` finds it, reports it and disables it again; nothing to do when
+    nothing changed."""
+    from nao_trainer.robot.lifecycle import TaskLife
+
+    url, control = robot_proc
+    reports: list[tuple[str, dict]] = []
+    with NaoqiRobot.connect(url, 5.0) as robot:
+        life = TaskLife(robot, "disabled", report=lambda name, **data: reports.append((name, data)))
+        life.enter()
+        assert control.body()["life"] == "disabled"
+        reports.clear()
+        life.between_turns()
+        assert reports == []  # nothing changed: two reads, nothing reported
+        robot.call("ALAutonomousLife", "setState", "solitary")
+        life.between_turns()
+        assert ("autonomous_life_changed", {"found": "solitary", "task": "disabled"}) in reports
+        assert control.body()["life"] == "disabled" and control.body()["motors_on"]
+        life.leave()

@@ -14,8 +14,9 @@ the client (``nao_trainer.robot.naoqi.NaoqiRobot``) talks to it exactly as it ta
 * ``ALAutonomousLife`` getState, setState (boots "solitary"); ``ALAudioDevice`` getOutputVolume,
   setOutputVolume, isAudioOutMuted, muteAudioOut; ``ALBattery`` getBatteryCharge; ``ALSystem``
   robotName, systemVersion (``body``)
-* ``NaoTrainerStandIn`` (control, not NAOqi) press(button or letter), hold, bounce, body,
-  hold_after, set_battery, set_latency, freeze, freeze_after, transcript(), clear(), set_speed(x), speed()
+* ``NaoTrainerStandIn`` (control, not NAOqi) press(button or letter), hold, hold_after, chest(clicks),
+  chest_after, bounce, body, set_battery, set_latency, freeze, freeze_after, transcript(), clear(),
+  set_speed(x), speed()
 
 Clients reach the qi server through a ``link.Link`` (latency, a frozen link, the tcps login).
 

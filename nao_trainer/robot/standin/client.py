@@ -67,6 +67,12 @@ class StandInClient:
     def hold_after(self, call: str, button: str, seconds: float) -> None:
         self._control.hold_after(call, button, float(seconds))
 
+    def chest(self, clicks: int) -> str:
+        return str(self._control.chest(int(clicks)))
+
+    def chest_after(self, call: str, clicks: int) -> None:
+        self._control.chest_after(call, int(clicks))
+
     def bounce(self, button: str, contacts: int) -> None:
         self._control.bounce(button, int(contacts))
 

@@ -129,6 +129,25 @@ class Control:
 
         self._rec.arm(call, lambda: threading.Thread(target=run, name="standin-hold", daemon=True).start())
 
+    @qi.bind(qi.String, [qi.Int32])
+    def chest(self, clicks: int) -> str:
+        """Clicks of the chest button (NAOqi 2.8 ``ALChestButton``: a simple click makes the robot say its
+        name and address, a double click removes the stiffness); returns what it did. Modelled: the
+        double click sets the motors off (posture unchanged); the simple click says nothing here."""
+        self._rec.record("NaoTrainerStandIn", "chest", [clicks])
+        if clicks == 2:
+            with self._body.lock:
+                self._body.motors_on = False
+            return "stiffness removed"
+        return "name and address" if clicks == 1 else "nothing"
+
+    @qi.bind(qi.Void, [qi.String, qi.Int32])
+    def chest_after(self, call: str, clicks: int) -> None:
+        """``chest(clicks)`` once the next ``call`` has returned (a known point of a session)."""
+        self._rec.record("NaoTrainerStandIn", "chest_after", [call, clicks])
+        self._rec.arm(call, lambda: threading.Thread(target=self.chest, args=(int(clicks),), name="standin-chest",
+                                                     daemon=True).start())
+
     @qi.bind(qi.Map(qi.String, qi.Dynamic), [])
     def body(self) -> dict[str, Any]:
         """The robot's state as tests read it: life, motors_on, posture, asleep, volume, muted, battery."""

@@ -147,6 +147,14 @@ class StandIn:
         """A hand held ``seconds`` (robot time) once the next ``call`` has returned (``Control.hold_after``)."""
         self._control.hold_after(call, button, seconds)
 
+    def chest(self, clicks: int) -> str:
+        """Clicks of the chest button (``Control.chest``: a double click removes the stiffness)."""
+        return self._control.chest(clicks)
+
+    def chest_after(self, call: str, clicks: int) -> None:
+        """``chest(clicks)`` once the next ``call`` has returned."""
+        self._control.chest_after(call, clicks)
+
     def body(self) -> dict[str, Any]:
         """Autonomous Life state, motors, posture, sleep, volume, mute, battery."""
         return self._control.body()
