@@ -18,7 +18,9 @@ The engine runs in a child process (``python -m nao_trainer.eeg.xdf``), for thre
 * the child never outlives the session: on Linux it asks the kernel for SIGTERM when its parent dies
   (``PR_SET_PDEATHSIG``; while it still looks for the streams SIGTERM ends it at once, while it
   records SIGTERM finishes the file), and :meth:`XdfRecorder.start` kills it when start-up itself is
-  interrupted (SIGTERM, Ctrl-C).
+  interrupted (SIGTERM, Ctrl-C). All of that needs the interpreter to run; a forked guard process
+  (``start_guard``) kills the child outright when its session has been gone for longer than the
+  stop limit, whatever the child is stuck in.
 
 The child pins the streams by source_id. A marker pushed before the recorder's inlet connects is
 not recorded: :meth:`XdfRecorder.start` returns once the marker outlet has a consumer.
@@ -46,6 +48,8 @@ PR_SET_PDEATHSIG = 1
 #: Longest wait for the recording engine to write its footers and stop, once asked to (seconds). With its
 #: streams gone (a killed session) liblsl's time-correction queries time out one by one: 5-20 s seen.
 STOP_LIMIT_S = 60.0
+#: The guard (``start_guard``) kills a recorder this long after the stop limit once its session is gone.
+GUARD_EXTRA_S = 30.0
 #: How long the child keeps recording after the stop request: the engine writes in chunks of ~0.5 s.
 FLUSH_S = 1.0
 
@@ -198,6 +202,46 @@ def _die_with_parent(parent: int | None) -> None:
         os.kill(os.getpid(), signal.SIGTERM)
 
 
+def _ppid_of(pid: int) -> int | None:
+    """The parent of ``pid`` from /proc (None where /proc cannot tell)."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            return int(fh.read().rsplit(b")", 1)[1].split()[1])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def start_guard(parent: int, grace_s: float, poll_s: float = 0.5) -> int | None:
+    """Linux: fork a guard that SIGKILLs this process ``grace_s`` after its parent ``parent`` is gone.
+
+    The graceful ends (stdin closed, SIGTERM from ``PR_SET_PDEATHSIG``, the SIGALRM stop limit) all
+    need the interpreter to run, and the engine can block holding the GIL while liblsl retries its
+    time-correction queries to streams that vanished with the session: two recorders were seen
+    alive 12 and 17 minutes after their session was killed, deaf to SIGTERM. The guard is another
+    process, so nothing the recorder holds can stop it; it dies with the recorder (its own
+    ``PR_SET_PDEATHSIG``: SIGKILL) and only ever calls the OS. Call it before any thread starts.
+    Returns the guard's pid in the recorder (None where it is not available)."""
+    if not sys.platform.startswith("linux") or _ppid_of(os.getpid()) != parent:
+        return None
+    recorder = os.getpid()
+    pid = os.fork()
+    if pid:
+        return pid
+    try:  # the guard: no Python-level clean-up, no buffers flushed, only OS calls
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        if os.getppid() == recorder:
+            while _ppid_of(recorder) == parent:  # reparented (or gone) once the session has exited
+                time.sleep(poll_s)
+            time.sleep(grace_s)
+            os.kill(recorder, signal.SIGKILL)
+    finally:
+        os._exit(0)
+
+
 def main(argv: list[str] | None = None) -> int:
     """The recorder: record until stdin says ``stop`` or closes (the session ended or died), then flush."""
     ap = argparse.ArgumentParser(prog="python -m nao_trainer.eeg.xdf")
@@ -217,6 +261,8 @@ def main(argv: list[str] | None = None) -> int:
 
     signal.signal(signal.SIGTERM, on_term)
     _die_with_parent(args.parent)
+    if args.parent is not None:  # the last resort when the interpreter cannot run any of the graceful ends
+        start_guard(args.parent, args.flush + STOP_LIMIT_S + GUARD_EXTRA_S)
     if not os.environ.get("LSLAPICFG"):  # the engine's liblsl would discover streams beyond this machine
         print("xdf: LSLAPICFG is not set; refusing to record", flush=True)
         return 2

@@ -154,3 +154,63 @@ def test_the_recorder_dies_with_a_session_killed_during_eeg_start_up(tmp_path):
         session.kill()
         session.wait(10)
     assert _gone(str(out)), "the recorder outlived its session"
+
+
+STUCK_RECORDER = """
+import signal, sys, time
+from nao_trainer.eeg import xdf
+guard = xdf.start_guard(int(sys.argv[1]), grace_s=0.5, poll_s=0.05)
+# What the engine did to two orphans: stuck with the GIL held, so no Python handler ran; here SIGTERM
+# (the parent-death signal, and what an operator would send) and SIGINT are simply blocked.
+signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM, signal.SIGINT})
+print(guard, flush=True)
+time.sleep(600)
+"""
+
+SESSION = """
+import os, subprocess, sys, time
+rec = subprocess.Popen([sys.executable, "-c", sys.argv[1], str(os.getpid())], stdout=subprocess.PIPE, text=True)
+print(rec.pid, rec.stdout.readline().strip(), flush=True)
+time.sleep(600)
+"""
+
+
+def test_a_recorder_that_cannot_act_on_signals_is_still_ended_by_its_guard_once_the_session_is_gone():
+    """Two recorders outlived killed sessions by 12 and 17 minutes, deaf to SIGTERM (the engine held the
+    GIL). ``start_guard`` forks a process that SIGKILLs the recorder once its session has been gone for
+    the grace period; while the session lives it does nothing, and it ends with the recorder."""
+    import subprocess
+    import sys
+
+    session = subprocess.Popen([sys.executable, "-c", SESSION, STUCK_RECORDER], stdout=subprocess.PIPE, text=True)
+    recorder, guard = None, None
+    try:
+        first, second = session.stdout.readline().split()
+        recorder = int(first)
+        assert second != "None", "no guard was started"
+        guard = int(second)
+        assert _pid_alive(recorder) and _pid_alive(guard)
+        time.sleep(0.3)  # several of the guard's polls with the session alive: nothing happens
+        assert _pid_alive(recorder), "the guard killed a recorder whose session was alive"
+        session.kill()  # SIGKILL: the recorder is reparented and cannot stop itself
+        session.wait(10)
+        deadline = time.monotonic() + 60  # a hang limit; the grace is 0.5 s
+        while time.monotonic() < deadline and (_pid_alive(recorder) or _pid_alive(guard)):
+            time.sleep(0.05)
+        assert not _pid_alive(recorder), "the stuck recorder outlived its session"
+        assert not _pid_alive(guard), "the guard outlived the recorder"
+    finally:
+        session.kill()
+        session.wait(10)
+        for pid in (recorder, guard):  # a failed run leaves nothing behind
+            if pid is not None and _pid_alive(pid):
+                os.kill(pid, signal.SIGKILL)
+
+
+def _pid_alive(pid: int) -> bool:
+    """Running (not a zombie) by /proc."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            return fh.read().rsplit(b")", 1)[1].split()[0] != b"Z"
+    except OSError:
+        return False
