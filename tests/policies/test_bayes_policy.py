@@ -30,7 +30,7 @@ def study(tmp: Path, objective: str = "score") -> Path:
 def run(tmp: Path, out: Path, *args: str, objective: str = "score") -> subprocess.CompletedProcess:
     env = dict(os.environ, QI_LOG_LEVEL="silent", XDG_CACHE_HOME=str(tmp / "cache"))
     return subprocess.run([sys.executable, "-m", "nao_trainer", "run", "--config", str(study(tmp, objective)),
-                           "--out", str(out), "--eeg", "off", "--no-practice", "--speed", "50", "--seed", "7",
+                           "--out", str(out), "--eeg", "off", "--no-practice", "--speed", "200", "--seed", "7",
                            "--no-keys", "--pseudonym", "p1", "--user-model", str(PARTICIPANTS / "level4.json"), *args],
                           capture_output=True, text=True, env=env, timeout=300)
 
