@@ -205,7 +205,7 @@ def test_a_blinded_study_serves_a_console_without_the_arm(tmp_path, capsys):
     cli(capsys, "study", "enrol", study, "--consent-date", "2026-11-02", "--consent-version", "v1")
     env = dict(os.environ, QI_LOG_LEVEL="silent")
     proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "study", "next", str(study), "P001", "--console",
-                             "--no-keys", "--speed", "10", "--turns", "8"], stdout=subprocess.PIPE,
+                             "--no-keys", "--speed", "25", "--turns", "8"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env)
     lines: list[str] = []
     linked = threading.Event()
@@ -311,7 +311,7 @@ def test_an_interrupted_session_is_resumed_through_the_study_and_then_counts(tmp
     assert code == 2 and "no interrupted session" in err
     env = dict(os.environ, QI_LOG_LEVEL="silent")
     proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "study", "next", str(study), "P001", "--no-keys",
-                             "--speed", "10", "--turns", "12"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             "--speed", "25", "--turns", "12"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env=env)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:  # wait for two completed turns, then stop it as a crash would
