@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from nao_trainer.files import PROJECT_ROOT
 from nao_trainer.session.record import read_events, read_turns
 
 
@@ -53,10 +54,16 @@ def test_no_flags_plays_the_25_turn_demo(tmp_path):
 
 
 def test_simulated_eeg_fills_the_engagement_columns(tmp_path):
-    res = cli("--eeg", "simulated", "--turns", "2", "--speed", "25", "--no-practice", "--out", str(tmp_path), "--quiet",
-              timeout=180)
+    # the demo study without session.xdf (recorded by the demo test above; its recorder's stop takes 5-20 s)
+    study = tmp_path / "demo.yaml"
+    study.write_text((PROJECT_ROOT / "config" / "studies" / "demo.yaml").read_text()
+                     .replace("eeg:\n  mode: simulated\n", "eeg:\n  mode: simulated\n  xdf: false\n"))
+    assert "  xdf: false\n" in study.read_text()
+    out = tmp_path / "out"
+    res = cli("--config", str(study), "--eeg", "simulated", "--turns", "2", "--no-practice", "--out", str(out),
+              "--quiet", timeout=180)
     assert res.returncode == 0, res.stderr
-    folder = only_folder(tmp_path)
+    folder = only_folder(out)
     rows = read_turns(folder)
     assert len(rows) == 2
     for r in rows:
