@@ -43,3 +43,15 @@ def raw_root(tmp_path_factory) -> Path:
 def derived_dir() -> Path:
     """The authors' derived tables (read-only, space-separated)."""
     return DATA / "derived"
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """Files with a test marked ``slow`` first, the rest after, each file's own order kept.
+
+    ``make test`` hands whole files to the workers (``--dist loadfile``) in collection order
+    (pytest.ini turns off xdist's reordering by test count, which put the long few-test files last):
+    the long files start early and the short ones fill in, so the workers end together instead of one
+    playing a long session alone at the end.
+    """
+    slow = {item.path for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.path not in slow)  # a stable sort: only the files move

@@ -9,6 +9,8 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
+
 from nao_trainer.files import PROJECT_ROOT
 from nao_trainer.session.record import read_events, read_turns
 
@@ -113,6 +115,7 @@ def test_keyboard_answers_end_to_end(tmp_path):
     assert rows[3]["response"] == "" and rows[3]["notes"] == "timeout: no answer" and rows[3]["reaction_time"] == ""
 
 
+@pytest.mark.slow
 def test_naoqi_29_credentials_come_from_the_environment_and_stay_out_of_files(tmp_path):
     import socket
 

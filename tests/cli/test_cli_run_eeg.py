@@ -10,6 +10,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from nao_trainer.files import PROJECT_ROOT
 from nao_trainer.session.record import read_events, read_turns
 
@@ -26,6 +28,7 @@ def only_folder(out: Path) -> Path:
     return folders[0]
 
 
+@pytest.mark.slow
 def test_no_flags_plays_the_25_turn_demo(tmp_path):
     out = tmp_path / "sessions"
     res = cli("--out", str(out))  # exactly as `make demo` runs it (its speed: benchmarks/bench_session_demo.py)

@@ -81,6 +81,7 @@ def browser():
         b.close()
 
 
+@pytest.mark.slow
 def test_the_console_shows_the_session_live_and_steers_it(browser, tmp_path):
     run = Run(tmp_path / "out")
     assert run.link.startswith("http://127.0.0.1:") and "token=" in run.link

@@ -71,6 +71,7 @@ def _tmux() -> str:
     return path
 
 
+@pytest.mark.slow
 def test_keys_pause_resume_and_stop_a_session_on_a_real_terminal(tmp_path):
     tmux = _tmux()
     sock = f"nao-keys-{uuid.uuid4().hex[:8]}"

@@ -302,6 +302,7 @@ def _running(xdf: Path) -> bool:
     return False
 
 
+@pytest.mark.slow
 def test_a_killed_and_resumed_session_replays_each_monitor_as_it_ran(tmp_path):
     """`run --resume` appends a second monitor (fresh estimator and scale) to the same eeg/ files."""
     import signal

@@ -35,6 +35,7 @@ def run(tmp: Path, out: Path, *args: str, objective: str = "score") -> subproces
                           capture_output=True, text=True, env=env, timeout=300)
 
 
+@pytest.mark.slow
 def test_bayes_live_over_two_sessions_keeps_the_counts_and_refuses_foreign_or_torn_state(tmp_path):
     out = tmp_path / "sessions"
     first = run(tmp_path, out)

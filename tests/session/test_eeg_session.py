@@ -75,6 +75,7 @@ def test_session_refuses_when_required_eeg_is_missing(tmp_path):
         sess.run_session(cfg, sess.RunOptions(quiet=True))
 
 
+@pytest.mark.slow
 def test_session_survives_stream_loss_and_return(tmp_path):
     """The headband drops out after two turns and comes back: affected turns are marked, later ones have
     engagement again, the gap is recorded, and no exception reaches the session."""
@@ -143,6 +144,7 @@ def _wait_for(probe, timeout_s: float):
     raise AssertionError("timed out waiting for the session")
 
 
+@pytest.mark.slow
 def test_the_demo_shows_engagement_spread_over_the_scale(tmp_path):
     """`nao-trainer run` with no flags (the demo study: speed x25, the level-4 participant model, a simulated
     Muse over real LSL on its own source_id, the personalised policy): the baseline shows the model's

@@ -47,6 +47,7 @@ def comparable(rows):
     return [{k: v for k, v in r.items() if k not in TIMING} for r in rows]
 
 
+@pytest.mark.slow
 def test_a_killed_session_resumes_and_plays_the_same_turns_as_an_uninterrupted_one(tmp_path):
     cfg = study(tmp_path)
     assert "debounce_s: 0.0" in cfg.read_text()

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from nao_trainer.policies.base import StatelessPolicy
 from nao_trainer.session import engine as sess
@@ -102,6 +103,7 @@ def test_feedback_actions_say_feedback_on_the_last_outcome_then_same_length(tmp_
         assert int(rows[k]["previous_score"]) == int(r_prev["signed_score"])
 
 
+@pytest.mark.slow
 def test_same_seed_same_session(tmp_path):
     # the simulated Muse stays on (engagement must not make the session depend on the clock); session.xdf
     # is only a recording of the streams, and its recorder's start and stop cost ~6 s a session

@@ -185,6 +185,7 @@ def test_ctrl_c_leaves_the_robot_safe_and_exits_130(tmp_path, signum):
     assert by == ("operator (Ctrl-C)" if signum == signal.SIGINT else "SIGTERM received")
 
 
+@pytest.mark.slow
 def test_ctrl_c_cuts_a_long_utterance_short(tmp_path):
     """At real speed the instructions take ~15 s; Ctrl-C must not wait for them to end."""
     out = tmp_path / "out"

@@ -301,6 +301,7 @@ def test_a_session_that_fails_after_writing_its_folder_is_recorded_and_not_count
     assert "complete 0" in out and "robot lost" in out
 
 
+@pytest.mark.slow
 def test_an_interrupted_session_is_resumed_through_the_study_and_then_counts(tmp_path, capsys):
     import signal
     import time
