@@ -82,7 +82,7 @@ def test_session_survives_stream_loss_and_return(tmp_path):
     name, sid = _uid("MuseS"), _uid("MuseSrc")
     muse = {"sim": SimulatedMuse.start(np.random.default_rng(1), name=name, source_id=sid)}
     cfg = _config(tmp_path, **{"eeg.mode": "lsl", "eeg.stream_name": name, "session.turns": 9,
-                               "timing.speed": 10.0, "eeg.processing": FAST})
+                               "timing.speed": 10.0, "eeg.processing": FAST, "eeg.xdf": False})
     out: dict = {}
 
     def play():
