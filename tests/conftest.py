@@ -1,7 +1,9 @@
 """Shared test set-up: LSL in machine scope, qi quiet, the published dataset extracted to a temp folder."""
 from __future__ import annotations
 
+import fcntl
 import os
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -18,25 +20,35 @@ if not os.environ.get("LSLAPICFG"):
 os.environ.setdefault("QI_LOG_LEVEL", "silent")
 
 
-def _extract(archive: str, dest: Path) -> Path:
+def _extract(archive: str, tmp_path_factory, name: str) -> Path:
+    """``archive`` extracted once per test run, also under ``pytest -n`` (the workers share this run's temp root
+    and take turns on a lock: the first extracts, ~5 s for the bands, the others read). Tests only read it."""
     path = DATA / archive
     if not path.exists():
         pytest.fail(f"{path} is missing: the tests need ../shared/data/sequence-learning beside the repo")
-    dest.mkdir(parents=True, exist_ok=True)
-    subprocess.run(["tar", "-xJf", str(path), "-C", str(dest)], check=True)
+    base = tmp_path_factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # xdist: <run>/popen-gwN per worker
+    dest = root / name
+    with open(root / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not (dest / ".extracted").exists():
+            shutil.rmtree(dest, ignore_errors=True)  # a worker that died mid-extraction
+            dest.mkdir(parents=True)
+            subprocess.run(["tar", "-xJf", str(path), "-C", str(dest)], check=True)
+            (dest / ".extracted").write_text(archive)
     return dest / "clean_data"
 
 
 @pytest.fixture(scope="session")
 def dataset_root(tmp_path_factory) -> Path:
     """The 50 published sessions (band files) as ``<root>/user_<id>/session_<k>/``."""
-    return _extract("clean_data_bands.tar.xz", tmp_path_factory.mktemp("bands"))
+    return _extract("clean_data_bands.tar.xz", tmp_path_factory, "bands")
 
 
 @pytest.fixture(scope="session")
 def raw_root(tmp_path_factory) -> Path:
     """The 4 published sessions with raw Muse recordings (``robot_N``, ``user_N``, ``intro``)."""
-    return _extract("raw_sessions.tar.xz", tmp_path_factory.mktemp("raw"))
+    return _extract("raw_sessions.tar.xz", tmp_path_factory, "raw")
 
 
 @pytest.fixture(scope="session")
