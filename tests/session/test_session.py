@@ -39,7 +39,8 @@ def spoken(entries):
 
 def test_demo_session_flow_and_record(tmp_path):
     out = io.StringIO()
-    result = run_session(config(tmp_path), progress=out)
+    # the demo with its simulated Muse; its session.xdf is checked in test_session_xdf.py (its recorder's stop: ~5 s)
+    result = run_session(config(tmp_path, eeg__xdf=False), progress=out)
     assert result.status == "completed" and result.exit_code == 0
     rows = read_turns(result.path)
     assert [int(r["turn"]) for r in rows] == list(range(1, 7))
