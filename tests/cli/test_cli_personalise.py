@@ -29,7 +29,7 @@ def run(out: Path, *args: str) -> subprocess.CompletedProcess:
     study = out.parent / "study.yaml"
     study.write_text(STUDY)
     return subprocess.run([sys.executable, "-m", "nao_trainer", "run", "--config", str(study), "--out", str(out),
-                           "--eeg", "off", "--no-practice", "--speed", "100", "--seed", "2018", "--no-keys", *args],
+                           "--eeg", "off", "--no-practice", "--speed", "50", "--seed", "2018", "--no-keys", *args],
                           capture_output=True, text=True, env=env, timeout=120)
 
 
