@@ -14,6 +14,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 STUDY = """\
 study: {{name: loop-{group}}}
 robot: {{url: mock}}
@@ -40,6 +42,7 @@ def _cli(*args: str, env=None, timeout: float = 120) -> subprocess.CompletedProc
     return res
 
 
+@pytest.mark.slow
 def test_sessions_import_fit_train_and_play_a_trained_policy(tmp_path):
     study = tmp_path / "study"
     for group, (p, e) in GROUPS.items():

@@ -31,6 +31,7 @@ def fitted(dataset_root, tmp_path_factory):
     return rc, out, stdout.getvalue(), stderr.getvalue()
 
 
+@pytest.mark.slow
 def test_fit_json_has_the_issue_structure(fitted):
     rc, _, stdout, _ = fitted
     assert rc == 0

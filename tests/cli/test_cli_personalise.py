@@ -37,6 +37,7 @@ def session_folders(out: Path, pseudonym: str) -> list[Path]:
     return sorted(p for p in out.iterdir() if p.name.startswith(pseudonym + "_"))
 
 
+@pytest.mark.slow
 def test_weak_and_strong_participants_get_different_levels_and_the_state_carries_over(tmp_path):
     out = tmp_path / "sessions"
     levels = {}

@@ -105,7 +105,7 @@ def _half_open(t: Target, n: int) -> list[socket.socket]:
 def test_the_attacks_of_issue_18_leave_a_running_session_complete_and_the_supervisor_in(tmp_path):
     env = dict(os.environ, QI_LOG_LEVEL="silent")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "nao_trainer", "run", "--console", "--turns", str(TURNS), "--speed", "10",
+        [sys.executable, "-m", "nao_trainer", "run", "--console", "--turns", str(TURNS), "--speed", "25",
          "--eeg", "off", "--no-practice", "--policy", "usp:2", "--out", str(tmp_path), "--pseudonym", "A1",
          "--no-keys"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, stdin=subprocess.DEVNULL,
         preexec_fn=_lower_nofile)

@@ -81,6 +81,7 @@ def browser():
         b.close()
 
 
+@pytest.mark.slow
 def test_the_console_shows_the_session_live_and_steers_it(browser, tmp_path):
     run = Run(tmp_path / "out")
     assert run.link.startswith("http://127.0.0.1:") and "token=" in run.link
@@ -242,7 +243,7 @@ def test_over_tls_the_page_works_with_a_secure_cookie_and_the_printed_fingerprin
 
     from nao_trainer.console.tls import fingerprint
 
-    run = Run(tmp_path / "out", "--console-tls")
+    run = Run(tmp_path / "out", "--console-tls", "--speed", "20")  # one turn is all it waits for
     context = browser.new_context(ignore_https_errors=True, bypass_csp=True)  # self-signed: checked by fingerprint
     try:
         assert run.link.startswith("https://127.0.0.1:")

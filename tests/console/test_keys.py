@@ -71,11 +71,12 @@ def _tmux() -> str:
     return path
 
 
+@pytest.mark.slow
 def test_keys_pause_resume_and_stop_a_session_on_a_real_terminal(tmp_path):
     tmux = _tmux()
     sock = f"nao-keys-{uuid.uuid4().hex[:8]}"
     out, done = tmp_path / "out", tmp_path / "done.txt"
-    cmd = (f"cd {tmp_path} && QI_LOG_LEVEL=silent {sys.executable} -m nao_trainer run --turns 60 --speed 8 --eeg off "
+    cmd = (f"cd {tmp_path} && QI_LOG_LEVEL=silent {sys.executable} -m nao_trainer run --turns 60 --speed 16 --eeg off "
            f"--policy random --no-practice --out {out} --pseudonym K; echo EXIT=$? > {done}; "
            f"stty -a >> {done}; sleep 60")
     env = dict(os.environ)

@@ -37,7 +37,7 @@ session: {turns: 4, practice: false}
 timing: {speed: 50}
 answers: {input: simulated}
 policy: {kind: schedule, schedule: [L1, L2, RF1, L3]}
-eeg: {mode: simulated, processing: {window_s: 0.25, hop_s: 0.05}}
+eeg: {mode: simulated, xdf: false, processing: {window_s: 0.25, hop_s: 0.05}}  # the fuzzed files are the CSV record
 """
 
 

@@ -146,6 +146,7 @@ def test_no_stream_not_required_marks_unavailable_then_attaches(tmp_path):
             sim.stop()
 
 
+@pytest.mark.slow
 def test_stream_lost_and_back_mid_session(tmp_path):
     monitor = _simulated(tmp_path, seed=3)
     try:

@@ -139,6 +139,7 @@ def test_leave_one_session_out_never_trains_on_the_user(dataset_root):
         assert np.ptp(user.truth.p_success[mdp.LEVEL == lv]) == 0
 
 
+@pytest.mark.slow
 def test_evaluate_on_sessions_of_a_dataset_root(dataset_root, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     out = tmp_path / "ev"

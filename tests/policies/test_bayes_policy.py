@@ -30,11 +30,12 @@ def study(tmp: Path, objective: str = "score") -> Path:
 def run(tmp: Path, out: Path, *args: str, objective: str = "score") -> subprocess.CompletedProcess:
     env = dict(os.environ, QI_LOG_LEVEL="silent", XDG_CACHE_HOME=str(tmp / "cache"))
     return subprocess.run([sys.executable, "-m", "nao_trainer", "run", "--config", str(study(tmp, objective)),
-                           "--out", str(out), "--eeg", "off", "--no-practice", "--speed", "50", "--seed", "7",
+                           "--out", str(out), "--eeg", "off", "--no-practice", "--speed", "200", "--seed", "7",
                            "--no-keys", "--pseudonym", "p1", "--user-model", str(PARTICIPANTS / "level4.json"), *args],
                           capture_output=True, text=True, env=env, timeout=300)
 
 
+@pytest.mark.slow
 def test_bayes_live_over_two_sessions_keeps_the_counts_and_refuses_foreign_or_torn_state(tmp_path):
     out = tmp_path / "sessions"
     first = run(tmp_path, out)

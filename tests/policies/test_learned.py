@@ -159,7 +159,7 @@ def _run_session(tmp_path, *extra):
     import sys
 
     out = tmp_path / "sessions"
-    cmd = [sys.executable, "-m", "nao_trainer", "run", "--user-model", "1", "--turns", "3", "--speed", "50",
+    cmd = [sys.executable, "-m", "nao_trainer", "run", "--user-model", "1", "--turns", "3", "--speed", "50", "--eeg", "off",
            "--out", str(out), "--quiet", "--no-practice", "--seed", "5", *extra]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr

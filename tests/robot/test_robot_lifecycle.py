@@ -143,6 +143,7 @@ def test_a_killed_session_leaves_a_mark_that_check_reports_and_the_next_run_rest
     assert info["robot_status"]["autonomous_life"] == "disabled"
 
 
+@pytest.mark.slow
 def test_a_link_frozen_8_s_in_an_answer_window_gives_an_interrupted_replayed_turn_not_a_failure(tmp_path):
     """The stand-in stays alive but its link goes silent for 8 s right after turn 1's beep (a dropped
     Wi-Fi: libqi would notice only after ~60 s). The watchdog's cheap call gets no answer within its

@@ -81,6 +81,7 @@ def _uid() -> str:
     return f"MuseCheck-{uuid.uuid4().hex[:10]}"
 
 
+@pytest.mark.slow
 def test_eeg_contact_is_judged_per_channel_on_a_real_lsl_stream(standin, tmp_path):
     sid = _uid()
     muse = SimulatedMuse.start(np.random.default_rng(1), source_id=sid)

@@ -41,7 +41,9 @@ def _rows(path: Path) -> list[dict[str, str]]:
 
 
 def test_session_with_simulated_muse_records_engagement_per_turn(tmp_path):
-    cfg = _config(tmp_path, **{"eeg.mode": "simulated", "eeg.processing": FAST})
+    # session.xdf (a recording of the same streams) is tested in test_session_xdf.py; its recorder's start and
+    # stop cost ~6 s a session
+    cfg = _config(tmp_path, **{"eeg.mode": "simulated", "eeg.processing": FAST, "eeg.xdf": False})
     result = sess.run_session(cfg, sess.RunOptions(quiet=True))
     assert result.status == "completed", result.error
     rows = read_turns(result.path)
@@ -73,13 +75,14 @@ def test_session_refuses_when_required_eeg_is_missing(tmp_path):
         sess.run_session(cfg, sess.RunOptions(quiet=True))
 
 
+@pytest.mark.slow
 def test_session_survives_stream_loss_and_return(tmp_path):
     """The headband drops out after two turns and comes back: affected turns are marked, later ones have
     engagement again, the gap is recorded, and no exception reaches the session."""
     name, sid = _uid("MuseS"), _uid("MuseSrc")
     muse = {"sim": SimulatedMuse.start(np.random.default_rng(1), name=name, source_id=sid)}
     cfg = _config(tmp_path, **{"eeg.mode": "lsl", "eeg.stream_name": name, "session.turns": 9,
-                               "timing.speed": 10.0, "eeg.processing": FAST})
+                               "timing.speed": 10.0, "eeg.processing": FAST, "eeg.xdf": False})
     out: dict = {}
 
     def play():
@@ -141,12 +144,14 @@ def _wait_for(probe, timeout_s: float):
     raise AssertionError("timed out waiting for the session")
 
 
+@pytest.mark.slow
 def test_the_demo_shows_engagement_spread_over_the_scale(tmp_path):
     """`nao-trainer run` with no flags (the demo study: speed x25, the level-4 participant model, a simulated
     Muse over real LSL on its own source_id, the personalised policy): the baseline shows the model's
     resting engagement, and the turns' normalised engagement follows the model over the whole scale
     instead of lying at 0 (issue 22: a baseline far above the task once pinned every turn near 0)."""
-    cfg = load_config(None, {"session.output": str(tmp_path), "participant.pseudonym": _uid("demo").replace("-", "_")})
+    cfg = load_config(None, {"session.output": str(tmp_path), "participant.pseudonym": _uid("demo").replace("-", "_"),
+                             "eeg.xdf": False})  # the demo's session.xdf: test_cli_run_eeg.py, test_session_xdf.py
     assert cfg.eeg.mode == "simulated" and cfg.timing.speed == 25 and cfg.session.turns == 25
     rest = sess.build_simulator(cfg).rest_engagement()
     result = sess.run_session(cfg, sess.RunOptions(quiet=True))

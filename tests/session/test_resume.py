@@ -27,6 +27,8 @@ TIMING = {"start_time", "reaction_time", "completion_time"}  # wall-clock column
 
 def study(tmp_path: Path) -> Path:
     text = (ROOT / "config" / "studies" / "demo.yaml").read_text()
+    # x10, not the demo's x25: two sessions side by side (and another test run beside) must give their presses
+    # the same outcome, so the answer windows keep room for a busy machine
     text = text.replace("mode: simulated", 'mode: "off"').replace("speed: 25", "speed: 10")
     text = text.replace('state_path: "{session}"', "state_path: null")  # per participant (the default)
     # Both runs must see the same presses: without a debounce no press of the simulated hand can be
@@ -47,22 +49,23 @@ def comparable(rows):
     return [{k: v for k, v in r.items() if k not in TIMING} for r in rows]
 
 
+@pytest.mark.slow
 def test_a_killed_session_resumes_and_plays_the_same_turns_as_an_uninterrupted_one(tmp_path):
     cfg = study(tmp_path)
     assert "debounce_s: 0.0" in cfg.read_text()
-    flags = ["--config", str(cfg), "--turns", "10", "--seed", "77", "--pseudonym", "R", "--quiet"]
+    flags = ["--config", str(cfg), "--turns", "8", "--seed", "77", "--pseudonym", "R", "--quiet"]
     whole = run(*flags, "--out", str(tmp_path / "a"))
     killed = run(*flags, "--out", str(tmp_path / "b"))
     try:
         deadline = time.monotonic() + 90
         folder = None
-        while time.monotonic() < deadline:
+        while time.monotonic() < deadline:  # killed in the assessment (6 turns), resumed into the policy's turns
             folders = list((tmp_path / "b").glob("R_*"))
-            if folders and (folders[0] / "turns.csv").exists() and len(read_turns(folders[0])) >= 4:
+            if folders and (folders[0] / "turns.csv").exists() and len(read_turns(folders[0])) >= 3:
                 folder = folders[0]
                 break
             time.sleep(0.02)
-        assert folder is not None, "the session did not play 4 turns"
+        assert folder is not None, "the session did not play 3 turns"
         killed.send_signal(signal.SIGKILL)
         killed.wait(10)
     finally:
@@ -81,7 +84,7 @@ def test_a_killed_session_resumes_and_plays_the_same_turns_as_an_uninterrupted_o
     expected = read_turns(next((tmp_path / "a").glob("R_*")))
     got = read_turns(folder)
     assert (folder / "turns.csv").read_bytes().startswith(before)  # appended, never rewritten
-    assert len(got) == 10 and n_before < 10
+    assert len(got) == 8 and n_before < 8
     assert comparable(got) == comparable(expected)
     info = json.loads((folder / "session.json").read_text())
     assert info["status"] == "completed" and len(info["resumptions"]) == 1

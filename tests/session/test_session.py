@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from nao_trainer.policies.base import StatelessPolicy
 from nao_trainer.session import engine as sess
@@ -38,7 +39,8 @@ def spoken(entries):
 
 def test_demo_session_flow_and_record(tmp_path):
     out = io.StringIO()
-    result = run_session(config(tmp_path), progress=out)
+    # the demo with its simulated Muse; its session.xdf is checked in test_session_xdf.py (its recorder's stop: ~5 s)
+    result = run_session(config(tmp_path, eeg__xdf=False), progress=out)
     assert result.status == "completed" and result.exit_code == 0
     rows = read_turns(result.path)
     assert [int(r["turn"]) for r in rows] == list(range(1, 7))
@@ -86,7 +88,7 @@ def test_demo_session_flow_and_record(tmp_path):
 
 def test_feedback_actions_say_feedback_on_the_last_outcome_then_same_length(tmp_path):
     cfg = config(tmp_path, policy__kind="schedule", policy__schedule=["L2", "RF1", "RF2", "L1"], session__turns=4,
-                 session__practice=False)
+                 session__practice=False, eeg__mode="off")
     result = run_session(cfg, progress=None)
     rows = read_turns(result.path)
     assert [r["action"] for r in rows] == ["L2", "RF1", "RF2", "L1"]
@@ -102,8 +104,11 @@ def test_feedback_actions_say_feedback_on_the_last_outcome_then_same_length(tmp_
         assert int(rows[k]["previous_score"]) == int(r_prev["signed_score"])
 
 
+@pytest.mark.slow
 def test_same_seed_same_session(tmp_path):
-    quick = {"session__turns": 4, "session__practice": False}
+    # the simulated Muse stays on (engagement must not make the session depend on the clock); session.xdf
+    # is only a recording of the streams, and its recorder's start and stop cost ~6 s a session
+    quick = {"session__turns": 4, "session__practice": False, "eeg__xdf": False}
     a = run_session(config(tmp_path / "a", **quick), progress=None)
     b = run_session(config(tmp_path / "b", **quick), progress=None)
     c = run_session(config(tmp_path / "c", session__seed=12, **quick), progress=None)

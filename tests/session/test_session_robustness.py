@@ -160,7 +160,7 @@ def test_robot_lost_for_good_ends_cleanly_with_every_completed_turn(tmp_path):
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
 def test_ctrl_c_leaves_the_robot_safe_and_exits_130(tmp_path, signum):
     out = tmp_path / "out"
-    proc = run_cli("--turns", "25", "--speed", "10", "--out", str(out), "--no-practice")
+    proc = run_cli("--turns", "25", "--speed", "25", "--out", str(out), "--no-practice")  # stopped after turn 1
     try:
         folder = wait_rows(out, 1, proc)
         proc.send_signal(signum)
@@ -185,6 +185,7 @@ def test_ctrl_c_leaves_the_robot_safe_and_exits_130(tmp_path, signum):
     assert by == ("operator (Ctrl-C)" if signum == signal.SIGINT else "SIGTERM received")
 
 
+@pytest.mark.slow
 def test_ctrl_c_cuts_a_long_utterance_short(tmp_path):
     """At real speed the instructions take ~15 s; Ctrl-C must not wait for them to end."""
     out = tmp_path / "out"

@@ -121,6 +121,7 @@ def _recorder_alive(folder: Path) -> bool:
     return False
 
 
+@pytest.mark.slow
 def test_a_killed_session_leaves_a_complete_readable_xdf(tmp_path):
     proc, out, _ = _start(tmp_path, turns=40, speed=20)
     deadline = time.monotonic() + 60

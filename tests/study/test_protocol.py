@@ -205,7 +205,7 @@ def test_a_blinded_study_serves_a_console_without_the_arm(tmp_path, capsys):
     cli(capsys, "study", "enrol", study, "--consent-date", "2026-11-02", "--consent-version", "v1")
     env = dict(os.environ, QI_LOG_LEVEL="silent")
     proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "study", "next", str(study), "P001", "--console",
-                             "--no-keys", "--speed", "10", "--turns", "8"], stdout=subprocess.PIPE,
+                             "--no-keys", "--speed", "25", "--turns", "8"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env)
     lines: list[str] = []
     linked = threading.Event()
@@ -301,6 +301,7 @@ def test_a_session_that_fails_after_writing_its_folder_is_recorded_and_not_count
     assert "complete 0" in out and "robot lost" in out
 
 
+@pytest.mark.slow
 def test_an_interrupted_session_is_resumed_through_the_study_and_then_counts(tmp_path, capsys):
     import signal
     import time
@@ -311,7 +312,7 @@ def test_an_interrupted_session_is_resumed_through_the_study_and_then_counts(tmp
     assert code == 2 and "no interrupted session" in err
     env = dict(os.environ, QI_LOG_LEVEL="silent")
     proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "study", "next", str(study), "P001", "--no-keys",
-                             "--speed", "10", "--turns", "12"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             "--speed", "25", "--turns", "12"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env=env)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:  # wait for two completed turns, then stop it as a crash would

@@ -72,6 +72,7 @@ def _next(study: Path, pseudonym: str, i: int) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
 
 
+@pytest.mark.slow
 def test_a_three_arm_study_from_init_to_bids(tmp_path):
     (tmp_path / "base.yaml").write_text(BASE)
     (tmp_path / "protocol.yaml").write_text(PROTOCOL)
