@@ -145,7 +145,8 @@ class TaskLife:
         try:
             if self.task_state != UNCHANGED and self.found is not None:
                 state = self.robot.call("ALAutonomousLife", "getState")
-                if state != self.task_state:
+                if (state == "disabled") != (self.task_state == "disabled"):  # life on moves between its
+                    # own states (solitary, interactive, safeguard) by itself: only off versus on matters
                     self.report("autonomous_life_changed", found=state, task=self.task_state)
                     self._do("set_autonomous_life",
                              lambda: self.robot.call("ALAutonomousLife", "setState", self.task_state),

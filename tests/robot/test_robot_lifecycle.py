@@ -262,3 +262,16 @@ def test_autonomous_life_switched_on_by_someone_is_set_back_between_turns(robot_
         assert ("autonomous_life_changed", {"found": "solitary", "task": "disabled"}) in reports
         assert control.body()["life"] == "disabled" and control.body()["motors_on"]
         life.leave()
+        # a study that keeps life on: its own moves (solitary -> interactive on seeing a person) are left
+        # alone (a manual change back to solitary would fail), only switching it off is undone
+        on = TaskLife(robot, "solitary", report=lambda name, **data: reports.append((name, data)))
+        on.enter()
+        robot.call("ALAutonomousLife", "setState", "interactive")
+        reports.clear()
+        on.between_turns()
+        assert reports == [] and control.body()["life"] == "interactive"
+        robot.call("ALAutonomousLife", "setState", "disabled")
+        on.between_turns()
+        assert ("autonomous_life_changed", {"found": "disabled", "task": "solitary"}) in reports
+        assert control.body()["life"] == "solitary"
+        on.leave()
