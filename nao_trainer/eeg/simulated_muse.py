@@ -213,6 +213,11 @@ class _Publisher:
     def running(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
+    def has_consumers(self) -> bool:
+        """An inlet (a monitor, a recorder) is connected to the stream."""
+        outlet = self._outlet
+        return bool(outlet is not None and outlet.have_consumers())
+
     def wait(self, timeout: float | None = None) -> bool:
         """Block until the stream ends (replay finished or ``stop``); True if it ended."""
         if self._thread is not None:

@@ -42,6 +42,7 @@ def test_recording_holds_every_marker_and_the_eeg_with_lsl_times(tmp_path, outle
     rec = xdf.XdfRecorder.start(tmp_path / "session.xdf", [eeg.source_id, markers.source_id],
                                 log_path=tmp_path / "xdf.log", ready=markers.has_consumers, timeout_s=60)
     assert rec.ready
+    _eeg_flowing_to_the_recorder(eeg)  # else, on a loaded machine, the EEG inlet may connect after the markers
     pushed = []
     for k in range(6):
         pushed.append((f"turn_{k}_start", markers.push("turn_start", k)))
@@ -72,7 +73,12 @@ def test_a_killed_recorder_leaves_a_file_readable_up_to_what_was_written(tmp_pat
                                 log_path=tmp_path / "xdf.log", ready=markers.has_consumers, timeout_s=60)
     assert rec.ready
     early = [markers.push("turn_start", k) for k in range(3)]
-    time.sleep(1.5)  # the engine writes in chunks
+    deadline = time.monotonic() + 60  # a hang limit: the engine writes in chunks, later on a loaded machine
+    written = 0
+    while time.monotonic() < deadline and written <= 256:  # until over a second of EEG is in the file
+        time.sleep(0.2)
+        written = _eeg_samples_in(tmp_path / "s.xdf")
+    assert written > 256, "the recorder wrote no second of EEG within 60 s"
     markers.push("late_marker")
     os.kill(rec.process.pid, signal.SIGKILL)
     rec.process.wait(5)
@@ -80,7 +86,27 @@ def test_a_killed_recorder_leaves_a_file_readable_up_to_what_was_written(tmp_pat
     names = [v[0] for v in streams["Markers"]["time_series"]]
     assert names[:3] == ["turn_0_start", "turn_1_start", "turn_2_start"]
     np.testing.assert_allclose(streams["Markers"]["time_stamps"][:3], early, atol=2e-3)
-    assert len(streams["Muse"]["time_stamps"]) > 256  # over a second of EEG made it
+    assert len(streams["Muse"]["time_stamps"]) >= written  # what was written before the kill is all there
+
+
+def _eeg_flowing_to_the_recorder(eeg) -> None:
+    """Wait (a hang limit, not a time claim) until the EEG outlet has the recorder as consumer and has pushed
+    a chunk since: every sample from then on reaches the file."""
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not eeg.has_consumers():
+        time.sleep(0.02)
+    assert eeg.has_consumers(), "the recorder did not connect to the EEG stream within 60 s"
+    start = eeg.samples_pushed
+    while time.monotonic() < deadline and eeg.samples_pushed < start + 2 * eeg.chunk:
+        time.sleep(0.02)
+
+
+def _eeg_samples_in(path) -> int:
+    """EEG samples pyxdf reads from a file still being written (0 while it cannot read it yet)."""
+    try:
+        return len(_streams(path).get("Muse", {}).get("time_stamps", []))
+    except Exception:  # noqa: BLE001 - a chunk half written: not yet
+        return 0
 
 
 def test_no_stream_or_no_engine_is_one_line(tmp_path, monkeypatch):
