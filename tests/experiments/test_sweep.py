@@ -77,7 +77,7 @@ def test_dask_cluster_gives_bit_identical_results_to_local_processes():
     sims, ids = [u.train for u in users], [u.cluster for u in users]
     grid_local = train_grid(sims, ids, grid_spec, progress=False)
     with distributed.LocalCluster(host="127.0.0.1", n_workers=1, threads_per_worker=1, processes=True,
-                                  dashboard_address=None) as cluster:
+                                  dashboard_address="127.0.0.1:0") as cluster:  # loopback, any free port
         address = cluster.scheduler_address.removeprefix("tcp://")
         remote = sweep.run(spec, users, backend=f"dask://{address}")
         grid_remote = train_grid(sims, ids, replace(grid_spec, backend=f"dask://{address}"), progress=False)
