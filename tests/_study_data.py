@@ -31,3 +31,13 @@ def write_protocol(folder: Path, text: str = PROTOCOL, name: str = "protocol.yam
     (folder / "base.yaml").write_text(BASE)
     (folder / name).write_text(text)
     return folder / name
+
+
+def study_with_one_participant(tmp_path: Path) -> Path:
+    """``study init`` of the protocol above under ``tmp_path/study`` and one ``study enrol``; the study folder."""
+    from nao_trainer.cli import main
+
+    root = tmp_path / "study"
+    assert main(["study", "init", str(write_protocol(tmp_path)), "--out", str(root)]) == 0
+    assert main(["study", "enrol", str(root), "--consent-date", "2026-11-02", "--consent-version", "v1"]) == 0
+    return root

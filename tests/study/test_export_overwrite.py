@@ -6,15 +6,13 @@ import json
 
 import pytest
 
-from _study_data import write_protocol
+from _study_data import study_with_one_participant
 from nao_trainer.cli import main
 
 
 @pytest.fixture
 def study(tmp_path, capsys):
-    root = tmp_path / "study"
-    assert main(["study", "init", str(write_protocol(tmp_path)), "--out", str(root)]) == 0
-    assert main(["study", "enrol", str(root), "--consent-date", "2026-11-02", "--consent-version", "v1"]) == 0
+    root = study_with_one_participant(tmp_path)
     capsys.readouterr()
     return root
 

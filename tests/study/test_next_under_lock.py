@@ -5,8 +5,7 @@ import io
 
 import pytest
 
-from _study_data import write_protocol
-from nao_trainer.cli import main
+from _study_data import study_with_one_participant
 from nao_trainer.errors import DataError
 from nao_trainer.session.wiring import RunOptions
 from nao_trainer.study import runner
@@ -14,9 +13,7 @@ from nao_trainer.study.registry import record_session
 
 
 def test_a_session_recorded_between_plan_and_lock_is_counted(tmp_path, capsys, monkeypatch):
-    root = tmp_path / "study"
-    assert main(["study", "init", str(write_protocol(tmp_path)), "--out", str(root)]) == 0
-    assert main(["study", "enrol", str(root), "--consent-date", "2026-11-02", "--consent-version", "v1"]) == 0
+    root = study_with_one_participant(tmp_path)
     capsys.readouterr()
     real_lock = runner.participant_lock
 
