@@ -24,7 +24,12 @@ from math import erf, sqrt
 
 import numpy as np
 
+from nao_trainer.core import objective
+
 LENGTHS = np.array([3.0, 5.0, 7.0, 9.0])
+#: The success rate a session's span is given at, unless the study keeps participants near its own
+#: target (``policy.objective: target:R``: then R, see ``span_rate``).
+SPAN_RATE = 0.75
 THETA = np.linspace(0.0, 14.0, 141)
 _MU = np.arange(3.0, 11.01, 0.25)
 _TAU = np.array([0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0])
@@ -179,3 +184,10 @@ def session_counts(sessions: np.ndarray, levels: np.ndarray, successes: np.ndarr
     for s, lv, ok in zip(sessions, levels, successes):
         out[index[s], 2 * (int(lv) - 1) + (0 if ok else 1)] += 1
     return out
+
+
+def span_rate(obj: "objective.Objective | str | None") -> float:
+    """The rate of a session's span: R of a ``target:R`` objective, else :data:`SPAN_RATE`."""
+    parsed = objective.parse(obj)
+    return float(parsed.rate) if parsed.kind == "target" else SPAN_RATE
+

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from nao_trainer.core.psychometric import PooledModel, level_counts, session_span
+from nao_trainer.core.psychometric import SPAN_RATE, PooledModel, level_counts, session_span
 from nao_trainer.data import own
 from nao_trainer.errors import DataError
 
@@ -31,10 +31,6 @@ if TYPE_CHECKING:
 STUDY_COLUMNS: tuple[str, ...] = ("session", "pseudonym", "study", "input", "date", "turns", "score", "success_L1",
                                   "success_L2", "success_L3", "success_L4", "engagement", "eeg_turns", "policy",
                                   "status", "duration_s", "span", "span_lo", "span_hi", "span_rate")
-#: The success rate of the ``span`` columns when session.json names none (as ``session.turn.SPAN_RATE``);
-#: a session of a ``target:R`` study gives its span at R (``span_rate`` column).
-SPAN_RATE = 0.75
-
 
 @dataclass
 class StudySession:

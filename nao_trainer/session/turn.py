@@ -7,21 +7,12 @@ from typing import Any
 
 import numpy as np
 
-from nao_trainer.core import mdp, objective, task
-from nao_trainer.core.psychometric import Span, level_counts, session_span
+from nao_trainer.core import mdp, task
+from nao_trainer.core.psychometric import SPAN_RATE, Span, level_counts, session_span
 from nao_trainer.errors import DataError
 from nao_trainer.learn.psychometric_prior import load_prior
 from nao_trainer.ports import Answer, PhaseEngagement
 
-#: The success rate a session's span is reported at (docs/session.md), unless the study's objective is
-#: ``target:R`` (then R: the length that keeps this participant at the study's own target).
-SPAN_RATE = 0.75
-
-
-def span_rate(objective_text: str | None) -> float:
-    """The rate of a session's span: R of a ``target:R`` objective, else :data:`SPAN_RATE`."""
-    obj = objective.parse(objective_text)
-    return float(obj.rate) if obj.kind == "target" else SPAN_RATE
 
 @dataclass
 class Turn:

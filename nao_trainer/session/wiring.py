@@ -18,6 +18,7 @@ from typing import Any, Iterator, TextIO
 import numpy as np
 
 from nao_trainer import __version__
+from nao_trainer.core.psychometric import SPAN_RATE, span_rate
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.answers.inputs import KeyboardAnswers, TactileAnswers
 from nao_trainer.answers.simulated import SimulatedParticipant, StandInButtons
@@ -39,7 +40,7 @@ from nao_trainer.session.record import SessionRecorder, ensure_output_dir, os_er
 from nao_trainer.session.resume import Resumption
 from nao_trainer.session.robot_setup import RobotSetup, connect_robot
 from nao_trainer.session.stage import leave_robot_safe
-from nao_trainer.session.turn import SPAN_RATE, SessionResult, span_rate, summary_data
+from nao_trainer.session.turn import SessionResult, summary_data
 
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
@@ -215,7 +216,7 @@ class _Outcome:
     summary: str = ""  # what the policy concluded
     session: Session | None = None
     monitor: Any = None  # the EEG monitor, for the stream's identity in session.json
-    span_rate: float = SPAN_RATE  # the study's target rate, else 75 % (session.turn.span_rate)
+    span_rate: float = SPAN_RATE  # the study's target rate, else 75 % (core.psychometric.span_rate)
 
     def result(self, recorder: SessionRecorder) -> SessionResult:
         session = self.session
