@@ -12,10 +12,11 @@ from pathlib import Path
 
 import pytest
 
+from nao_trainer.eeg.lsl_scope import PORT_RANGE  # imports neither pylsl nor qi: safe before LSLAPICFG is set
+
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("NAO_TRAINER_SHARED", ROOT.parent / "shared")).resolve()
 DATA = SHARED / "data" / "sequence-learning"
-PORT_RANGE = 128  # as nao_trainer.eeg.lsl_scope.PORT_RANGE (not imported: nothing of the package before this)
 
 
 def lsl_config(given: str | None) -> str:
