@@ -129,15 +129,16 @@ class Robot(Protocol):
 class RobotUpkeep(Protocol):
     """Keeps the robot as the task set it up (``robot.lifecycle.TaskLife``): Autonomous Life, motors."""
 
-    def between_turns(self) -> None:
-        """Check and restore between two turns; reports what it found, never raises."""
+    def between_turns(self) -> list[str]:
+        """Check and restore between two turns, and after a refused call; reports what it found and
+        returns what it set back (empty: nothing was changed, or it could not be set back); never raises."""
 
 
 class NullUpkeep:
     """No robot to keep (the laptop plays it, or a test's fake)."""
 
-    def between_turns(self) -> None:
-        return None
+    def between_turns(self) -> list[str]:
+        return []
 
 
 # ----------------------------------------------------------------------------------------------

@@ -132,30 +132,36 @@ class TaskLife:
         if self.entered:
             self._apply()
 
-    def between_turns(self) -> None:
+    def between_turns(self) -> list[str]:
         """Between two turns: the task's state back if something changed it (``ports.RobotUpkeep``).
 
         Autonomous Life can be switched on mid-session from the robot's web page or Choregraphe, and
         a double click of the chest button removes the stiffness (NAOqi 2.8 ``ALChestButton``: "At
         double click, the stiffness is removed"): with life on, a hand resting on the answer buttons
         would then put NAO to sleep; with the motors off, NAO does not gesture. Two cheap calls; each
-        change found is reported and undone. Never raises: a lost link is the next call's to notice."""
+        change found is reported and undone. Returns what was set back ("autonomous life", "motors
+        off"); the session also asks after a refused call, to tell a robot put to sleep (replay the
+        turn) from one that cannot do the task. Never raises: a lost link is the next call's to notice."""
+        fixed: list[str] = []
         if not self.entered:
-            return
+            return fixed
         try:
             if self.task_state != UNCHANGED and self.found is not None:
                 state = self.robot.call("ALAutonomousLife", "getState")
                 if (state == "disabled") != (self.task_state == "disabled"):  # life on moves between its
                     # own states (solitary, interactive, safeguard) by itself: only off versus on matters
                     self.report("autonomous_life_changed", found=state, task=self.task_state)
-                    self._do("set_autonomous_life",
-                             lambda: self.robot.call("ALAutonomousLife", "setState", self.task_state),
-                             state=self.task_state)
+                    if self._do("set_autonomous_life",
+                                lambda: self.robot.call("ALAutonomousLife", "setState", self.task_state),
+                                state=self.task_state):
+                        fixed.append(f"Autonomous Life {state}")
             if self.wake and not self.robot.call("ALMotion", "robotIsWakeUp"):
                 self.report("motors_found_off")
-                self._do("wake_up", lambda: self.robot.call("ALMotion", "wakeUp", timeout_s=60.0))
+                if self._do("wake_up", lambda: self.robot.call("ALMotion", "wakeUp", timeout_s=60.0)):
+                    fixed.append("motors off")
         except (RobotCallFailed, RobotUnavailable, RobotConnectionLost) as exc:
             log.debug("between turns: %s", exc)
+        return fixed
 
     def leave(self) -> None:
         """Rest the motors (unless the study says not to) and restore Autonomous Life; never raises."""

@@ -7,7 +7,9 @@ returns the next trigger. Interruptions are uniform:
 * a lost robot (``RobotConnectionLost``) -> ``paused``: the turn in flight is recorded as
   interrupted, the robot reconnected with exponential backoff and the turn replayed; after
   ``robot.max_reconnect_s`` the session ends (``aborted``, exit code 3);
-* a refused call the task needs (``RobotCallFailed``: speech, beep) ends it as a robot error (exit 3);
+* a refused call the task needs (``RobotCallFailed``: speech, beep) ends it as a robot error (exit 3),
+  unless the robot was put to sleep or its Autonomous Life changed mid-turn: then that is set back
+  (``ports.RobotUpkeep``) and the turn recorded as interrupted and replayed, once per turn;
 * Ctrl-C or SIGTERM -> ``aborted``: the robot is silenced, exit code 130;
 * operator commands (``session.operator``) act between states: pause, resume, stop (exit code 5);
   ``session.max_duration_s`` ends the session between turns (status "time limit", exit 0).
@@ -37,7 +39,7 @@ from nao_trainer.ports import (Command, Press, RobotCallFailed, RobotConnectionL
 from nao_trainer.session.checkpoint import Checkpointer, Standing
 from nao_trainer.session.config import StudyConfig
 from nao_trainer.session.machine import FINAL_STATES, IN_TURN, INTRO_STATES, STATES, TRANSITIONS, TURN_STATES
-from nao_trainer.session.operator import HOLD_STATES, OperatorDesk
+from nao_trainer.session.operator import HOLD_STATES, OperatorDesk, who_stopped
 from nao_trainer.session.parts import Randomness, Script, SessionPorts
 from nao_trainer.session.phases import PhaseClock
 from nao_trainer.session.reconnect import Reconnector
@@ -85,6 +87,7 @@ class Session:
         self.last_success: bool | None = None
         self.turn: Turn | None = None  # the turn in flight, or the last one played
         self.replay: Turn | None = None
+        self._turns_set_back: set[int] = set()  # turns replayed after a refused call (``_set_back``)
         self.total = 0
         self.completed = 0
         self.lost_in: str | None = None
@@ -141,6 +144,8 @@ class Session:
                 self.interrupted_by_operator(who_stopped(exc))
                 break
             except RobotCallFailed as exc:  # the robot refused a call the task needs (speech, beep)
+                if self._set_back(exc):
+                    continue
                 self._robot_failed(exc)
                 break
             self.trigger(trigger)
@@ -172,6 +177,22 @@ class Session:
             self._abandon_turn(self.turn, f"interrupted: {by}")
         if self.state not in FINAL_STATES:
             self.trigger("abort")
+
+    def _set_back(self, exc: RobotCallFailed) -> bool:
+        """A call refused mid-turn by a robot put to sleep (a hand held on its head with Autonomous Life
+        on) or changed by someone: set back, the turn recorded as interrupted and replayed; once per turn."""
+        turn = self.turn
+        if self.state not in IN_TURN or turn is None or turn.recorded or turn.number in self._turns_set_back:
+            return False
+        fixed = self.ports.upkeep.between_turns()
+        if not fixed:
+            return False
+        self._turns_set_back.add(turn.number)
+        self.rec.event("robot_call_failed", state=self.state, error=str(exc), fatal=False, set_back=fixed)
+        self._abandon_turn(turn, f"interrupted: robot refused a call ({'; '.join(fixed)}: set back)")
+        self.replay = turn
+        self.trigger("robot_recovered")
+        return True
 
     def _robot_failed(self, exc: RobotCallFailed) -> None:
         self.status = "robot error"
@@ -240,8 +261,7 @@ class Session:
         """The replayed turn after a loss, else the policy's choice in the current MDP state."""
         if self.replay is not None:
             turn, self.replay = self.replay, None
-            return Turn(turn.number, turn.previous_state, turn.action, turn.state, notes=["replay of interrupted turn"],
-                        replay=True, phase=turn.phase)
+            return turn.again()
         notes: list[str] = []
         action = self.desk.take_override(self.mdp_state)
         if action is not None:
@@ -250,14 +270,7 @@ class Session:
         else:
             action = int(self.policy.act(self.mdp_state, self.policy_rng))
         phase = "override" if notes else str(self.policy.status().get("phase", ""))
-        if not (0 <= action < mdp.N_ACTIONS and mdp.ACTION_MASK[self.mdp_state, action]):
-            raise ValueError(f"policy {self.policy.name} chose action {action!r}, "
-                             f"not allowed in state {mdp.state_label(self.mdp_state)}")
-        if self.mdp_state == mdp.START:
-            state = int(mdp.NEXT_STATE[mdp.START, action, 0])
-        else:
-            state = mdp.next_state(self.mdp_state, action, bool(self.last_success))
-        return Turn(self.completed + 1, self.mdp_state, action, state, notes=notes, phase=phase)
+        return Turn.chosen(self.completed + 1, self.mdp_state, action, self.last_success, self.policy.name, notes, phase)
 
     def _do_select_action(self) -> str:
         self.ports.upkeep.between_turns()  # Autonomous Life or the motors changed by someone: set back
@@ -340,17 +353,8 @@ class Session:
         self.observer.notify("row", {**row, "total": self.total, "elapsed_s": round(self.elapsed_s(), 2)})
         self.log.say(progress_line(row, self.n_turns, self.total))
         self.phases.note_signal(turn.number, turn.listening)
-        self._policy_status(turn.number)
+        self.log.policy_status(self.policy.status(), turn.number)
         return "finish_turns" if done else "next_turn"
-
-    def _policy_status(self, turn: int) -> None:
-        status = self.policy.status()  # e.g. the posterior over user models after this turn
-        if status:
-            shown = {k: v for k, v in status.items() if k not in ("progress", "summary", "phase")}
-            self.rec.event("policy_status", turn=turn, **shown)
-            self.observer.notify("policy", {"turn": turn, **shown})
-            if status.get("progress"):
-                self.log.say(status["progress"])
 
     def _standing(self) -> Standing:
         return Standing(self.completed, self.total, self.mdp_state, self.last_success)
@@ -443,9 +447,7 @@ class Session:
 
     def _end_for_time(self) -> str:
         self.status = "time limit"
-        self.log.because(f"session.max_duration_s = {self.max_duration_s:g} s reached")
-        self.rec.event("max_duration", elapsed_s=round(self.elapsed_s(), 2), max_duration_s=self.max_duration_s)
-        self.log.say(f"maximum session duration ({self.max_duration_s:g} s) reached: ending the session")
+        self.log.time_limit(self.max_duration_s, self.elapsed_s())
         return "time_up"
 
     def _do_operator_pause(self) -> str:
@@ -493,8 +495,3 @@ class Session:
     def leave_safe(self) -> None:
         """Safe posture and LEDs reset, whatever happened; failures are logged, never raised."""
         self.stage.leave_safe()
-
-
-def who_stopped(exc: BaseException) -> str:
-    """Who stopped the session, for the record."""
-    return f"{exc} received" if isinstance(exc, Interrupted) and str(exc) else "operator (Ctrl-C)"

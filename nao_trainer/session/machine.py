@@ -36,6 +36,8 @@ TRANSITIONS: list[dict[str, Any]] = [
     {"trigger": "finish_turns", "source": "record", "dest": "goodbye"},
     {"trigger": "end", "source": "goodbye", "dest": "done"},
     {"trigger": "robot_lost", "source": list(ACTIVE_STATES), "dest": "paused"},
+    # A call refused mid-turn because someone put NAO to sleep or changed Autonomous Life: set back, turn replayed.
+    {"trigger": "robot_recovered", "source": list(IN_TURN), "dest": "select_action"},
     {"trigger": "resume_intro", "source": ["paused", "operator_pause"], "dest": "instructions"},
     {"trigger": "resume_turn", "source": ["paused", "operator_pause"], "dest": "select_action"},
     {"trigger": "resume_goodbye", "source": "paused", "dest": "goodbye"},

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from nao_trainer.core import mdp
+from nao_trainer.errors import Interrupted
 from nao_trainer.ports import Command, CommandQueue, EngagementMonitor, SessionObserver
 from nao_trainer.session.machine import COMMAND_TRIGGERS, IN_TURN, INTRO_STATES
 from nao_trainer.session.record import SessionRecorder
@@ -146,3 +147,8 @@ class OperatorDesk:
                                              "reason": f"{mdp.ACTION_NAMES[action]} not allowed before the first turn"})
             return None
         return action
+
+
+def who_stopped(exc: BaseException) -> str:
+    """Who stopped the session, for the record."""
+    return f"{exc} received" if isinstance(exc, Interrupted) and str(exc) else "operator (Ctrl-C)"

@@ -57,3 +57,18 @@ class SessionLog:
         turn.recorded = True
         self.rows.append(row)
         return row
+
+    def policy_status(self, status: dict[str, Any], turn: int) -> None:
+        """What the policy says after a turn (e.g. its posterior over user models): events, console, progress."""
+        if status:
+            shown = {k: v for k, v in status.items() if k not in ("progress", "summary", "phase")}
+            self.rec.event("policy_status", turn=turn, **shown)
+            self.observer.notify("policy", {"turn": turn, **shown})
+            if status.get("progress"):
+                self.say(status["progress"])
+
+    def time_limit(self, max_duration_s: float, elapsed_s: float) -> None:
+        """``session.max_duration_s`` reached: why, the event, the operator's line."""
+        self.because(f"session.max_duration_s = {max_duration_s:g} s reached")
+        self.rec.event("max_duration", elapsed_s=round(elapsed_s, 2), max_duration_s=max_duration_s)
+        self.say(f"maximum session duration ({max_duration_s:g} s) reached: ending the session")

@@ -34,6 +34,23 @@ class Turn:
     replay: bool = False  # the second go of a turn interrupted by a robot loss (same number, state, action)
     phase: str = ""  # what the policy said the turn is for (e.g. "assessment"), empty when nothing
 
+    @classmethod
+    def chosen(cls, number: int, mdp_state: int, action: int, last_success: bool | None, by: str,
+               notes: list[str], phase: str) -> "Turn":
+        """The turn ``by`` (a policy) chose in ``mdp_state``; ValueError for an action the state does not allow."""
+        if not (0 <= action < mdp.N_ACTIONS and mdp.ACTION_MASK[mdp_state, action]):
+            raise ValueError(f"policy {by} chose action {action!r}, not allowed in state {mdp.state_label(mdp_state)}")
+        if mdp_state == mdp.START:
+            state = int(mdp.NEXT_STATE[mdp.START, action, 0])
+        else:
+            state = mdp.next_state(mdp_state, action, bool(last_success))
+        return cls(number, mdp_state, action, state, notes=notes, phase=phase)
+
+    def again(self) -> "Turn":
+        """The second go of an interrupted turn: same number, states, action and phase; a new sequence."""
+        return Turn(self.number, self.previous_state, self.action, self.state, notes=["replay of interrupted turn"],
+                    replay=True, phase=self.phase)
+
     @property
     def turn_state(self) -> mdp.State:
         return mdp.decode(self.state)

@@ -34,7 +34,8 @@ from nao_trainer.session.check import check_disk, check_eeg, check_robot, plan_f
 from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig, is_robot_address
 from nao_trainer.session.dialogue import Dialogue, load_dialogue
 from nao_trainer.session.participant import check_pseudonym, session_lock
-from nao_trainer.session.engine import EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session, who_stopped
+from nao_trainer.session.engine import EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session
+from nao_trainer.session.operator import who_stopped
 from nao_trainer.session.parts import Randomness, Script, SessionPorts
 from nao_trainer.session.record import SessionRecorder, ensure_output_dir, os_error_in, versions, write_failure
 from nao_trainer.session.resume import Resumption

@@ -215,6 +215,43 @@ def test_a_hand_held_3_s_on_the_head_mid_session_only_matters_with_life_left_on(
     assert rows[0]["success"] == "False"  # one press (B), then the timeout
 
 
+def test_put_to_sleep_mid_speech_the_robot_is_woken_and_the_turn_replayed(tmp_path):
+    """Life left on, a hand held 3 s on the head while NAO speaks turn 2 puts it to sleep, and it refuses
+    the next utterance or the beep. The session asks why (``TaskLife.between_turns``), finds the motors
+    off, wakes them, records turn 2 as interrupted and plays it again, instead of ending as a robot error.
+    The hold starts when turn 2's first utterance ends (armed in the stand-in); 2 s between letters leave
+    more than 3 s of turn 2 to speak after it, however loaded the machine."""
+    from nao_trainer.robot.standin import StandIn
+
+    study = tmp_path / "study.yaml"
+    study.write_text("robot: {autonomous_life: unchanged}\ntiming: {letter_gap_s: 2.0}\n", encoding="utf-8")
+    standin = StandIn.start(speed=10)
+    try:
+        standin.hold_after("ALAudioPlayer.playSine>speech", "B", 3.0)
+        res = subprocess.run(
+            [sys.executable, "-m", "nao_trainer", "run", "--config", str(study), "--robot", standin.url,
+             "--eeg", "off", "--out", str(tmp_path / "out"), "--speed", "10", "--policy", "schedule",
+             "--input", "tactile", "--seed", "2", "--turns", "2", "--no-practice", "--pseudonym", "P1"],
+            capture_output=True, text=True, env=dict(os.environ, QI_LOG_LEVEL="silent"), timeout=180)
+        transcript = standin.transcript()
+    finally:
+        standin.stop()
+    assert res.returncode == 0, res.stderr
+    assert [e["args"][1] for e in transcript if e["method"] == "held"] == ["asleep"]
+    (folder,) = (tmp_path / "out").glob("*_*")
+    rows = read_turns(folder)
+    assert [(r["turn"], r["replay"]) for r in rows] == [("1", ""), ("2", ""), ("2", "True")]
+    assert rows[1]["success"] == "" and "robot refused a call (motors off: set back)" in rows[1]["notes"]
+    assert rows[2]["success"] in ("True", "False")
+    events = read_events(folder)
+    (refused,) = [e for e in events if e["event"] == "robot_call_failed"]
+    assert refused["fatal"] is False and "NAO is asleep" in refused["error"] and refused["set_back"] == ["motors off"]
+    calls = [(e["service"], e["method"]) for e in transcript]
+    held = next(i for i, e in enumerate(transcript) if e["method"] == "held")
+    assert ("ALMotion", "wakeUp") in calls[held:]
+    assert json.loads((folder / "session.json").read_text())["status"] == "completed"
+
+
 def test_a_double_click_of_the_chest_button_mid_session_is_undone_before_the_next_turn(tmp_path):
     """NAOqi 2.8's ALChestButton: "At double click, the stiffness is removed". Done mid-session (armed in
     the stand-in at turn 1's beep), the session finds the motors off before turn 2, says so in

@@ -4,6 +4,7 @@ The same flows over real qi (the stand-in) are in test_session.py and test_sessi
 """
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +29,7 @@ class Sleeps(list):
 
 
 def make_session(tmp_path: Path, robot: FakeRobot, answers: ScriptedAnswers | None = None, turns: int = 3,
-                 speed: float = 1.0, practice: bool = False, schedule=("L1", "RF1", "L2"), **over):
+                 speed: float = 1.0, practice: bool = False, schedule=("L1", "RF1", "L2"), upkeep=None, **over):
     values = {"session.turns": turns, "timing.speed": speed, "session.practice": practice,
               "session.output": str(tmp_path), "session.seed": 5, "eeg.mode": "off"}
     values.update({k.replace("__", "."): v for k, v in over.items()})
@@ -36,7 +37,10 @@ def make_session(tmp_path: Path, robot: FakeRobot, answers: ScriptedAnswers | No
     rec = SessionRecorder(tmp_path, "F")
     path = rec.open({})
     sleeps = Sleeps()
-    session = Session(cfg, SessionPorts(robot, answers or ScriptedAnswers(), FixedSchedule(list(schedule))), rec,
+    ports = SessionPorts(robot, answers or ScriptedAnswers(), FixedSchedule(list(schedule)))
+    if upkeep is not None:
+        ports = dataclasses.replace(ports, upkeep=upkeep)
+    session = Session(cfg, ports, rec,
                       Script(load_dialogue(cfg.session.dialogue_path), load_behaviors(cfg.session.behaviors_path)),
                       Randomness(np.random.default_rng(1), np.random.default_rng(2)), progress=None, sleep=sleeps)
     return session, rec, path, sleeps
@@ -82,6 +86,55 @@ def test_a_refused_speech_call_ends_the_session_as_a_robot_error(tmp_path):
     assert "interrupted: robot error" in rows[1]["notes"]
     fatal = [e for e in read_events(path) if e["event"] == "robot_call_failed"]
     assert len(fatal) == 1 and fatal[0]["fatal"] is True
+
+
+class Upkeep:
+    """A ``ports.RobotUpkeep`` for a ``FakeRobot`` that goes to sleep when it refuses a call: asked after
+    a refusal it finds the motors off and wakes them, the first ``wakes`` times (then it cannot)."""
+
+    def __init__(self, robot: FakeRobot, wakes: int = 1) -> None:
+        self.robot, self.wakes, self.seen = robot, wakes, 0
+
+    def between_turns(self) -> list[str]:
+        refused = sum(f.at <= self.robot.count(f.method) for f in self.robot.faults)
+        asleep, self.seen = refused > self.seen, refused
+        if asleep and self.wakes > 0:
+            self.wakes -= 1
+            return ["motors off"]
+        return []
+
+
+def test_a_call_refused_by_a_robot_put_to_sleep_mid_turn_is_set_back_and_the_turn_replayed(tmp_path):
+    """A hand held on the head with Autonomous Life on puts NAO to sleep mid-turn and it refuses the beep:
+    the session asks its upkeep, which finds the motors off and wakes them, and turn 2 is played again."""
+    robot = FakeRobot()
+    robot.refuse_at("beep", at=2, message="NAO is asleep")
+    s, rec, path, _ = make_session(tmp_path, robot, turns=3, upkeep=Upkeep(robot))
+    assert finish(s, rec) == EXIT_OK and s.status == "completed" and s.completed == 3
+    rows = read_turns(path)
+    assert [(r["turn"], r["replay"]) for r in rows] == [("1", ""), ("2", ""), ("2", "True"), ("3", "")]
+    assert rows[1]["success"] == "" and "robot refused a call (motors off: set back)" in rows[1]["notes"]
+    assert rows[2]["action"] == rows[1]["action"] and rows[2]["success"] in ("True", "False")
+    failed = [e for e in read_events(path) if e["event"] == "robot_call_failed"]
+    assert len(failed) == 1 and failed[0]["fatal"] is False and failed[0]["set_back"] == ["motors off"]
+    assert robot.count("beep") == 4  # turns 1, 2 (refused), 2 again, 3
+    assert s.total == sum(int(r["score"]) for r in rows if r["score"])
+
+
+def test_a_refused_call_with_nothing_to_set_back_or_refused_again_ends_the_session(tmp_path):
+    """Upkeep cannot set anything back: a robot error as before. Set back, but the replay is refused as
+    well: a robot error too (one replay per turn, never a loop)."""
+    for wakes, beeps in ((0, 2), (5, 3)):
+        robot = FakeRobot()
+        robot.refuse_at("beep", at=2, message="busy")
+        robot.refuse_at("beep", at=3, message="busy")
+        s, rec, path, _ = make_session(tmp_path / str(wakes), robot, turns=3, upkeep=Upkeep(robot, wakes))
+        assert finish(s, rec) == EXIT_ROBOT_LOST and s.status == "robot error"
+        assert robot.count("beep") == beeps
+        rows = read_turns(path)
+        assert rows[0]["success"] in ("True", "False") and all(r["success"] == "" for r in rows[1:])
+        assert [e["fatal"] for e in read_events(path) if e["event"] == "robot_call_failed"] == (
+            [True] if wakes == 0 else [False, True])
 
 
 def test_a_refused_led_or_posture_call_is_logged_and_the_session_goes_on(tmp_path):

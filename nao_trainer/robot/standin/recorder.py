@@ -55,7 +55,13 @@ class Recorder:
                 print(f"{entry['t']:9.3f}  {service}.{method}({args_text})", file=self.echo, flush=True)
 
     def arm(self, call: str, action: Callable[[], None]) -> None:
-        """Run ``action`` once, when the next ``call`` ("Service.method") has finished."""
+        """Run ``action`` once, when the next ``call`` has finished: "ALAudioPlayer.playSine",
+        "ALTextToSpeech.say", "ALAnimatedSpeech.say" or "speech" (either say); "A>B" is the first B
+        after the next A (e.g. "ALAudioPlayer.playSine>speech": the first utterance after a beep)."""
+        first, _, then = call.partition(">")
+        if then:
+            self.arm(first, lambda: self.arm(then, action))
+            return
         with self._lock:
             self._armed.setdefault(call, []).append(action)
 

@@ -53,6 +53,8 @@ class TextToSpeech:
         self._rec.record("ALTextToSpeech", "say", list(args))
         self._body.check_awake("ALTextToSpeech::say")
         self._speech.run(SECONDS_PER_CHARACTER * len(args[0]))
+        self._rec.finished("ALTextToSpeech.say")
+        self._rec.finished("speech")
 
     @qi.bind(qi.Void, [qi.String])
     def setLanguage(self, language: str) -> None:
@@ -125,6 +127,8 @@ class AnimatedSpeech:
         self._rec.record("ALAnimatedSpeech", "say", list(args))
         self._body.check_awake("ALAnimatedSpeech::say")
         self._speech.run(SECONDS_PER_CHARACTER * len(_strip_annotations(args[0])))
+        self._rec.finished("ALAnimatedSpeech.say")
+        self._rec.finished("speech")
 
 
 def _strip_annotations(text: str) -> str:
