@@ -215,6 +215,7 @@ def test_a_hand_held_3_s_on_the_head_mid_session_only_matters_with_life_left_on(
     assert rows[0]["success"] == "False"  # one press (B), then the timeout
 
 
+@pytest.mark.slow
 def test_put_to_sleep_mid_speech_the_robot_is_woken_and_the_turn_replayed(tmp_path):
     """Life left on, a hand held 3 s on the head while NAO speaks turn 2 puts it to sleep, and it refuses
     the next utterance or the beep. The session asks why (``TaskLife.between_turns``), finds the motors
