@@ -6,6 +6,7 @@ import hashlib
 import os
 import re
 import shutil
+import signal
 import subprocess
 import tempfile
 from pathlib import Path
@@ -48,6 +49,12 @@ def lsl_config(given: str | None) -> str:
 # Before anything imports pylsl or qi: keep LSL discovery on this machine and qi's logs silent.
 os.environ["LSLAPICFG"] = lsl_config(os.environ.get("LSLAPICFG"))
 os.environ.setdefault("QI_LOG_LEVEL", "silent")
+
+# A suite started in the background by a non-interactive shell (`make test &` in a script) inherits SIGINT
+# ignored, and so would every process it starts: the tests that press Ctrl-C on a command (train, run, the
+# stand-in) would wait for an exit that never comes. A handler here is reset to the default in each child.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def _extract(archive: str, tmp_path_factory, name: str) -> Path:

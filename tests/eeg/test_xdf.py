@@ -42,7 +42,7 @@ def test_recording_holds_every_marker_and_the_eeg_with_lsl_times(tmp_path, outle
     rec = xdf.XdfRecorder.start(tmp_path / "session.xdf", [eeg.source_id, markers.source_id],
                                 log_path=tmp_path / "xdf.log", ready=markers.has_consumers, timeout_s=60)
     assert rec.ready
-    _eeg_flowing_to_the_recorder(eeg)  # else, on a loaded machine, the EEG inlet may connect after the markers
+    flowing_from = _eeg_flowing_to_the_recorder(eeg)  # else, on a loaded machine, the inlet may connect late
     pushed = []
     for k in range(6):
         pushed.append((f"turn_{k}_start", markers.push("turn_start", k)))
@@ -58,7 +58,9 @@ def test_recording_holds_every_marker_and_the_eeg_with_lsl_times(tmp_path, outle
     assert int(m["info"]["channel_count"][0]) == 1
     assert e["info"]["source_id"][0] == eeg.source_id and m["info"]["source_id"][0] == markers.source_id
     footer = int(e["footer"]["info"]["sample_count"][0])
-    assert footer == len(e["time_stamps"]) and 0.5 * n_before < footer <= eeg.samples_pushed
+    # every sample pushed once the recorder's inlet was flowing is in the file (those before may not be:
+    # the outlet started before the recorder, how long before depends on the machine's load)
+    assert footer == len(e["time_stamps"]) and n_before - flowing_from <= footer <= eeg.samples_pushed
     assert np.all(np.diff(e["time_stamps"]) > 0)
     assert e["time_stamps"][0] <= pushed[0][1] and e["time_stamps"][-1] >= pushed[-1][1]
     assert len(e["clock_times"]) > 0  # clock offsets were measured and stored
@@ -89,9 +91,9 @@ def test_a_killed_recorder_leaves_a_file_readable_up_to_what_was_written(tmp_pat
     assert len(streams["Muse"]["time_stamps"]) >= written  # what was written before the kill is all there
 
 
-def _eeg_flowing_to_the_recorder(eeg) -> None:
+def _eeg_flowing_to_the_recorder(eeg) -> int:
     """Wait (a hang limit, not a time claim) until the EEG outlet has the recorder as consumer and has pushed
-    a chunk since: every sample from then on reaches the file."""
+    two chunks since; returns the samples pushed by then: every sample from then on reaches the file."""
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and not eeg.has_consumers():
         time.sleep(0.02)
@@ -99,6 +101,7 @@ def _eeg_flowing_to_the_recorder(eeg) -> None:
     start = eeg.samples_pushed
     while time.monotonic() < deadline and eeg.samples_pushed < start + 2 * eeg.chunk:
         time.sleep(0.02)
+    return eeg.samples_pushed
 
 
 def _eeg_samples_in(path) -> int:
