@@ -14,7 +14,8 @@ mixture of per-level user models, exactly what ``core.bayes`` plans over:
                   of psychophysics: Wichmann & Hill 2001, "The psychometric function: I", Percept.
                   Psychophys. 63:1293);
 ``probit-slope``  a per-participant slope: theta ~ N(mu, tau^2) and log sigma_i ~ N(m, s^2)
-                  independently (a 2-D grid of components; reduces to ``probit`` as s -> 0);
+                  independently (a 2-D grid of components, 141 spans x 25 slopes; as s -> 0
+                  it becomes ``probit`` with sigma on the slope grid);
 ``log-length``    the probit on log length, (1 - lapse) Phi((log theta - log x) / sigma),
                   log theta ~ N(mu, tau^2): psychometric functions of a stimulus magnitude are
                   usually fitted on its logarithm (Kingdom & Prins 2016, "Psychophysics: a practical
