@@ -67,7 +67,8 @@ LOG_SIGMA = np.linspace(np.log(0.2), np.log(8.0), 25)
 CLIP = 1e-3
 MAX_COMPONENTS = 300
 RESULTS = Path(__file__).resolve().parent
-FOLDERS = {"own rates": RESULTS / "ceiling-own-rates-target-0.75", "data prior": RESULTS / "ceiling-data-prior-target-0.75"}
+FOLDERS = {"own rates": RESULTS / "ceiling-own-rates-target-0.75",
+           "data prior": RESULTS / "ceiling-data-prior-target-0.75"}
 
 
 def _normal_weights(grid: np.ndarray, mu: float, tau: float) -> np.ndarray:
@@ -296,7 +297,9 @@ def main() -> None:
         d = ll[name] - ll["probit-grid"]
         row = {"variant": name, "params": params, "log_marginal": lm, "aic": 2 * k - 2 * lm,
                "ll": float(ll[name].mean()), "ll_ci": _ci(ll[name]), "d": float(d.mean()),
-               "d_ci": _ci(d) if np.any(d != 0) else [0.0, 0.0], **target_values(*prune(p, lw)[:2], name), "kept_mass": prune(p, lw)[2]}
+               "d_ci": _ci(d) if np.any(d != 0) else [0.0, 0.0]}
+        pp, pw, kept = prune(p, lw)
+        row.update(target_values(pp, pw, name), kept_mass=kept)
         table.append(row)
         print(json.dumps(row), flush=True)
     print(f"\n{len(names)} sessions; held-out next-turn log-likelihood per turn (leave one session out) [95 % CI]; "
