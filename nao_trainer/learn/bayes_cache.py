@@ -1,7 +1,7 @@
 """Solved Bayes-adaptive plans cached on disk, keyed by prior, objective, horizon and commit turns.
 
 ``core.bayes.solve`` takes a few seconds for a 25-turn session with four levels; the table it
-produces (one byte per decision state, 10.5 MB for 25 turns) is stored compressed (about 0.2 MB:
+produces (one byte per decision state, 10.5 MB for 25 turns) is stored compressed (0.2-1.1 MB:
 most states share their neighbours' action) as ``$XDG_CACHE_HOME/nao-trainer/bayes/<fingerprint>.npz``
 (or in the folder given), written atomically. A file whose stored fingerprint, shape or inputs do
 not match is ignored and replaced (a cache that cannot be read or written only costs time, with a
