@@ -8,8 +8,8 @@ returns the next trigger. Interruptions are uniform:
   interrupted, the robot reconnected with exponential backoff and the turn replayed; after
   ``robot.max_reconnect_s`` the session ends (``aborted``, exit code 3);
 * a refused call the task needs (``RobotCallFailed``: speech, beep) ends it as a robot error (exit 3),
-  unless the robot was put to sleep or its Autonomous Life changed mid-turn: then that is set back
-  (``ports.RobotUpkeep``) and the turn recorded as interrupted and replayed, once per turn;
+  unless the robot was put to sleep or its Autonomous Life changed: then that is set back
+  (``ports.RobotUpkeep``), and the turn in flight replayed or the intro state played again, once each;
 * Ctrl-C or SIGTERM -> ``aborted``: the robot is silenced, exit code 130;
 * operator commands (``session.operator``) act between states: pause, resume, stop (exit code 5);
   ``session.max_duration_s`` ends the session between turns (status "time limit", exit 0).
@@ -69,6 +69,7 @@ class Session:
         self.cfg = config
         self.ports = ports
         self.robot, self.answers, self.policy, self.monitor = ports.robot, ports.answers, ports.policy, ports.monitor
+        self.observer: SessionObserver = ports.observer
         self.rec = recorder
         self.behaviors = script.behaviors
         self.rng = random.session
@@ -87,7 +88,7 @@ class Session:
         self.last_success: bool | None = None
         self.turn: Turn | None = None  # the turn in flight, or the last one played
         self.replay: Turn | None = None
-        self._turns_set_back: set[int] = set()  # turns replayed after a refused call (``_set_back``)
+        self._set_back_in: set[str] = set()  # turns and intro states played again after a refused call
         self.total = 0
         self.completed = 0
         self.lost_in: str | None = None
@@ -107,10 +108,6 @@ class Session:
     def rows(self) -> list[dict[str, Any]]:
         """The rows this run wrote (those before a resumption included)."""
         return self.log.rows
-
-    @property
-    def observer(self) -> SessionObserver:
-        return self.ports.observer
 
     def _turn_number(self) -> int | None:
         return self.turn.number if self.turn else None
@@ -179,19 +176,25 @@ class Session:
             self.trigger("abort")
 
     def _set_back(self, exc: RobotCallFailed) -> bool:
-        """A call refused mid-turn by a robot put to sleep (a hand held on its head with Autonomous Life
-        on) or changed by someone: set back, the turn recorded as interrupted and replayed; once per turn."""
-        turn = self.turn
-        if self.state not in IN_TURN or turn is None or turn.recorded or turn.number in self._turns_set_back:
+        """A call refused by a robot put to sleep (a hand held 3 s on its head, life on) or changed by someone:
+        set back; the turn in flight is recorded as interrupted and replayed, an intro state played again.
+        Once per turn and per intro state."""
+        turn = self.turn if self.state in IN_TURN and self.turn is not None and not self.turn.recorded else None
+        where = f"turn {turn.number}" if turn is not None else self.state
+        if (turn is None and self.state not in INTRO_STATES) or where in self._set_back_in:
             return False
         fixed = self.ports.upkeep.between_turns()
         if not fixed:
             return False
-        self._turns_set_back.add(turn.number)
+        self._set_back_in.add(where)
         self.rec.event("robot_call_failed", state=self.state, error=str(exc), fatal=False, set_back=fixed)
-        self._abandon_turn(turn, f"interrupted: robot refused a call ({'; '.join(fixed)}: set back)")
-        self.replay = turn
-        self.trigger("robot_recovered")
+        why = f"robot refused a call ({'; '.join(fixed)}: set back)"
+        if turn is not None:
+            self._abandon_turn(turn, f"interrupted: {why}")
+            self.replay = turn
+            self.trigger("robot_recovered")
+        else:  # the loop plays the same state again
+            self.log.say(f"{self.state}: {why}; again")
         return True
 
     def _robot_failed(self, exc: RobotCallFailed) -> None:

@@ -121,6 +121,21 @@ def test_a_call_refused_by_a_robot_put_to_sleep_mid_turn_is_set_back_and_the_tur
     assert s.total == sum(int(r["score"]) for r in rows if r["score"])
 
 
+def test_a_call_refused_by_a_robot_put_to_sleep_during_the_instructions_plays_them_again(tmp_path):
+    """Asleep during the instructions (before any turn): set back, the instructions said again, the
+    session plays every turn; no row is interrupted."""
+    robot = FakeRobot()
+    robot.refuse_at("say", at=2, message="NAO is asleep")  # 1: the greeting, 2: the instructions
+    s, rec, path, _ = make_session(tmp_path, robot, turns=2, upkeep=Upkeep(robot))
+    assert finish(s, rec) == EXIT_OK and s.completed == 2
+    said = [e for e in read_events(path) if e["event"] == "say"]  # what the robot said (not the refused call)
+    assert [e["what"] for e in said[:3]] == ["greeting", "instructions", "level"]
+    assert robot.count("say") == len(said) + 1 and robot.said()[2] == said[1]["text"]  # refused, then said
+    assert [r["success"] in ("True", "False") for r in read_turns(path)] == [True, True]
+    (failed,) = [e for e in read_events(path) if e["event"] == "robot_call_failed"]
+    assert failed["fatal"] is False and failed["state"] == "instructions"
+
+
 def test_a_refused_call_with_nothing_to_set_back_or_refused_again_ends_the_session(tmp_path):
     """Upkeep cannot set anything back: a robot error as before. Set back, but the replay is refused as
     well: a robot error too (one replay per turn, never a loop)."""
