@@ -128,7 +128,9 @@ class TactileAnswers:
         return None  # a person's answer is not known in advance
 
     def abandon(self) -> None:
-        pass  # presses outside an open window are discarded anyway
+        """The turn was interrupted after its beep: close its window, so presses until the next beep are
+        discarded (the replay's speech must not collect them)."""
+        self.window.close()
 
     def watch(self, callback: Callable[[Press], None]) -> None:
         self.window.listener = callback
@@ -244,7 +246,10 @@ class KeyboardAnswers:
         return None  # a person's answer is not known in advance
 
     def abandon(self) -> None:
-        pass  # keys typed outside an open window are discarded anyway
+        """The turn was interrupted after its beep: stop reading and close its window (the next
+        ``open_window`` starts a new reader; keys typed meanwhile are discarded then)."""
+        self._stop_reader()
+        self.window.close()
 
     def watch(self, callback: Callable[[Press], None]) -> None:
         self.window.listener = callback

@@ -17,13 +17,14 @@ from __future__ import annotations
 import os
 import sys
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 from nao_trainer.core import bayes
 
-#: The cache folder's size bound (bytes): about a thousand compressed 25-turn tables.
+#: The cache folder's size bound (bytes): 240 to 1,200 compressed 25-turn tables (0.2-1.1 MB each).
 MAX_BYTES = 256 * 2**20
 
 
@@ -39,7 +40,7 @@ def _load(path: Path, key: str, p: np.ndarray, w: np.ndarray, coef: np.ndarray, 
                 return None
             action = f["action"]
             value = float(f["value"])
-    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as exc:  # e.g. torn by a full disk
+    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:  # e.g. torn, disk full
         print(f"nao-trainer: warning: ignoring unreadable plan cache {path}: {exc}", file=sys.stderr)
         return None
     if action.shape != (int(bayes.layer_sizes(horizon, p.shape[1])[:-1].sum()),) or action.dtype != np.int8:
@@ -85,9 +86,13 @@ def _touch(path: Path) -> None:
 
 def prune(folder: Path, max_bytes: int, keep: Path | None = None) -> list[Path]:
     """Remove the least recently used tables (``*.npz``) of ``folder`` until it holds at most
-    ``max_bytes``; ``keep`` (the table just written) stays. Returns the files removed."""
+    ``max_bytes``; ``keep`` (the table just written) and tables being written (``.*``) stay. Two
+    processes pruning at once may remove more than needed: a cache, solved again when needed.
+    Returns the files removed."""
     entries = []
     for f in Path(folder).glob("*.npz"):
+        if f.name.startswith("."):  # another process's table being written
+            continue
         try:
             st = f.stat()
         except OSError:  # removed meanwhile by another process

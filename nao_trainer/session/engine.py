@@ -9,7 +9,7 @@ returns the next trigger. Interruptions are uniform:
   ``robot.max_reconnect_s`` the session ends (``aborted``, exit code 3);
 * a refused call the task needs (``RobotCallFailed``: speech, beep) ends it as a robot error (exit 3),
   unless the robot was put to sleep or its Autonomous Life changed: then that is set back
-  (``ports.RobotUpkeep``), and the turn in flight replayed or the intro state played again, once each;
+  (``ports.RobotUpkeep``), and the turn in flight replayed or the intro or goodbye played again, once each;
 * Ctrl-C or SIGTERM -> ``aborted``: the robot is silenced, exit code 130;
 * operator commands (``session.operator``) act between states: pause, resume, stop (exit code 5);
   ``session.max_duration_s`` ends the session between turns (status "time limit", exit 0).
@@ -38,7 +38,8 @@ from nao_trainer.ports import (Command, Press, RobotCallFailed, RobotConnectionL
                                TurnContext)
 from nao_trainer.session.checkpoint import Checkpointer, Standing
 from nao_trainer.session.config import StudyConfig
-from nao_trainer.session.machine import FINAL_STATES, IN_TURN, INTRO_STATES, STATES, TRANSITIONS, TURN_STATES
+from nao_trainer.session.machine import (AGAIN_STATES, FINAL_STATES, IN_TURN, INTRO_STATES, REPLAYABLE, STATES,
+                                        TRANSITIONS, TURN_STATES)
 from nao_trainer.session.operator import HOLD_STATES, OperatorDesk, who_stopped
 from nao_trainer.session.parts import Randomness, Script, SessionPorts
 from nao_trainer.session.phases import PhaseClock
@@ -78,6 +79,7 @@ class Session:
         self.stage = Stage(ports.robot, script.dialogue, script.behaviors, random.session, recorder, self.clock,
                            config.timing, config.robot.posture_speed)
         self.log = SessionLog(recorder, ports.observer, progress, self.clock)
+        self.rows: list[dict[str, Any]] = self.log.rows  # the rows this run wrote (and those before a resumption)
         self.phases = PhaseClock(ports.monitor, self.stage, ports.answers, ports.robot, self.clock, config.timing,
                                  recorder, self.log, config.eeg.missing_alert_turns)
         self.desk = OperatorDesk(ports.commands, self.log, recorder, ports.monitor, ports.observer)
@@ -103,11 +105,6 @@ class Session:
         self.machine = Machine(model=self, states=STATES, transitions=TRANSITIONS, initial="greet",
                                auto_transitions=False, send_event=True, after_state_change="_log_transition")
         self.answers.watch(self._on_press)
-
-    @property
-    def rows(self) -> list[dict[str, Any]]:
-        """The rows this run wrote (those before a resumption included)."""
-        return self.log.rows
 
     def _turn_number(self) -> int | None:
         return self.turn.number if self.turn else None
@@ -170,18 +167,15 @@ class Session:
         self.status = "interrupted"
         self.rec.event("interrupted", state=self.state, by=by)
         self.stage.silence()  # the robot may be mid-sentence: before the safe posture
-        if self.turn is not None and not self.turn.recorded:
-            self._abandon_turn(self.turn, f"interrupted: {by}")
-        if self.state not in FINAL_STATES:
-            self.trigger("abort")
+        self._abort(f"interrupted: {by}")
 
     def _set_back(self, exc: RobotCallFailed) -> bool:
-        """A call refused by a robot put to sleep (a hand held 3 s on its head, life on) or changed by someone:
-        set back; the turn in flight is recorded as interrupted and replayed, an intro state played again.
-        Once per turn and per intro state."""
-        turn = self.turn if self.state in IN_TURN and self.turn is not None and not self.turn.recorded else None
+        """A call refused by a NAO put to sleep (a hand held 3 s on its head, life on) or changed: set back, the
+        turn replayed or an intro state (not a resumed greeting) or the goodbye played again; once each."""
+        turn = self.turn if self.state in REPLAYABLE and self.turn is not None and not self.turn.recorded else None
         where = f"turn {turn.number}" if turn is not None else self.state
-        if (turn is None and self.state not in INTRO_STATES) or where in self._set_back_in:
+        resumed_greeting = self.state == "greet" and self.completed > 0  # a resumption's "resumed" line
+        if where in self._set_back_in or (turn is None and (self.state not in AGAIN_STATES or resumed_greeting)):
             return False
         fixed = self.ports.upkeep.between_turns()
         if not fixed:
@@ -194,6 +188,7 @@ class Session:
             self.replay = turn
             self.trigger("robot_recovered")
         else:  # the loop plays the same state again
+            self.answers.abandon()  # the practice's window, if its beep was refused
             self.log.say(f"{self.state}: {why}; again")
         return True
 
@@ -201,8 +196,12 @@ class Session:
         self.status = "robot error"
         self.error = str(exc)
         self.rec.event("robot_call_failed", state=self.state, error=str(exc), fatal=True)
+        self._abort(f"interrupted: robot error ({exc})")
+
+    def _abort(self, why: str) -> None:
+        """The turn in flight recorded as interrupted (``why``), then ``aborted``."""
         if self.turn is not None and not self.turn.recorded:
-            self._abandon_turn(self.turn, f"interrupted: robot error ({exc})")
+            self._abandon_turn(self.turn, why)
         if self.state not in FINAL_STATES:
             self.trigger("abort")
 
@@ -457,16 +456,14 @@ class Session:
         """Paused by the operator: say so, keep the EEG recording, wait for resume or stop."""
         self.phases.end(self._turn_number())
         self.monitor.mark("pause_start", self._turn_number())
-        self.observer.notify("pause", {"paused": True, "in": self.desk.paused_in})
-        self.log.say("paused by the operator: resume with r (or the console), stop with s")
+        self.log.paused(self.desk.paused_in)
         self.stage.say("paused")
         while True:
             trigger = self._apply_pending()
             if trigger is not None:
                 if trigger != "operator_stop":
                     self.monitor.mark("pause_end", self._turn_number())
-                    self.observer.notify("pause", {"paused": False})
-                    self.log.say("resumed by the operator")
+                    self.log.resumed()
                     self.stage.say("resumed", behavior="greeting")
                 return trigger
             if self._time_up():

@@ -15,6 +15,10 @@ INTRO_STATES = ("greet", "instructions", "practice")
 ACTIVE_STATES = INTRO_STATES + TURN_STATES + ("goodbye",)
 #: A turn is in flight in these states (it has been chosen and not yet recorded).
 IN_TURN = TURN_STATES[1:]
+#: A turn in flight can be played again from these (not once its answer is judged: it is recorded first).
+REPLAYABLE = IN_TURN[:5]
+#: Played again after a call refused by a robot that was then set back (``engine.Session._set_back``).
+AGAIN_STATES = (*INTRO_STATES, "goodbye")
 #: ``paused``: the robot was lost; ``operator_pause``: the operator paused (robot idle, EEG recording).
 STATES: list[str] = [*ACTIVE_STATES, "paused", "operator_pause", "aborted", "done"]
 #: Where pause, stop and repeat act. Not in score/record: an answer already given is recorded first
@@ -36,8 +40,8 @@ TRANSITIONS: list[dict[str, Any]] = [
     {"trigger": "finish_turns", "source": "record", "dest": "goodbye"},
     {"trigger": "end", "source": "goodbye", "dest": "done"},
     {"trigger": "robot_lost", "source": list(ACTIVE_STATES), "dest": "paused"},
-    # A call refused mid-turn because someone put NAO to sleep or changed Autonomous Life: set back, turn replayed.
-    {"trigger": "robot_recovered", "source": list(IN_TURN), "dest": "select_action"},
+    # A call refused mid-turn by a NAO put to sleep or whose Autonomous Life changed: set back, turn replayed.
+    {"trigger": "robot_recovered", "source": list(REPLAYABLE), "dest": "select_action"},
     {"trigger": "resume_intro", "source": ["paused", "operator_pause"], "dest": "instructions"},
     {"trigger": "resume_turn", "source": ["paused", "operator_pause"], "dest": "select_action"},
     {"trigger": "resume_goodbye", "source": "paused", "dest": "goodbye"},
@@ -47,7 +51,7 @@ TRANSITIONS: list[dict[str, Any]] = [
     {"trigger": "pause", "source": list(INTERRUPTIBLE), "dest": "operator_pause"},
     {"trigger": "operator_stop", "source": [*INTERRUPTIBLE, "operator_pause"], "dest": "goodbye"},
     {"trigger": "time_up", "source": ["select_action", "operator_pause"], "dest": "goodbye"},
-    {"trigger": "repeat_turn", "source": list(IN_TURN[:5]), "dest": "select_action"},
+    {"trigger": "repeat_turn", "source": list(REPLAYABLE), "dest": "select_action"},
     {"trigger": "repeat_last", "source": "select_action", "dest": None},
     {"trigger": "override_next", "source": [*_PLAYING, "operator_pause"], "dest": None},
     {"trigger": "mark_invalid", "source": list(IN_TURN), "dest": None},

@@ -72,3 +72,13 @@ class SessionLog:
         self.because(f"session.max_duration_s = {max_duration_s:g} s reached")
         self.rec.event("max_duration", elapsed_s=round(elapsed_s, 2), max_duration_s=max_duration_s)
         self.say(f"maximum session duration ({max_duration_s:g} s) reached: ending the session")
+
+    def paused(self, paused_in: str | None) -> None:
+        """The operator paused the session (in state ``paused_in``): the console and the terminal."""
+        self.observer.notify("pause", {"paused": True, "in": paused_in})
+        self.say("paused by the operator: resume with r (or the console), stop with s")
+
+    def resumed(self) -> None:
+        """The operator resumed the session."""
+        self.observer.notify("pause", {"paused": False})
+        self.say("resumed by the operator")

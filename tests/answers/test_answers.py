@@ -64,6 +64,28 @@ def test_keyboard_discards_keys_before_the_beep_and_records_invalid_ones():
         os.close(wfd)
 
 
+def test_an_abandoned_window_collects_nothing_more_and_the_keyboard_reader_stops():
+    """A turn interrupted after its beep (robot lost, a refused call): its window closes, presses until the
+    next beep are discarded, and the keyboard's reader thread ends (it would read stdin forever)."""
+    r, wfd = os.pipe()
+    kb = KeyboardAnswers(fd=r, grace_s=0.0)
+    try:
+        kb.open_window()
+        reader = kb._reader
+        kb.abandon()
+        assert reader is not None and not reader.is_alive() and kb._reader is None
+        assert not kb.window.add("a", "A")  # a key pressed during the replay's speech
+        os.write(wfd, b"c")
+        kb.open_window()  # the replay's beep: what was typed before it is drained
+        os.write(wfd, b"ab")
+        ans = kb.collect(2, timeout_s=5.0)
+        assert ans.response == ("A", "B")
+    finally:
+        kb.close()
+        os.close(r)
+        os.close(wfd)
+
+
 def test_keyboard_survives_end_of_input():
     r, wfd = os.pipe()
     kb = KeyboardAnswers(fd=r, grace_s=0.0)

@@ -220,12 +220,12 @@ def test_put_to_sleep_mid_speech_the_robot_is_woken_and_the_turn_replayed(tmp_pa
     """Life left on, a hand held 3 s on the head while NAO speaks turn 2 puts it to sleep, and it refuses
     the next utterance or the beep. The session asks why (``TaskLife.between_turns``), finds the motors
     off, wakes them, records turn 2 as interrupted and plays it again, instead of ending as a robot error.
-    The hold starts when turn 2's first utterance ends (armed in the stand-in); 2 s between letters leave
-    more than 3 s of turn 2 to speak after it, however loaded the machine."""
+    The hold starts when turn 2's first utterance ends (armed in the stand-in); 4 s between letters leave
+    at least 8 s of turn 2 to speak after it (robot time; 0.8 s of wall time at x10), against the 3 s hold."""
     from nao_trainer.robot.standin import StandIn
 
     study = tmp_path / "study.yaml"
-    study.write_text("robot: {autonomous_life: unchanged}\ntiming: {letter_gap_s: 2.0}\n", encoding="utf-8")
+    study.write_text("robot: {autonomous_life: unchanged}\ntiming: {letter_gap_s: 4.0}\n", encoding="utf-8")
     standin = StandIn.start(speed=10)
     try:
         standin.hold_after("ALAudioPlayer.playSine>speech", "B", 3.0)

@@ -136,6 +136,28 @@ def test_a_call_refused_by_a_robot_put_to_sleep_during_the_instructions_plays_th
     assert failed["fatal"] is False and failed["state"] == "instructions"
 
 
+def test_a_refused_practice_beep_or_goodbye_is_played_again_once_set_back(tmp_path):
+    """The practice's beep refused (its answer window already open): the window is abandoned and the practice
+    played again. The goodbye refused after every turn is on disk: said again, the session ends completed."""
+    robot, answers = FakeRobot(), ScriptedAnswers()
+    robot.refuse_at("beep", at=1, message="NAO is asleep")  # the practice's beep
+    s, rec, path, _ = make_session(tmp_path / "practice", robot, answers, turns=1, practice=True,
+                                   upkeep=Upkeep(robot))
+    assert finish(s, rec) == EXIT_OK and s.completed == 1
+    assert answers.abandoned == 1 and robot.count("beep") == 3  # refused, the practice again, turn 1
+    assert [e["event"] for e in read_events(path)].count("practice") == 1
+    counter = FakeRobot()  # how many utterances a 1-turn session has: the last one is the goodbye
+    plain, rec0, _, _ = make_session(tmp_path / "plain", counter, turns=1)
+    assert finish(plain, rec0) == EXIT_OK
+    robot = FakeRobot()
+    robot.refuse_at("say", at=counter.count("say"), message="NAO is asleep")
+    s, rec, path, _ = make_session(tmp_path / "goodbye", robot, turns=1, upkeep=Upkeep(robot))
+    assert finish(s, rec) == EXIT_OK and s.status == "completed"
+    assert robot.count("say") == counter.count("say") + 1  # the goodbye refused, then said
+    (failed,) = [e for e in read_events(path) if e["event"] == "robot_call_failed"]
+    assert failed["state"] == "goodbye" and failed["fatal"] is False
+
+
 def test_a_refused_call_with_nothing_to_set_back_or_refused_again_ends_the_session(tmp_path):
     """Upkeep cannot set anything back: a robot error as before. Set back, but the replay is refused as
     well: a robot error too (one replay per turn, never a loop)."""
