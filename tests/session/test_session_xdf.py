@@ -147,10 +147,12 @@ def test_a_killed_session_leaves_a_complete_readable_xdf(tmp_path):
     while time.monotonic() < deadline and _recorder_alive(folder):
         time.sleep(0.2)
     assert not _recorder_alive(folder), "the XDF recorder outlived its session"
-    text = log.read_text()
-    assert ("xdf: stopped" in text and "Wrote footer for stream Markers" in text) or "xdf: stopped" not in text
+    stopped = "xdf: stopped" in log.read_text()
     assert json.loads((folder / "session.json").read_text())["status"] == "running"  # killed: never closed
     s = _load(folder / "session.xdf")
+    # Stopped in time, the recorder wrote the footers (read from the file: the engine's per-stream threads
+    # write their "Wrote footer" log lines unlocked, and two of them once came out interleaved).
+    assert not stopped or int(s["Markers"]["footer"]["info"]["sample_count"][0]) == len(s["Markers"]["time_series"])
     names = [v[0] for v in s["Markers"]["time_series"]]
     # Markers still in flight when the session's process died die with its outlet (LSL sends them
     # asynchronously): every marker the monitor stamped up to half a second before the kill is in the file,
