@@ -68,8 +68,9 @@ class SimulatedParticipant:
     qi call, a busy core) never pulls the next one under the debounce interval.
     """
 
-    #: Longest wait for a press to arrive before the next one goes anyway (real seconds).
-    ARRIVAL_TIMEOUT_S = 0.5
+    #: Longest wait for a press to arrive before the next one goes anyway (real seconds): long enough for a
+    #: qi callback on a loaded machine, else the next press may reach the debounce with it and be dropped.
+    ARRIVAL_TIMEOUT_S = 2.0
 
     def __init__(self, simulator: UserSimulator, rng: np.random.Generator, speed: float = 1.0,
                  monitor: EngagementMonitor | None = None, press: Callable[[str], object] | None = None,
