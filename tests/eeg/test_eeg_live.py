@@ -86,7 +86,10 @@ def test_beta_dominant_phases_score_higher(tmp_path):
     assert sum(r["turn"] == "1" and r["phase"] == "listening" for r in windows) == len(high.series)
     raw = (tmp_path / "eeg" / "raw.csv").read_text().splitlines()
     assert raw[0] == "lsl_time,TP9,AF7,AF8,TP10" and len(raw) > 256 * 6
-    events = [r["event"] for r in _rows(tmp_path / "eeg" / "events.csv")]
+    # (a simulated Muse starved of CPU beside another suite was once "lost" and "restored" 1 s later: the
+    # monitor's right reaction, not this test's subject)
+    events = [r["event"] for r in _rows(tmp_path / "eeg" / "events.csv")
+              if r["event"] not in ("eeg_stream_lost", "eeg_stream_restored")]
     assert events[:3] == ["eeg_stream_found", "baseline_start", "baseline_end"]
     assert "turn_1_listening_start" in events and "turn_2_answer_end" in events
 
