@@ -176,30 +176,36 @@ def test_a_link_frozen_8_s_in_an_answer_window_gives_an_interrupted_replayed_tur
     assert info["total_score"] == sum(int(r["score"]) for r in rows[1:])  # the frozen attempt counts nothing
 
 
-@pytest.mark.parametrize("life", ["unchanged", "disabled"])
-def test_a_hand_held_3_s_on_the_head_mid_session_only_matters_with_life_left_on(tmp_path, life):
-    """Why the session disables Autonomous Life: left on ("unchanged"), a hand resting 3 s on the answer
-    buttons puts NAO to sleep (motors off, crouched); the session finds the motors off before the next
-    turn and wakes them (NAO stands up again in front of the participant). Disabled, it is only a press."""
+def _held_head_session(tmp_path, study_yaml: str, after: str):
+    """A 2-turn session on the stand-in (x10, tactile answers, nobody pressing) with a hand held 3 s on the
+    head once ``after`` has returned (``hold_after``); returns the run and the stand-in's transcript."""
     from nao_trainer.robot.standin import StandIn
 
     study = tmp_path / "study.yaml"
-    study.write_text(f"robot: {{autonomous_life: {life}}}\n", encoding="utf-8")
+    study.write_text(study_yaml, encoding="utf-8")
     standin = StandIn.start(speed=10)
     try:
-        # Armed in the stand-in, the hand comes down as turn 1's beep ends, however loaded the machine.
-        # The participant answers on the head (tactile) and presses nothing else: a simulated one would
-        # press after the hold, and a touch wakes a sleeping NAO. The 3 s hold ends long before the
-        # 17.5 s answer window (both robot time), so NAO is asleep when the turn ends.
-        standin.hold_after("ALAudioPlayer.playSine", "B", 3.0)
+        standin.hold_after(after, "B", 3.0)
         res = subprocess.run(
             [sys.executable, "-m", "nao_trainer", "run", "--config", str(study), "--robot", standin.url,
              "--eeg", "off", "--out", str(tmp_path / "out"), "--speed", "10", "--policy", "schedule",
              "--input", "tactile", "--seed", "2", "--turns", "2", "--no-practice", "--pseudonym", "P1"],
             capture_output=True, text=True, env=dict(os.environ, QI_LOG_LEVEL="silent"), timeout=180)
-        transcript = standin.transcript()
+        return res, standin.transcript()
     finally:
         standin.stop()
+
+
+@pytest.mark.parametrize("life", ["unchanged", "disabled"])
+def test_a_hand_held_3_s_on_the_head_mid_session_only_matters_with_life_left_on(tmp_path, life):
+    """Why the session disables Autonomous Life: left on ("unchanged"), a hand resting 3 s on the answer
+    buttons puts NAO to sleep (motors off, crouched); the session finds the motors off before the next
+    turn and wakes them (NAO stands up again in front of the participant). Disabled, it is only a press."""
+    # Armed in the stand-in, the hand comes down as turn 1's beep ends, however loaded the machine.
+    # The participant answers on the head (tactile) and presses nothing else: a simulated one would
+    # press after the hold, and a touch wakes a sleeping NAO. The 3 s hold ends long before the
+    # 17.5 s answer window (both robot time), so NAO is asleep when the turn ends.
+    res, transcript = _held_head_session(tmp_path, f"robot: {{autonomous_life: {life}}}\n", "ALAudioPlayer.playSine")
     (folder,) = (tmp_path / "out").glob("*_*")
     held = [e["args"][1] for e in transcript if e["method"] == "held"]
     assert held == ["asleep" if life == "unchanged" else "nothing"]
@@ -222,21 +228,8 @@ def test_put_to_sleep_mid_speech_the_robot_is_woken_and_the_turn_replayed(tmp_pa
     off, wakes them, records turn 2 as interrupted and plays it again, instead of ending as a robot error.
     The hold starts when turn 2's first utterance ends (armed in the stand-in); 4 s between letters leave
     at least 8 s of turn 2 to speak after it (robot time; 0.8 s of wall time at x10), against the 3 s hold."""
-    from nao_trainer.robot.standin import StandIn
-
-    study = tmp_path / "study.yaml"
-    study.write_text("robot: {autonomous_life: unchanged}\ntiming: {letter_gap_s: 4.0}\n", encoding="utf-8")
-    standin = StandIn.start(speed=10)
-    try:
-        standin.hold_after("ALAudioPlayer.playSine>speech", "B", 3.0)
-        res = subprocess.run(
-            [sys.executable, "-m", "nao_trainer", "run", "--config", str(study), "--robot", standin.url,
-             "--eeg", "off", "--out", str(tmp_path / "out"), "--speed", "10", "--policy", "schedule",
-             "--input", "tactile", "--seed", "2", "--turns", "2", "--no-practice", "--pseudonym", "P1"],
-            capture_output=True, text=True, env=dict(os.environ, QI_LOG_LEVEL="silent"), timeout=180)
-        transcript = standin.transcript()
-    finally:
-        standin.stop()
+    res, transcript = _held_head_session(tmp_path, "robot: {autonomous_life: unchanged}\ntiming: {letter_gap_s: 4.0}\n",
+                                         "ALAudioPlayer.playSine>speech")
     assert res.returncode == 0, res.stderr
     assert [e["args"][1] for e in transcript if e["method"] == "held"] == ["asleep"]
     (folder,) = (tmp_path / "out").glob("*_*")
