@@ -103,7 +103,7 @@ def prune(folder: Path, max_bytes: int, keep: Path | None = None) -> list[Path]:
     for _, _, size, f in sorted(entries):
         if total <= max_bytes:
             break
-        if keep is not None and f == keep:
+        if f == keep:
             continue
         try:
             f.unlink()

@@ -139,8 +139,8 @@ class TaskLife:
         a double click of the chest button removes the stiffness (NAOqi 2.8 ``ALChestButton``: "At
         double click, the stiffness is removed"): with life on, a hand resting on the answer buttons
         would then put NAO to sleep; with the motors off, NAO does not gesture. Two cheap calls; each
-        change found is reported and undone. Returns what was set back ("autonomous life", "motors
-        off"); the session also asks after a refused call, to tell a robot put to sleep (replay the
+        change found is reported and undone. Returns what was set back ("Autonomous Life <state
+        found>", "motors off"); the session also asks after a refused call, to tell a robot put to sleep (replay the
         turn) from one that cannot do the task. Never raises: a lost link is the next call's to notice."""
         fixed: list[str] = []
         if not self.entered:

@@ -267,7 +267,8 @@ def test_a_double_click_of_the_chest_button_mid_session_is_undone_before_the_nex
     (folder,) = (tmp_path / "out").glob("*_*")
     events = read_events(folder)
     found = [e for e in events if e["event"] == "motors_found_off"]
-    assert len(found) == 1 and found[0]["mono"] <= next(e["mono"] for e in events if e["event"] == "turn_start" and e["turn"] == 2)
+    turn_2 = next(e["mono"] for e in events if e["event"] == "turn_start" and e["turn"] == 2)
+    assert len(found) == 1 and found[0]["mono"] <= turn_2
     clicked = calls.index(("NaoTrainerStandIn", "chest"))
     assert ("ALMotion", "wakeUp") in calls[clicked:]  # woken after the click, before the session's end
     assert [r["success"] in ("True", "False") for r in read_turns(folder)] == [True] * 3

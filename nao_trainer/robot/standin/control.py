@@ -118,8 +118,9 @@ class Control:
     @qi.bind(qi.Void, [qi.String, qi.String, qi.Float])
     def hold_after(self, call: str, button: str, seconds: float) -> None:
         """A hand held on the head for ``seconds`` (robot time), starting once the next ``call`` has
-        returned (``Recorder.arm``: e.g. "ALAudioPlayer.playSine>speech"). Armed inside the stand-in, so the hold falls at a known point of the session however
-        slow the machine is; its outcome is recorded in the transcript as ``held``."""
+        returned (``Recorder.arm``: e.g. "ALAudioPlayer.playSine>speech"). Armed inside the stand-in, so
+        the hold falls at a known point of the session however slow the machine is; its outcome is
+        recorded in the transcript as ``held``."""
         key = self._key(button)
         self._rec.record("NaoTrainerStandIn", "hold_after", [call, key, seconds])
 
