@@ -15,7 +15,7 @@ PACKAGE = Path(nao_trainer.__file__).parent
 
 #: Low to high. A module may import from its own layer and from the layers before it.
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("__init__", "errors", "files", "ports"),
+    ("__init__", "errors", "files", "ports", "registry"),
     ("core",),
     ("data",),
     ("robot", "eeg", "answers", "console"),
