@@ -32,8 +32,8 @@ def default_dir() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "nao-trainer" / "bayes"
 
 
-def _load(path: Path, key: str, p: np.ndarray, w: np.ndarray, coef: np.ndarray, horizon: int, commit: int
-          ) -> bayes.Plan | None:
+def _load(path: Path, key: str, p: np.ndarray, w: np.ndarray, coef: np.ndarray, horizon: int, commit: int,
+          terminal: np.ndarray | None = None) -> bayes.Plan | None:
     try:
         with np.load(path, allow_pickle=False) as f:
             if str(f["fingerprint"]) != key:
@@ -47,24 +47,25 @@ def _load(path: Path, key: str, p: np.ndarray, w: np.ndarray, coef: np.ndarray, 
         return None
     if np.any(action < 0) or np.any(action >= p.shape[1]):
         return None
-    return bayes.Plan(p, w / w.sum(), coef, horizon, commit, action, value, key)
+    return bayes.Plan(p, w / w.sum(), coef, horizon, commit, action, value, key, terminal)
 
 
 def solve_cached(p: np.ndarray, weights: np.ndarray, coef: np.ndarray, horizon: int, commit: int = 0,
-                 folder: Path | None = None) -> bayes.Plan:
+                 folder: Path | None = None, terminal: np.ndarray | None = None) -> bayes.Plan:
     """``core.bayes.solve``, reusing (and filling) the on-disk cache."""
     p = np.asarray(p, dtype=float)
     w = np.asarray(weights, dtype=float)
     coef = np.asarray(coef, dtype=float)
-    key = bayes.fingerprint(p, w, coef, horizon, commit)
+    terminal = None if terminal is None else np.asarray(terminal, dtype=float)
+    key = bayes.fingerprint(p, w, coef, horizon, commit, terminal)
     folder = Path(folder) if folder is not None else default_dir()
     path = folder / f"{key[:32]}.npz"
     if path.exists():
-        plan = _load(path, key, p, w, coef, horizon, commit)
+        plan = _load(path, key, p, w, coef, horizon, commit, terminal)
         if plan is not None:
             _touch(path)
             return plan
-    plan = bayes.solve(p, w, coef, horizon, commit)
+    plan = bayes.solve(p, w, coef, horizon, commit, terminal=terminal)
     try:
         folder.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}.npz")
