@@ -96,8 +96,12 @@ class BayesPolicy:
 
         # no earlier turns: the prior's own weights, so the plan is the evaluation's for the same prior
         start = bayes.posterior_weights(self.p, self.weights, self.carried) if self.carried.any() else self.weights
-        return solve_cached(self.p, start, self.objective.coefficients(4), self.turns, 0, self.cache,
-                            terminal=self.objective.terminal(self.turns))
+        try:
+            return solve_cached(self.p, start, self.objective.coefficients(4), self.turns, 0, self.cache,
+                                terminal=self.objective.terminal(self.turns))
+        except bayes.PlanTooLarge as exc:
+            raise ConfigError(f"policy bayes: {exc}; play at most {exc.max_horizon} turns "
+                              "(--turns or session.turns), or another policy") from None
 
     # -- ports.Policy ------------------------------------------------------------------------------
 
@@ -237,14 +241,13 @@ def psychometric_prior(file: Path | None = None) -> tuple[tuple[str, ...], np.nd
 
 def users_prior(users_dir: Path) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
     """(names, success per level (K, 4), equal weights): every user simulator file of ``users_dir``."""
-    from nao_trainer.core.simulation import UserSimulator
-    from nao_trainer.files import read_json
+    from nao_trainer.learn.artifacts import load_simulator_file
 
     files = sorted(Path(users_dir).glob("*.json"))
     if not files:
         raise ConfigError(f"policy.prior {users_dir}: no user simulator files (*.json) in that folder; "
                           "give clusters, psychometric, a psychometric prior file or a folder of user simulators")
-    sims = [UserSimulator.from_dict(read_json(f, DataError), str(f)) for f in files]
+    sims = [load_simulator_file(f) for f in files]  # DataError in one line: torn, foreign definition, ...
     return tuple(s.name for s in sims), level_means(np.stack([s.p_success for s in sims])), np.ones(len(sims))
 
 

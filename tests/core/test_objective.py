@@ -77,3 +77,19 @@ def test_the_planner_under_target_rate_is_exact_on_a_known_user():
     two = np.array([[0.95, 0.8, 0.6, 0.3], [0.9, 0.5, 0.3, 0.1]])
     plan2 = bayes.solve(two, np.ones(2), o.coefficients(4), turns, terminal=o.terminal(turns))
     assert plan2.value == pytest.approx(bayes.evaluate_plan(plan2, two).session.mean())
+
+
+def test_a_cached_target_rate_plan_is_checked_and_reloaded(tmp_path):
+    """The cache re-checks a stored table against its inputs (``core.bayes.plan_problem``): a
+    target-rate table must pass that check with its terminal value, and load as the same plan."""
+    from nao_trainer.core import bayes
+    from nao_trainer.learn.bayes_cache import solve_cached
+
+    o = objective.parse("target-rate:0.75")
+    p = np.array([[0.95, 0.8, 0.6, 0.3], [0.9, 0.5, 0.3, 0.1]])
+    first = solve_cached(p, np.ones(2), o.coefficients(4), 6, 0, tmp_path, terminal=o.terminal(6))
+    assert bayes.plan_problem(first) is None
+    again = solve_cached(p, np.ones(2), o.coefficients(4), 6, 0, tmp_path, terminal=o.terminal(6))
+    assert np.array_equal(first.action, again.action) and again.value == first.value
+    other = solve_cached(p, np.ones(2), objective.parse("target-p:0.75").coefficients(4), 6, 0, tmp_path)
+    assert other.fingerprint != first.fingerprint

@@ -123,3 +123,35 @@ def test_named_priors_and_a_folder_of_users(tmp_path, prior, first):
     assert len(names) == 1 and w.tolist() == [1.0]
     with pytest.raises(ConfigError, match="no user simulator files"):
         model_prior(str(tmp_path))
+
+
+def test_a_folder_prior_with_a_simulator_of_another_definition_is_one_line(tmp_path):
+    """Issue 30, finding 5: a DefinitionMismatch (a ValueError of core) escaped as a traceback."""
+    from nao_trainer.policies.bayes import model_prior
+
+    folder = tmp_path / "users"
+    folder.mkdir()
+    data = json.loads(LEVEL4.read_text())
+    data["mdp_definition"] = "another definition"
+    (folder / "a.json").write_text(json.dumps(data))
+    with pytest.raises(DataError) as err:
+        model_prior(str(folder))
+    msg = str(err.value)
+    assert msg.startswith(f"{folder / 'a.json'}: made for another state/action definition") and "\n" not in msg
+    assert "nao-trainer fit" in msg
+
+
+@pytest.mark.parametrize("turns", [500, 60])
+def test_a_horizon_whose_plan_would_not_fit_in_memory_is_refused_before_solving(tmp_path, turns, monkeypatch):
+    """Issue 30, finding 5: --turns 500 tried to allocate 91 PiB (ArrayMemoryError), 60 turns 46 GiB."""
+    from nao_trainer.errors import ConfigError
+    from nao_trainer.learn import bayes_cache
+    from nao_trainer.policies.bayes import load_bayes
+
+    monkeypatch.setattr(bayes_cache, "memory_limit", lambda: 8 * 2**30)  # whatever this machine has free now
+    with pytest.raises(ConfigError) as err:
+        load_bayes(None, "P01", turns, "score", False, "clusters", cache=tmp_path)
+    msg = str(err.value)
+    assert f"a plan of {turns} turns at 4 levels needs" in msg and "more than the 8.0 GiB available" in msg
+    assert "play at most 45 turns (--turns or session.turns)" in msg and "\n" not in msg
+    assert not list(tmp_path.iterdir())  # nothing read, solved or written
