@@ -146,7 +146,9 @@ def make(kind: str, name: str, *args: Any, **kwargs: Any) -> Any:
 
 
 #: The project's own plug-ins: (kind, name, entry point). Each home owns its settings and behaviour.
-BUILTIN: tuple[tuple[str, str, str], ...] = ()
+BUILTIN: tuple[tuple[str, str, str], ...] = (
+    ("eeg_device", "muse", "nao_trainer.eeg.devices.muse:MuseDevice"),
+)
 
 
 def _register_builtins() -> None:

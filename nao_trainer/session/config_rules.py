@@ -36,9 +36,10 @@ def policy_spec(value: str) -> str | None:
 
 
 def objective(value: str) -> str | None:
-    if value == "score" or re.fullmatch(r"target(:(0?\.\d+))?", value):
+    if value == "score" or re.fullmatch(r"target(-p|-rate)?(:(0?\.\d+))?", value):
         return None
-    return "must be 'score' or 'target:R' with 0 < R < 1, e.g. target:0.75"
+    return ("must be 'score', 'target-p:R' (each turn's success probability near R; 'target:R' is its old name) "
+            "or 'target-rate:R' (the session's success rate near R), 0 < R < 1, e.g. target-rate:0.75")
 
 
 def bayes_prior(value: str) -> str | None:
