@@ -156,6 +156,7 @@ BUILTIN: tuple[tuple[str, str, str], ...] = (
     ("policy", "usp", "nao_trainer.policies.kinds:USP"),
     ("policy", "personalised", "nao_trainer.policies.kinds:PERSONALISED"),
     ("policy", "bayes", "nao_trainer.policies.kinds:BAYES"),
+    ("eeg_device", "muse", "nao_trainer.eeg.devices.muse:MuseDevice"),
 )
 
 

@@ -13,9 +13,10 @@ from nao_trainer.errors import ConfigError
 
 def add_arguments(p) -> None:
     g = p.add_argument_group("ceiling and objective (docs/evaluation.md, 'What can be won')")
-    g.add_argument("--objective", default="score", metavar="score|target:R",
-                   help="what the policies are judged by: score (equation (1), default) or target:R (keep the "
-                        "participant near success rate R, utility -(p - R)^2 per turn)")
+    g.add_argument("--objective", default="score", metavar="score|target-p:R|target-rate:R",
+                   help="what the policies are judged by: score (equation (1), default), target-p:R (each turn's "
+                        "success probability near R, -(p - R)^2 per turn; target:R is its old name) or "
+                        "target-rate:R (the session's success rate near R, -H (S/H - R)^2; what staircases aim at)")
     g.add_argument("--loo-bayes", action="store_true",
                    help="also the Bayes planner with the prior made of the other users (one solve per user, "
                         "about 3-5 s each)")
@@ -141,7 +142,7 @@ def run_user_models(args) -> int:
     if source is None or not Path(source).exists():
         raise ConfigError("--user-models needs the dataset: add --data DATASET_ROOT")
     obj = _objective(args)
-    rate = obj.rate if obj.kind == "target" else 0.75
+    rate = obj.rate if obj.is_target else 0.75
     manifest = artifacts.load_manifest(args.models)
     print(f"evaluate --user-models: held-out sessions of {source}", file=sys.stderr)
     summary = user_models.run(Path(source), manifest.get("compat"), int(manifest.get("k", 3)), seed=args.seed,

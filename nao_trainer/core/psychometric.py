@@ -20,6 +20,7 @@ sufficient statistic, as for the per-level models of ``core.bayes``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 from math import erf, sqrt
 
 import numpy as np
@@ -35,6 +36,30 @@ _MU = np.arange(3.0, 11.01, 0.25)
 _TAU = np.array([0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0])
 _SIGMA = np.geomspace(0.3, 4.0, 14)
 _LAPSE = np.array([0.0, 0.02, 0.05, 0.1, 0.15])
+
+#: The range each parameter of a pooled model may take: a span and its spread inside the grid of spans
+#: integrated over (THETA, letters), a slope that is neither a step finer than the grid nor flat over it.
+#: Outside them the prior has no mass on the grid (NaN, infinity, ``mu: 1e300``) or is a spike between
+#: its points (``tau: 1e-300``): nothing a fit writes (its grids lie well inside).
+RANGES: dict[str, tuple[float, float]] = {"mu": (float(THETA[0]), float(THETA[-1])), "tau": (0.1, 20.0),
+                                           "sigma": (0.05, 20.0), "lapse": (0.0, 0.5)}
+
+
+def parameter_problem(name: str, value: object) -> str | None:
+    """Why ``value`` cannot be the parameter ``name`` of a pooled model (None when it can)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return "must be a number"
+    try:
+        x = float(value)
+    except OverflowError:
+        return "is too large to be a number"
+    lo, hi = RANGES[name]
+    if not math.isfinite(x):
+        return f"must be a finite number, got {x}"
+    if not lo <= x <= hi:
+        return f"must lie in [{lo:g}, {hi:g}], got {x:.6g}"
+    return None
+
 
 _phi = np.vectorize(lambda z: 0.5 * (1.0 + erf(z / sqrt(2.0))))
 
@@ -61,6 +86,12 @@ class PooledModel:
     tau: float
     sigma: float
     lapse: float
+
+    def __post_init__(self) -> None:
+        for name in RANGES:
+            problem = parameter_problem(name, getattr(self, name))
+            if problem is not None:
+                raise ValueError(f"{name} {problem}")
 
     def log_prior(self) -> np.ndarray:
         lp = -0.5 * ((THETA - self.mu) / self.tau) ** 2
@@ -189,5 +220,5 @@ def session_counts(sessions: np.ndarray, levels: np.ndarray, successes: np.ndarr
 def span_rate(obj: "objective.Objective | str | None") -> float:
     """The rate of a session's span: R of a ``target:R`` objective, else :data:`SPAN_RATE`."""
     parsed = objective.parse(obj)
-    return float(parsed.rate) if parsed.kind == "target" else SPAN_RATE
+    return float(parsed.rate) if parsed.is_target else SPAN_RATE
 

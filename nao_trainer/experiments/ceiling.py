@@ -53,7 +53,7 @@ def user_rates(users: Sequence[Any]) -> dict[str, np.ndarray]:
 def _solve(p: np.ndarray, w: np.ndarray, obj: Objective, turns: int, commit: int, cache: Path | None) -> bayes.Plan:
     from nao_trainer.learn.bayes_cache import solve_cached
 
-    return solve_cached(p, w, obj.coefficients(p.shape[1]), turns, commit, cache)
+    return solve_cached(p, w, obj.coefficients(p.shape[1]), turns, commit, cache, terminal=obj.terminal(turns))
 
 
 def plan_row(name: str, cluster: str, policy: str, p: np.ndarray, e: np.ndarray | None, value: bayes.PlanValue,
@@ -64,6 +64,8 @@ def plan_row(name: str, cluster: str, policy: str, p: np.ndarray, e: np.ndarray 
            "score": round(score, 9), "success": round(float(value.successes[i]) / turns, 9),
            "regret": round(oracle_score - score, 9), "visits": np.round(visits, 4).tolist(), "samples": 0,
            "utility": round(float(value.session[i]), 9), "objective": str(obj)}
+    if value.successes_var is not None:
+        row["success_var"] = round(float(value.successes_var[i]) / turns ** 2, 12)
     if e is not None:
         row["engagement"] = round(float(visits @ e / turns), 9)
     return row
@@ -136,7 +138,8 @@ def adaptive_rows(rates: dict[str, np.ndarray], clusters: dict[str, str], obj: O
             out.append({"user": n, "cluster": clusters.get(n, ""), "policy": f"staircase-{need}d1u@{start}",
                         "seed": None, "assessment": None, "score": round(r["score"], 9),
                         "success": round(r["success"], 9), "visits": np.round(r["visits"], 4).tolist(),
-                        "samples": 0, "utility": round(r["utility"], 9), "objective": str(obj)})
+                        "samples": 0, "utility": round(r["utility"], 9), "objective": str(obj),
+                        "success_var": round(r["success_var"], 12)})
     qv = adaptive.questplus_values(p, obj, turns)
     for i, n in enumerate(names):
         out.append(plan_row(n, clusters.get(n, ""), "questplus", p[i], None, qv, i, turns, obj,
@@ -150,12 +153,19 @@ def _table(p_level: np.ndarray) -> np.ndarray:
 
 def add_utility(rows: list[dict[str, Any]], rates: dict[str, np.ndarray], obj: Objective,
                 visits_key: str = "visits") -> None:
-    """Set ``utility`` of every row from its expected turns per level (exact for level-only users)."""
+    """Set ``utility`` of every row from its expected turns per level and the mean and variance of its
+    success rate (exact for level-only users). Under ``target-rate`` a row without the variance
+    (``success_var``, e.g. from a results file written before it was recorded) gets no utility."""
     for r in rows:
         if "utility" in r and r.get("objective") == str(obj):
             continue
-        u = obj.utility(rates[r["user"]])
-        r["utility"] = round(float(np.asarray(r[visits_key], dtype=float) @ u), 9)
+        r.pop("utility", None)
+        var = r.get("success_var")
+        if obj.per_session and var is None:
+            continue
+        turns = float(np.sum(r[visits_key]))
+        r["utility"] = round(obj.from_moments(np.asarray(r[visits_key], dtype=float), rates[r["user"]],
+                                              float(r.get("success", 0.0)), float(var or 0.0), int(round(turns))), 9)
         r["objective"] = str(obj)
 
 
@@ -165,27 +175,65 @@ def objective_rows(rates: dict[str, np.ndarray], train_rates: dict[str, np.ndarr
     ``best-fixed-objective`` (the level best under the objective on the user's training rates),
     ``pooled-fixed`` (the level best on average over the evaluated users) and ``oracle-objective``
     (each user's own best level)."""
-    pooled = int(np.argmax(np.round(np.mean([obj.utility(p) for p in rates.values()], axis=0), 12)))
+    pooled = int(np.argmax(np.round(np.mean([obj.fixed_value(p, turns) for p in rates.values()], axis=0), 12)))
     out = []
     for name, p in rates.items():
         choices = {f"fixed:{lv + 1}": lv for lv in range(4) if f"fixed:{lv + 1}" not in have}
-        choices["best-fixed-objective"] = int(np.argmax(np.round(obj.utility(train_rates[name]), 12)))
+        choices["best-fixed-objective"] = int(np.argmax(np.round(obj.fixed_value(train_rates[name], turns), 12)))
         choices["pooled-fixed"] = pooled
-        choices["oracle-objective"] = int(np.argmax(np.round(obj.utility(p), 12)))
+        choices["oracle-objective"] = int(np.argmax(np.round(obj.fixed_value(p, turns), 12)))
         for policy, lv in choices.items():
-            out.append(_level_row(name, clusters.get(name, ""), policy, p, lv, obj, turns))
+            if policy == "oracle-objective" and obj.per_session:
+                out.append(_rate_oracle_row(name, clusters.get(name, ""), p, obj, turns))
+            else:
+                out.append(_level_row(name, clusters.get(name, ""), policy, p, lv, obj, turns))
     return out
+
+
+def rate_oracle(p: np.ndarray, obj: Objective, turns: int) -> tuple[float, np.ndarray, float, float]:
+    """The optimum of a user with known rates under ``target-rate``: its state is (turn, successes
+    so far), so the exact policy is a (turns x successes) backward induction; no fixed level
+    reaches it (it steers the count, e.g. easier after a run of successes). Returns (value, turns
+    per level, E rate, Var rate)."""
+    p = np.asarray(p, dtype=float)
+    v = obj.terminal(turns).astype(float)
+    act = np.zeros((turns, turns + 1), dtype=np.int64)
+    for t in range(turns - 1, -1, -1):
+        q = p[None, :] * v[1:t + 2, None] + (1 - p[None, :]) * v[:t + 1, None]  # (S = 0..t, levels)
+        act[t, :t + 1] = np.argmax(np.round(q, 12), axis=1)
+        v = q.max(axis=1)
+    dist = np.zeros(turns + 1)
+    dist[0] = 1.0
+    visits = np.zeros(len(p))
+    for t in range(turns):
+        a = act[t]
+        np.add.at(visits, a, dist)
+        pa = p[a]
+        new = dist * (1 - pa)
+        new[1:] += (dist * pa)[:-1]
+        dist = new
+    s = np.arange(turns + 1, dtype=float)
+    mean = float(dist @ s)
+    return float(v[0]), visits, mean / turns, max(float(dist @ s ** 2) - mean ** 2, 0.0) / turns ** 2
+
+
+def _rate_oracle_row(name: str, cluster: str, p: np.ndarray, obj: Objective, turns: int) -> dict[str, Any]:
+    value, visits, rate, var = rate_oracle(p, obj, turns)
+    return {"user": name, "cluster": cluster, "policy": "oracle-objective", "seed": None, "assessment": None,
+            "score": round(float(visits @ (p * np.arange(2, 6) - 1.0)), 9), "success": round(rate, 9),
+            "visits": np.round(visits, 4).tolist(), "samples": 0, "utility": round(value, 9),
+            "objective": str(obj), "success_var": round(var, 12)}
 
 
 def _level_row(name: str, cluster: str, policy: str, p: np.ndarray, lv: int, obj: Objective, turns: int
                ) -> dict[str, Any]:
-    u = obj.utility(p)
     visits = np.zeros(4)
     visits[lv] = turns
     score = float(visits @ (p * np.arange(2, 6) - 1.0))
     return {"user": name, "cluster": cluster, "policy": policy, "seed": None, "assessment": None,
             "score": round(score, 9), "success": round(float(p[lv]), 9), "visits": visits.tolist(), "samples": 0,
-            "utility": round(turns * float(u[lv]), 9), "objective": str(obj), "level": lv + 1}
+            "utility": round(float(obj.fixed_value(p, turns)[lv]), 9), "objective": str(obj), "level": lv + 1,
+            "success_var": round(float(p[lv] * (1 - p[lv])) / turns, 12)}
 
 
 def _by_user(rows: list[dict[str, Any]], policy: str, key: str, length: Any = None) -> dict[str, float]:
@@ -328,7 +376,9 @@ def evaluation_ceiling(rows: list[dict[str, Any]], rates: dict[str, np.ndarray],
     """The ceiling section of an evaluation: ``report`` and, for ``sessions`` (e.g. 2, 5, 10), the
     value of that many sessions of the same participant (``multi_session``)."""
     out = report(rows, rates, train, clusters, obj, turns, loo, priors)
-    if sessions:
+    if sessions and obj.per_session:  # commit turns score per turn; a rate objective is per session
+        out["multi_session_note"] = f"not computed under {obj}: commit turns have no per-session rate"
+    elif sessions:
         p = np.array([rates[n] for n in rates])
         out["multi_session"] = multi_session(p, obj, turns, (1, *sessions), loo=loo)
     return out

@@ -206,6 +206,11 @@ def candidates(h: HeldOut, spec: PersonaliseSpec) -> tuple[list[assessment.Candi
     return out, _train(h.generic, f"{h.user.name}|generic", spec, 0)
 
 
+def _var(out: evaluation.Outcome) -> float | None:
+    """The variance of the session's success rate (what ``target-rate`` needs), rounded like the rows."""
+    return None if out.success_var is None else round(float(out.success_var), 12)
+
+
 def score_held_out(h: HeldOut, spec: PersonaliseSpec) -> list[dict[str, Any]]:
     """Rows of every policy and pipeline on one held-out session (module docstring)."""
     truth, T = h.user.truth, spec.turns
@@ -222,7 +227,7 @@ def score_held_out(h: HeldOut, spec: PersonaliseSpec) -> list[dict[str, Any]]:
                      "policy": policy, "assessment": length, "score": round(out.score, 9),
                      "engagement": round(out.engagement, 9), "success": round(out.success, 9),
                      "regret": round(oracle.value - out.score, 9), "visits": np.round(out.visits, 4).tolist(),
-                     "samples": out.samples, **extra})
+                     "samples": out.samples, "success_var": _var(out), **extra})
 
     add("fixed:2", evaluation.evaluate(evaluation.fixed_level_policy(2), p, e, T))
     level = baselines.best_fixed_level(h.user.train.p_success, h.user.train.engagement, T)

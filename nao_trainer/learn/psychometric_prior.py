@@ -56,9 +56,8 @@ def load_prior(path: Path | None = None) -> psychometric.PooledModel:
     path = Path(path) if path else DEFAULT_PRIOR
     doc = PRIOR_FILE.check(read_json(path, DataError, fix=PRIOR_FILE.fix), path, DataError)
     values = {k: doc.get(k) for k in _PARAMS}
-    bad = [k for k, v in values.items() if not isinstance(v, (int, float)) or isinstance(v, bool)]
-    if bad:
-        raise DataError(f"{path}: key {bad[0]!r} must be a number; {PRIOR_FILE.fix}")
-    if values["tau"] <= 0 or values["sigma"] <= 0 or not 0 <= values["lapse"] < 1:
-        raise DataError(f"{path}: tau and sigma must be > 0 and lapse in [0, 1) (got {values}); {PRIOR_FILE.fix}")
+    for k, v in values.items():  # finite and in range (core.psychometric.RANGES): NaN, 1e300 or 400 digits are not
+        problem = psychometric.parameter_problem(k, v)
+        if problem is not None:
+            raise DataError(f"{path}: key {k!r} {problem}; {PRIOR_FILE.fix}")
     return psychometric.PooledModel(**{k: float(v) for k, v in values.items()})

@@ -57,7 +57,9 @@ log = logging.getLogger(__name__)
 
 def prior_fingerprint(names: Sequence[str], p: np.ndarray, w: np.ndarray, obj: objective.Objective) -> str:
     h = hashlib.sha256()
-    h.update(("|".join(names) + f"|{obj}").encode())
+    # target-p is the old target: its old name keeps the participants' saved states valid
+    name = f"target:{obj.rate:g}" if obj.kind == "target-p" else str(obj)
+    h.update(("|".join(names) + f"|{name}").encode())
     h.update(np.round(np.asarray(p, float), 12).astype("<f8").tobytes())
     h.update(np.round(np.asarray(w, float) / np.sum(w), 12).astype("<f8").tobytes())
     return h.hexdigest()
@@ -94,7 +96,7 @@ class BayesPolicy:
         """The table for this session: prior = the posterior after the earlier sessions' counts."""
         # no earlier turns: the prior's own weights, so the plan is the evaluation's for the same prior
         start = bayes.posterior_weights(self.p, self.weights, self.carried) if self.carried.any() else self.weights
-        return solve_cached(self.p, start, self.objective.coefficients(4), self.turns, 0, self.cache)
+        return solve_plan(self.p, start, self.objective, self.turns, self.cache)
 
     # -- ports.Policy ------------------------------------------------------------------------------
 
@@ -207,7 +209,7 @@ def read_state(path: Path, fingerprint: str, pseudonym: str | None = None) -> di
 
 def default_prior(obj: objective.Objective) -> str:
     """``policy.prior`` when unset: psychometric under a target rate, clusters under the score (module docstring)."""
-    return "psychometric" if obj.kind == "target" else "clusters"
+    return "psychometric" if obj.is_target else "clusters"
 
 
 def cluster_prior(models_dir: Path | None = None) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
@@ -234,14 +236,13 @@ def psychometric_prior(file: Path | None = None) -> tuple[tuple[str, ...], np.nd
 
 def users_prior(users_dir: Path) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
     """(names, success per level (K, 4), equal weights): every user simulator file of ``users_dir``."""
-    from nao_trainer.core.simulation import UserSimulator
-    from nao_trainer.files import read_json
+    from nao_trainer.learn.artifacts import load_simulator_file
 
     files = sorted(Path(users_dir).glob("*.json"))
     if not files:
         raise ConfigError(f"policy.prior {users_dir}: no user simulator files (*.json) in that folder; "
                           "give clusters, psychometric, a psychometric prior file or a folder of user simulators")
-    sims = [UserSimulator.from_dict(read_json(f, DataError), str(f)) for f in files]
+    sims = [load_simulator_file(f) for f in files]  # DataError in one line: torn, foreign definition, ...
     return tuple(s.name for s in sims), level_means(np.stack([s.p_success for s in sims])), np.ones(len(sims))
 
 
@@ -306,7 +307,7 @@ class BayesSessions:
         self.names, self.p, weights = model_prior(self.prior, models_dir)
         self.weights = np.asarray(weights, dtype=float) / np.sum(weights)
         self.turns = int(ctx.turns)
-        self.plan = _solve_plan(self.p, self.weights, self.objective, self.turns, cache)
+        self.plan = solve_plan(self.p, self.weights, self.objective, self.turns, cache)
         self.utility = self.objective.utility(self.p)  # (K, L)
         self.carried: np.ndarray | None = None
         self.counts = np.zeros((0, 8), dtype=np.int64)
@@ -351,9 +352,14 @@ class BayesSessions:
         self.counts[rows, 2 * np.asarray(action) + np.where(np.asarray(score) > 0, 0, 1)] += 1
 
 
-def _solve_plan(p: np.ndarray, weights: np.ndarray, obj: objective.Objective, turns: int,
-                cache: Path | None) -> bayes.Plan:
-    return solve_cached(p, weights, obj.coefficients(4), turns, 0, cache)
+def solve_plan(p: np.ndarray, weights: np.ndarray, obj: objective.Objective, turns: int,
+               cache: Path | None) -> bayes.Plan:
+    """The plan of a session of ``turns`` turns for the prior ``weights`` (live and offline alike)."""
+    try:
+        return solve_cached(p, weights, obj.coefficients(4), turns, 0, cache, terminal=obj.terminal(turns))
+    except bayes.PlanTooLarge as exc:
+        raise ConfigError(f"policy bayes: {exc}; play at most {exc.max_horizon} turns "
+                          "(--turns or session.turns), or another policy") from None
 
 
 def offline(ctx: OfflineContext) -> BayesSessions:

@@ -36,8 +36,9 @@ def check_objective(value: str) -> str | None:
 
     try:
         objective.parse(value)
-    except ValueError as exc:
-        return f"{exc}; use 'score' or 'target:R' with 0 < R < 1, e.g. target:0.75"
+    except ValueError:
+        return ("must be 'score', 'target-p:R' (each turn's success probability near R; 'target:R' is its old name) "
+                "or 'target-rate:R' (the session's success rate near R), 0 < R < 1, e.g. target-rate:0.75")
     return None
 
 
@@ -73,7 +74,8 @@ class BayesSettings:
     """``bayes`` (policies.bayes, core/objective.py)."""
 
     objective: str = setting("score", kind=str, check=check_objective,
-                             doc="score (equation (1)) | target:R (keep success near rate R)")
+                             doc="score (equation (1)) | target-p:R (each turn's success near R; target:R) | "
+                                 "target-rate:R (the session's success rate near R)")
     prior: str | None = setting(None, kind=str, nullable=True, check=check_prior,
                                 doc="clusters | psychometric | a psychometric prior file | a folder of user simulators; "
                                     "null = psychometric under target:R, clusters under score")

@@ -96,3 +96,15 @@ def test_bad_inputs_are_one_line_errors():
 def test_state_count():
     assert bayes.n_states(25, 4) == 13_884_156
     assert int(bayes.layer_sizes(25, 4).sum()) == 13_884_156
+
+
+def test_solve_refuses_a_horizon_over_its_memory_bound_before_allocating():
+    """Issue 30: the bound covers what solve allocates (the table and its float layers)."""
+    p = np.array([[0.9, 0.7, 0.5, 0.2]])
+    coef = np.tile([0.0, 1.0, 0.0], (4, 1))
+    with pytest.raises(bayes.PlanTooLarge) as err:
+        bayes.solve(p, np.ones(1), coef, 500, max_bytes=2**30)  # 150 PiB: would raise MemoryError unchecked
+    assert err.value.max_horizon == bayes.max_horizon(4, 2**30) and "needs 150.8 PiB" in str(err.value)
+    plan = bayes.solve(p, np.ones(1), coef, 6, max_bytes=bayes.solve_bytes(6, 4))
+    assert plan.action.nbytes + 5 * 8 * bayes.layer_sizes(8, 4)[-1] <= bayes.solve_bytes(6, 4)
+    assert bayes.solve_bytes(25, 4) < 256 * 2**20 and bayes.max_horizon(4, bayes.solve_bytes(25, 4)) == 25

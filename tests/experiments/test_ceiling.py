@@ -67,7 +67,7 @@ def test_evaluate_prints_the_ceiling_under_the_target_objective(tmp_path, capsys
                "--mc-episodes", "50", "--objective", "target:0.75", "--no-plots", "--out", str(out)])
     assert rc == 0
     text = capsys.readouterr().out
-    assert "against the Bayes ceiling, objective target:0.75" in text
+    assert "against the Bayes ceiling, objective target-p:0.75" in text
     report = json.loads((out / "evaluation.json").read_text())
     summary = {s["policy"]: s for s in report["ceiling"]["summary"]}
     assert summary["ceiling"]["value"] >= summary["pooled-fixed"]["value"] - 1e-9

@@ -29,6 +29,9 @@ def test_fit_prior_counts_every_session():
     assert n == 2 and isinstance(model, PooledModel)
 
 
+PRIOR = '{"format": "nao-trainer/psychometric-prior", "format_version": 1, "mu": 6, "tau": 1, "sigma": 1, "lapse": 0}'
+
+
 @pytest.mark.parametrize("text, words", [
     ("{", "not valid JSON"),
     ('{"format": "nao-trainer/user-models", "format_version": 1}', "not a nao-trainer psychometric prior"),
@@ -36,7 +39,13 @@ def test_fit_prior_counts_every_session():
     ('{"format": "nao-trainer/psychometric-prior", "format_version": 1, "mu": 6, "tau": 1, "sigma": "x", '
      '"lapse": 0}', "'sigma' must be a number"),
     ('{"format": "nao-trainer/psychometric-prior", "format_version": 1, "mu": 6, "tau": 1, "sigma": 1, '
-     '"lapse": 1}', "lapse in [0, 1)"),
+     '"lapse": 1}', "'lapse' must lie in [0, 0.5]"),
+    # issue 30: every parameter finite and in range (these raised inside numpy, or planned over nothing)
+    *[(PRIOR.replace(f'"{k}": {v0}', f'"{k}": {v}'), f"key '{k}' {words}") for k, v0, v, words in [
+        ("mu", 6, "NaN", "must be a finite number"), ("tau", 1, "NaN", "must be a finite number"),
+        ("mu", 6, "Infinity", "must be a finite number"), ("tau", 1, "1e-300", "must lie in [0.1, 20]"),
+        ("mu", 6, "1e300", "must lie in [0, 14]"), ("mu", 6, "1" * 400, "is too large to be a number"),
+        ("sigma", 1, "-Infinity", "must be a finite number"), ("mu", 6, "true", "must be a number")]],
 ])
 def test_damaged_priors_are_refused_with_the_file_named(tmp_path, text, words):
     path = tmp_path / "p.json"

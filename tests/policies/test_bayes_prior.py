@@ -38,7 +38,7 @@ def test_psychometric_prior_live_over_two_sessions_refused_with_another_prior_or
     # target:0.75 without policy.prior: the psychometric prior (the default under a target rate)
     code, out, err = run(tmp_path, capsys, "--pseudonym", "p1")
     assert code == 0, err
-    assert "Bayes planner (target:0.75, prior psychometric)" in out
+    assert "Bayes planner (target-p:0.75, prior psychometric)" in out
     state = tmp_path / "sessions" / "participants" / "p1" / "bayes.json"
     saved = json.loads(state.read_text())["payload"]
     assert saved["pseudonym"] == "p1" and saved["prior"] == "psychometric" and sum(saved["counts"]) == 4
@@ -51,7 +51,7 @@ def test_psychometric_prior_live_over_two_sessions_refused_with_another_prior_or
     # the clusters as prior: another fingerprint, refused in one line, exit 2, the file untouched
     code, out, err = run(tmp_path, capsys, "--pseudonym", "p1", "--prior", "clusters")
     assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err
-    assert "another prior or objective (psychometric, target:0.75," in err
+    assert "another prior or objective (psychometric, target-p:0.75," in err
     assert json.loads(state.read_text())["payload"]["counts"] == again["counts"]
     # p1's file copied into p2's folder: refused in one line, exit 2
     foreign = tmp_path / "sessions" / "participants" / "p2" / "bayes.json"
@@ -62,7 +62,8 @@ def test_psychometric_prior_live_over_two_sessions_refused_with_another_prior_or
     assert f"{foreign}: the participant state of 'p1', not of 'p2'" in err
 
 
-def test_live_table_is_the_evaluations_bayes_psychometric_for_the_same_prior(tmp_path):
+@pytest.mark.parametrize("name", ["target:0.75", "target-rate:0.75"])
+def test_live_table_is_the_evaluations_bayes_psychometric_for_the_same_prior(tmp_path, name):
     """The evaluation builds its prior as ``PooledModel(**fit).mixture()`` (cli.ceiling_report) and
     solves it in ``experiments.ceiling.prior_rows``; the live policy from the shipped file must give
     the same table, first decision and expected turns per level."""
@@ -72,11 +73,13 @@ def test_live_table_is_the_evaluations_bayes_psychometric_for_the_same_prior(tmp
     from nao_trainer.learn.psychometric_prior import load_prior
     from nao_trainer.policies.bayes import load_bayes
 
-    turns, obj = 10, objective.parse("target:0.75")
+    turns, obj = 10, objective.parse(name)
     live = load_bayes(None, "p1", turns, str(obj), False, "psychometric", cache=tmp_path / "live")
     fit = dict(load_prior().__dict__)  # what personalisation stores as fits[user]["psychometric"]
     pk, wk = PooledModel(**fit).mixture()
-    plan = solve_cached(pk, wk, obj.coefficients(4), turns, 0, tmp_path / "evaluation")  # solved anew
+    plan = solve_cached(pk, wk, obj.coefficients(4), turns, 0, tmp_path / "evaluation",
+                        terminal=obj.terminal(turns))  # solved anew
+    assert (plan.terminal is not None) == obj.per_session
     assert np.array_equal(live.plan.action, plan.action) and live.plan.value == pytest.approx(plan.value, abs=1e-12)
     assert live.decide() == plan.decide(np.zeros(8, dtype=np.int64))
     user = np.array([0.99, 0.9, 0.6, 0.2])
@@ -120,3 +123,35 @@ def test_named_priors_and_a_folder_of_users(tmp_path, prior, first):
     assert len(names) == 1 and w.tolist() == [1.0]
     with pytest.raises(ConfigError, match="no user simulator files"):
         model_prior(str(tmp_path))
+
+
+def test_a_folder_prior_with_a_simulator_of_another_definition_is_one_line(tmp_path):
+    """Issue 30, finding 5: a DefinitionMismatch (a ValueError of core) escaped as a traceback."""
+    from nao_trainer.policies.bayes import model_prior
+
+    folder = tmp_path / "users"
+    folder.mkdir()
+    data = json.loads(LEVEL4.read_text())
+    data["mdp_definition"] = "another definition"
+    (folder / "a.json").write_text(json.dumps(data))
+    with pytest.raises(DataError) as err:
+        model_prior(str(folder))
+    msg = str(err.value)
+    assert msg.startswith(f"{folder / 'a.json'}: made for another state/action definition") and "\n" not in msg
+    assert "nao-trainer fit" in msg
+
+
+@pytest.mark.parametrize("turns", [500, 60])
+def test_a_horizon_whose_plan_would_not_fit_in_memory_is_refused_before_solving(tmp_path, turns, monkeypatch):
+    """Issue 30, finding 5: --turns 500 tried to allocate 91 PiB (ArrayMemoryError), 60 turns 46 GiB."""
+    from nao_trainer.errors import ConfigError
+    from nao_trainer.learn import bayes_cache
+    from nao_trainer.policies.bayes import load_bayes
+
+    monkeypatch.setattr(bayes_cache, "memory_limit", lambda: 8 * 2**30)  # whatever this machine has free now
+    with pytest.raises(ConfigError) as err:
+        load_bayes(None, "P01", turns, "score", False, "clusters", cache=tmp_path)
+    msg = str(err.value)
+    assert f"a plan of {turns} turns at 4 levels needs" in msg and "more than the 8.0 GiB available" in msg
+    assert "play at most 45 turns (--turns or session.turns)" in msg and "\n" not in msg
+    assert not list(tmp_path.iterdir())  # nothing read, solved or written
