@@ -2,7 +2,7 @@
 import re
 from pathlib import Path
 
-from setuptools import find_packages, setup
+from setuptools import find_namespace_packages, setup
 
 here = Path(__file__).parent
 version = re.search(r'__version__ = "([^"]+)"', (here / "nao_trainer" / "__init__.py").read_text()).group(1)
@@ -13,7 +13,9 @@ setup(
     description="Personalised robot-assisted cognitive training with a NAO robot and a Muse EEG headband",
     long_description=(here / "README.md").read_text() if (here / "README.md").exists() else "",
     long_description_content_type="text/markdown",
-    packages=find_packages(include=["nao_trainer", "nao_trainer.*"]),
+    # namespace packages too: console/static (the page, no __init__.py) is then a package of its own, not data
+    # setuptools warns about on every install
+    packages=find_namespace_packages(include=["nao_trainer", "nao_trainer.*"], exclude=["*.__pycache__"]),
     # qi (the NAOqi SDK) ships wheels for CPython 3.8-3.12 on Linux x86_64 only.
     python_requires=">=3.10,<3.13",
     install_requires=[
@@ -48,7 +50,7 @@ setup(
                 "mne>=1.6", "mne-bids>=0.15", "pybv>=0.7", "questplus>=2023.1"],
     },
     # The console's page and the vendored uPlot (MIT; version and licence in console/static/).
-    package_data={"nao_trainer.console": ["static/*"]},
+    package_data={"nao_trainer.console.static": ["*"]},
     entry_points={"console_scripts": ["nao-trainer=nao_trainer.cli:entry_point"]},
     include_package_data=True,
     classifiers=[

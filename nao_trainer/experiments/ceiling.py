@@ -24,7 +24,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from nao_trainer.core import bayes, evaluation, mdp
+from nao_trainer.core import bayes, evaluation, mdp, people
 from nao_trainer.core.objective import Objective
 from nao_trainer.errors import DataError
 
@@ -83,7 +83,7 @@ def bayes_rows(names: Sequence[str], clusters: Sequence[str], p: np.ndarray, e: 
             for i, (n, c) in enumerate(zip(names, clusters))]
     if loo:
         for i, (n, c) in enumerate(zip(names, clusters)):
-            others = np.delete(np.arange(len(p)), i)
+            others = people.others(names, i)  # leave the PERSON out (user_1 and user_4 have two sessions)
             plan_i = _solve(p[others], np.ones(len(others)), obj, turns, 0, cache)
             v = bayes.evaluate_plan(plan_i, p[i:i + 1])
             rows.append(plan_row(n, c, "bayes-loo", p[i], None if e is None else e[i], v, 0, turns, obj, oracle[i]))
@@ -246,43 +246,57 @@ def _by_user(rows: list[dict[str, Any]], policy: str, key: str, length: Any = No
 
 
 def share_of_gap(rows: list[dict[str, Any]], policy: str, key: str, top: str, reference: str,
-                 length: Any = None, boot: int = 2000, seed: int = 0) -> dict[str, Any]:
-    """mean(policy - reference) / mean(top - reference) over users, bootstrap 95 % interval."""
+                 length: Any = None) -> dict[str, Any]:
+    """mean(policy - reference) / mean(top - reference) over PEOPLE (a person's sessions averaged),
+    with Fieller's 95 % interval, reported only when the gap's own interval excludes 0
+    (``core.people.fieller``); otherwise ``share`` is None and ``why`` says so. The gap and its
+    interval are always given."""
     ref, hi, mine = _by_user(rows, reference, key), _by_user(rows, top, key), _by_user(rows, policy, key, length)
     users = sorted(set(ref) & set(hi) & set(mine))
     if not users:
-        return {"share": None, "share_ci": None, "gap": None}
-    gain = np.array([mine[u] - ref[u] for u in users])
-    gap = np.array([hi[u] - ref[u] for u in users])
-    if gap.mean() <= 1e-12:
-        return {"share": None, "share_ci": None, "gap": float(gap.mean())}
-    rng = np.random.default_rng(seed)
-    idx = rng.integers(len(users), size=(boot, len(users)))
-    g = gap[idx].mean(axis=1)
-    ok = g > 0
-    shares = gain[idx].mean(axis=1)[ok] / g[ok]
-    return {"share": float(gain.mean() / gap.mean()),
-            "share_ci": [float(np.percentile(shares, 2.5)), float(np.percentile(shares, 97.5))],
-            "gap": float(gap.mean())}
+        return {"share": None, "share_ci": None, "gap": None, "gap_ci": None, "why": "no common users"}
+    gain = people.by_person({u: mine[u] - ref[u] for u in users})
+    gap = people.by_person({u: hi[u] - ref[u] for u in users})
+    g = np.array([gap[p] for p in gap])
+    r = people.fieller(np.array([gain[p] for p in gap]), g)
+    gap_ci = people.t_interval(g)
+    if r is None:
+        return {"share": None, "share_ci": None, "gap": float(g.mean()), "gap_ci": gap_ci,
+                "why": "the gap's 95 % interval contains 0: no share"}
+    return {"share": r.share, "share_ci": r.ci, "gap": r.denominator, "gap_ci": r.denominator_ci,
+            "why": None if r.ci is not None else "Fieller's set is unbounded"}
+
+
+#: the paired references of every comparison: (label, policy rows compared with)
+REFERENCES: tuple[tuple[str, str], ...] = (("d_level2", "fixed:2"), ("d_reference", "best-fixed-objective"),
+                                           ("d_pooled", "pooled-fixed"), ("d_ceiling", "ceiling"),
+                                           ("d_bayes_loo", "bayes-loo"))
 
 
 def achievable(rows: list[dict[str, Any]], key: str = "utility", reference: str = "best-fixed-objective",
                oracle: str = "oracle-objective") -> list[dict[str, Any]]:
-    """Per (policy, assessment length): mean ``key`` with a 95 % t-interval over users (seeds
-    averaged), the paired difference to ``reference`` and to the ceiling, and the shares of the
-    achievable gap (to ``ceiling``) and of the oracle gap."""
+    """Per (policy, assessment length): mean ``key`` with a 95 % t-interval over PEOPLE (seeds and a
+    person's sessions averaged), the paired difference to each of ``REFERENCES`` (level 2, the best
+    fixed level chosen on the user's training data, the level best for the population, the
+    ceiling, leave-one-out Bayes) with paired 95 % intervals over people, and shares of the
+    achievable and oracle gaps only where the gap is distinguishable from 0 (``share_of_gap``).
+
+    The ceiling is solved on the evaluated users themselves (its prior is uniform over them), and
+    is not re-solved per resample: intervals that involve it are conditional on these users
+    (``ceiling_conditional``)."""
     keys = list(dict.fromkeys((r["policy"], r.get("assessment")) for r in rows if key in r))
-    ref, top = _by_user(rows, reference, key), _by_user(rows, "ceiling", key)
-    loo = _by_user(rows, "bayes-loo", key)
+    refs = {label: _by_user(rows, pol, key) for label, pol in REFERENCES}
+    refs["d_reference"] = _by_user(rows, reference, key)
     out = []
     for pol, length in keys:
         mine = _by_user(rows, pol, key, length)
-        v = np.array(list(mine.values()))
-        entry: dict[str, Any] = {"policy": pol, "assessment": length, "users": len(v), "value": float(v.mean()),
-                                 "value_ci": _ci(v)}
-        for label, other in (("d_reference", ref), ("d_ceiling", top), ("d_bayes_loo", loo)):
-            d = np.array([mine[u] - other[u] for u in mine if u in other])
-            entry[label], entry[f"{label}_ci"] = (float(d.mean()), _ci(d)) if d.size else (None, None)
+        per_person = people.by_person(mine)
+        v = np.array(list(per_person.values()))
+        entry: dict[str, Any] = {"policy": pol, "assessment": length, "users": len(mine), "people": len(v),
+                                 "value": float(v.mean()), "value_ci": _ci(v), "ceiling_conditional": True}
+        for label, other in refs.items():
+            d, ci, _ = people.paired(mine, other)
+            entry[label], entry[f"{label}_ci"] = d, ci
         entry["achievable_share"] = share_of_gap(rows, pol, key, "ceiling", reference, length)
         # the same against the level best for the whole population (a fixed level a study can choose
         # without the participant's data; the project's rule uses their nearest cluster)
@@ -293,12 +307,12 @@ def achievable(rows: list[dict[str, Any]], key: str = "utility", reference: str 
 
 
 def _ci(v: np.ndarray) -> list[float] | None:
-    ci = evaluation.t_interval(np.asarray(v, dtype=float))
-    return None if ci is None else [float(ci[0]), float(ci[1])]
+    return people.t_interval(np.asarray(v, dtype=float))
 
 
 def multi_session(p: np.ndarray, obj: Objective, turns: int = 25, sessions: Sequence[int] = (1, 2, 5, 10),
-                  cache: Path | None = None, loo: bool = False) -> list[dict[str, Any]]:
+                  cache: Path | None = None, loo: bool = False, names: Sequence[str] | None = None
+                  ) -> list[dict[str, Any]]:
     """Value per session (mean over S sessions, per user) of S sessions of the same participant:
 
     ``pooled-fixed``  the level best for the population (mean utility over the users), every session;
@@ -307,8 +321,12 @@ def multi_session(p: np.ndarray, obj: Objective, turns: int = 25, sessions: Sequ
                     also the other users only), a policy a study can run;
     ``bound``       the Bayes-optimal first session, then the true rates revealed for free: no policy
                     that is not told the user can do better;
-    ``oracle``      the user's best level every session."""
+    ``oracle``      the user's best level every session.
+
+    ``names``: the users' names; means, intervals and leave-one-out are then by person."""
     p = np.asarray(p, dtype=float)
+    names = list(names) if names is not None else [f"u{i}" for i in range(len(p))]
+    pp = lambda v: people.per_person(names, v)  # noqa: E731
     u = obj.utility(p)
     best = int(np.argmax(np.round(u.mean(axis=0), 12)))
     one = bayes.evaluate_plan(_solve(p, np.ones(len(p)), obj, turns, 0, cache), p).session
@@ -322,16 +340,18 @@ def multi_session(p: np.ndarray, obj: Objective, turns: int = 25, sessions: Sequ
         if loo:
             v = np.empty(len(p))
             for i in range(len(p)):
-                others = np.delete(np.arange(len(p)), i)
+                others = people.others(names, i)
                 plan_i = _solve(p[others], np.ones(len(others)), obj, turns, (s - 1) * turns, cache)
                 v[i] = bayes.evaluate_plan(plan_i, p[i:i + 1]).total[0] / s
             vals["explore-commit-loo"] = v
-        gap = vals["oracle"] - vals["pooled-fixed"]
+        gap = pp(vals["oracle"] - vals["pooled-fixed"])
         for name, v in vals.items():
-            d = v - vals["pooled-fixed"]
-            share = float(d.mean() / gap.mean()) if gap.mean() > 1e-12 else None
+            d, v = pp(v - vals["pooled-fixed"]), pp(v)
+            ratio = people.fieller(d, gap)  # None when the oracle gap's interval contains 0
             out.append({"sessions": s, "policy": name, "value_per_session": float(v.mean()), "value_ci": _ci(v),
-                        "d_best_fixed": float(d.mean()), "d_best_fixed_ci": _ci(d), "oracle_share": share,
+                        "d_best_fixed": float(d.mean()), "d_best_fixed_ci": _ci(d),
+                        "oracle_share": None if ratio is None else ratio.share,
+                        "oracle_share_ci": None if ratio is None else ratio.ci, "people": len(v),
                         "objective": str(obj)})
     return out
 
@@ -361,12 +381,10 @@ def session_users(source: Path, compat: str | None, k: int = 3, session_prior: f
     """The held-out per-session users of ``evaluate --personalise`` (same clustering and fits), without
     training any policy: ``session_prior`` None = the data prior, a number = own rates shrunk by it."""
     from nao_trainer.learn.fitting import Turns
-    from nao_trainer.learn.parallel import fan_out
-    from nao_trainer.learn.users import read_turns
+    from nao_trainer.learn.users import leave_one_person_out, read_turns
 
     turns = Turns.from_columns(read_turns(Path(source), compat).columns)
-    sessions = sorted(np.unique(turns.session).tolist())
-    return fan_out(_session_one, [(turns, s, k, n_init, seed, session_prior) for s in sessions], workers, None)
+    return leave_one_person_out(turns, _session_one, (k, n_init, seed, session_prior), k, source, workers)
 
 
 def evaluation_ceiling(rows: list[dict[str, Any]], rates: dict[str, np.ndarray], train: dict[str, np.ndarray],
@@ -380,7 +398,7 @@ def evaluation_ceiling(rows: list[dict[str, Any]], rates: dict[str, np.ndarray],
         out["multi_session_note"] = f"not computed under {obj}: commit turns have no per-session rate"
     elif sessions:
         p = np.array([rates[n] for n in rates])
-        out["multi_session"] = multi_session(p, obj, turns, (1, *sessions), loo=loo)
+        out["multi_session"] = multi_session(p, obj, turns, (1, *sessions), loo=loo, names=list(rates))
     return out
 
 

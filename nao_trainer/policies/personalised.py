@@ -58,6 +58,16 @@ def models_fingerprint(models: ModelSet, fingerprints: Sequence[str], policy_dig
     return h.hexdigest()
 
 
+def plain_name(candidate: str) -> str:
+    """A candidate's name in words: ``usp:3`` is the policy trained for user model 3, ``fixed:4`` level 4 always."""
+    kind, _, arg = candidate.partition(":")
+    if kind == "usp":
+        return f"personalised (trained for user model {arg})"
+    if kind == "fixed":
+        return f"fixed level {arg}"
+    return candidate
+
+
 class PersonalisedPolicy:
     """``ports.Policy`` for the pipeline of ``core.assessment`` (see the module docstring)."""
 
@@ -187,13 +197,17 @@ class PersonalisedPolicy:
             "phase": phase,
             "posterior": {n: round(float(p), 4) for n, p in zip(self.models.names, w)},
             "matched": self.models.names[best], "match_probability": round(float(w[best]), 4),
-            "following": following, "switches": int(self.pers.switches[0]),
+            "following": following, "policy": plain_name(following) if following else None,
+            "switches": int(self.pers.switches[0]),
             "level_success": [round(float(x), 4) for x in levels],
-            "progress": f"           posterior: {post}" + (f" -> following {following}" if following else
-                                                          " (assessment)"),
+            "progress": f"           user models, posterior: {post}" + (
+                f" -> policy: {plain_name(following)} (by expected value)" if following
+                else " (assessment: levels set in advance)"),
             "summary": (f"matched user model: {self.models.names[best]} (posterior {w[best]:.2f}; {post}); "
-                        f"following {following or 'the assessment'}; estimated success by level "
-                        + " ".join(f"L{i + 1} {x:.2f}" for i, x in enumerate(levels))),
+                        + (f"policy: {plain_name(following)}, chosen by its expected score under the posterior over "
+                           "all the user models (so not always the matched model's own policy)" if following
+                           else "policy: the assessment (levels set in advance)")
+                        + "; estimated success by level " + " ".join(f"L{i + 1} {x:.2f}" for i, x in enumerate(levels))),
         }
 
     # -- the participant's file -----------------------------------------------------------------------

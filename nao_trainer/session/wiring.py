@@ -308,7 +308,7 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
         keys = KeyReader.start_if_terminal(commands, progress)
         stack.callback(_close_quietly, keys, recorder, out)  # the terminal is restored first, whatever happens next
     if isinstance(observer, _ConsoleObserver):
-        observer.console.hub.set_sources(eeg=monitor.live, elapsed=session.elapsed_s)
+        observer.console.hub.set_sources(eeg=monitor.live, elapsed=session.wall_elapsed_s)
     try:
         out.code = session.run()
     except (KeyboardInterrupt, Interrupted) as exc:
