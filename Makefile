@@ -11,7 +11,7 @@ export LSLAPICFG ?= $(abspath $(if $(wildcard $(SHARED)/lsl_api.cfg),$(SHARED)/l
 export QI_LOG_LEVEL := silent
 export NAO_TRAINER_SHARED ?= $(abspath $(SHARED))
 
-.PHONY: demo test bench figures clean os-packages
+.PHONY: demo test docs docs-serve bench figures clean os-packages
 $(VENV)/.installed: setup.py
 	@test -n "$(PYTHON)" || { echo "error: needs Python 3.10-3.12 (qi has no wheels for others)"; exit 1; }
 	$(PYTHON) -m venv $(VENV)
@@ -34,8 +34,16 @@ os-packages:
 test: $(VENV)/.installed os-packages
 	$(BIN)/python -m pytest -q -n 4 --dist loadfile
 
+# The documentation site (site/): a broken link, a missing anchor or a page left out of the nav fails the build.
+# The reference pages (commands, configuration keys) are generated from the code at every build.
+docs: $(VENV)/.installed
+	NO_MKDOCS_2_WARNING=1 PYTHONPATH=$(CURDIR) $(BIN)/mkdocs build --strict --quiet
+
+docs-serve: $(VENV)/.installed
+	NO_MKDOCS_2_WARNING=1 PYTHONPATH=$(CURDIR) $(BIN)/mkdocs serve
+
 bench: $(VENV)/.installed
 	for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache
+	rm -rf $(VENV) build site *.egg-info .pytest_cache

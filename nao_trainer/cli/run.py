@@ -30,7 +30,10 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, metavar="S", help="random seed (recorded in session.json)")
     p.add_argument("--out", metavar="DIR", help="folder under which the session folder is created")
     p.add_argument("--pseudonym", metavar="ID", help="participant pseudonym (names the session folder)")
-    p.add_argument("--eeg", choices=EEG_MODES, help="EEG: off, a simulated Muse, or a Muse over LSL")
+    p.add_argument("--eeg", choices=EEG_MODES, help="EEG: off, the device's simulation, or the live headband (lsl)")
+    p.add_argument("--eeg-device", metavar="NAME",
+                   help="EEG device plug-in (eeg.device): muse (muselsl / simulated Muse), brainflow (a BrainFlow "
+                        "board, its synthetic board when simulated); nao-trainer plugins lists them")
     p.add_argument("--allow-simulated-eeg", action="store_true",
                    help="pilots only: a session where a person answers or a real robot plays may take a simulated or "
                         "replayed stream (simulate-muse), refused otherwise with exit 4 (eeg.allow_simulated)")
@@ -45,7 +48,7 @@ def register(sub) -> None:
     p.add_argument("--prior", metavar="clusters|psychometric|PATH",
                    help="the bayes policy's prior (policy.prior): the fitted clusters, the pooled psychometric model, "
                         "a psychometric prior file or a folder of user simulators; default: psychometric under "
-                        "policy.objective target:R, clusters under score")
+                        "policy.objective target-p:R or target-rate:R, clusters under score")
     p.add_argument("--no-learning", action="store_true", help="a learning policy does not update during the session")
     p.add_argument("--no-practice", action="store_true", help="skip the practice round")
     p.add_argument("--quiet", action="store_true", help="no per-turn progress lines")
@@ -80,6 +83,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, object]:
         "session.output": str(Path(args.out).resolve()) if args.out else None,
         "participant.pseudonym": args.pseudonym,
         "eeg.mode": args.eeg,
+        "eeg.device": args.eeg_device,
         "eeg.source_id": args.eeg_source_id,
         "eeg.allow_simulated": True if args.allow_simulated_eeg else None,
         "policy.kind": args.policy,

@@ -30,7 +30,7 @@ policy, status, duration) and study.png. Sessions that cannot be read are report
 
 
 def register(sub) -> None:
-    p = sub.add_parser("study", help="a controlled study (init, enrol, next, status, analyse, power, export) "
+    p = sub.add_parser("study", help=f"a controlled study ({', '.join(a for a in ACTIONS if a != 'table')}) "
                                      "or the table of the sessions under STUDY_DIR",
                        description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", "-o", type=Path, default=None, metavar="DIR", help=argparse.SUPPRESS)

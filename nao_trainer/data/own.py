@@ -39,7 +39,8 @@ import numpy as np
 
 from nao_trainer.core import mdp, task
 from nao_trainer.core.eeg import Processing
-from nao_trainer.core.engagement import OnlineEngagement, QualityThresholds, WindowResult
+from nao_trainer.core.engagement import OnlineEngagement, WindowResult
+from nao_trainer.core.montage import thresholds_from
 from nao_trainer.core.phase import EngagementNormaliser, summarise_phase
 from nao_trainer.data.engagement import SessionEngagement, TurnEngagement, TurnSeries
 from nao_trainer.data.raw_csv import MAX_RAW_BYTES, read_raw  # noqa: F401 - read_raw is part of this module's API
@@ -348,6 +349,11 @@ def replay_phases(session_dir: Path) -> tuple[list[ReplayedPhase], list[str]]:
         raise DataError(f"{eeg / 'stream.json'}: needs scalp_channels (a list of channel names) and a finite "
                         "nominal_srate > 0")
     labels, fs = list(labels), float(fs)
+    try:  # the device's quality thresholds as the session applied them (a Muse's in older sessions)
+        thresholds = thresholds_from((stream.get("montage") or {}).get("thresholds")
+                                     if isinstance(stream.get("montage"), dict) else None)
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"{eeg / 'stream.json'}: montage.thresholds is not valid ({exc})") from None
     notes: list[str] = []
     phases = _csv_rows(eeg / "phases.csv", PHASE_FIELDS, notes) if (eeg / "phases.csv").is_file() else []
     windows: list[WindowResult] = []
@@ -359,7 +365,7 @@ def replay_phases(session_dir: Path) -> tuple[list[ReplayedPhase], list[str]]:
         for a, b in zip(cuts[:-1], cuts[1:]):  # a fresh estimator where the monitor started one
             if b > a:
                 engine = OnlineEngagement(fs, len(labels), window_s=proc.window_s, hop_s=proc.hop_s, a=proc.ewma_a,
-                                          thresholds=QualityThresholds(),
+                                          thresholds=thresholds,
                                           min_clean_channels=min(proc.min_clean_channels, len(labels)),
                                           gap_factor=max(2.0, proc.gap_tolerance_s * fs), channel_names=labels)
                 windows += engine.push(x[a:b], ts[a:b])

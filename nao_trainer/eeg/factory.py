@@ -3,17 +3,17 @@
 ``open_monitor(mode, eeg, session_dir, rng)`` is what the session calls. It returns an
 ``EngagementMonitor`` (see ``nao_trainer.ports``):
 
-* ``"lsl"``: resolves a stream (a Muse via muselsl, or any EEG stream named in the study config);
-* ``"simulated"``: starts a :class:`~nao_trainer.eeg.simulated_muse.SimulatedMuse` in this process and
-  monitors it over a real LSL stream; ``set_target`` drives its engagement;
+* ``"lsl"``: the live headband of the study's ``eeg.device`` (``eeg/device.py``): a Muse via muselsl is
+  resolved by the study's query, a device that makes its stream in this process (BrainFlow) starts it;
+* ``"simulated"``: the device's simulation, e.g. a
+  :class:`~nao_trainer.eeg.simulated_muse.SimulatedMuse` in this process, monitored over a real LSL
+  stream; ``set_target`` drives its engagement;
 * ``"off"``: ``ports.NullMonitor``.
 """
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import logging
-import os
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -24,23 +24,19 @@ from nao_trainer.eeg.lsl_scope import configure_lsl
 from nao_trainer.eeg.markers import MarkerOutlet, marker_source_id
 from nao_trainer.eeg.monitor import LslMonitor
 from nao_trainer.eeg.settings import EEGSettings, simulated_refusal
-from nao_trainer.eeg.simulated_muse import SimulatedMuse, fake_mac
 from nao_trainer.errors import EEGUnavailable
 from nao_trainer.ports import EngagementMonitor, NullMonitor
 
 log = logging.getLogger(__name__)
 
-_SIM_COUNTER = itertools.count(1)
-
 
 def _no_stream_message(query: StreamQuery, settings: EEGSettings) -> str:
     what = (f"no EEG stream ({query.describe()}) found by LSL in scope {settings.lsl_scope!r} within "
             f"{settings.processing.resolve_timeout_s:g} s (eeg.stream_type / eeg.stream_name / eeg.source_id in the study config, or --eeg-source-id)")
+    hint = settings.eeg_device().start_hint
     if settings.required:
-        return (f"{what}; start the headband bridge (`muselsl stream --lsltime`) or `nao-trainer simulate-muse` "
-                "and try again, or run with --eeg off")
-    return (f"{what}; continuing without EEG - start the headband bridge (`muselsl stream --lsltime`) or "
-            "`nao-trainer simulate-muse` and the session uses it from then on")
+        return f"{what}; {hint} and try again, or run with --eeg off"
+    return f"{what}; continuing without EEG - {hint} and the session uses it from then on"
 
 
 def open_monitor(mode: str, eeg_cfg: EEGSettings | Mapping[str, Any] | None, session_dir: Path | None,
@@ -65,16 +61,11 @@ def open_monitor(mode: str, eeg_cfg: EEGSettings | Mapping[str, Any] | None, ses
     if settings.mode == "off":
         return NullMonitor()
     configure_lsl(settings.lsl_scope)
-    simulator = None
-    query = StreamQuery(settings.stream_type, settings.stream_name, settings.source_id)
-    if settings.mode == "simulated":
-        # The simulator draws from its own generator (seeded from the session's) in its own thread,
-        # so the session's random stream stays reproducible.
-        sim_rng = np.random.default_rng(int(rng.integers(0, 2**63 - 1)))
-        # pid + a counter keep source_ids unique across parallel processes and monitors (no cross-talk)
-        source_id = f"Muse{fake_mac(sim_rng)}-sim{os.getpid()}-{next(_SIM_COUNTER)}"
-        simulator = SimulatedMuse.start(sim_rng, target=rest_target, source_id=source_id, scope=settings.lsl_scope)
-        query = StreamQuery("EEG", None, source_id)
+    device = settings.eeg_device()
+    # The device starts what makes its stream in this process (a simulated Muse, a BrainFlow board
+    # republished to LSL), pinned by source_id; a Muse via muselsl is found by the study's query.
+    source = device.open(settings, rng, simulated=settings.mode == "simulated", rest_target=rest_target)
+    simulator, query = source.producer, source.query
     markers = None
     try:
         timeout = settings.processing.resolve_timeout_s if simulator is None else max(5.0, settings.processing.resolve_timeout_s)
@@ -84,7 +75,7 @@ def open_monitor(mode: str, eeg_cfg: EEGSettings | Mapping[str, Any] | None, ses
         inlet, reason = None, _no_stream_message(query, settings)
         if info is not None:
             try:
-                inlet, reason = EEGInlet.open(info, settings.lsl_scope), ""
+                inlet, reason = EEGInlet.open(info, settings.lsl_scope, montage=source.montage), ""
             except Exception as exc:  # irregular rate, vanished between resolve and open, ...
                 reason = str(exc) if isinstance(exc, EEGUnavailable) else (
                     f"EEG stream {info.name()!r} (source_id {info.source_id()!r}) was found but could not be "
@@ -99,7 +90,7 @@ def open_monitor(mode: str, eeg_cfg: EEGSettings | Mapping[str, Any] | None, ses
             log.warning("EEG unavailable: %s", reason)
         markers = MarkerOutlet(marker_source_id(pseudonym), scope=settings.lsl_scope)
         monitor = LslMonitor(settings, query, session_dir, inlet, markers, reason, simulator, record_xdf,
-                             refuse_simulated=person)
+                             refuse_simulated=person, montage=source.montage)
         if simulator is not None:  # a simulated headband is "put on" before the greeting: fill one window
             monitor.wait_for_windows(1, settings.processing.window_s + 2.0)
         return monitor

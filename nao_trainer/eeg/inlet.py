@@ -1,10 +1,12 @@
-"""Find an EEG stream over Lab Streaming Layer (a Muse as muselsl publishes it) and read it.
+"""Find an EEG stream over Lab Streaming Layer (a Muse as muselsl publishes it, a BrainFlow board
+republished by its device) and read it.
 
 ``resolve_eeg`` looks for streams of a type (default ``EEG``), optionally a name or source_id, and
-prefers a stream named ``Muse``. ``EEGInlet`` reads the channel labels from the stream description
-(``channels/channel/label``), keeps the scalp channels TP9, AF7, AF8, TP10 (dropping ``Right AUX``),
-and returns samples stamped on this machine's LSL clock: it applies the inlet's time correction
-and also maps streams stamped with wall-clock time (muselsl without ``--lsltime``).
+prefers a stream of the device's name (``Montage.prefer_name``). ``EEGInlet`` reads the channel labels
+from the stream description (``channels/channel/label``), keeps the device montage's scalp channels
+(for a Muse TP9, AF7, AF8, TP10, dropping ``Right AUX``), and returns samples stamped on this machine's
+LSL clock: it applies the inlet's time correction and also maps streams stamped with wall-clock time
+(muselsl without ``--lsltime``).
 """
 from __future__ import annotations
 
@@ -15,12 +17,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from nao_trainer.errors import EEGUnavailable
-from nao_trainer.core.eeg import CHANNELS
+from nao_trainer.core.montage import Montage
 from nao_trainer.eeg.lsl_scope import configure_lsl
 
 log = logging.getLogger(__name__)
 
-SCALP_LABELS = CHANNELS  # kept by name; a Muse's fifth channel, Right AUX, is dropped
 #: Stamps further than this from the local clock are not on the LSL clock (seconds).
 CLOCK_MISMATCH_S = 5.0
 
@@ -47,7 +48,7 @@ class StreamQuery:
         """The stream to use among matching ``pylsl.StreamInfo``s: the first named ``prefer_name``, else the
         first one; None when there is none."""
         infos = list(infos)
-        preferred = [i for i in infos if i.name() == self.prefer_name]
+        preferred = [i for i in infos if self.prefer_name and i.name() == self.prefer_name]
         return (preferred or infos or [None])[0]
 
     def describe(self) -> str:
@@ -96,8 +97,8 @@ def resolve_eeg(query: StreamQuery, timeout_s: float, scope: str = "machine"):
     return chosen
 
 
-#: ``desc/acquisition`` values of streams made by nao-trainer itself (simulate-muse, the replayer): not a headband.
-SIMULATED_ACQUISITIONS = ("simulated", "replayed")
+#: ``desc/acquisition`` values of made-up streams (simulate-muse, the replayer, BrainFlow's synthetic board): not a headband.
+SIMULATED_ACQUISITIONS = ("simulated", "replayed", "synthetic")
 
 
 def acquisition(info) -> str:
@@ -134,22 +135,6 @@ def channel_labels(info) -> list[str]:
     return labels
 
 
-def scalp_channels(labels: list[str], n_channels: int) -> tuple[tuple[int, ...], tuple[str, ...], str]:
-    """Indices and names of the scalp channels, and a warning ("" if none).
-
-    Known Muse labels are used in stream order; without them, the first four channels are assumed
-    to be TP9, AF7, AF8, TP10 (muselsl's order) and a warning says so.
-    """
-    upper = [label.upper() for label in labels]
-    idx = tuple(i for i, label in enumerate(upper) if label in SCALP_LABELS)
-    if idx:
-        return idx, tuple(labels[i] for i in idx), ""
-    n = min(4, n_channels)
-    warning = (f"the stream has no Muse channel labels ({', '.join(labels) or 'none'}); "
-               f"assuming its first {n} channels are {', '.join(SCALP_LABELS[:n])}")
-    return tuple(range(n)), SCALP_LABELS[:n], warning
-
-
 @dataclass
 class EEGInlet:
     """An open LSL inlet on one EEG stream, reading scalp channels stamped on the local LSL clock."""
@@ -171,15 +156,23 @@ class EEGInlet:
     _max_samples: int = 1024
 
     @classmethod
-    def open(cls, info, scope: str = "machine", correction_timeout_s: float = 2.0) -> "EEGInlet":
-        """Open an inlet on ``info`` (from :func:`resolve_eeg`); ``recover=True`` reconnects by itself."""
+    def open(cls, info, scope: str = "machine", correction_timeout_s: float = 2.0,
+             montage: Montage | None = None) -> "EEGInlet":
+        """Open an inlet on ``info`` (from :func:`resolve_eeg`); ``recover=True`` reconnects by itself.
+
+        ``montage``: the device's (``eeg.device.EEGDevice.montage``), naming the scalp channels kept; a Muse's
+        when not given."""
         configure_lsl(scope)
         import pylsl
 
+        if montage is None:
+            from nao_trainer.eeg.device import make_device
+
+            montage = make_device("muse").montage()
         inlet = pylsl.StreamInlet(info, max_buflen=60, recover=True)
         full = inlet.info(correction_timeout_s)
         labels = channel_labels(full)
-        idx, scalp, warning = scalp_channels(labels, full.channel_count())
+        idx, scalp, warning = montage.scalp_index(labels, full.channel_count())
         fs = full.nominal_srate()
         if fs <= 0:
             raise EEGUnavailable(f"LSL stream {full.name()!r} (source_id {full.source_id()!r}) has an irregular "

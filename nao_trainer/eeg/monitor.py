@@ -30,7 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from nao_trainer.core.engagement import OnlineEngagement, QualityThresholds, WindowResult
+from nao_trainer.core.engagement import OnlineEngagement, WindowResult
+from nao_trainer.core.montage import Montage
 from nao_trainer.core.phase import EngagementNormaliser, summarise_phase
 from nao_trainer.eeg.inlet import EEGInlet, StreamQuery
 from nao_trainer.eeg.settings import EEGSettings, simulated_refusal
@@ -78,7 +79,8 @@ class LslMonitor:
 
     def __init__(self, settings: EEGSettings, query: StreamQuery, session_dir: Path | None,
                  inlet: EEGInlet | None, markers: MarkerOutlet | None, unavailable_reason: str = "",
-                 simulator=None, record_xdf: bool = False, refuse_simulated: bool = False) -> None:
+                 simulator=None, record_xdf: bool = False, refuse_simulated: bool = False,
+                 montage: Montage | None = None) -> None:
         import pylsl
 
         self._clock = pylsl.local_clock
@@ -87,6 +89,8 @@ class LslMonitor:
         self.settings = settings
         self.proc = settings.processing
         self.query = query
+        # the device's channels, rate and quality thresholds (eeg.device); a Muse's when not given
+        self.montage = montage if montage is not None else settings.eeg_device().montage()
         self.files = SessionFiles(session_dir)
         self.markers = markers
         self.simulator = simulator
@@ -170,13 +174,14 @@ class LslMonitor:
         p = self.proc
         self.engine = OnlineEngagement(
             inlet.fs, len(inlet.scalp_index), window_s=p.window_s, hop_s=p.hop_s, a=p.ewma_a,
-            thresholds=QualityThresholds(), min_clean_channels=min(p.min_clean_channels, len(inlet.scalp_index)),
+            thresholds=self.montage.thresholds, min_clean_channels=min(p.min_clean_channels, len(inlet.scalp_index)),
             gap_factor=max(2.0, p.gap_tolerance_s * inlet.fs), channel_names=inlet.scalp_labels)
         self.unavailable_reason = ""
         self._last_arrival = self._clock()
         self.stream_identity = inlet.identity()
         self.files.write_json("stream.json", {**inlet.describe(), "lsl_scope": self.settings.lsl_scope,
-                                              "processing": asdict(self.proc)})
+                                              "processing": asdict(self.proc), "device": self.montage.device,
+                                              "montage": self.montage.to_dict()})
         self._event("eeg_stream_found", f"{inlet.name} {inlet.source_id} {inlet.fs:g} Hz "
                                         f"{'/'.join(inlet.scalp_labels)}")
 
@@ -260,7 +265,7 @@ class LslMonitor:
         if infos and not self._stop.is_set():
             info = self.query.pick(infos)
             try:
-                inlet = EEGInlet.open(info, self.settings.lsl_scope)
+                inlet = EEGInlet.open(info, self.settings.lsl_scope, montage=self.montage)
             except Exception as exc:  # not usable (e.g. irregular rate): say so once, keep looking
                 self._rejected.add(info.source_id())
                 self._event("eeg_stream_rejected", f"{info.name()} {info.source_id()}: {exc}", publish=False)
@@ -384,9 +389,10 @@ class LslMonitor:
         self._event(event, "", turn)
 
     def set_target(self, engagement: float | None) -> None:
-        """Drive the simulated Muse (simulated mode); ignored for a real headband or None."""
-        if self.simulator is not None and engagement is not None:
-            self.simulator.set_target(float(np.clip(engagement, 0.0, 1.0)))
+        """Drive the simulated Muse (simulated mode); ignored for a real headband, a BrainFlow board or None."""
+        follow = getattr(self.simulator, "set_target", None)  # a BrainFlow board does not follow
+        if follow is not None and engagement is not None:
+            follow(float(np.clip(engagement, 0.0, 1.0)))
 
     def begin_phase(self, phase: str, turn: int | None) -> None:
         """Open a phase ("baseline", "listening" or "answer") now, on the LSL clock.

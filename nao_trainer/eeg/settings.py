@@ -13,6 +13,7 @@ from typing import Any, Callable, Mapping
 
 from nao_trainer.core.eeg import Processing
 from nao_trainer.core.settings import SettingError, build, setting, settings
+from nao_trainer import registry
 from nao_trainer.eeg.lsl_scope import SCOPES
 from nao_trainer.errors import ConfigError
 
@@ -31,11 +32,24 @@ def _stream_property(value: str) -> str | None:
     return None
 
 
+def _registered_device(value: str) -> str | None:
+    try:
+        registry.spec("eeg_device", value)
+    except ConfigError as exc:
+        return str(exc)
+    return None
+
+
 @settings
 class EEGSettings:
     """The ``eeg`` section of a study config, validated."""
 
-    mode: str = setting("simulated", kind=str, choices=MODES, doc="off | simulated | lsl")
+    mode: str = setting("simulated", kind=str, choices=MODES,
+                        doc="off | simulated (the device's simulation) | lsl (the live headband, read over LSL)")
+    device: str = setting("muse", kind=str, check=_registered_device,
+                          doc="the EEG device plug-in (nao-trainer plugins lists them): muse, brainflow, ...")
+    device_settings: dict = setting(factory=dict, kind=dict, free=True,
+                                    doc="the device's own settings (its Settings class; nao-trainer plugins)")
     required: bool = setting(False, kind=bool, doc="refuse to start (exit 4) without a usable stream")
     stream_type: str = setting("EEG", kind=str, check=_stream_property, doc="LSL stream type to resolve")
     stream_name: str | None = setting(None, kind=str, nullable=True, check=_stream_property, doc="LSL stream name")
@@ -48,6 +62,17 @@ class EEGSettings:
     allow_simulated: bool = setting(False, kind=bool,
                                     doc="pilots only: let a session where a person answers or a real robot plays "
                                         "take a simulated or replayed stream (simulate-muse); --allow-simulated-eeg")
+
+    def __post_init__(self) -> None:
+        # the device's own settings, validated with the section (``key 'eeg.device_settings.board' ...``)
+        from nao_trainer.eeg.device import make_device
+
+        device = make_device(self.device, self.device_settings, prefix="device_settings")
+        object.__setattr__(self, "_device", device)
+
+    def eeg_device(self):
+        """The device plug-in (``eeg.device.EEGDevice``) with its validated settings."""
+        return self._device  # type: ignore[attr-defined]
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any] | None, mode: str | None = None,
@@ -76,7 +101,7 @@ def simulated_refusal(identity: Mapping[str, Any], settings: EEGSettings) -> str
     if not identity.get("simulated") or settings.allow_simulated:
         return ""
     return (f"EEG stream {identity.get('name')!r} (source_id {identity.get('source_id')!r}) is "
-            f"{identity.get('acquisition')} (nao-trainer simulate-muse), not a headband, but a person answers or a "
+            f"{identity.get('acquisition')} (nao-trainer simulate-muse, or BrainFlow's synthetic board), not a headband, but a person answers or a "
             "real robot plays: its engagement would be recorded as theirs; start the headband bridge and pin it with "
             "eeg.source_id (--eeg-source-id), or for a pilot set eeg.allow_simulated: true (--allow-simulated-eeg)")
 

@@ -18,8 +18,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from nao_trainer.core.engagement import window_quality
-from nao_trainer.eeg.inlet import EEGInlet, StreamQuery, resolve_all
+from nao_trainer.core.engagement import QualityThresholds, window_quality
+from nao_trainer.eeg.inlet import EEGInlet, resolve_all
 from nao_trainer.eeg.settings import ambiguous_streams, simulated_refusal
 from nao_trainer.errors import ConfigError, RobotUnavailable, UserError
 from nao_trainer.ports import RobotCallFailed, RobotConnectionLost
@@ -100,9 +100,7 @@ def plan_from_config(config: Any) -> CheckPlan:
 
 
 def _state_dirs(config: Any) -> tuple[Path, ...]:
-    """The participant's folder when the policy keeps a learning state there (learned, personalised)."""
-    if config.policy.kind in ("schedule", "random"):
-        return ()
+    """The participant's folder when the policy keeps a participant state there (its declaration says so)."""
     state = config.policy_state_file()
     return () if state is None else (state.parent,)
 
@@ -254,29 +252,43 @@ def _check_desktop() -> CheckResult:
 
 
 def check_eeg(plan: CheckPlan, listen_s: float = EEG_LISTEN_S) -> CheckResult:
-    """The EEG stream is there and each scalp channel is clean most of the time over ``listen_s``."""
+    """The EEG stream is there and each scalp channel is clean most of the time over ``listen_s``.
+
+    The device (``eeg.device``) says how its stream is found and judged (its montage); a device that makes
+    its stream in this process (a BrainFlow board, also the synthetic one) is opened and listened to."""
     if plan.eeg_mode == "off":
         return CheckResult("eeg", True, "EEG off (eeg.mode: off)", required=False)
-    if plan.eeg_mode == "simulated":
-        return CheckResult("eeg", True, "a simulated Muse is started with the session (no electrodes to check)",
-                           required=False)
-
     settings = plan.eeg
-    required = bool(settings.required)
-    query = StreamQuery(settings.stream_type, settings.stream_name, settings.source_id)
+    device = settings.eeg_device()
+    simulated = plan.eeg_mode == "simulated"
+    if simulated and not device.opens_in_process:
+        return CheckResult("eeg", True, f"a {device.montage(True).board} is started with the session (no electrodes "
+                           "to check)", required=False)
+    required = bool(settings.required) and not simulated
+    try:
+        source = device.open(settings, np.random.default_rng(0), simulated=simulated)
+    except UserError as exc:  # the board is not there, the library is missing: what and how to fix
+        return CheckResult("eeg", False, str(exc), "", required)
+    try:
+        return _check_source(plan, settings, source, required, listen_s)
+    finally:
+        source.stop()
+
+
+def _check_source(plan: CheckPlan, settings: Any, source: Any, required: bool, listen_s: float) -> CheckResult:
+    query, montage = source.query, source.montage
     infos = resolve_all(query, settings.processing.resolve_timeout_s, settings.lsl_scope)
     info = query.pick(infos)
-    many = ambiguous_streams(query.describe(), settings.source_id, [(i.name(), i.source_id()) for i in infos])
+    many = ambiguous_streams(query.describe(), query.source_id, [(i.name(), i.source_id()) for i in infos])
     if many:  # issue 17: a session could take the wrong headband
         return CheckResult("eeg", False, many, "pin one: eeg.source_id: ID in the study file, or --eeg-source-id ID",
                            required)
     if info is None:
         return CheckResult("eeg", False, f"no EEG stream ({query.describe()}) found by LSL in scope "
                            f"{settings.lsl_scope!r} within {settings.processing.resolve_timeout_s:g} s",
-                           "start the headband bridge (`muselsl stream --lsltime`) and check eeg.stream_name / "
-                           "eeg.source_id", required)
+                           f"{settings.eeg_device().start_hint}; check eeg.stream_name / eeg.source_id", required)
     try:
-        inlet = EEGInlet.open(info, settings.lsl_scope)
+        inlet = EEGInlet.open(info, settings.lsl_scope, montage=montage)
     except Exception as exc:  # noqa: BLE001 - irregular rate, vanished: report, do not crash the check
         return CheckResult("eeg", False, f"EEG stream {info.name()!r} (source_id {info.source_id()!r}) cannot be "
                            f"used: {exc}", "check the headband bridge", required)
@@ -287,7 +299,8 @@ def check_eeg(plan: CheckPlan, listen_s: float = EEG_LISTEN_S) -> CheckResult:
         return CheckResult("eeg", False, head + ": its engagement would be recorded as theirs", fix, True)
     try:
         kind = f"{inlet.acquisition}, " if inlet.simulated else ""
-        found = (f"stream {inlet.name!r} ({kind}source_id {inlet.source_id!r}, {inlet.fs:g} Hz, "
+        board = f"{montage.board}: " if source.producer is not None else ""
+        found = (f"{board}stream {inlet.name!r} ({kind}source_id {inlet.source_id!r}, {inlet.fs:g} Hz, "
                  f"{len(inlet.scalp_labels)} scalp channels)")
         x = _listen(inlet, max(listen_s, settings.processing.window_s + 1.0))
     finally:
@@ -295,7 +308,7 @@ def check_eeg(plan: CheckPlan, listen_s: float = EEG_LISTEN_S) -> CheckResult:
     if len(x) < inlet.fs * settings.processing.window_s:
         return CheckResult("eeg", False, f"{found} sent {len(x)} samples in {listen_s:g} s",
                            "the headband is paired but not streaming: restart the bridge", required)
-    return _contact_result(found, x, inlet.fs, inlet.scalp_labels, settings.processing, required)
+    return _contact_result(found, x, inlet.fs, inlet.scalp_labels, settings.processing, required, montage.thresholds)
 
 
 def _listen(inlet: Any, seconds: float) -> np.ndarray:
@@ -308,7 +321,8 @@ def _listen(inlet: Any, seconds: float) -> np.ndarray:
     return np.concatenate(chunks) if chunks else np.empty((0, len(inlet.scalp_index)))
 
 
-def channel_quality(x: np.ndarray, fs: float, window_s: float, hop_s: float) -> tuple[np.ndarray, list[str]]:
+def channel_quality(x: np.ndarray, fs: float, window_s: float, hop_s: float,
+                    thresholds: QualityThresholds = QualityThresholds()) -> tuple[np.ndarray, list[str]]:
     """Per channel: the fraction of analysis windows the monitor's rules call clean, and the commonest reason."""
     n = int(round(window_s * fs))
     hop = max(1, int(round(hop_s * fs)))
@@ -316,7 +330,7 @@ def channel_quality(x: np.ndarray, fs: float, window_s: float, hop_s: float) -> 
     clean = np.zeros(x.shape[1])
     reasons: list[dict[str, int]] = [{} for _ in range(x.shape[1])]
     for start in starts:
-        ok, why = window_quality(x[start:start + n], fs)
+        ok, why = window_quality(x[start:start + n], fs, thresholds)
         clean += ok
         for c, reason in enumerate(why):
             if reason:
@@ -326,8 +340,8 @@ def channel_quality(x: np.ndarray, fs: float, window_s: float, hop_s: float) -> 
 
 
 def _contact_result(found: str, x: np.ndarray, fs: float, labels: tuple[str, ...], processing: Any,
-                    required: bool) -> CheckResult:
-    fraction, worst = channel_quality(x, fs, processing.window_s, processing.hop_s)
+                    required: bool, thresholds: QualityThresholds = QualityThresholds()) -> CheckResult:
+    fraction, worst = channel_quality(x, fs, processing.window_s, processing.hop_s, thresholds)
     good = fraction >= processing.min_quality
     parts = [f"{label} {f:.0%}" + ("" if ok else f" ({why})") for label, f, ok, why in zip(labels, fraction, good, worst)]
     detail = f"{found}: contact {', '.join(parts)}"

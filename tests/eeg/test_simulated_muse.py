@@ -121,7 +121,7 @@ def test_inlet_without_labels_assumes_muse_order():
     try:
         inlet = EEGInlet.open(resolve_eeg(StreamQuery("EEG", source_id=sid), 5.0))
         assert inlet.scalp_index == (0, 1, 2, 3) and inlet.fs == 128
-        assert "no Muse channel labels" in inlet.warnings[0]
+        assert "none of the muse channel labels" in inlet.warnings[0]
         inlet.close()
     finally:
         del outlet

@@ -150,7 +150,7 @@ def test_shipped_model_folders_record_the_fingerprint_the_importer_gives(dataset
     for folder in (artifacts.DEFAULT_MODELS_DIR, artifacts.DEFAULT_MODELS_DIR.parent / "models-tested"):
         manifest = artifacts.load_manifest(folder)
         want = fingerprints[manifest["compat"]]
-        fix = f"{folder} is stale: refit it as docs/results/make_results.sh does (nao-trainer fit DATA --out ...)"
+        fix = f"{folder} is stale: refit it as analysis/make_results.sh does (nao-trainer fit DATA --out ...)"
         assert manifest["dataset_fingerprint"] == want, fix
         for spec in artifacts.available_models(folder):
             assert artifacts.load_simulator(spec, folder).metadata["dataset_fingerprint"] == want, fix

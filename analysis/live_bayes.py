@@ -1,6 +1,6 @@
 """The live ``bayes`` policy with the psychometric prior against the evaluation's ``bayes-psychometric`` row.
 
-    PYTHONPATH=. python docs/results/live_bayes.py [--data DATASET_ROOT] RESULTS_DIR [RESULTS_DIR ...]
+    PYTHONPATH=. python analysis/live_bayes.py [--data DATASET_ROOT] RESULTS_DIR [RESULTS_DIR ...]
 
 RESULTS_DIR: a folder written by ``evaluate --personalise ... --objective OBJ`` (docs/results/ceiling-*),
 whose ``personalise.json`` holds the ceiling rows. The live policy is built exactly as ``run --policy bayes

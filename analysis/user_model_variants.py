@@ -1,6 +1,6 @@
 """Variants of the pooled psychometric user model (issue 21): which predicts held-out turns best, and how each plans.
 
-    PYTHONPATH=. python docs/results/user_model_variants.py --data DATASET_ROOT [--out FILE.json]
+    PYTHONPATH=. python analysis/user_model_variants.py --data DATASET_ROOT [--out FILE.json]
 
 Every variant is a hierarchical model of success against sequence length x (3, 5, 7, 9 letters at
 levels 1-4), with the participant's parameters integrated over a grid, so its prior is a finite
@@ -66,7 +66,8 @@ LOG_THETA = np.linspace(np.log(1.5), np.log(25.0), 141)
 LOG_SIGMA = np.linspace(np.log(0.2), np.log(8.0), 25)
 CLIP = 1e-3
 MAX_COMPONENTS = 300
-RESULTS = Path(__file__).resolve().parent
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE.parent / "docs" / "results"
 FOLDERS = {"own rates": RESULTS / "ceiling-own-rates-target-0.75",
            "data prior": RESULTS / "ceiling-data-prior-target-0.75"}
 
@@ -261,7 +262,7 @@ def target_values(p: np.ndarray, w: np.ndarray, label: str) -> dict[str, dict]:
 def _user_rates(rows: list[dict]) -> dict[str, np.ndarray]:
     import sys
 
-    sys.path.insert(0, str(RESULTS))
+    sys.path.insert(0, str(HERE))
     from live_bayes import user_rates
 
     return user_rates(rows)

@@ -1,6 +1,6 @@
 """Each published session's span at 75 % under the shipped psychometric prior (docs/session.md, "Span").
 
-    PYTHONPATH=. python docs/results/spans.py DATASET_ROOT   # the 50 sessions of the published layout
+    PYTHONPATH=. python analysis/spans.py DATASET_ROOT   # the 50 sessions of the published layout
 
 Prints the prior's span, one line per session (median [90 % interval], letters) and the spread.
 """

@@ -3,7 +3,7 @@
 # DATASET_ROOT: the published sessions, extracted from ../shared/data/sequence-learning/clean_data_bands.tar.xz
 set -euo pipefail
 ROOT=${DATASET_ROOT:?set DATASET_ROOT to the extracted clean_data folder}
-cd "$(dirname "$0")/../.."
+cd "$(dirname "$0")/.."
 NT=${NT:-.venv/bin/nao-trainer}
 $NT fit "$ROOT" --out sim/models-tested --no-figures                          # the tested-effects default fit
 $NT evaluate --users clusters --per-user --out docs/results/clusters

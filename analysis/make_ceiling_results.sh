@@ -4,7 +4,7 @@
 # OBJECTIVES: which objectives to run (default both); the two can run in parallel.
 set -euo pipefail
 ROOT=${DATASET_ROOT:?set DATASET_ROOT to the extracted clean_data folder}
-cd "$(dirname "$0")/../.."
+cd "$(dirname "$0")/.."
 NT=${NT:-.venv/bin/nao-trainer}
 for OBJ in ${OBJECTIVES:-score target:0.75}; do
   TAG=${OBJ/:/-}

@@ -1,0 +1,1 @@
+"""The project's own EEG devices (``registry.BUILTIN``, kind ``eeg_device``): the Muse over LSL, BrainFlow boards."""
