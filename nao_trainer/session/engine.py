@@ -52,6 +52,8 @@ from nao_trainer.session.turn import Turn, progress_line
 EXIT_OK, EXIT_ROBOT_LOST, EXIT_INTERRUPTED = 0, RobotUnavailable.exit_code, Interrupted.exit_code
 #: The operator stopped the session (a key or the console): goodbye and safe posture, then this code.
 EXIT_OPERATOR_STOP = 5
+#: Every turn was played and recorded, but events.jsonl could not be written to the end (a full disk).
+EXIT_EVENTS_LOST = 6
 
 
 class Session:
@@ -352,7 +354,11 @@ class Session:
         # (with this row and the transition not yet learned), then the row, then the policy learns and
         # saves. A kill or a failed write in between loses nothing: a resumption appends the checkpoint's
         # row when turns.csv lacks it, and hands the policy the transition.
-        self.checkpoints.write(self._standing(), row, self.elapsed_s(), self.desk.override, learn)
+        try:
+            self.checkpoints.write(self._standing(), row, self.elapsed_s(), self.desk.override, learn)
+        except OSError:  # a full disk: the answered turn is still kept in turns.csv, then the failure ends the session
+            self.log.row(turn, row)
+            raise
         self.log.row(turn, row)
         if learn is not None:
             self.policy.observe(learn)
