@@ -197,6 +197,7 @@ BUILTIN: tuple[tuple[str, str, str], ...] = (
     ("policy", "personalised", "nao_trainer.policies.kinds:PERSONALISED"),
     ("policy", "bayes", "nao_trainer.policies.kinds:BAYES"),
     ("eeg_device", "muse", "nao_trainer.eeg.devices.muse:MuseDevice"),
+    ("eeg_device", "brainflow", "nao_trainer.eeg.devices.brainflow:BrainFlowDevice"),
 )
 
 
