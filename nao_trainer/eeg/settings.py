@@ -44,7 +44,7 @@ def _registered_device(value: str) -> str | None:
 class EEGSettings:
     """The ``eeg`` section of a study config, validated."""
 
-    mode: str = setting("simulated", kind=str, choices=MODES,
+    mode: str = setting("off", kind=str, choices=MODES,
                         doc="off | simulated (the device's simulation) | lsl (the live headband, read over LSL)")
     device: str = setting("muse", kind=str, check=_registered_device,
                           doc="the EEG device plug-in (nao-trainer plugins lists them): muse, brainflow, ...")
