@@ -148,6 +148,8 @@ def make(kind: str, name: str, *args: Any, **kwargs: Any) -> Any:
 #: The project's own plug-ins: (kind, name, entry point). Each home owns its settings and behaviour.
 BUILTIN: tuple[tuple[str, str, str], ...] = (
     ("eeg_device", "muse", "nao_trainer.eeg.devices.muse:MuseDevice"),
+    ("robot_model", "nao", "nao_trainer.robot.models.nao:NaoModel"),
+    ("robot_model", "pepper", "nao_trainer.robot.models.pepper:PepperModel"),
 )
 
 
