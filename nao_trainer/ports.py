@@ -280,6 +280,7 @@ class PhaseEngagement:
     quality: float  # fraction of clean signal in the phase, 0..1
     reason: str = ""  # why engagement is None, empty otherwise
     series: np.ndarray | None = field(default=None, compare=False)  # per-window values
+    lost_s: float = 0.0  # seconds of the phase without samples (the headband's stream had stopped)
 
 
 class EngagementMonitor(Protocol):

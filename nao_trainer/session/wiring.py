@@ -461,7 +461,14 @@ def _close_record(recorder: SessionRecorder, out: _Outcome, policy: Policy, stan
                    policy_summary=out.summary or None,
                    eeg_turns=result.eeg_turns if result.eeg_on else None,  # how many counted turns had EEG
                    span=result.span_record(),  # the span at the study's rate (docs/session.md), None without turns
-                   eeg_stream=getattr(out.monitor, "stream_identity", None))  # which stream; simulated or not
+                   eeg_stream=getattr(out.monitor, "stream_identity", None),  # which stream; simulated or not
+                   eeg_gaps=_eeg_gaps(out.monitor))  # each dropout of the headband's stream, and the turns it hit
+
+
+def _eeg_gaps(monitor: Any) -> list[dict[str, Any]] | None:
+    """The monitor's gaps (``eeg.monitor.LslMonitor.gap_report``), None when EEG is off."""
+    report = getattr(monitor, "gap_report", None)
+    return report() if callable(report) else None
 
 
 def _policy_state(policy: Policy, config: StudyConfig, fresh: bool, progress: TextIO | None) -> dict[str, Any] | None:
