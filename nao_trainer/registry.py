@@ -43,18 +43,22 @@ class Spec:
 
     def load(self) -> Any:
         """Import the entry point's module and return its attribute; a failure is one ``ConfigError`` line."""
-        module, _, attribute = self.entry_point.partition(":")
-        try:
-            target: Any = importlib.import_module(module)
-            for part in attribute.split(".") if attribute else ():
-                target = getattr(target, part)
-        except ImportError as exc:
-            raise ConfigError(f"{WORDS[self.kind]} {self.name!r} (from {self.origin}) cannot be loaded: {exc}; "
-                              "install what it needs or choose another") from None
-        except AttributeError as exc:
-            raise ConfigError(f"{WORDS[self.kind]} {self.name!r} (from {self.origin}): entry point "
-                              f"{self.entry_point!r} is broken ({exc})") from None
-        return target
+        return resolve(self.entry_point, f"{WORDS[self.kind]} {self.name!r} (from {self.origin})")
+
+
+def resolve(entry_point: str, what: str) -> Any:
+    """The object ``"module:attribute"`` names, imported now (a plug-in's own lazy entry points, such as a
+    policy's ``live`` and ``offline`` forms); a failure is one ``ConfigError`` line naming ``what``."""
+    module, _, attribute = entry_point.partition(":")
+    try:
+        target: Any = importlib.import_module(module)
+        for part in attribute.split(".") if attribute else ():
+            target = getattr(target, part)
+    except ImportError as exc:
+        raise ConfigError(f"{what} cannot be loaded: {exc}; install what it needs or choose another") from None
+    except AttributeError as exc:
+        raise ConfigError(f"{what}: entry point {entry_point!r} is broken ({exc})") from None
+    return target
 
 
 _REGISTRY: dict[str, dict[str, Spec]] = {kind: {} for kind in GROUPS}
@@ -147,7 +151,13 @@ def make(kind: str, name: str, *args: Any, **kwargs: Any) -> Any:
 
 #: The project's own plug-ins: (kind, name, entry point). Each home owns its settings and behaviour.
 BUILTIN: tuple[tuple[str, str, str], ...] = (
+    ("policy", "schedule", "nao_trainer.policies.kinds:SCHEDULE"),
+    ("policy", "random", "nao_trainer.policies.kinds:RANDOM"),
+    ("policy", "usp", "nao_trainer.policies.kinds:USP"),
+    ("policy", "personalised", "nao_trainer.policies.kinds:PERSONALISED"),
+    ("policy", "bayes", "nao_trainer.policies.kinds:BAYES"),
     ("eeg_device", "muse", "nao_trainer.eeg.devices.muse:MuseDevice"),
+    ("eeg_device", "brainflow", "nao_trainer.eeg.devices.brainflow:BrainFlowDevice"),
 )
 
 

@@ -13,9 +13,10 @@ from nao_trainer.errors import ConfigError
 
 def add_arguments(p) -> None:
     g = p.add_argument_group("ceiling and objective (docs/evaluation.md, 'What can be won')")
-    g.add_argument("--objective", default="score", metavar="score|target:R",
-                   help="what the policies are judged by: score (equation (1), default) or target:R (keep the "
-                        "participant near success rate R, utility -(p - R)^2 per turn)")
+    g.add_argument("--objective", default="score", metavar="score|target-p:R|target-rate:R",
+                   help="what the policies are judged by: score (equation (1), default), target-p:R (each turn's "
+                        "success probability near R, -(p - R)^2 per turn; target:R is its old name) or "
+                        "target-rate:R (the session's success rate near R, -H (S/H - R)^2; what staircases aim at)")
     g.add_argument("--loo-bayes", action="store_true",
                    help="also the Bayes planner with the prior made of the other users (one solve per user, "
                         "about 3-5 s each)")
@@ -98,9 +99,15 @@ def _ci(v, digits: int = 2) -> str:
 
 
 def _share(s: dict) -> str:
-    if s.get("share") is None:
-        return "n/a"
-    return f"{100 * s['share']:.0f} % {_ci([100 * x for x in s['share_ci']], 0)}"
+    """A share only when its gap's interval excludes 0 (``experiments.ceiling.share_of_gap``)."""
+    if not s or s.get("share") is None:
+        return "-"
+    ci = s.get("share_ci")
+    return f"{100 * s['share']:.0f} % " + (_ci([100 * x for x in ci], 0) if ci else "[unbounded]")
+
+
+def _d(s: dict, key: str, digits: int) -> str:
+    return "" if s.get(key) is None else f"{s[key]:+.{digits}f} {_ci(s.get(key + '_ci'), digits)}"
 
 
 def format_section(section: dict[str, Any] | None) -> str:
@@ -109,23 +116,31 @@ def format_section(section: dict[str, Any] | None) -> str:
     if "note" in section:
         return section["note"]
     digits = 2 if section["objective"] == "score" else 3
+    first = section["summary"][0] if section["summary"] else {}
     lines = [f"against the Bayes ceiling, objective {section['objective']} (per {section['turns']}-turn session; "
-             "mean over users [95 % CI]; share = gain over the best fixed level / the ceiling's gain):",
-             f"  {'policy':<22} {'A':>3} {'value':>8} {'95% CI':>18} {'d ceiling':>10} {'95% CI':>18} "
-             f"{'share of achievable':>22} {'share of oracle gap':>20} {'d bayes-loo [95% CI]':>24} {'share vs pooled level':>20}"]
+             f"{first.get('users', '?')} sessions of {first.get('people', '?')} people; mean over people [95 % CI]; "
+             "d = policy - reference, paired over people; the ceiling is solved on these users, so its "
+             "intervals are conditional on them; a share of a gap only when the gap's interval excludes 0, "
+             "with Fieller's interval):",
+             f"  {'policy':<22} {'A':>3} {'value':>24} {'d level 2':>24} {'d best fixed (train)':>24} "
+             f"{'d ceiling (cond.)':>24} {'d bayes-loo':>24} {'share achievable':>18} {'share oracle':>16}"]
     for s in section["summary"]:
         a = "" if s["assessment"] is None else str(s["assessment"])
-        d = "" if s["d_ceiling"] is None else f"{s['d_ceiling']:+.{digits}f}"
-        loo = "" if s.get("d_bayes_loo") is None else f"{s['d_bayes_loo']:+.{digits}f} {_ci(s['d_bayes_loo_ci'], digits)}"
-        lines.append(f"  {s['policy']:<22} {a:>3} {s['value']:8.{digits}f} {_ci(s['value_ci'], digits):>18} {d:>10} "
-                     f"{_ci(s['d_ceiling_ci'], digits):>18} {_share(s['achievable_share']):>22} "
-                     f"{_share(s['oracle_share']):>20} {loo:>24} {_share(s.get('achievable_share_pooled', {})):>20}")
+        value = f"{s['value']:.{digits}f} {_ci(s['value_ci'], digits)}"
+        lines.append(f"  {s['policy']:<22} {a:>3} {value:>24} {_d(s, 'd_level2', digits):>24} "
+                     f"{_d(s, 'd_reference', digits):>24} {_d(s, 'd_ceiling', digits):>24} "
+                     f"{_d(s, 'd_bayes_loo', digits):>24} {_share(s['achievable_share']):>18} "
+                     f"{_share(s['oracle_share']):>16}")
+    if section.get("multi_session_note"):
+        lines.append("  " + section["multi_session_note"])
     for m in section.get("multi_session", []):
         if m["policy"] == "pooled-fixed":
-            lines.append(f"  {m['sessions']} session(s) of the same participant (value per session):")
-        share = "" if m["oracle_share"] is None else f"{100 * m['oracle_share']:.0f} % of the oracle gap"
+            lines.append(f"  {m['sessions']} session(s) of the same participant (value per session; d = - pooled "
+                         "fixed level, over people):")
+        share = "" if m["oracle_share"] is None else f"{100 * m['oracle_share']:.0f} % of the oracle gap " + (
+            _ci([100 * x for x in m["oracle_share_ci"]], 0) if m.get("oracle_share_ci") else "[unbounded]")
         lines.append(f"    {m['policy']:<20} {m['value_per_session']:8.{digits}f} {_ci(m['value_ci'], digits):>18} "
-                     f"{share}")
+                     f"d {m['d_best_fixed']:+.{digits}f} {_ci(m['d_best_fixed_ci'], digits)} {share}")
     return "\n".join(lines)
 
 
@@ -141,7 +156,7 @@ def run_user_models(args) -> int:
     if source is None or not Path(source).exists():
         raise ConfigError("--user-models needs the dataset: add --data DATASET_ROOT")
     obj = _objective(args)
-    rate = obj.rate if obj.kind == "target" else 0.75
+    rate = obj.rate if obj.is_target else 0.75
     manifest = artifacts.load_manifest(args.models)
     print(f"evaluate --user-models: held-out sessions of {source}", file=sys.stderr)
     summary = user_models.run(Path(source), manifest.get("compat"), int(manifest.get("k", 3)), seed=args.seed,

@@ -48,7 +48,7 @@ def register(sub) -> None:
     p.add_argument("--prior", metavar="clusters|psychometric|PATH",
                    help="the bayes policy's prior (policy.prior): the fitted clusters, the pooled psychometric model, "
                         "a psychometric prior file or a folder of user simulators; default: psychometric under "
-                        "policy.objective target:R, clusters under score")
+                        "policy.objective target-p:R or target-rate:R, clusters under score")
     p.add_argument("--no-learning", action="store_true", help="a learning policy does not update during the session")
     p.add_argument("--no-practice", action="store_true", help="skip the practice round")
     p.add_argument("--quiet", action="store_true", help="no per-turn progress lines")

@@ -30,7 +30,10 @@ with the posterior means ``pbar_l(c) = sum_k w_k p[k, l]`` and ``ubar_l(c) = sum
 (both objectives are linear in w; for ``target:R`` ubar is the posterior expectation of
 ``-(p - R)^2``, not the utility of the posterior mean). ``G(c) = C max_l ubar_l(c)`` is the value
 of committing to the posterior-best level for C more turns after the session (C = 0 for one
-session; C = (S - 1) H for "explore this session, then commit for S - 1 sessions"). Ties go to the
+session; C = (S - 1) H for "explore this session, then commit for S - 1 sessions"), or, for an
+objective on the session's success rate (``target-rate:R``), ``G(c) = T[s_1 + ... + s_L]``, a
+terminal value of the session's successes, which the counts hold (the per-turn utility is then 0):
+that planner is exact too. Ties go to the
 lower level; counts that no model with prior weight can produce (Z = 0, possible only with rates
 of exactly 0 or 1) get value 0 and the lowest level. ``V(0)`` is the Bayes value: the highest expected utility of any policy that is not
 told which model the participant is, and, with the prior uniform over a set of users, the mean
@@ -152,7 +155,8 @@ def _kernels() -> dict[str, Any]:
             from nao_trainer.core import bayes_kernels
         except ImportError:  # pragma: no cover - checked by available()
             raise ImportError("the Bayes planner needs numba: pip install 'nao-trainer[all]'") from None
-        _KERNELS.update(_z_layer=bayes_kernels.z_layer, _v_layer=bayes_kernels.v_layer)
+        _KERNELS.update(_z_layer=bayes_kernels.z_layer, _v_layer=bayes_kernels.v_layer,
+                        _successes=bayes_kernels.successes_layer)
     return _KERNELS
 
 
@@ -183,14 +187,28 @@ def utility_table(p: np.ndarray, coef: np.ndarray) -> np.ndarray:
     return cf[:, 0] + cf[:, 1] * p + cf[:, 2] * p ** 2
 
 
-def fingerprint(p: np.ndarray, weights: np.ndarray, coef: np.ndarray, horizon: int, commit: int = 0) -> str:
-    """A hash of everything a plan depends on (prior, objective, horizon, commit turns)."""
+def fingerprint(p: np.ndarray, weights: np.ndarray, coef: np.ndarray, horizon: int, commit: int = 0,
+                terminal: np.ndarray | None = None) -> str:
+    """A hash of everything a plan depends on (prior, objective, horizon, commit turns, terminal)."""
     p, w, cf = _check(p, weights, coef)
     h = hashlib.sha256()
     h.update(f"bayes-v1|{horizon}|{commit}|{p.shape}".encode())
     for arr in (p, w, cf):
         h.update(np.round(arr, 12).astype("<f8").tobytes())
+    if terminal is not None:  # plans without one keep their old keys (the on-disk cache stays valid)
+        h.update(b"|terminal|" + np.round(np.asarray(terminal, float), 12).astype("<f8").tobytes())
     return h.hexdigest()
+
+
+def _check_terminal(terminal: np.ndarray | None, horizon: int, commit: int) -> np.ndarray | None:
+    if terminal is None:
+        return None
+    t = np.asarray(terminal, dtype=float)
+    if t.shape != (horizon + 1,) or not np.all(np.isfinite(t)):
+        raise ValueError(f"the terminal value must be {horizon + 1} finite numbers (one per success count)")
+    if commit:
+        raise ValueError("a terminal value on the session's successes and commit turns do not combine")
+    return t
 
 
 @dataclass(frozen=True, eq=False)
@@ -206,6 +224,7 @@ class Plan:
     action: np.ndarray
     value: float
     fingerprint: str
+    terminal: np.ndarray | None = None  # G[S] by the session's successes (target-rate), else None
 
     @property
     def levels(self) -> int:
@@ -235,6 +254,17 @@ class Plan:
             nrem -= int(c[d])
         return int(self.action[int(self.offsets[n]) + r]) + 1
 
+    def decide_many(self, counts: np.ndarray) -> np.ndarray:
+        """``decide`` for rows of counts (N, 2L) that have all played the same number of turns: (N,) levels."""
+        c = np.asarray(counts, dtype=np.int64)
+        n = int(c[0].sum()) if len(c) else 0
+        if c.ndim != 2 or c.shape[1] != 2 * self.levels or np.any(c < 0) or np.any(c.sum(axis=1) != n):
+            raise ValueError(f"counts must be rows of {2 * self.levels} non-negative numbers with one sum")
+        if n >= self.horizon:
+            raise ValueError(f"the plan covers {self.horizon} turns; {n} have been played")
+        ranks = rank_many(c, _offsets(self.horizon, self.levels))
+        return self.action[int(self.offsets[n]) + ranks].astype(np.int64) + 1
+
     def memory_bytes(self) -> int:
         return int(self.action.nbytes)
 
@@ -250,11 +280,13 @@ def _offsets(horizon: int, levels: int) -> np.ndarray:
 
 
 def solve(p: np.ndarray, weights: np.ndarray, coef: np.ndarray, horizon: int, commit: int = 0,
-          chunks: int = 64, max_bytes: int | None = None) -> Plan:
+          chunks: int = 64, max_bytes: int | None = None, terminal: np.ndarray | None = None) -> Plan:
     """Backward induction over every count state (module docstring). ``p``: (K, L) success rates of
     the models, ``weights``: their prior, ``coef``: (L, 3) utility ``a + b p + c p^2`` per level.
-    ``max_bytes``: ``PlanTooLarge`` before any allocation when ``solve_bytes`` exceeds it."""
+    ``max_bytes``: ``PlanTooLarge`` before any allocation when ``solve_bytes`` exceeds it.
+    ``terminal``: the value of ending with S = 0..horizon successes (``Objective.terminal``)."""
     p, w, cf = _check(p, weights, coef)
+    term = _check_terminal(terminal, horizon, commit)
     if horizon < 1:
         raise ValueError(f"the horizon must be at least one turn, got {horizon}")
     if commit < 0:
@@ -289,17 +321,23 @@ def solve(p: np.ndarray, weights: np.ndarray, coef: np.ndarray, horizon: int, co
         vnext = np.empty(sizes[horizon])
         vl(horizon, horizon, off, cf, z0, z1, z2, vnext, vnext, dummy, float(commit),
            max(1, min(chunks, int(sizes[horizon]))))
-    else:  # V = 0 after the last turn
+    else:  # V = 0 after the last turn, or the terminal value of the session's successes
         z1 = z_of(horizon + 1) if quadratic else empty
         z0 = z_of(horizon)
         vnext = np.zeros(sizes[horizon])
+        if term is not None:
+            s_tot = np.empty(sizes[horizon], dtype=np.int64)
+            kern["_successes"](horizon, off, s_tot, max(1, min(chunks, int(sizes[horizon]))))
+            vnext = np.where(z0 > 0.0, term[s_tot], 0.0)
+            del s_tot
     for n in range(horizon - 1, -1, -1):
         z2, z1, z0 = (z1 if quadratic else empty), z0, z_of(n)
         vcur = np.empty(sizes[n])
         act = action[offsets[n]:offsets[n] + sizes[n]]
         vl(n, horizon, off, cf, z0, z1, z2, vnext, vcur, act, float(commit), max(1, min(chunks, int(sizes[n]))))
         vnext = vcur
-    return Plan(p, w, cf, horizon, commit, action, float(vnext[0]), fingerprint(p, w, cf, horizon, commit))
+    return Plan(p, w, cf, horizon, commit, action, float(vnext[0]), fingerprint(p, w, cf, horizon, commit, term),
+                term)
 
 
 def posterior_weights(p: np.ndarray, weights: np.ndarray, counts: np.ndarray) -> np.ndarray:
@@ -332,6 +370,7 @@ class PlanValue:
     commit: np.ndarray  # (U,)
     visits: np.ndarray  # (U, L)
     successes: np.ndarray  # (U,)
+    successes_var: np.ndarray | None = None  # (U,) variance of the session's successes
 
     @property
     def total(self) -> np.ndarray:
@@ -348,27 +387,32 @@ def evaluate_plan(plan: Plan, p_true: np.ndarray) -> PlanValue:
         return plan.action[offsets[n] + rank_many(states, off)].astype(np.int64)
 
     p_true = np.atleast_2d(np.asarray(p_true, dtype=float))
-    value, visits, succ, _, states, mass = _forward(choose, p_true, plan.coef, plan.horizon)
+    value, visits, succ, succ_var, states, mass = _forward(choose, p_true, plan.coef, plan.horizon,
+                                                           terminal=plan.terminal)
     commit = np.zeros(len(value))
     if plan.commit > 0:  # the posterior-best level, played for ``commit`` turns after the session
         u_true = utility_table(p_true, plan.coef)
         for i, c in enumerate(states):
             lv = int(np.argmax(np.round(posterior_weights(plan.p, plan.weights, c) @ plan.utility, 12)))
             commit += plan.commit * mass[i] * u_true[:, lv]
-    return PlanValue(value, commit, visits, succ)
+    return PlanValue(value, commit, visits, succ, succ_var)
 
 
-def evaluate_rule(choose: Any, p_true: np.ndarray, coef: np.ndarray, horizon: int) -> PlanValue:
+def evaluate_rule(choose: Any, p_true: np.ndarray, coef: np.ndarray, horizon: int,
+                  terminal: np.ndarray | None = None) -> PlanValue:
     """Exact expected results of any policy that depends on the counts only: ``choose(states (R, 2L),
     n) -> level indices (R,)`` for the states of layer n it can reach; run forward on each user."""
-    value, visits, succ = _forward(choose, np.atleast_2d(np.asarray(p_true, float)), coef, horizon)[:3]
-    return PlanValue(value, np.zeros_like(value), visits, succ)
+    value, visits, succ, var = _forward(choose, np.atleast_2d(np.asarray(p_true, float)), coef, horizon,
+                                        terminal=terminal)[:4]
+    return PlanValue(value, np.zeros_like(value), visits, succ, var)
 
 
 def _forward(choose: Any, p_true: np.ndarray, coef: np.ndarray, horizon: int, start: np.ndarray | None = None,
-             n0: int = 0) -> tuple:
+             n0: int = 0, terminal: np.ndarray | None = None) -> tuple:
     """Exact forward run of ``choose`` from the state ``start`` of layer ``n0`` (default: the empty
-    counts of layer 0) to the end of the session, for each user (rows of ``p_true``)."""
+    counts of layer 0) to the end of the session, for each user (rows of ``p_true``): (value, visits,
+    expected successes from n0, variance of the session's successes, final states, their mass);
+    ``terminal[S]`` is added to the value (the session's successes, ``start``'s included)."""
     p_true = np.atleast_2d(np.asarray(p_true, dtype=float))
     u_true = utility_table(p_true, coef)
     levels = p_true.shape[1]
@@ -400,7 +444,12 @@ def _forward(choose: Any, p_true: np.ndarray, coef: np.ndarray, horizon: int, st
         for u in range(n_users):
             new[:, u] = np.bincount(inv, weights=cmass[:, u], minlength=len(uniq))
         states, mass = cand[first], new
-    return value, visits, succ, None, states, mass
+    s_final = states[:, 0::2].sum(axis=1)
+    mean_s = (mass * s_final[:, None]).sum(axis=0)
+    var = np.maximum((mass * s_final[:, None].astype(float) ** 2).sum(axis=0) - mean_s ** 2, 0.0)
+    if terminal is not None:
+        value = value + (mass * np.asarray(terminal, float)[s_final][:, None]).sum(axis=0)
+    return value, visits, succ, var, states, mass
 
 
 # ----------------------------------------------------------------------------------------------
@@ -419,7 +468,7 @@ def _bayes_value_from(plan: Plan, state: np.ndarray, n0: int, first: int | None 
             return np.full(len(states), first, dtype=np.int64)
         return plan.action[offsets[n] + rank_many(states, off)].astype(np.int64)
 
-    value, _, _, _, ends, mass = _forward(choose, plan.p, plan.coef, plan.horizon, state, n0)
+    value, _, _, _, ends, mass = _forward(choose, plan.p, plan.coef, plan.horizon, state, n0, plan.terminal)
     if plan.commit > 0:
         u = plan.utility
         for i, c in enumerate(ends):
@@ -487,6 +536,9 @@ def _last_layer_problem(plan: Plan) -> str | None:
         q = np.empty(plan.levels)
         for lv in range(plan.levels):
             q[lv] = w @ u[:, lv]
+            if plan.terminal is not None:  # the session's successes after this last turn
+                s_now, pk = int(c[0::2].sum()), float(w @ plan.p[:, lv])
+                q[lv] += pk * plan.terminal[s_now + 1] + (1.0 - pk) * plan.terminal[s_now]
             if plan.commit > 0:
                 for j, pk in ((2 * lv, plan.p[:, lv]), (2 * lv + 1, 1.0 - plan.p[:, lv])):
                     child = c.copy()

@@ -12,7 +12,7 @@ import numba
 import numpy as np
 from numba import prange
 
-__all__ = ["z_layer", "v_layer"]
+__all__ = ["z_layer", "v_layer", "successes_layer"]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -141,3 +141,24 @@ def v_layer(n, horizon, off, coef, z0, z1, z2, vnext, vcur, act, commit, chunks)
             vcur[idx] = best
             if not terminal:
                 act[idx] = best_a
+
+
+@numba.njit(cache=True, parallel=True)
+def successes_layer(n, off, out, chunks):
+    """out[rank] = total successes (sum of the even parts) of every state of layer n."""
+    m = off.shape[0] + 1
+    size = out.shape[0]
+    for ch in prange(chunks):
+        start = ch * size // chunks
+        stop = (ch + 1) * size // chunks
+        if start >= stop:
+            continue
+        c = np.zeros(m, dtype=np.int64)
+        _unrank(start, n, off, c)
+        for idx in range(start, stop):
+            if idx > start:
+                _successor(c)
+            total = 0
+            for j in range(0, m, 2):
+                total += c[j]
+            out[idx] = total

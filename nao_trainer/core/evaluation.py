@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace, field
 from typing import Any, Protocol
 
 import numpy as np
@@ -55,12 +55,13 @@ class Outcome:
     engagement_ci: tuple[float, float] | None = None
     success_ci: tuple[float, float] | None = None
     samples: int = 0
+    success_var: float | None = None  # variance of the session's success rate S/H (target-rate needs it)
 
     def to_dict(self) -> dict[str, Any]:
         out = {"score": self.score, "engagement": self.engagement, "success": self.success,
                "visits": self.visits.tolist(),
                "level_success": [None if not np.isfinite(v) else float(v) for v in self.level_success],
-               "samples": self.samples}
+               "samples": self.samples, "success_var": self.success_var}
         for key in ("score_ci", "engagement_ci", "success_ci"):
             value = getattr(self, key)
             out[key] = None if value is None else [float(value[0]), float(value[1])]
@@ -124,6 +125,28 @@ def turn_visits(policy: np.ndarray, p_success: np.ndarray, turns: int,
     return total
 
 
+def success_moments(policy: np.ndarray, p_success: np.ndarray, turns: int,
+                    process: "str | processes.DecisionProcess" = "paper") -> tuple[float, float]:
+    """(E S, Var S) of a tabular policy's successes S over an episode, exactly: the chain of
+    ``turn_visits`` with the successes so far carried along (full state x S)."""
+    proc = processes.get(process)
+    table = check_policy(policy, proc, turns)
+    p = np.asarray(p_success, dtype=float)
+    stationary = np.shares_memory(table, table[0]) and table.strides[0] == 0
+    m_static = _transition_matrix(table[0], proc) if stationary else None
+    dist = np.zeros((turns + 1, processes.N_FULL))
+    dist[0, processes.START_FULL] = 1.0
+    for t in range(turns):
+        m = dist @ (m_static if stationary else _transition_matrix(table[t], proc))  # (S, turn states)
+        dist = np.zeros((turns + 1, processes.N_FULL))
+        dist[:, 0:-1:2] = m * (1.0 - p)
+        dist[1:, 1:-1:2] = m[:-1] * p
+    ps = dist.sum(axis=1)
+    s = np.arange(turns + 1, dtype=float)
+    mean = float(ps @ s)
+    return mean, max(float(ps @ s ** 2) - mean ** 2, 0.0)
+
+
 def summarise(visits: np.ndarray, p_success: np.ndarray, engagement: np.ndarray, turns: int) -> Outcome:
     """The ``Outcome`` of a visit vector V(s') (see the module docstring)."""
     p, e = check_user(p_success, engagement)
@@ -141,7 +164,9 @@ def evaluate(policy: np.ndarray, p_success: np.ndarray, engagement: np.ndarray, 
              process: "str | processes.DecisionProcess" = "paper") -> Outcome:
     """Exact expected results of a tabular policy on a user (no sampling; see the module docstring)."""
     p, e = check_user(p_success, engagement)
-    return summarise(turn_visits(policy, p, turns, process), p, e, turns)
+    out = summarise(turn_visits(policy, p, turns, process), p, e, turns)
+    _, var = success_moments(policy, p, turns, process)
+    return replace(out, success_var=var / turns ** 2)
 
 
 @dataclass(frozen=True)
@@ -254,7 +279,7 @@ def monte_carlo(policy: EpisodePolicy, p_success: np.ndarray, engagement: np.nda
         level_rate = np.where(level_turns > 0, level_wins / level_turns, np.nan)
     return Outcome(float(score.mean()), float(eng.mean()) / turns, float(wins.mean()) / turns,
                    level_turns / episodes, level_rate, t_interval(score), _scaled(t_interval(eng), turns),
-                   _scaled(t_interval(wins), turns), episodes)
+                   _scaled(t_interval(wins), turns), episodes, float(np.var(wins / turns)))
 
 
 def t_interval(values: np.ndarray) -> tuple[float, float] | None:

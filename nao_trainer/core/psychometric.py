@@ -220,5 +220,5 @@ def session_counts(sessions: np.ndarray, levels: np.ndarray, successes: np.ndarr
 def span_rate(obj: "objective.Objective | str | None") -> float:
     """The rate of a session's span: R of a ``target:R`` objective, else :data:`SPAN_RATE`."""
     parsed = objective.parse(obj)
-    return float(parsed.rate) if parsed.kind == "target" else SPAN_RATE
+    return float(parsed.rate) if parsed.is_target else SPAN_RATE
 

@@ -101,7 +101,7 @@ def simulated_refusal(identity: Mapping[str, Any], settings: EEGSettings) -> str
     if not identity.get("simulated") or settings.allow_simulated:
         return ""
     return (f"EEG stream {identity.get('name')!r} (source_id {identity.get('source_id')!r}) is "
-            f"{identity.get('acquisition')} (nao-trainer simulate-muse), not a headband, but a person answers or a "
+            f"{identity.get('acquisition')} (nao-trainer simulate-muse, or BrainFlow's synthetic board), not a headband, but a person answers or a "
             "real robot plays: its engagement would be recorded as theirs; start the headband bridge and pin it with "
             "eeg.source_id (--eeg-source-id), or for a pilot set eeg.allow_simulated: true (--allow-simulated-eeg)")
 

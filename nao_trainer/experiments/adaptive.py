@@ -36,31 +36,35 @@ LAPSES = np.array([0.0, 0.02, 0.05, 0.1])
 
 
 def staircase_exact(need: int, start: int, p_level: np.ndarray, turns: int, obj: Objective) -> dict[str, float | list]:
-    """Expected utility, score, turns per level and success rate of an n-up/1-down rule on a user."""
+    """Expected utility, score, turns per level, success rate and its variance of an n-up/1-down
+    rule on a user: the chain over (level, streak, successes so far), exact. ``p_level`` may have
+    any number of levels (a fine ladder for Levitt's limit; the score assumes levels 1..L)."""
     p = np.asarray(p_level, dtype=float)
-    dist = np.zeros((4, need))
-    dist[start - 1, 0] = 1.0
-    visits = np.zeros(4)
-    succ = 0.0
+    top = len(p)
+    dist = np.zeros((top, need, turns + 1))
+    dist[start - 1, 0, 0] = 1.0
+    visits = np.zeros(top)
     for _ in range(turns):
-        at = dist.sum(axis=1)
-        visits += at
-        succ += float(at @ p)
+        visits += dist.sum(axis=(1, 2))
+        lose = (dist * (1 - p)[:, None, None]).sum(axis=1)  # (level, S): one level down, streak 0
+        win = np.zeros_like(dist)
+        win[:, :, 1:] = dist[:, :, :-1] * p[:, None, None]  # a success adds one to S
         new = np.zeros_like(dist)
-        for lv in range(4):
-            for k in range(need):
-                m = dist[lv, k]
-                if m == 0:
-                    continue
-                win, lose = m * p[lv], m * (1 - p[lv])
-                new[max(lv - 1, 0), 0] += lose
-                if k + 1 >= need:
-                    new[min(lv + 1, 3), 0] += win
-                else:
-                    new[lv, k + 1] += win
+        new[:-1, 0] += lose[1:]
+        new[0, 0] += lose[0]
+        up = win[:, need - 1]  # the streak is complete: one level up, streak 0
+        new[1:, 0] += up[:-1]
+        new[top - 1, 0] += up[top - 1]
+        new[:, 1:] += win[:, :need - 1]
         dist = new
-    return {"utility": float(visits @ obj.utility(p)), "score": float(visits @ (p * np.arange(2, 6) - 1.0)),
-            "visits": visits.tolist(), "success": succ / turns}
+    ps = dist.sum(axis=(0, 1))
+    s_vals = np.arange(turns + 1, dtype=float)
+    mean = float(ps @ s_vals)
+    var = max(float(ps @ s_vals ** 2) - mean ** 2, 0.0)
+    rate, rate_var = mean / turns, var / turns ** 2
+    return {"utility": obj.from_moments(visits, p, rate, rate_var, turns),
+            "score": float(visits @ (p * np.arange(2, top + 2) - 1.0)),
+            "visits": visits.tolist(), "success": rate, "success_var": rate_var}
 
 
 @dataclass(frozen=True)
@@ -105,4 +109,5 @@ class QuestPlusGrid:
 def questplus_values(p_users: np.ndarray, obj: Objective, turns: int = 25) -> bayes.PlanValue:
     """Exact expected results of the ``questplus`` rule on each user (rows of ``p_users``)."""
     grid = QuestPlusGrid.build()
-    return bayes.evaluate_rule(lambda states, n: grid.choose(states, obj), p_users, obj.coefficients(4), turns)
+    return bayes.evaluate_rule(lambda states, n: grid.choose(states, obj), p_users, obj.coefficients(4), turns,
+                               obj.terminal(turns))

@@ -24,7 +24,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from nao_trainer.core import bayes, evaluation, mdp
+from nao_trainer.core import bayes, evaluation, mdp, people
 from nao_trainer.core.objective import Objective
 from nao_trainer.errors import DataError
 
@@ -53,7 +53,7 @@ def user_rates(users: Sequence[Any]) -> dict[str, np.ndarray]:
 def _solve(p: np.ndarray, w: np.ndarray, obj: Objective, turns: int, commit: int, cache: Path | None) -> bayes.Plan:
     from nao_trainer.learn.bayes_cache import solve_cached
 
-    return solve_cached(p, w, obj.coefficients(p.shape[1]), turns, commit, cache)
+    return solve_cached(p, w, obj.coefficients(p.shape[1]), turns, commit, cache, terminal=obj.terminal(turns))
 
 
 def plan_row(name: str, cluster: str, policy: str, p: np.ndarray, e: np.ndarray | None, value: bayes.PlanValue,
@@ -64,6 +64,8 @@ def plan_row(name: str, cluster: str, policy: str, p: np.ndarray, e: np.ndarray 
            "score": round(score, 9), "success": round(float(value.successes[i]) / turns, 9),
            "regret": round(oracle_score - score, 9), "visits": np.round(visits, 4).tolist(), "samples": 0,
            "utility": round(float(value.session[i]), 9), "objective": str(obj)}
+    if value.successes_var is not None:
+        row["success_var"] = round(float(value.successes_var[i]) / turns ** 2, 12)
     if e is not None:
         row["engagement"] = round(float(visits @ e / turns), 9)
     return row
@@ -81,7 +83,7 @@ def bayes_rows(names: Sequence[str], clusters: Sequence[str], p: np.ndarray, e: 
             for i, (n, c) in enumerate(zip(names, clusters))]
     if loo:
         for i, (n, c) in enumerate(zip(names, clusters)):
-            others = np.delete(np.arange(len(p)), i)
+            others = people.others(names, i)  # leave the PERSON out (user_1 and user_4 have two sessions)
             plan_i = _solve(p[others], np.ones(len(others)), obj, turns, 0, cache)
             v = bayes.evaluate_plan(plan_i, p[i:i + 1])
             rows.append(plan_row(n, c, "bayes-loo", p[i], None if e is None else e[i], v, 0, turns, obj, oracle[i]))
@@ -136,7 +138,8 @@ def adaptive_rows(rates: dict[str, np.ndarray], clusters: dict[str, str], obj: O
             out.append({"user": n, "cluster": clusters.get(n, ""), "policy": f"staircase-{need}d1u@{start}",
                         "seed": None, "assessment": None, "score": round(r["score"], 9),
                         "success": round(r["success"], 9), "visits": np.round(r["visits"], 4).tolist(),
-                        "samples": 0, "utility": round(r["utility"], 9), "objective": str(obj)})
+                        "samples": 0, "utility": round(r["utility"], 9), "objective": str(obj),
+                        "success_var": round(r["success_var"], 12)})
     qv = adaptive.questplus_values(p, obj, turns)
     for i, n in enumerate(names):
         out.append(plan_row(n, clusters.get(n, ""), "questplus", p[i], None, qv, i, turns, obj,
@@ -150,12 +153,19 @@ def _table(p_level: np.ndarray) -> np.ndarray:
 
 def add_utility(rows: list[dict[str, Any]], rates: dict[str, np.ndarray], obj: Objective,
                 visits_key: str = "visits") -> None:
-    """Set ``utility`` of every row from its expected turns per level (exact for level-only users)."""
+    """Set ``utility`` of every row from its expected turns per level and the mean and variance of its
+    success rate (exact for level-only users). Under ``target-rate`` a row without the variance
+    (``success_var``, e.g. from a results file written before it was recorded) gets no utility."""
     for r in rows:
         if "utility" in r and r.get("objective") == str(obj):
             continue
-        u = obj.utility(rates[r["user"]])
-        r["utility"] = round(float(np.asarray(r[visits_key], dtype=float) @ u), 9)
+        r.pop("utility", None)
+        var = r.get("success_var")
+        if obj.per_session and var is None:
+            continue
+        turns = float(np.sum(r[visits_key]))
+        r["utility"] = round(obj.from_moments(np.asarray(r[visits_key], dtype=float), rates[r["user"]],
+                                              float(r.get("success", 0.0)), float(var or 0.0), int(round(turns))), 9)
         r["objective"] = str(obj)
 
 
@@ -165,27 +175,65 @@ def objective_rows(rates: dict[str, np.ndarray], train_rates: dict[str, np.ndarr
     ``best-fixed-objective`` (the level best under the objective on the user's training rates),
     ``pooled-fixed`` (the level best on average over the evaluated users) and ``oracle-objective``
     (each user's own best level)."""
-    pooled = int(np.argmax(np.round(np.mean([obj.utility(p) for p in rates.values()], axis=0), 12)))
+    pooled = int(np.argmax(np.round(np.mean([obj.fixed_value(p, turns) for p in rates.values()], axis=0), 12)))
     out = []
     for name, p in rates.items():
         choices = {f"fixed:{lv + 1}": lv for lv in range(4) if f"fixed:{lv + 1}" not in have}
-        choices["best-fixed-objective"] = int(np.argmax(np.round(obj.utility(train_rates[name]), 12)))
+        choices["best-fixed-objective"] = int(np.argmax(np.round(obj.fixed_value(train_rates[name], turns), 12)))
         choices["pooled-fixed"] = pooled
-        choices["oracle-objective"] = int(np.argmax(np.round(obj.utility(p), 12)))
+        choices["oracle-objective"] = int(np.argmax(np.round(obj.fixed_value(p, turns), 12)))
         for policy, lv in choices.items():
-            out.append(_level_row(name, clusters.get(name, ""), policy, p, lv, obj, turns))
+            if policy == "oracle-objective" and obj.per_session:
+                out.append(_rate_oracle_row(name, clusters.get(name, ""), p, obj, turns))
+            else:
+                out.append(_level_row(name, clusters.get(name, ""), policy, p, lv, obj, turns))
     return out
+
+
+def rate_oracle(p: np.ndarray, obj: Objective, turns: int) -> tuple[float, np.ndarray, float, float]:
+    """The optimum of a user with known rates under ``target-rate``: its state is (turn, successes
+    so far), so the exact policy is a (turns x successes) backward induction; no fixed level
+    reaches it (it steers the count, e.g. easier after a run of successes). Returns (value, turns
+    per level, E rate, Var rate)."""
+    p = np.asarray(p, dtype=float)
+    v = obj.terminal(turns).astype(float)
+    act = np.zeros((turns, turns + 1), dtype=np.int64)
+    for t in range(turns - 1, -1, -1):
+        q = p[None, :] * v[1:t + 2, None] + (1 - p[None, :]) * v[:t + 1, None]  # (S = 0..t, levels)
+        act[t, :t + 1] = np.argmax(np.round(q, 12), axis=1)
+        v = q.max(axis=1)
+    dist = np.zeros(turns + 1)
+    dist[0] = 1.0
+    visits = np.zeros(len(p))
+    for t in range(turns):
+        a = act[t]
+        np.add.at(visits, a, dist)
+        pa = p[a]
+        new = dist * (1 - pa)
+        new[1:] += (dist * pa)[:-1]
+        dist = new
+    s = np.arange(turns + 1, dtype=float)
+    mean = float(dist @ s)
+    return float(v[0]), visits, mean / turns, max(float(dist @ s ** 2) - mean ** 2, 0.0) / turns ** 2
+
+
+def _rate_oracle_row(name: str, cluster: str, p: np.ndarray, obj: Objective, turns: int) -> dict[str, Any]:
+    value, visits, rate, var = rate_oracle(p, obj, turns)
+    return {"user": name, "cluster": cluster, "policy": "oracle-objective", "seed": None, "assessment": None,
+            "score": round(float(visits @ (p * np.arange(2, 6) - 1.0)), 9), "success": round(rate, 9),
+            "visits": np.round(visits, 4).tolist(), "samples": 0, "utility": round(value, 9),
+            "objective": str(obj), "success_var": round(var, 12)}
 
 
 def _level_row(name: str, cluster: str, policy: str, p: np.ndarray, lv: int, obj: Objective, turns: int
                ) -> dict[str, Any]:
-    u = obj.utility(p)
     visits = np.zeros(4)
     visits[lv] = turns
     score = float(visits @ (p * np.arange(2, 6) - 1.0))
     return {"user": name, "cluster": cluster, "policy": policy, "seed": None, "assessment": None,
             "score": round(score, 9), "success": round(float(p[lv]), 9), "visits": visits.tolist(), "samples": 0,
-            "utility": round(turns * float(u[lv]), 9), "objective": str(obj), "level": lv + 1}
+            "utility": round(float(obj.fixed_value(p, turns)[lv]), 9), "objective": str(obj), "level": lv + 1,
+            "success_var": round(float(p[lv] * (1 - p[lv])) / turns, 12)}
 
 
 def _by_user(rows: list[dict[str, Any]], policy: str, key: str, length: Any = None) -> dict[str, float]:
@@ -198,43 +246,57 @@ def _by_user(rows: list[dict[str, Any]], policy: str, key: str, length: Any = No
 
 
 def share_of_gap(rows: list[dict[str, Any]], policy: str, key: str, top: str, reference: str,
-                 length: Any = None, boot: int = 2000, seed: int = 0) -> dict[str, Any]:
-    """mean(policy - reference) / mean(top - reference) over users, bootstrap 95 % interval."""
+                 length: Any = None) -> dict[str, Any]:
+    """mean(policy - reference) / mean(top - reference) over PEOPLE (a person's sessions averaged),
+    with Fieller's 95 % interval, reported only when the gap's own interval excludes 0
+    (``core.people.fieller``); otherwise ``share`` is None and ``why`` says so. The gap and its
+    interval are always given."""
     ref, hi, mine = _by_user(rows, reference, key), _by_user(rows, top, key), _by_user(rows, policy, key, length)
     users = sorted(set(ref) & set(hi) & set(mine))
     if not users:
-        return {"share": None, "share_ci": None, "gap": None}
-    gain = np.array([mine[u] - ref[u] for u in users])
-    gap = np.array([hi[u] - ref[u] for u in users])
-    if gap.mean() <= 1e-12:
-        return {"share": None, "share_ci": None, "gap": float(gap.mean())}
-    rng = np.random.default_rng(seed)
-    idx = rng.integers(len(users), size=(boot, len(users)))
-    g = gap[idx].mean(axis=1)
-    ok = g > 0
-    shares = gain[idx].mean(axis=1)[ok] / g[ok]
-    return {"share": float(gain.mean() / gap.mean()),
-            "share_ci": [float(np.percentile(shares, 2.5)), float(np.percentile(shares, 97.5))],
-            "gap": float(gap.mean())}
+        return {"share": None, "share_ci": None, "gap": None, "gap_ci": None, "why": "no common users"}
+    gain = people.by_person({u: mine[u] - ref[u] for u in users})
+    gap = people.by_person({u: hi[u] - ref[u] for u in users})
+    g = np.array([gap[p] for p in gap])
+    r = people.fieller(np.array([gain[p] for p in gap]), g)
+    gap_ci = people.t_interval(g)
+    if r is None:
+        return {"share": None, "share_ci": None, "gap": float(g.mean()), "gap_ci": gap_ci,
+                "why": "the gap's 95 % interval contains 0: no share"}
+    return {"share": r.share, "share_ci": r.ci, "gap": r.denominator, "gap_ci": r.denominator_ci,
+            "why": None if r.ci is not None else "Fieller's set is unbounded"}
+
+
+#: the paired references of every comparison: (label, policy rows compared with)
+REFERENCES: tuple[tuple[str, str], ...] = (("d_level2", "fixed:2"), ("d_reference", "best-fixed-objective"),
+                                           ("d_pooled", "pooled-fixed"), ("d_ceiling", "ceiling"),
+                                           ("d_bayes_loo", "bayes-loo"))
 
 
 def achievable(rows: list[dict[str, Any]], key: str = "utility", reference: str = "best-fixed-objective",
                oracle: str = "oracle-objective") -> list[dict[str, Any]]:
-    """Per (policy, assessment length): mean ``key`` with a 95 % t-interval over users (seeds
-    averaged), the paired difference to ``reference`` and to the ceiling, and the shares of the
-    achievable gap (to ``ceiling``) and of the oracle gap."""
+    """Per (policy, assessment length): mean ``key`` with a 95 % t-interval over PEOPLE (seeds and a
+    person's sessions averaged), the paired difference to each of ``REFERENCES`` (level 2, the best
+    fixed level chosen on the user's training data, the level best for the population, the
+    ceiling, leave-one-out Bayes) with paired 95 % intervals over people, and shares of the
+    achievable and oracle gaps only where the gap is distinguishable from 0 (``share_of_gap``).
+
+    The ceiling is solved on the evaluated users themselves (its prior is uniform over them), and
+    is not re-solved per resample: intervals that involve it are conditional on these users
+    (``ceiling_conditional``)."""
     keys = list(dict.fromkeys((r["policy"], r.get("assessment")) for r in rows if key in r))
-    ref, top = _by_user(rows, reference, key), _by_user(rows, "ceiling", key)
-    loo = _by_user(rows, "bayes-loo", key)
+    refs = {label: _by_user(rows, pol, key) for label, pol in REFERENCES}
+    refs["d_reference"] = _by_user(rows, reference, key)
     out = []
     for pol, length in keys:
         mine = _by_user(rows, pol, key, length)
-        v = np.array(list(mine.values()))
-        entry: dict[str, Any] = {"policy": pol, "assessment": length, "users": len(v), "value": float(v.mean()),
-                                 "value_ci": _ci(v)}
-        for label, other in (("d_reference", ref), ("d_ceiling", top), ("d_bayes_loo", loo)):
-            d = np.array([mine[u] - other[u] for u in mine if u in other])
-            entry[label], entry[f"{label}_ci"] = (float(d.mean()), _ci(d)) if d.size else (None, None)
+        per_person = people.by_person(mine)
+        v = np.array(list(per_person.values()))
+        entry: dict[str, Any] = {"policy": pol, "assessment": length, "users": len(mine), "people": len(v),
+                                 "value": float(v.mean()), "value_ci": _ci(v), "ceiling_conditional": True}
+        for label, other in refs.items():
+            d, ci, _ = people.paired(mine, other)
+            entry[label], entry[f"{label}_ci"] = d, ci
         entry["achievable_share"] = share_of_gap(rows, pol, key, "ceiling", reference, length)
         # the same against the level best for the whole population (a fixed level a study can choose
         # without the participant's data; the project's rule uses their nearest cluster)
@@ -245,12 +307,12 @@ def achievable(rows: list[dict[str, Any]], key: str = "utility", reference: str 
 
 
 def _ci(v: np.ndarray) -> list[float] | None:
-    ci = evaluation.t_interval(np.asarray(v, dtype=float))
-    return None if ci is None else [float(ci[0]), float(ci[1])]
+    return people.t_interval(np.asarray(v, dtype=float))
 
 
 def multi_session(p: np.ndarray, obj: Objective, turns: int = 25, sessions: Sequence[int] = (1, 2, 5, 10),
-                  cache: Path | None = None, loo: bool = False) -> list[dict[str, Any]]:
+                  cache: Path | None = None, loo: bool = False, names: Sequence[str] | None = None
+                  ) -> list[dict[str, Any]]:
     """Value per session (mean over S sessions, per user) of S sessions of the same participant:
 
     ``pooled-fixed``  the level best for the population (mean utility over the users), every session;
@@ -259,8 +321,12 @@ def multi_session(p: np.ndarray, obj: Objective, turns: int = 25, sessions: Sequ
                     also the other users only), a policy a study can run;
     ``bound``       the Bayes-optimal first session, then the true rates revealed for free: no policy
                     that is not told the user can do better;
-    ``oracle``      the user's best level every session."""
+    ``oracle``      the user's best level every session.
+
+    ``names``: the users' names; means, intervals and leave-one-out are then by person."""
     p = np.asarray(p, dtype=float)
+    names = list(names) if names is not None else [f"u{i}" for i in range(len(p))]
+    pp = lambda v: people.per_person(names, v)  # noqa: E731
     u = obj.utility(p)
     best = int(np.argmax(np.round(u.mean(axis=0), 12)))
     one = bayes.evaluate_plan(_solve(p, np.ones(len(p)), obj, turns, 0, cache), p).session
@@ -274,16 +340,18 @@ def multi_session(p: np.ndarray, obj: Objective, turns: int = 25, sessions: Sequ
         if loo:
             v = np.empty(len(p))
             for i in range(len(p)):
-                others = np.delete(np.arange(len(p)), i)
+                others = people.others(names, i)
                 plan_i = _solve(p[others], np.ones(len(others)), obj, turns, (s - 1) * turns, cache)
                 v[i] = bayes.evaluate_plan(plan_i, p[i:i + 1]).total[0] / s
             vals["explore-commit-loo"] = v
-        gap = vals["oracle"] - vals["pooled-fixed"]
+        gap = pp(vals["oracle"] - vals["pooled-fixed"])
         for name, v in vals.items():
-            d = v - vals["pooled-fixed"]
-            share = float(d.mean() / gap.mean()) if gap.mean() > 1e-12 else None
+            d, v = pp(v - vals["pooled-fixed"]), pp(v)
+            ratio = people.fieller(d, gap)  # None when the oracle gap's interval contains 0
             out.append({"sessions": s, "policy": name, "value_per_session": float(v.mean()), "value_ci": _ci(v),
-                        "d_best_fixed": float(d.mean()), "d_best_fixed_ci": _ci(d), "oracle_share": share,
+                        "d_best_fixed": float(d.mean()), "d_best_fixed_ci": _ci(d),
+                        "oracle_share": None if ratio is None else ratio.share,
+                        "oracle_share_ci": None if ratio is None else ratio.ci, "people": len(v),
                         "objective": str(obj)})
     return out
 
@@ -313,12 +381,10 @@ def session_users(source: Path, compat: str | None, k: int = 3, session_prior: f
     """The held-out per-session users of ``evaluate --personalise`` (same clustering and fits), without
     training any policy: ``session_prior`` None = the data prior, a number = own rates shrunk by it."""
     from nao_trainer.learn.fitting import Turns
-    from nao_trainer.learn.parallel import fan_out
-    from nao_trainer.learn.users import read_turns
+    from nao_trainer.learn.users import leave_one_person_out, read_turns
 
     turns = Turns.from_columns(read_turns(Path(source), compat).columns)
-    sessions = sorted(np.unique(turns.session).tolist())
-    return fan_out(_session_one, [(turns, s, k, n_init, seed, session_prior) for s in sessions], workers, None)
+    return leave_one_person_out(turns, _session_one, (k, n_init, seed, session_prior), k, source, workers)
 
 
 def evaluation_ceiling(rows: list[dict[str, Any]], rates: dict[str, np.ndarray], train: dict[str, np.ndarray],
@@ -328,9 +394,11 @@ def evaluation_ceiling(rows: list[dict[str, Any]], rates: dict[str, np.ndarray],
     """The ceiling section of an evaluation: ``report`` and, for ``sessions`` (e.g. 2, 5, 10), the
     value of that many sessions of the same participant (``multi_session``)."""
     out = report(rows, rates, train, clusters, obj, turns, loo, priors)
-    if sessions:
+    if sessions and obj.per_session:  # commit turns score per turn; a rate objective is per session
+        out["multi_session_note"] = f"not computed under {obj}: commit turns have no per-session rate"
+    elif sessions:
         p = np.array([rates[n] for n in rates])
-        out["multi_session"] = multi_session(p, obj, turns, (1, *sessions), loo=loo)
+        out["multi_session"] = multi_session(p, obj, turns, (1, *sessions), loo=loo, names=list(rates))
     return out
 
 

@@ -129,7 +129,8 @@ def evaluate_user(user: User, spec: EvalSpec, given: dict[str, list[QLearner]] |
         rows.append({"user": user.name, "cluster": user.cluster, "policy": name, "seed": seed,
                      "score": round(out.score, 9), "engagement": round(out.engagement, 9),
                      "success": round(out.success, 9), "regret": round(oracle.value - out.score, 9),
-                     "visits": np.round(out.visits, 4).tolist(), "samples": out.samples})
+                     "visits": np.round(out.visits, 4).tolist(), "samples": out.samples,
+                     "success_var": None if out.success_var is None else round(out.success_var, 12)})
 
     for name, kind, arg in parsed:
         if kind == "fixed":

@@ -43,8 +43,7 @@ from nao_trainer.core.assessment import Choice
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.experiments.comparison import EvalSpec, train_learners
 from nao_trainer.learn.fitting import FitOptions, Turns, fit_cluster
-from nao_trainer.learn.parallel import fan_out
-from nao_trainer.learn.users import User, hold_out, level_only, read_turns, session_user
+from nao_trainer.learn.users import User, hold_out, leave_one_person_out, level_only, read_turns, session_user
 
 PIPELINES: tuple[str, ...] = ("paper", "posterior-ev", "personalised")
 
@@ -206,6 +205,11 @@ def candidates(h: HeldOut, spec: PersonaliseSpec) -> tuple[list[assessment.Candi
     return out, _train(h.generic, f"{h.user.name}|generic", spec, 0)
 
 
+def _var(out: evaluation.Outcome) -> float | None:
+    """The variance of the session's success rate (what ``target-rate`` needs), rounded like the rows."""
+    return None if out.success_var is None else round(float(out.success_var), 12)
+
+
 def score_held_out(h: HeldOut, spec: PersonaliseSpec) -> list[dict[str, Any]]:
     """Rows of every policy and pipeline on one held-out session (module docstring)."""
     truth, T = h.user.truth, spec.turns
@@ -222,7 +226,7 @@ def score_held_out(h: HeldOut, spec: PersonaliseSpec) -> list[dict[str, Any]]:
                      "policy": policy, "assessment": length, "score": round(out.score, 9),
                      "engagement": round(out.engagement, 9), "success": round(out.success, 9),
                      "regret": round(oracle.value - out.score, 9), "visits": np.round(out.visits, 4).tolist(),
-                     "samples": out.samples, **extra})
+                     "samples": out.samples, "success_var": _var(out), **extra})
 
     add("fixed:2", evaluation.evaluate(evaluation.fixed_level_policy(2), p, e, T))
     level = baselines.best_fixed_level(h.user.train.p_success, h.user.train.engagement, T)
@@ -273,12 +277,7 @@ def run(source: Any, spec: PersonaliseSpec, compat: str | None = None, k: int = 
         workers: int = 2, backend: str | None = None, limit: int | None = None) -> dict[str, Any]:
     """Rows, engagement measurements and user tables of every held-out session of a dataset."""
     turns = Turns.from_columns(read_turns(Path(source), compat).columns)
-    sessions = sorted(np.unique(turns.session).tolist())
-    if len(sessions) < 2 * k + 1:
-        raise DataError(f"{source}: {len(sessions)} sessions are too few for leave-one-out with K={k} clusters")
-    if limit is not None:
-        sessions = sessions[:limit]
-    parts = fan_out(_one, [(turns, s, k, n_init, spec.seed, spec) for s in sessions], workers, backend)
+    parts = leave_one_person_out(turns, _one, (k, n_init, spec.seed, spec), k, source, workers, backend, limit)
     rows = [r for part in parts for r in part["rows"]]
     return {"rows": rows, "engagement": [r for part in parts for r in part["engagement"]],
             "users": [part["user"] for part in parts],

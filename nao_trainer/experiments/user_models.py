@@ -1,6 +1,6 @@
 """Which user model predicts a held-out participant's next turn best: per level, clusters, or pooled.
 
-For each real session i (leave one session out), three models are fitted on the other sessions
+For each real session i (leave its PERSON out), three models are fitted on the other people's sessions
 and predict session i's turns one at a time, each from the session's earlier turns only:
 
 ``per-level``     a Beta prior per level (mean and strength by the method of moments over the
@@ -11,7 +11,7 @@ and predict session i's turns one at a time, each from the session's earlier tur
 ``psychometric``  ``core.psychometric``'s pooled model (hierarchical prior fitted on the others).
 
 Predictions are clipped to [0.001, 0.999] for every model. Reported: the mean log-likelihood per
-turn (95 % t-interval over sessions), the paired difference of each model to ``per-level``, and
+turn (95 % t-interval over people), the paired difference of each model to ``per-level``, and
 calibration (10 bins of the predicted probability: expected calibration error and the bins), and
 each session's span estimate (length at success rate R, 90 % interval) after all its turns.
 """
@@ -86,12 +86,10 @@ def _one(turns: Any, session: str, k: int, n_init: int, seed: int, rate: float) 
 def run(source: Path, compat: str | None, k: int = 3, n_init: int = 50, seed: int = 0, workers: int = 2,
         rate: float = 0.75) -> dict[str, Any]:
     from nao_trainer.learn.fitting import Turns
-    from nao_trainer.learn.parallel import fan_out
-    from nao_trainer.learn.users import read_turns
+    from nao_trainer.learn.users import leave_one_person_out, read_turns
 
     turns = Turns.from_columns(read_turns(Path(source), compat).columns)
-    sessions = sorted(np.unique(turns.session).tolist())
-    parts = fan_out(_one, [(turns, s, k, n_init, seed, rate) for s in sessions], workers, None)
+    parts = leave_one_person_out(turns, _one, (k, n_init, seed, rate), k, source, workers)
     return summarise(parts, rate)
 
 
@@ -116,10 +114,13 @@ def calibration(pairs: list[tuple[float, int]], bins: int = 10) -> dict[str, Any
 
 
 def summarise(parts: list[dict[str, Any]], rate: float) -> dict[str, Any]:
-    out: dict[str, Any] = {"sessions": len(parts), "rate": rate, "models": []}
-    base = np.array([p["ll"]["per-level"] for p in parts])
-    for name in MODELS:
-        v = np.array([p["ll"][name] for p in parts])
+    from nao_trainer.core.people import people, per_person
+
+    names = [p["session"] for p in parts]
+    out: dict[str, Any] = {"sessions": len(parts), "people": len(people(names)), "rate": rate, "models": []}
+    base = per_person(names, [p["ll"]["per-level"] for p in parts])
+    for name in MODELS:  # means and intervals over people (a person's sessions averaged)
+        v = per_person(names, [p["ll"][name] for p in parts])
         d = v - base
         out["models"].append({"model": name, "log_lik_per_turn": float(v.mean()), "log_lik_ci": _ci(v),
                               "d_per_level": float(d.mean()), "d_per_level_ci": _ci(d),
@@ -131,7 +132,8 @@ def summarise(parts: list[dict[str, Any]], rate: float) -> dict[str, Any]:
 
 
 def format_summary(s: dict[str, Any]) -> str:
-    lines = [f"next-turn prediction on {s['sessions']} held-out sessions (leave one session out): "
+    lines = [f"next-turn prediction on {s['sessions']} held-out sessions of {s.get('people', '?')} people "
+             "(each fitted without the session's person; intervals over people): "
              "mean log-likelihood per turn [95 % CI]; d = paired difference to per-level; ECE = calibration error"]
     for m in s["models"]:
         ci, dci = m["log_lik_ci"], m["d_per_level_ci"]

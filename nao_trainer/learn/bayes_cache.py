@@ -80,8 +80,8 @@ def _open_regular(path: Path) -> "io.BufferedReader | None":
         raise
 
 
-def _load(path: Path, key: str, p: np.ndarray, w: np.ndarray, coef: np.ndarray, horizon: int, commit: int
-          ) -> bayes.Plan | None:
+def _load(path: Path, key: str, p: np.ndarray, w: np.ndarray, coef: np.ndarray, horizon: int, commit: int,
+          terminal: np.ndarray | None = None) -> bayes.Plan | None:
     """The stored plan of ``key``, or None (with a warning when the file is there but not that plan)."""
     def ignore(why: str) -> None:
         print(f"nao-trainer: warning: ignoring plan cache {path}: {why}; solving again", file=sys.stderr)
@@ -109,7 +109,7 @@ def _load(path: Path, key: str, p: np.ndarray, w: np.ndarray, coef: np.ndarray, 
     if stored != digest(key, action, value):
         ignore("its digest does not match its table (torn, edited or written by an older nao-trainer)")
         return None
-    plan = bayes.Plan(p, w / w.sum(), coef, horizon, commit, action, value, key)
+    plan = bayes.Plan(p, w / w.sum(), coef, horizon, commit, action, value, key, terminal)
     problem = bayes.plan_problem(plan)
     if problem is not None:
         ignore(f"it is not the plan of its inputs ({problem})")
@@ -118,25 +118,27 @@ def _load(path: Path, key: str, p: np.ndarray, w: np.ndarray, coef: np.ndarray, 
 
 
 def solve_cached(p: np.ndarray, weights: np.ndarray, coef: np.ndarray, horizon: int, commit: int = 0,
-                 folder: Path | None = None, max_bytes: int | None = None) -> bayes.Plan:
+                 folder: Path | None = None, max_bytes: int | None = None,
+                 terminal: np.ndarray | None = None) -> bayes.Plan:
     """``core.bayes.solve``, reusing (and filling) the on-disk cache. ``max_bytes``: the memory a solve
     may take (default ``memory_limit()``); a larger one raises ``core.bayes.PlanTooLarge`` before
     anything is allocated."""
     p = np.asarray(p, dtype=float)
     w = np.asarray(weights, dtype=float)
     coef = np.asarray(coef, dtype=float)
-    key = bayes.fingerprint(p, w, coef, horizon, commit)
+    terminal = None if terminal is None else np.asarray(terminal, dtype=float)
+    key = bayes.fingerprint(p, w, coef, horizon, commit, terminal)
     limit = memory_limit() if max_bytes is None else int(max_bytes)
     if bayes.solve_bytes(horizon, p.shape[1]) > limit:  # refused before reading a (huge) table or solving
         raise bayes.PlanTooLarge(horizon, p.shape[1], bayes.solve_bytes(horizon, p.shape[1]), limit)
     folder = Path(folder) if folder is not None else default_dir()
     path = folder / f"{key[:32]}.npz"
     if os.path.lexists(path):
-        plan = _load(path, key, p, w, coef, horizon, commit)
+        plan = _load(path, key, p, w, coef, horizon, commit, terminal)
         if plan is not None:
             _touch(path)
             return plan
-    plan = bayes.solve(p, w, coef, horizon, commit, max_bytes=limit)
+    plan = bayes.solve(p, w, coef, horizon, commit, max_bytes=limit, terminal=terminal)
     try:
         folder.mkdir(parents=True, exist_ok=True)
         _write(path, key, plan)

@@ -149,10 +149,15 @@ class HeldOutSplit:
 def hold_out(turns: Any, session: str, k: int, n_init: int, seed: int) -> HeldOutSplit:
     """Cluster the user models of every session but ``session``, then place ``session`` by its own user model.
 
-    The one rule of leave-one-session-out: what is fitted never sees the held-out session's turns.
+    The one rule of leave-one-out: what is fitted never sees the held-out session's turns, nor
+    those of the person's other sessions (user_1 and user_4 played two: leave the PERSON out).
     """
+    from nao_trainer.core.people import person_of
+
     mine = turns.session == session
-    rest, own = turns.subset(~mine), turns.subset(mine)
+    me = person_of(session)
+    same_person = np.array([person_of(s) == me for s in turns.session], dtype=bool)
+    rest, own = turns.subset(~same_person), turns.subset(mine)
     um = user_models(rest.session, rest.level, rest.success, rest.engagement)
     clustering = cluster_users(um.features, k, n_init, seed)
     own_um = user_models(own.session, own.level, own.success, own.engagement)
@@ -177,12 +182,25 @@ def session_user_set(source: Path, compat: str | None = None, k: int = 3, n_init
                      workers: int = 2, backend: str | None = None, limit: int | None = None) -> list[User]:
     """Leave-one-session-out users of a dataset root or turn-table CSV (module docstring)."""
     turns = Turns.from_columns(read_turns(Path(source), compat).columns)
+    return leave_one_person_out(turns, _loso_one, (k, n_init, seed), k, source, workers, backend, limit)
+
+
+def leave_one_person_out(turns: Any, one: Any, extra: tuple, k: int, source: Any = "", workers: int = 2,
+                         backend: str | None = None, limit: int | None = None) -> list[Any]:
+    """``one(turns, session, *extra)`` for every session, in parallel, each fitted without the
+    session's person (``hold_out``): the one leave-out loop of the project (user models, per-session
+    users, personalisation, the ceiling's users). DataError when the people left to cluster are too
+    few for K clusters."""
+    from nao_trainer.core.people import people
+
     sessions = sorted(np.unique(turns.session).tolist())
-    if len(sessions) < 2 * k + 1:
-        raise DataError(f"{source}: {len(sessions)} sessions are too few for leave-one-out with K={k} clusters")
+    who = people(sessions)
+    if len(who) < 2 * k + 1:
+        raise DataError(f"{source}: {len(who)} people ({len(sessions)} sessions) are too few for leave-one-out "
+                        f"with K={k} clusters; give at least {2 * k + 1} people or fewer clusters")
     if limit is not None:
         sessions = sessions[:limit]
-    return fan_out(_loso_one, [(turns, s, k, n_init, seed) for s in sessions], workers, backend)
+    return fan_out(one, [(turns, s, *extra) for s in sessions], workers, backend)
 
 
 def read_turns(source: Path, compat: str | None):

@@ -100,9 +100,7 @@ def plan_from_config(config: Any) -> CheckPlan:
 
 
 def _state_dirs(config: Any) -> tuple[Path, ...]:
-    """The participant's folder when the policy keeps a learning state there (learned, personalised)."""
-    if config.policy.kind in ("schedule", "random"):
-        return ()
+    """The participant's folder when the policy keeps a participant state there (its declaration says so)."""
     state = config.policy_state_file()
     return () if state is None else (state.parent,)
 

@@ -209,6 +209,11 @@ class Session:
         """Session seconds since the session started (across a resumption; pauses count)."""
         return self._elapsed_before + self.clock.session(self.clock.now() - self._t0)
 
+    def wall_elapsed_s(self) -> float:
+        """Wall seconds since the session started (what the console's clock shows: a demo sped up x25 that took
+        30 s shows 30 s, not 750)."""
+        return self.clock.wall(self.elapsed_s())
+
     # -- what the session writes down (session.reporting) ----------------------------------------
 
     def _log_transition(self, event: Any) -> None:
@@ -333,7 +338,8 @@ class Session:
         score = task.score(st.level, turn.success)
         row = turn.row(score, task.signed_score(st.level, turn.success), self.clock.speed, self.monitor.records_eeg)
         self.completed += 1
-        self.total += score
+        if not turn.invalid:  # the total counts what the summary counts: turns not marked invalid
+            self.total += score
         done = self.completed >= self.n_turns
         engagement = turn.listening.engagement if turn.listening else None
         learn = None

@@ -80,7 +80,7 @@ def prepare_resume(folder: Path) -> tuple[StudyConfig, Resumption]:
     config = _config_of(folder, info, fix)
     rows = _rows_on_disk(folder, fix)
     last = max((int(r["turn"]) for r in rows), default=0)
-    learns = config.policy.kind not in ("schedule", "random")  # the learned and personalised policies have a state
+    learns = config.policy.persists  # a policy that keeps a participant state (its declaration says so)
     problem = checkpoint_problem(checkpoint, config.session.turns, learns, last)
     if problem:
         raise DataError(f"{folder / CHECKPOINT}: {problem}; {fix}")

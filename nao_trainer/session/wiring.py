@@ -308,7 +308,7 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
         keys = KeyReader.start_if_terminal(commands, progress)
         stack.callback(_close_quietly, keys, recorder, out)  # the terminal is restored first, whatever happens next
     if isinstance(observer, _ConsoleObserver):
-        observer.console.hub.set_sources(eeg=monitor.live, elapsed=session.elapsed_s)
+        observer.console.hub.set_sources(eeg=monitor.live, elapsed=session.wall_elapsed_s)
     try:
         out.code = session.run()
     except (KeyboardInterrupt, Interrupted) as exc:
@@ -433,17 +433,14 @@ def _close_record(recorder: SessionRecorder, out: _Outcome, policy: Policy, stan
 
 def _policy_state(policy: Policy, config: StudyConfig, fresh: bool, progress: TextIO | None) -> dict[str, Any] | None:
     """Which learning state the policy starts from (the session logs it as ``policy_state``), None when it does not learn."""
-    if not (config.policy.learning and config.policy.kind.startswith("usp:")):
+    report = getattr(policy, "state_report", None)  # a learned policy says where its learning state comes from
+    if not (config.policy.learning and callable(report)):
         return None
-    from nao_trainer.policies.learned import LivePolicy  # the learning stack is imported only for learned policies
-
-    assert isinstance(policy, LivePolicy)
-    loaded, target = policy.loaded_from, config.policy_state_file()
+    target = config.policy_state_file()
+    out = report(target, fresh)
     if progress and target is not None:
-        print(f"policy state: {target} ({'continued' if loaded else 'new'})", file=progress, flush=True)
-    return {"policy": policy.name, "loaded_from": str(loaded) if loaded else "trained policy",
-            "saves_to": str(target) if target else "session folder", "fresh": fresh,
-            "turns_learned": policy.payload["live"]["turns_learned"]}
+        print(f"policy state: {target} ({'continued' if policy.loaded_from else 'new'})", file=progress, flush=True)
+    return out
 
 
 def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, simulator: UserSimulator | None,

@@ -36,11 +36,12 @@ def test_ceiling_of_two_users_by_hand(tmp_path):
     by = {(r["user"], r["policy"]): r["utility"] for r in fixed}
     assert by[("A", "oracle-objective")] == 3.0 and by[("B", "oracle-objective")] == 6.0
     assert by[("A", "pooled-fixed")] == 3.0 and by[("B", "pooled-fixed")] == 3.0  # level 1: 3 vs level 2: 1.5
-    # the ceiling's share of its own gap is 1, the best fixed level's 0
+    # two people: the ceiling's gain over the pooled level is -2 (A) and +3 (B), an interval around 0,
+    # so no share is given; the paired difference is
     summary = {s["policy"]: s for s in ceiling.achievable(rows + fixed, reference="pooled-fixed")}
-    assert summary["ceiling"]["achievable_share"]["share"] == pytest.approx(1.0)
-    assert summary["pooled-fixed"]["achievable_share"]["share"] == pytest.approx(0.0)
-    assert summary["ceiling"]["oracle_share"]["share"] == pytest.approx(0.5 / 1.5)
+    assert summary["ceiling"]["achievable_share"]["share"] is None
+    assert summary["ceiling"]["achievable_share"]["gap"] == pytest.approx(0.5)
+    assert summary["ceiling"]["d_reference"] == pytest.approx(0.5) and summary["ceiling"]["people"] == 2
 
 
 def test_utility_of_a_policy_comes_from_its_turns_per_level():
@@ -67,7 +68,7 @@ def test_evaluate_prints_the_ceiling_under_the_target_objective(tmp_path, capsys
                "--mc-episodes", "50", "--objective", "target:0.75", "--no-plots", "--out", str(out)])
     assert rc == 0
     text = capsys.readouterr().out
-    assert "against the Bayes ceiling, objective target:0.75" in text
+    assert "against the Bayes ceiling, objective target-p:0.75" in text
     report = json.loads((out / "evaluation.json").read_text())
     summary = {s["policy"]: s for s in report["ceiling"]["summary"]}
     assert summary["ceiling"]["value"] >= summary["pooled-fixed"]["value"] - 1e-9

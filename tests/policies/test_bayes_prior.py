@@ -38,7 +38,7 @@ def test_psychometric_prior_live_over_two_sessions_refused_with_another_prior_or
     # target:0.75 without policy.prior: the psychometric prior (the default under a target rate)
     code, out, err = run(tmp_path, capsys, "--pseudonym", "p1")
     assert code == 0, err
-    assert "Bayes planner (target:0.75, prior psychometric)" in out
+    assert "Bayes planner (target-p:0.75, prior psychometric)" in out
     state = tmp_path / "sessions" / "participants" / "p1" / "bayes.json"
     saved = json.loads(state.read_text())["payload"]
     assert saved["pseudonym"] == "p1" and saved["prior"] == "psychometric" and sum(saved["counts"]) == 4
@@ -51,7 +51,7 @@ def test_psychometric_prior_live_over_two_sessions_refused_with_another_prior_or
     # the clusters as prior: another fingerprint, refused in one line, exit 2, the file untouched
     code, out, err = run(tmp_path, capsys, "--pseudonym", "p1", "--prior", "clusters")
     assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err
-    assert "another prior or objective (psychometric, target:0.75," in err
+    assert "another prior or objective (psychometric, target-p:0.75," in err
     assert json.loads(state.read_text())["payload"]["counts"] == again["counts"]
     # p1's file copied into p2's folder: refused in one line, exit 2
     foreign = tmp_path / "sessions" / "participants" / "p2" / "bayes.json"
@@ -62,7 +62,8 @@ def test_psychometric_prior_live_over_two_sessions_refused_with_another_prior_or
     assert f"{foreign}: the participant state of 'p1', not of 'p2'" in err
 
 
-def test_live_table_is_the_evaluations_bayes_psychometric_for_the_same_prior(tmp_path):
+@pytest.mark.parametrize("name", ["target:0.75", "target-rate:0.75"])
+def test_live_table_is_the_evaluations_bayes_psychometric_for_the_same_prior(tmp_path, name):
     """The evaluation builds its prior as ``PooledModel(**fit).mixture()`` (cli.ceiling_report) and
     solves it in ``experiments.ceiling.prior_rows``; the live policy from the shipped file must give
     the same table, first decision and expected turns per level."""
@@ -72,11 +73,13 @@ def test_live_table_is_the_evaluations_bayes_psychometric_for_the_same_prior(tmp
     from nao_trainer.learn.psychometric_prior import load_prior
     from nao_trainer.policies.bayes import load_bayes
 
-    turns, obj = 10, objective.parse("target:0.75")
+    turns, obj = 10, objective.parse(name)
     live = load_bayes(None, "p1", turns, str(obj), False, "psychometric", cache=tmp_path / "live")
     fit = dict(load_prior().__dict__)  # what personalisation stores as fits[user]["psychometric"]
     pk, wk = PooledModel(**fit).mixture()
-    plan = solve_cached(pk, wk, obj.coefficients(4), turns, 0, tmp_path / "evaluation")  # solved anew
+    plan = solve_cached(pk, wk, obj.coefficients(4), turns, 0, tmp_path / "evaluation",
+                        terminal=obj.terminal(turns))  # solved anew
+    assert (plan.terminal is not None) == obj.per_session
     assert np.array_equal(live.plan.action, plan.action) and live.plan.value == pytest.approx(plan.value, abs=1e-12)
     assert live.decide() == plan.decide(np.zeros(8, dtype=np.int64))
     user = np.array([0.99, 0.9, 0.6, 0.2])

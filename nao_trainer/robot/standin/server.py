@@ -12,7 +12,7 @@ import sys
 import tempfile
 import threading
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, Callable, TextIO
 
 os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise; must precede `import qi`
 import qi  # noqa: E402
@@ -241,10 +241,12 @@ def serve(
     latency_s: float = 0.0,
     beep_latency_s: float = 0.0,
     freeze_s: float = 10.0,
+    on_ready: Callable[["StandIn"], Callable[[], None] | None] | None = None,
 ) -> int:
     """Run the stand-in until SIGINT/SIGTERM (``nao-trainer mock-robot``); prints the ready line.
 
     SIGUSR1 freezes the link for ``freeze_s`` seconds (the process stays alive, nothing moves).
+    ``on_ready(standin)`` runs once it serves (the terminal's head-button keys) and may return a closer.
     """
     out = out or sys.stdout
     stop = threading.Event()
@@ -257,8 +259,13 @@ def serve(
         standin.set_latency(latency_s, beep_latency_s)
         try:
             print(f"{READY_PREFIX}{standin.url}", file=out, flush=True)
-            while not stop.wait(0.2):
-                pass
+            closer = on_ready(standin) if on_ready is not None else None
+            try:
+                while not stop.wait(0.2):
+                    pass
+            finally:
+                if closer is not None:
+                    closer()
         finally:
             standin.stop()
     finally:
