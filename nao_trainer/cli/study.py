@@ -218,8 +218,11 @@ def _enrol(args: argparse.Namespace) -> int:
 
 
 def _withdraw(args: argparse.Namespace) -> int:
-    from nao_trainer.study.registry import withdraw
+    from nao_trainer.study.registry import open_study, withdraw
+    from nao_trainer.study.runner import repair
 
+    if not open_study(args.root).participant(args.pseudonym)["withdrawn"]:
+        repair(args.root, args.pseudonym)  # a killed session of this participant is on record first
     _entry, deleted = withdraw(args.root, args.pseudonym, args.data, args.reason)
     sessions = [f for f in deleted if f.parent.name == "sessions" and f.name.startswith(f"{args.pseudonym}_")]
     state = len(deleted) - len(sessions)

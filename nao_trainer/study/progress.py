@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from nao_trainer.study.registry import Study
-from nao_trainer.study.runner import DONE, days_between, done_sessions
+from nao_trainer.study.runner import DONE, days_between, done_sessions, pending_sessions
 
 
 @dataclass(frozen=True)
@@ -106,8 +106,6 @@ def study_status(study: Study, now: dt.datetime | None = None, show_arms: bool |
             lines.append(f"{r['pseudonym']:<10} {r['arm']:<14} {r['session']:>7}  {r['status']:<10} {q[0]:>6} "
                          f"{q[1]:>9} {q[2]:>8} {q[3]:>12} {q[4]:>11}" + ("  (outside interval)" if
                                                                           r["outside_interval"] else ""))
-    from nao_trainer.study.runner import pending_sessions
-
     pending = pending_sessions(study)
     if pending:
         lines.append(f"not yet recorded: {len(pending)} session(s) on disk or killed while running; record them "

@@ -70,15 +70,17 @@ def block_sizes(protocol: Protocol) -> list[int]:
 def allocation_sequence(protocol: Protocol, rng: np.random.Generator) -> dict[str, list[str]]:
     """Blocked randomisation with random block sizes: per stratum, blocks of a size drawn from
     :func:`block_sizes`, each a random permutation holding every arm ``ratio x size / round`` times,
-    until ``target_n`` is covered. After each block the arms are in exact balance; the random sizes keep
-    an operator who counts from guessing a block's last assignments."""
+    until ``target_n`` (rounded up to whole rounds) is covered exactly, so the arms balance at target_n
+    as after each block; the random sizes keep an operator who counts from guessing a block's last
+    assignments."""
     sizes = block_sizes(protocol)
     round_size = sizes[0]
     out = {}
     for key in protocol.allocation.stratum_keys():
         seq: list[str] = []
-        while len(seq) < protocol.target_n:
-            size = int(rng.choice(sizes))
+        total = -(-protocol.target_n // round_size) * round_size  # whole rounds: balanced at target_n
+        while len(seq) < total:
+            size = int(rng.choice([s for s in sizes if s <= total - len(seq)]))
             block = [a.name for a in protocol.arms for _ in range(a.ratio * (size // round_size))]
             seq += [block[i] for i in rng.permutation(len(block))]
         out[key] = seq
@@ -439,9 +441,6 @@ def withdraw(root: Path, pseudonym: str, data: str, reason: str = "") -> tuple[d
     if running:
         raise ConfigError(f"{pseudonym}: a session is running ({running}); stop it (key s or the console), "
                           "then record the withdrawal")
-    from nao_trainer.study.runner import repair
-
-    repair(root, pseudonym)  # a killed session of this participant is on record before the withdrawal
     with _write(root) as tx:
         reg = _load(tx, Path(root))
         if any(q["pseudonym"] == pseudonym and q["withdrawn"] for q in reg["participants"]):

@@ -30,7 +30,7 @@ from nao_trainer.errors import ConfigError, DataError, UserError
 from nao_trainer.policies.participant_state import participant_template
 from nao_trainer.ports import CommandQueue
 from nao_trainer.session.config import StudyConfig
-from nao_trainer.study.registry import (Study, now_iso, open_study, participant_folders, pid_alive, read_lock,
+from nao_trainer.study.registry import (Study, _running_session, now_iso, open_study, participant_folders, pid_alive, read_lock,
                                        record_session)
 
 BLIND_LABEL = "arm (blinded)"
@@ -278,6 +278,8 @@ def pending_sessions(study: Study, pseudonym: str | None = None) -> list[dict[st
     for p in study.participants:
         if pseudonym is not None and p["pseudonym"] != pseudonym:
             continue
+        if _running_session(study.root, p["pseudonym"]):
+            continue  # its session runs: the folder it is writing is not an orphan
         known = {s["folder"] for s in p["sessions"] if s.get("folder")}
         free = [f for f in participant_folders(study, p["pseudonym"]) if f.name not in known]
         number = max([s["number"] for s in p["sessions"]], default=0)
