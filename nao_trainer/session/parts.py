@@ -11,6 +11,8 @@ import numpy as np
 from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, NullObserver, NullUpkeep,
                                Policy, Robot, RobotUpkeep, SessionObserver)
 from nao_trainer.session.behaviors import Behaviors
+from nao_trainer.tasks.base import Task
+from nao_trainer.tasks.sequence import SequenceTask
 from nao_trainer.session.dialogue import Dialogue
 
 
@@ -25,6 +27,7 @@ class SessionPorts:
     commands: CommandQueue = field(default_factory=CommandQueue)
     observer: SessionObserver = field(default_factory=NullObserver)
     upkeep: RobotUpkeep = field(default_factory=NullUpkeep)  # Autonomous Life and motors, between turns
+    task: Task = field(default_factory=SequenceTask)  # what is trained (``tasks.base.Task``; the study's ``task``)
 
 
 @dataclass(frozen=True)

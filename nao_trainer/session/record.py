@@ -29,15 +29,13 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from nao_trainer.tasks.sequence import COLUMNS as SEQUENCE_COLUMNS
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import write_text_atomic
 
-TURN_COLUMNS: tuple[str, ...] = (
-    "turn", "start_time", "state", "length", "level", "feedback", "previous_score", "action",
-    "sequence", "response", "success", "score", "signed_score", "reaction_time", "completion_time",
-    "engagement", "engagement_index", "eeg_quality", "answer_engagement", "engagement_note", "notes", "invalid", "replay",
-    "phase",
-)
+#: The sequence task's turns.csv columns, declared once by the task (``tasks.sequence.COLUMNS``); a recorder
+#: writes its task's ``columns``.
+TURN_COLUMNS: tuple[str, ...] = SEQUENCE_COLUMNS
 #: session.json's format and version (``data/own.py`` reads them and refuses a newer version).
 FORMAT = {"format": "nao-trainer/session", "format_version": 1}
 CHECKPOINT = "checkpoint.json"
@@ -147,6 +145,7 @@ class SessionRecorder:
     _writer = None
     _events = None
     rows: int = 0
+    columns: tuple[str, ...] = TURN_COLUMNS  # the task's turns.csv columns (``tasks.base.Task.columns``)
     events_failed: OSError | None = None  # the first failed write of events.jsonl (later events are dropped)
     _lock: threading.Lock = field(default_factory=threading.Lock)  # events come from the console's thread too
 
@@ -156,7 +155,7 @@ class SessionRecorder:
         self._info = dict(FORMAT, **info, status="running", started=now_iso())
         self._write_json()
         self._turns = open(self.path / "turns.csv", "w", newline="", encoding="utf-8")
-        self._writer = csv.DictWriter(self._turns, fieldnames=TURN_COLUMNS, extrasaction="raise")
+        self._writer = csv.DictWriter(self._turns, fieldnames=self.columns, extrasaction="raise")
         self._writer.writeheader()
         _fsync(self._turns)
         self._events = open(self.path / "events.jsonl", "w", encoding="utf-8")
@@ -177,7 +176,7 @@ class SessionRecorder:
         self.rows = sum(1 for _ in read_turns(self.path))
         self._write_json()
         self._turns = open(self.path / "turns.csv", "a", newline="", encoding="utf-8")
-        self._writer = csv.DictWriter(self._turns, fieldnames=TURN_COLUMNS, extrasaction="raise")
+        self._writer = csv.DictWriter(self._turns, fieldnames=self.columns, extrasaction="raise")
         self._events = open(self.path / "events.jsonl", "a", encoding="utf-8")
         for ev in self._pending:
             self._write_event(ev)
@@ -217,8 +216,8 @@ class SessionRecorder:
 
     def turn(self, row: dict[str, Any]) -> None:
         """Append one turn row and make it durable before returning."""
-        clean = {k: ("" if row.get(k) is None else row.get(k)) for k in TURN_COLUMNS}
-        unknown = set(row) - set(TURN_COLUMNS)
+        clean = {k: ("" if row.get(k) is None else row.get(k)) for k in self.columns}
+        unknown = set(row) - set(self.columns)
         if unknown:
             raise KeyError(f"unknown turns.csv columns: {sorted(unknown)}")
         try:
