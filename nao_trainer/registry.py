@@ -13,6 +13,7 @@ callers ask ``spec(kind, name)`` / ``load(kind, name)`` and use what the plug-in
 """
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import importlib
 from dataclasses import dataclass
@@ -149,6 +150,45 @@ def make(kind: str, name: str, *args: Any, **kwargs: Any) -> Any:
     return load(kind, name)(*args, **kwargs)
 
 
+def settings_of(target: Any) -> type | None:
+    """The settings dataclass a loaded plug-in declares: ``Settings`` (a class: EEG devices, tasks, robot
+    models) or ``settings`` (a declaration object: ``policies.plugin.PolicyKind``), else None."""
+    for attr in ("Settings", "settings"):
+        cls = getattr(target, attr, None)
+        if isinstance(cls, type) and dataclasses.is_dataclass(cls):
+            return cls
+    return None
+
+
+@dataclass(frozen=True)
+class Installed:
+    """One registered plug-in as ``nao-trainer plugins`` and the docs' key reference see it."""
+
+    spec: Spec
+    target: Any = None  # the loaded entry point (None when it cannot be loaded)
+    settings: type | None = None  # its settings dataclass, if it declares one
+    error: str = ""  # why it cannot be loaded
+
+    @property
+    def summary(self) -> str:
+        """Its one-line description: a declared ``summary``, else the first line of its docstring."""
+        text = getattr(self.target, "summary", None) or (getattr(self.target, "__doc__", None) or "")
+        return str(text).strip().splitlines()[0] if str(text).strip() else ""
+
+
+def installed(kind: str) -> tuple[Installed, ...]:
+    """Every registered plug-in of ``kind`` (built-in and from entry points), each loaded now, by name."""
+    out = []
+    for found in specs(kind):
+        try:
+            target = found.load()
+        except ConfigError as exc:
+            out.append(Installed(found, error=str(exc)))
+            continue
+        out.append(Installed(found, target, settings_of(target)))
+    return tuple(out)
+
+
 #: The project's own plug-ins: (kind, name, entry point). Each home owns its settings and behaviour.
 BUILTIN: tuple[tuple[str, str, str], ...] = (
     ("task", "sequence", "nao_trainer.tasks.sequence:SequenceTask"),
@@ -158,6 +198,8 @@ BUILTIN: tuple[tuple[str, str, str], ...] = (
     ("policy", "personalised", "nao_trainer.policies.kinds:PERSONALISED"),
     ("policy", "bayes", "nao_trainer.policies.kinds:BAYES"),
     ("eeg_device", "muse", "nao_trainer.eeg.devices.muse:MuseDevice"),
+    ("robot_model", "nao", "nao_trainer.robot.models.nao:NaoModel"),
+    ("robot_model", "pepper", "nao_trainer.robot.models.pepper:PepperModel"),
     ("eeg_device", "brainflow", "nao_trainer.eeg.devices.brainflow:BrainFlowDevice"),
 )
 

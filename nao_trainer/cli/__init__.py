@@ -16,7 +16,7 @@ from nao_trainer.errors import Interrupted, UserError
 
 #: Subcommand modules, in the order ``--help`` lists them.
 COMMANDS = ("run", "check", "hardware_check", "mock_robot", "simulate_muse", "engagement", "import_data", "fit",
-            "train", "evaluate", "sweep", "study")
+            "train", "evaluate", "sweep", "study", "plugins")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -82,7 +82,7 @@ class Session:
         self.log = SessionLog(recorder, ports.observer, progress, self.clock)
         self.rows: list[dict[str, Any]] = self.log.rows  # the rows this run wrote (and those before a resumption)
         self.phases = PhaseClock(ports.monitor, self.stage, ports.answers, ports.robot, self.clock, config.timing,
-                                 recorder, self.log, config.eeg.missing_alert_turns)
+                                 recorder, self.log, config.eeg.missing_alert_turns, config.eeg)
         self.desk = OperatorDesk(ports.commands, self.log, recorder, ports.monitor, ports.observer)
         self.checkpoints = Checkpointer(recorder, ports.policy, random.by_name())
         self.reconnector = Reconnector(ports.robot, config.robot, self.clock, recorder, self.log, self.stage)
@@ -338,6 +338,10 @@ class Session:
         turn.answer = answer
         if listening is not None:
             turn.listening = listening
+        if self.phases.lost_eeg(turn.number, listening, turn.replay, turn.notes):  # eeg.turn_requires_eeg
+            self._abandon_turn(turn, "interrupted: EEG lost during the listening phase")
+            self.replay = turn
+            return "repeat_turn"
         return "score_answer"
 
     def _do_judge(self, turn: Turn) -> str:
