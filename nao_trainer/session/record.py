@@ -31,23 +31,21 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from nao_trainer.core import task
+from nao_trainer.tasks.sequence import COLUMNS as SEQUENCE_COLUMNS
+from nao_trainer.tasks.sequence.rules import is_correct
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import write_text_atomic
 
-TURN_COLUMNS: tuple[str, ...] = (
-    "turn", "start_time", "state", "length", "level", "feedback", "previous_score", "action",
-    "sequence", "response", "success", "score", "signed_score", "reaction_time", "completion_time",
-    "engagement", "engagement_index", "eeg_quality", "answer_engagement", "engagement_note", "notes", "invalid", "replay",
-    "phase",
-)
+#: The sequence task's turns.csv columns, declared once by the task (``tasks.sequence.COLUMNS``); a recorder
+#: writes its task's ``columns``.
+TURN_COLUMNS: tuple[str, ...] = SEQUENCE_COLUMNS
 
 
 def row_problem(row: dict[str, str]) -> str | None:
     """Why a completed row of turns.csv (as read: strings) is not one a session writes, or None: its
     level, length and sequence agree, its scores are equation (1)'s and the published signed score for
     its level and outcome, and a success repeats the sequence. An edited score is refused."""
-    from nao_trainer.core import task
-
     try:
         level, length = int(row["level"]), int(row["length"])
         score, signed = int(row["score"]), int(row["signed_score"])
@@ -60,7 +58,7 @@ def row_problem(row: dict[str, str]) -> str | None:
         outcome = "a success" if success else "a failure"
         return (f"score {score} / signed_score {signed} are not those of {outcome} at level {level} "
                 f"({task.score(level, success)} / {task.signed_score(level, success)})")
-    if success and not task.is_correct(row["sequence"], row.get("response") or ""):
+    if success and not is_correct(row["sequence"], row.get("response") or ""):
         return f"success with a response {row.get('response')!r} that does not repeat the sequence {row['sequence']!r}"
     return None
 
@@ -198,6 +196,7 @@ class SessionRecorder:
     _writer = None
     _events = None
     rows: int = 0
+    columns: tuple[str, ...] = TURN_COLUMNS  # the task's turns.csv columns (``tasks.base.Task.columns``)
     events_failed: OSError | None = None  # the first failed write of events.jsonl (later events are dropped)
     events_written: int = 0  # events written to events.jsonl by this process
     #: Where the warning of a failed events.jsonl write goes, at once (the terminal, also with --quiet).
@@ -210,7 +209,7 @@ class SessionRecorder:
         self._info = dict(FORMAT, **info, status="running", started=now_iso())
         self._write_json()
         self._turns = open(self.path / "turns.csv", "w", newline="", encoding="utf-8")
-        self._writer = csv.DictWriter(self._turns, fieldnames=TURN_COLUMNS, extrasaction="raise")
+        self._writer = csv.DictWriter(self._turns, fieldnames=self.columns, extrasaction="raise")
         self._writer.writeheader()
         _fsync(self._turns)
         self._events = open(self.path / "events.jsonl", "w", encoding="utf-8")
@@ -231,7 +230,7 @@ class SessionRecorder:
         self.rows = sum(1 for _ in read_turns(self.path))
         self._write_json()
         self._turns = open_no_follow(self.path / "turns.csv", "a")
-        self._writer = csv.DictWriter(self._turns, fieldnames=TURN_COLUMNS, extrasaction="raise")
+        self._writer = csv.DictWriter(self._turns, fieldnames=self.columns, extrasaction="raise")
         self._events = open_no_follow(self.path / "events.jsonl", "a")
         for ev in self._pending:
             self._write_event(ev)
@@ -283,8 +282,8 @@ class SessionRecorder:
 
     def turn(self, row: dict[str, Any]) -> None:
         """Append one turn row and make it durable before returning."""
-        clean = {k: ("" if row.get(k) is None else row.get(k)) for k in TURN_COLUMNS}
-        unknown = set(row) - set(TURN_COLUMNS)
+        clean = {k: ("" if row.get(k) is None else row.get(k)) for k in self.columns}
+        unknown = set(row) - set(self.columns)
         if unknown:
             raise KeyError(f"unknown turns.csv columns: {sorted(unknown)}")
         try:

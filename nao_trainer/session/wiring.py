@@ -30,6 +30,7 @@ from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, Nu
                                NullUpkeep, Policy, Robot, RobotConnectionLost, RobotHealthWatch, RobotUpkeep,
                                SessionObserver)
 from nao_trainer.robot.address import redact_url
+from nao_trainer.tasks.base import Task
 from nao_trainer.session.behaviors import Behaviors, load_behaviors
 from nao_trainer.session.check import check_disk, check_eeg, check_robot, plan_from_config
 from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig, is_robot_address
@@ -248,11 +249,12 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
     Every adapter is built inside one ``ExitStack``: it is closed in the reverse order of building,
     whatever happens (the record is closed last but the stand-in, so every close is logged in it)."""
     out = _Outcome(seed, span_rate=span_rate(config.policy.objective))
-    recorder = SessionRecorder(config.output_dir(), config.participant.pseudonym)
+    task = config.task.build_task()
+    recorder = SessionRecorder(config.output_dir(), config.participant.pseudonym, columns=task.columns)
     stack = ExitStack()
     try:
         _play(stack, out, recorder, config, progress, dialogue, behaviors, simulator, policy, options, resume,
-              console_bind)
+              console_bind, task)
     except (KeyboardInterrupt, Interrupted):
         out.status, out.code = "interrupted", EXIT_INTERRUPTED
     except RobotConnectionLost as exc:  # dropped while setting up (buttons): nothing was played yet
@@ -277,7 +279,7 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
 
 def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: StudyConfig, progress: TextIO | None,
           dialogue: Dialogue, behaviors: Behaviors, simulator: UserSimulator | None, policy: Policy,
-          options: RunOptions, resume: Resumption | None, console_bind: str | None) -> None:
+          options: RunOptions, resume: Resumption | None, console_bind: str | None, task: Task) -> None:
     """Build the adapters in order, each one's closer pushed on ``stack`` as soon as it exists; play."""
     session_ss, policy_ss, participant_ss, eeg_ss = np.random.SeedSequence(out.seed).spawn(4)
     standin = _start_standin(stack, config)
@@ -315,7 +317,7 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
     stack.callback(_close_quietly, answers, recorder, out)
     policy.bind_state_dir(path)
     stack.callback(_close_policy, policy, out, recorder)  # closed (a learning policy saved) once the folder exists
-    ports = SessionPorts(robot, answers, policy, monitor, commands, observer or NullObserver(), upkeep, health)
+    ports = SessionPorts(robot, answers, policy, monitor, commands, observer or NullObserver(), upkeep, health, task)
     session = Session(config, ports, recorder, Script(dialogue, behaviors),
                       Randomness(np.random.default_rng(session_ss), np.random.default_rng(policy_ss),
                                  {"participant": participant_rng}),
