@@ -2,7 +2,7 @@
 import re
 from pathlib import Path
 
-from setuptools import find_packages, setup
+from setuptools import find_namespace_packages, setup
 
 here = Path(__file__).parent
 version = re.search(r'__version__ = "([^"]+)"', (here / "nao_trainer" / "__init__.py").read_text()).group(1)
@@ -13,7 +13,9 @@ setup(
     description="Personalised robot-assisted cognitive training with a NAO robot and a Muse EEG headband",
     long_description=(here / "README.md").read_text() if (here / "README.md").exists() else "",
     long_description_content_type="text/markdown",
-    packages=find_packages(include=["nao_trainer", "nao_trainer.*"]),
+    # namespace packages too: console/static (the page, no __init__.py) is then a package of its own, not data
+    # setuptools warns about on every install
+    packages=find_namespace_packages(include=["nao_trainer", "nao_trainer.*"], exclude=["*.__pycache__"]),
     # qi (the NAOqi SDK) ships wheels for CPython 3.8-3.12 on Linux x86_64 only.
     python_requires=">=3.10,<3.13",
     install_requires=[
@@ -35,20 +37,23 @@ setup(
         "cluster": ["joblib>=1.3", "dask[distributed]>=2024.1"],
         # session.xdf: LabRecorder's engine (a release candidate, binary wheels) and the reader
         "xdf": ["labrecorder>=1.0.0rc0", "pyxdf>=1.16"],
+        # EEG device 'brainflow': the Muse 2 / Muse S natively and BrainFlow's synthetic board (eeg/devices/brainflow.py)
+        "brainflow": ["brainflow>=5.10"],
         # controlled studies: the mixed model (study analyse), BIDS export (study export --bids)
-        "study": ["statsmodels>=0.14", "pandas>=2", "mne>=1.6", "mne-bids>=0.15", "pybv>=0.7"],
+        # + the sealed allocation of the study registry (study.seal: Fernet)
+        "study": ["statsmodels>=0.14", "pandas>=2", "mne>=1.6", "mne-bids>=0.15", "pybv>=0.7", "cryptography>=41"],
         # QUEST+ baseline beside the Bayes ceiling (experiments.adaptive)
         "psychophysics": ["questplus>=2023.1"],
         # the documentation site (make docs): MkDocs, the Material theme, the API pages from the docstrings
         "docs": ["mkdocs>=1.6", "mkdocs-material>=9.5", "mkdocstrings[python]>=0.26"],
         "test": ["mkdocs>=1.6", "mkdocs-material>=9.5", "mkdocstrings[python]>=0.26", "pytest>=7", "pytest-xdist>=3.6", "playwright>=1.40", "pyxdf>=1.16", "statsmodels>=0.14", "pandas>=2",
-                 "mne>=1.6", "mne-bids>=0.15", "pybv>=0.7", "questplus>=2023.1"],
+                 "mne>=1.6", "mne-bids>=0.15", "pybv>=0.7", "questplus>=2023.1", "brainflow>=5.10", "cryptography>=41"],
         "all": ["matplotlib>=3.7", "gymnasium>=1.0", "starlette>=0.37", "uvicorn>=0.29", "numba>=0.60", "joblib>=1.3",
                 "dask[distributed]>=2024.1", "labrecorder>=1.0.0rc0", "pyxdf>=1.16", "statsmodels>=0.14", "pandas>=2",
-                "mne>=1.6", "mne-bids>=0.15", "pybv>=0.7", "questplus>=2023.1"],
+                "mne>=1.6", "mne-bids>=0.15", "pybv>=0.7", "questplus>=2023.1", "brainflow>=5.10", "cryptography>=41"],
     },
     # The console's page and the vendored uPlot (MIT; version and licence in console/static/).
-    package_data={"nao_trainer.console": ["static/*"]},
+    package_data={"nao_trainer.console.static": ["*"]},
     entry_points={"console_scripts": ["nao-trainer=nao_trainer.cli:entry_point"]},
     include_package_data=True,
     classifiers=[

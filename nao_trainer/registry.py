@@ -13,6 +13,7 @@ callers ask ``spec(kind, name)`` / ``load(kind, name)`` and use what the plug-in
 """
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import importlib
 from dataclasses import dataclass
@@ -43,18 +44,22 @@ class Spec:
 
     def load(self) -> Any:
         """Import the entry point's module and return its attribute; a failure is one ``ConfigError`` line."""
-        module, _, attribute = self.entry_point.partition(":")
-        try:
-            target: Any = importlib.import_module(module)
-            for part in attribute.split(".") if attribute else ():
-                target = getattr(target, part)
-        except ImportError as exc:
-            raise ConfigError(f"{WORDS[self.kind]} {self.name!r} (from {self.origin}) cannot be loaded: {exc}; "
-                              "install what it needs or choose another") from None
-        except AttributeError as exc:
-            raise ConfigError(f"{WORDS[self.kind]} {self.name!r} (from {self.origin}): entry point "
-                              f"{self.entry_point!r} is broken ({exc})") from None
-        return target
+        return resolve(self.entry_point, f"{WORDS[self.kind]} {self.name!r} (from {self.origin})")
+
+
+def resolve(entry_point: str, what: str) -> Any:
+    """The object ``"module:attribute"`` names, imported now (a plug-in's own lazy entry points, such as a
+    policy's ``live`` and ``offline`` forms); a failure is one ``ConfigError`` line naming ``what``."""
+    module, _, attribute = entry_point.partition(":")
+    try:
+        target: Any = importlib.import_module(module)
+        for part in attribute.split(".") if attribute else ():
+            target = getattr(target, part)
+    except ImportError as exc:
+        raise ConfigError(f"{what} cannot be loaded: {exc}; install what it needs or choose another") from None
+    except AttributeError as exc:
+        raise ConfigError(f"{what}: entry point {entry_point!r} is broken ({exc})") from None
+    return target
 
 
 _REGISTRY: dict[str, dict[str, Spec]] = {kind: {} for kind in GROUPS}
@@ -145,9 +150,56 @@ def make(kind: str, name: str, *args: Any, **kwargs: Any) -> Any:
     return load(kind, name)(*args, **kwargs)
 
 
+def settings_of(target: Any) -> type | None:
+    """The settings dataclass a loaded plug-in declares: ``Settings`` (a class: EEG devices, tasks, robot
+    models) or ``settings`` (a declaration object: ``policies.plugin.PolicyKind``), else None."""
+    for attr in ("Settings", "settings"):
+        cls = getattr(target, attr, None)
+        if isinstance(cls, type) and dataclasses.is_dataclass(cls):
+            return cls
+    return None
+
+
+@dataclass(frozen=True)
+class Installed:
+    """One registered plug-in as ``nao-trainer plugins`` and the docs' key reference see it."""
+
+    spec: Spec
+    target: Any = None  # the loaded entry point (None when it cannot be loaded)
+    settings: type | None = None  # its settings dataclass, if it declares one
+    error: str = ""  # why it cannot be loaded
+
+    @property
+    def summary(self) -> str:
+        """Its one-line description: a declared ``summary``, else the first line of its docstring."""
+        text = getattr(self.target, "summary", None) or (getattr(self.target, "__doc__", None) or "")
+        return str(text).strip().splitlines()[0] if str(text).strip() else ""
+
+
+def installed(kind: str) -> tuple[Installed, ...]:
+    """Every registered plug-in of ``kind`` (built-in and from entry points), each loaded now, by name."""
+    out = []
+    for found in specs(kind):
+        try:
+            target = found.load()
+        except ConfigError as exc:
+            out.append(Installed(found, error=str(exc)))
+            continue
+        out.append(Installed(found, target, settings_of(target)))
+    return tuple(out)
+
+
 #: The project's own plug-ins: (kind, name, entry point). Each home owns its settings and behaviour.
 BUILTIN: tuple[tuple[str, str, str], ...] = (
+    ("policy", "schedule", "nao_trainer.policies.kinds:SCHEDULE"),
+    ("policy", "random", "nao_trainer.policies.kinds:RANDOM"),
+    ("policy", "usp", "nao_trainer.policies.kinds:USP"),
+    ("policy", "personalised", "nao_trainer.policies.kinds:PERSONALISED"),
+    ("policy", "bayes", "nao_trainer.policies.kinds:BAYES"),
     ("eeg_device", "muse", "nao_trainer.eeg.devices.muse:MuseDevice"),
+    ("robot_model", "nao", "nao_trainer.robot.models.nao:NaoModel"),
+    ("robot_model", "pepper", "nao_trainer.robot.models.pepper:PepperModel"),
+    ("eeg_device", "brainflow", "nao_trainer.eeg.devices.brainflow:BrainFlowDevice"),
 )
 
 

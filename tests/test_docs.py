@@ -69,3 +69,17 @@ def test_site_builds_strict(tmp_path):
     assert done.returncode == 0, done.stdout + done.stderr
     assert (tmp_path / "site" / "reference" / "commands" / "index.html").is_file()
     assert "study amend" in (tmp_path / "site" / "reference" / "commands" / "index.html").read_text()
+
+
+def test_install_is_quiet(tmp_path):
+    """No setuptools warning on build (issue 29: `make demo` printed about 40 about console/static)."""
+    import shutil
+
+    for name in ("setup.py", "README.md"):
+        shutil.copy(ROOT / name, tmp_path / name)
+    shutil.copytree(ROOT / "nao_trainer", tmp_path / "nao_trainer", ignore=shutil.ignore_patterns("__pycache__"))
+    done = subprocess.run([sys.executable, "setup.py", "build_py", "-d", str(tmp_path / "out")], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert "Warning" not in done.stdout + done.stderr, done.stderr[-2000:]
+    assert (tmp_path / "out" / "nao_trainer" / "console" / "static" / "console.html").is_file()

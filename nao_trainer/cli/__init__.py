@@ -16,7 +16,7 @@ from nao_trainer.errors import Interrupted, UserError
 
 #: Subcommand modules, in the order ``--help`` lists them.
 COMMANDS = ("run", "check", "hardware_check", "mock_robot", "simulate_muse", "engagement", "import_data", "fit",
-            "train", "evaluate", "sweep", "study")
+            "train", "evaluate", "sweep", "study", "plugins")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -38,7 +38,9 @@ def main(argv: list[str] | None = None) -> int:
     if not argv:  # no command: say what there is (the demo is `nao-trainer run`)
         parser.print_help()
         return 0
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # `run --polcy bayes`: the command's own usage, not the top-level one
+        _command_parser(parser, getattr(args, "command", None)).error(f"unrecognized arguments: {' '.join(extra)}")
     args.argv = argv  # what was parsed (recorded by commands that log their command line), not sys.argv
     if not getattr(args, "func", None):
         parser.print_help()
@@ -55,6 +57,14 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # the reader went away (`nao-trainer study status DIR | head`): nothing to say to it
         _quiet_stdout()
         return 0
+
+
+def _command_parser(parser: argparse.ArgumentParser, command: str | None) -> argparse.ArgumentParser:
+    """The subcommand's parser (its usage is what a mistyped flag of that command should show), else the top one."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction) and command in action.choices:
+            return action.choices[command]
+    return parser
 
 
 def _quiet_stdout() -> None:

@@ -14,7 +14,9 @@ def register(sub) -> None:
         description=(
             "Serve a NAO stand-in over a real qi session: ALTextToSpeech, ALAnimatedSpeech, ALAudioPlayer, "
             "ALLeds, ALRobotPosture, ALMotion, ALMemory (head buttons) and the NaoTrainerStandIn control "
-            "service. Point `nao-trainer run --robot URL` at the printed address."
+            "service. Point `nao-trainer run --robot URL` at the printed address. On a terminal, the keys a, b, "
+            "c touch the front, middle and rear head buttons (hardware-check and --input tactile without a "
+            "robot); from another shell: `nao-trainer mock-robot press A --robot URL`."
         ),
     )
     p.add_argument(
@@ -38,7 +40,20 @@ def register(sub) -> None:
         action="store_true",
         help="allow a non-loopback --listen address (serves other machines on the network)",
     )
+    p.add_argument("--no-keys", action="store_true", help="do not read head-button keys (a, b, c) from the terminal")
     p.set_defaults(func=_run)
+    actions = p.add_subparsers(dest="mock_action", metavar="ACTION")
+    press = actions.add_parser("press", help="touch a head button of a running stand-in (from another shell)",
+                               description="Touch a head button of a running `nao-trainer mock-robot`: A front, "
+                                           "B middle, C rear, as a finger on a NAO does (0.1 s).")
+    press.add_argument("button", type=str.upper, choices=("A", "B", "C"), metavar="A|B|C",
+                       help="A front, B middle, C rear")
+    press.add_argument("--robot", default="tcp://127.0.0.1:9559", metavar="URL",
+                       help="the stand-in's address (its ready line prints it); default %(default)s")
+    press.add_argument("--hold", type=float, default=None, metavar="S",
+                       help="keep the hand on the button S seconds (robot time: 3 s puts NAO to sleep with "
+                            "Autonomous Life on)")
+    press.set_defaults(func=_press)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -51,6 +66,28 @@ def _run(args: argparse.Namespace) -> int:
         if creds is None:
             raise ConfigError("mock-robot --listen tcps://...: set NAO_USER and NAO_PASSWORD, the login it accepts")
         login = Login(creds.user, creds.password)
-    return serve(args.listen, speed=args.speed, transcript_path=args.transcript, allow_remote=args.allow_remote,
+    def keys(standin):  # a, b, c on this terminal touch the head buttons (none on a pipe: tests, services)
+        from nao_trainer.robot.standin.keys import ButtonKeys
+
+        reader = None if args.no_keys else ButtonKeys.start_if_terminal(standin.press, sys.stderr, sys.stdin.fileno())
+        return reader.close if reader is not None else None
+
+    return serve(args.listen, on_ready=keys, speed=args.speed, transcript_path=args.transcript, allow_remote=args.allow_remote,
                  echo=sys.stderr if args.echo else None, login=login, latency_s=args.latency_ms / 1000,
                  beep_latency_s=args.beep_latency_ms / 1000, freeze_s=args.freeze_s)
+
+
+def _press(args: argparse.Namespace) -> int:
+    from nao_trainer.robot.standin import StandInClient  # imports qi
+
+    if args.hold is not None and not 0 < args.hold <= 60:
+        raise ConfigError(f"--hold must be between 0 and 60 seconds, got {args.hold:g}")
+    names = {"A": "front", "B": "middle", "C": "rear"}
+    with StandInClient.connect(args.robot) as client:
+        if args.hold is None:
+            key = client.press(args.button)
+            print(f"pressed the {names[args.button]} head button ({args.button}, {key}) at {args.robot}")
+        else:
+            after = client.hold(args.button, args.hold)
+            print(f"held the {names[args.button]} head button ({args.button}) {args.hold:g} s at {args.robot}: {after}")
+    return 0

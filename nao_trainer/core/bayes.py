@@ -254,6 +254,17 @@ class Plan:
             nrem -= int(c[d])
         return int(self.action[int(self.offsets[n]) + r]) + 1
 
+    def decide_many(self, counts: np.ndarray) -> np.ndarray:
+        """``decide`` for rows of counts (N, 2L) that have all played the same number of turns: (N,) levels."""
+        c = np.asarray(counts, dtype=np.int64)
+        n = int(c[0].sum()) if len(c) else 0
+        if c.ndim != 2 or c.shape[1] != 2 * self.levels or np.any(c < 0) or np.any(c.sum(axis=1) != n):
+            raise ValueError(f"counts must be rows of {2 * self.levels} non-negative numbers with one sum")
+        if n >= self.horizon:
+            raise ValueError(f"the plan covers {self.horizon} turns; {n} have been played")
+        ranks = rank_many(c, _offsets(self.horizon, self.levels))
+        return self.action[int(self.offsets[n]) + ranks].astype(np.int64) + 1
+
     def memory_bytes(self) -> int:
         return int(self.action.nbytes)
 

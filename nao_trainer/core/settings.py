@@ -42,6 +42,45 @@ class Rule:
     doc: str = ""
 
 
+def rule_text(rule: Rule) -> str:
+    """A rule in words: ``a number, >= 0.05, <= 1`` (``nao-trainer plugins``, the docs' key reference)."""
+    plural = {int: "integers", float: "numbers", str: "texts", bool: "true/false values"}
+    items = rule.item if isinstance(rule.item, tuple) else (rule.item,)
+    of = " or ".join(plural.get(k, k.__name__) for k in items if k is not None and not (k is int and float in items))
+    parts = [type_name(rule.kind) + (f" of {of}" if rule.item is not None else "")]
+    if rule.length is not None:
+        parts.append(f"exactly {rule.length} items")
+    if rule.choices:
+        parts.append("one of " + ", ".join(str(c) for c in rule.choices))
+    if rule.min is not None:
+        parts.append(f">= {rule.min:g}")
+    if rule.above is not None:
+        parts.append(f"> {rule.above:g}")
+    if rule.max is not None:
+        parts.append(f"<= {rule.max:g}")
+    if rule.nullable:
+        parts.append("or null")
+    if rule.check is not None:
+        parts.append(f"checked by {rule.check.__name__}")
+    return ", ".join(parts)
+
+
+def declared(cls: type, prefix: str = "") -> list[tuple[str, Any, Rule]]:
+    """(dotted key, default, rule) of every key a settings class declares, nested ones flattened; the
+    default is ``MISSING`` for a required key."""
+    out: list[tuple[str, Any, Rule]] = []
+    for f in dataclasses.fields(cls):
+        dotted = f"{prefix}{f.name}"
+        rule, nested = rule_of(f), nested_class(f)
+        if rule is None and is_settings(nested):
+            out += declared(nested, dotted + ".")
+        elif rule is not None:
+            default = f.default if f.default is not MISSING else (
+                f.default_factory() if f.default_factory is not MISSING else MISSING)
+            out.append((dotted, default, rule))
+    return out
+
+
 class SettingError(ConfigError, ValueError):
     """A value broke its rule: ``key`` (relative to the object checked) and ``problem`` (the words after the key).
 

@@ -97,8 +97,8 @@ def resolve_eeg(query: StreamQuery, timeout_s: float, scope: str = "machine"):
     return chosen
 
 
-#: ``desc/acquisition`` values of streams made by nao-trainer itself (simulate-muse, the replayer): not a headband.
-SIMULATED_ACQUISITIONS = ("simulated", "replayed")
+#: ``desc/acquisition`` values of made-up streams (simulate-muse, the replayer, BrainFlow's synthetic board): not a headband.
+SIMULATED_ACQUISITIONS = ("simulated", "replayed", "synthetic")
 
 
 def acquisition(info) -> str:

@@ -382,6 +382,29 @@ class LslMonitor:
                 self._cond.wait(remaining)
             return True
 
+    def wait_available(self, timeout_s: float) -> bool:
+        """Block until the stream delivers again (after a loss) or ``timeout_s`` passes; True if it does."""
+        deadline = self._clock() + timeout_s
+        with self._cond:
+            while not self.available and not self._closed:
+                remaining = deadline - self._clock()
+                if remaining <= 0:
+                    return False
+                self._cond.wait(min(remaining, 0.5))
+            return self.available
+
+    def gap_report(self) -> list[dict]:
+        """Each gap for session.json: its LSL start and end (None: lasted to the end), its length, and the
+        turns whose phases it overlapped."""
+        now = self._clock()
+        out = []
+        for g in list(self.gaps):
+            turns = sorted({ph.turn for ph, t1, _ in self.phases if ph.turn is not None and g.overlap(ph.t0, t1, now) > 0})
+            out.append({"start": round(g.start, 6), "end": None if g.end is None else round(g.end, 6),
+                        "duration_s": None if g.end is None else round(g.end - g.start, 3),
+                        "until_end": g.end is None, "kind": g.kind, "turns": turns})
+        return out
+
     # -- EngagementMonitor ----------------------------------------------------------------------
 
     def mark(self, event: str, turn: int | None = None) -> None:
@@ -448,7 +471,8 @@ class LslMonitor:
         s = summarise_phase(windows, ph.t0, t1, self.normaliser, baseline=ph.name == "baseline",
                             had_baseline=self._had_baseline, hop_s=self.proc.hop_s, min_quality=self.proc.min_quality,
                             lost_s=lost_s, unavailable=self.unavailable_reason if self.inlet is None else None)
-        result = PhaseEngagement(s.engagement, s.index, round(s.quality, 4), s.reason, series=s.smoothed)
+        result = PhaseEngagement(s.engagement, s.index, round(s.quality, 4), s.reason, series=s.smoothed,
+                                 lost_s=round(lost_s, 3))
         rows = [[ph.turn if ph.turn is not None else "", ph.name, repr(w.t_end), fmt(w.index_raw),
                  fmt(w.index_smoothed), fmt(float(n)), f"{w.clean_fraction:.3f}", w.reason]
                 for w, n in zip(windows, s.normalised)]

@@ -44,7 +44,7 @@ def _registered_device(value: str) -> str | None:
 class EEGSettings:
     """The ``eeg`` section of a study config, validated."""
 
-    mode: str = setting("simulated", kind=str, choices=MODES,
+    mode: str = setting("off", kind=str, choices=MODES,
                         doc="off | simulated (the device's simulation) | lsl (the live headband, read over LSL)")
     device: str = setting("muse", kind=str, check=_registered_device,
                           doc="the EEG device plug-in (nao-trainer plugins lists them): muse, brainflow, ...")
@@ -59,6 +59,11 @@ class EEGSettings:
     xdf: bool = setting(True, kind=bool, doc="also record session.xdf (eeg/xdf.py)")
     missing_alert_turns: int = setting(3, kind=int, min=0, max=1000,
                                        doc="tell the operator after this many turns in a row without EEG (0 = never)")
+    turn_requires_eeg: bool = setting(False, kind=bool,
+                                      doc="a turn whose listening phase lost EEG is played again (once), as after "
+                                          "a lost robot link, once the stream is back (docs/headbands.md)")
+    reconnect_wait_s: float = setting(30.0, kind=(int, float), min=0.0, max=600.0,
+                                      doc="with turn_requires_eeg: how long a turn waits for a lost stream to return, s")
     allow_simulated: bool = setting(False, kind=bool,
                                     doc="pilots only: let a session where a person answers or a real robot plays "
                                         "take a simulated or replayed stream (simulate-muse); --allow-simulated-eeg")
@@ -101,7 +106,7 @@ def simulated_refusal(identity: Mapping[str, Any], settings: EEGSettings) -> str
     if not identity.get("simulated") or settings.allow_simulated:
         return ""
     return (f"EEG stream {identity.get('name')!r} (source_id {identity.get('source_id')!r}) is "
-            f"{identity.get('acquisition')} (nao-trainer simulate-muse), not a headband, but a person answers or a "
+            f"{identity.get('acquisition')} (nao-trainer simulate-muse, or BrainFlow's synthetic board), not a headband, but a person answers or a "
             "real robot plays: its engagement would be recorded as theirs; start the headband bridge and pin it with "
             "eeg.source_id (--eeg-source-id), or for a pilot set eeg.allow_simulated: true (--allow-simulated-eeg)")
 

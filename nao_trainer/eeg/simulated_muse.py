@@ -150,6 +150,7 @@ class _Publisher:
     _outlet: object = None
     _thread: threading.Thread | None = None
     _stop: threading.Event = field(default_factory=threading.Event)
+    _paused: threading.Event = field(default_factory=threading.Event)
     _lock: threading.Lock = field(default_factory=threading.Lock)
     error: BaseException | None = None
     #: ``desc/acquisition`` of the stream: what it is, so a session never takes it for a headband
@@ -187,6 +188,10 @@ class _Publisher:
             wall_offset = time.time() - t0
             sent = 0
             while not self._stop.is_set():
+                if self._paused.is_set():  # a headband gone silent: the outlet stays, no samples
+                    self._stop.wait(0.02)
+                    t0 = pylsl.local_clock() - sent / self.fs  # on resume, samples continue from now
+                    continue
                 due = int((pylsl.local_clock() - t0) * self.fs)
                 while due - sent >= self.chunk and not self._stop.is_set():
                     with self._lock:
@@ -223,6 +228,14 @@ class _Publisher:
         if self._thread is not None:
             self._thread.join(timeout)
         return not self.running
+
+    def pause(self) -> None:
+        """Stop pushing but keep the outlet (a headband out of range while its bridge runs); ``resume()``."""
+        self._paused.set()
+
+    def resume(self) -> None:
+        """Push again after ``pause()``; the stamps continue from now (the pause is a gap in the data)."""
+        self._paused.clear()
 
     def stop(self) -> None:
         """Stop pushing and destroy the outlet: inlets see the stream disappear."""

@@ -43,6 +43,9 @@ def parse_param(text: str) -> tuple[str, list[float]]:
     try:
         if ":" in rest:
             parts = rest.split(":")
+            if len(parts) == 2:
+                raise ConfigError(f"--param {text!r}: the COUNT is missing (NAME=START:STOP:COUNT, e.g. "
+                                  f"{name}={parts[0]}:{parts[1]}:11 for 11 values from {parts[0]} to {parts[1]})")
             if len(parts) != 3:
                 raise ValueError
             start, stop, count_text = float(parts[0]), float(parts[1]), parts[2].strip()

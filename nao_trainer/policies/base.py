@@ -23,7 +23,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from nao_trainer.core import mdp
+from nao_trainer.core import evaluation, mdp, processes
 from nao_trainer.ports import Transition
 
 #: Notices for the user (a returning participant, a state set aside); shown on stderr by Python's
@@ -95,3 +95,17 @@ class StatelessPolicy:
 
     def status(self) -> dict[str, Any]:
         return {}  # nothing to report beyond the record
+
+
+class TableSessions:
+    """The offline form of a policy that is a table (per turn or not): the same table every session
+    (``policies.plugin``: ``start(n, session)`` returns a ``core.evaluation.EpisodePolicy``)."""
+
+    def __init__(self, table: np.ndarray, turns: int) -> None:
+        self.table = np.asarray(table, dtype=float)
+        self.turns = int(turns)
+
+    def start(self, n: int, session: int) -> Any:
+        policy = evaluation.TablePolicy(self.table)
+        policy.reset(n, processes.get("paper"))
+        return policy

@@ -41,7 +41,9 @@ from nao_trainer.core import bayes, mdp, objective
 from nao_trainer.core.posterior import level_means
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import JsonFormat
+from nao_trainer.learn.bayes_cache import solve_cached
 from nao_trainer.policies.participant_state import check_owner, open_saved
+from nao_trainer.policies.plugin import LiveContext, OfflineContext
 from nao_trainer.ports import Transition
 
 FRESH = "start afresh with --fresh-policy (the old file is kept beside it)"
@@ -92,16 +94,9 @@ class BayesPolicy:
 
     def _solve(self) -> bayes.Plan:
         """The table for this session: prior = the posterior after the earlier sessions' counts."""
-        from nao_trainer.learn.bayes_cache import solve_cached
-
         # no earlier turns: the prior's own weights, so the plan is the evaluation's for the same prior
         start = bayes.posterior_weights(self.p, self.weights, self.carried) if self.carried.any() else self.weights
-        try:
-            return solve_cached(self.p, start, self.objective.coefficients(4), self.turns, 0, self.cache,
-                                terminal=self.objective.terminal(self.turns))
-        except bayes.PlanTooLarge as exc:
-            raise ConfigError(f"policy bayes: {exc}; play at most {exc.max_horizon} turns "
-                              "(--turns or session.turns), or another policy") from None
+        return solve_plan(self.p, start, self.objective, self.turns, self.cache)
 
     # -- ports.Policy ------------------------------------------------------------------------------
 
@@ -285,3 +280,87 @@ def load_bayes(path: Path | None, pseudonym: str, turns: int, objective_text: st
                     len(saved["sessions"]), saved["counts"], path)
     return BayesPolicy(names, p, w, obj, turns, Path(path) if path is not None else None, saved, cache, pseudonym,
                        prior)
+
+
+# -- the plug-in's entry points (policies.kinds.BAYES) -----------------------------------------------
+
+
+def live(ctx: LiveContext) -> BayesPolicy:
+    return load_bayes(ctx.state_file, ctx.participant, ctx.turns, ctx.settings.objective, ctx.fresh, ctx.settings.prior)
+
+
+class BayesSessions:
+    """The offline form (``study power``): the same prior, objective and plan as the live policy.
+
+    Session 1 plays the solved plan exactly (``Plan.decide_many``: the table lookup of the live
+    ``decide``). A later session of the live policy solves a new plan for the posterior after the
+    carried counts, one per participant; solving one per simulated participant is out of reach, so
+    from session 2 on each participant plays the plan's own rule past its horizon: the posterior-best
+    level after all counts so far (carried and this session's), updated every turn (the exploration a
+    new plan would add is left out: an approximation, said in ``study power``'s notes)."""
+
+    def __init__(self, ctx: OfflineContext, models_dir: Path | None = None, cache: Path | None = None) -> None:
+        if not bayes.available():
+            raise ConfigError("policy 'bayes' needs numba: pip install 'nao-trainer[all]'")
+        self.objective = objective.parse(ctx.settings.objective)
+        self.prior = ctx.settings.prior or default_prior(self.objective)
+        self.names, self.p, weights = model_prior(self.prior, models_dir)
+        self.weights = np.asarray(weights, dtype=float) / np.sum(weights)
+        self.turns = int(ctx.turns)
+        self.plan = solve_plan(self.p, self.weights, self.objective, self.turns, cache)
+        self.utility = self.objective.utility(self.p)  # (K, L)
+        self.carried: np.ndarray | None = None
+        self.counts = np.zeros((0, 8), dtype=np.int64)
+        self.session = 0
+        #: said in ``study power``'s notes
+        self.note = ("bayes: session 1 plays the solved plan; later sessions the posterior-best level after the "
+                     "carried counts (a live session re-solves the plan per participant)")
+
+    def start(self, n: int, session: int) -> "BayesSessions":
+        """Session ``session`` (1-based) of the same ``n`` participants as the session before."""
+        if session == 1 or self.carried is None:
+            self.carried = np.zeros((n, 8), dtype=np.int64)
+        else:
+            self.carried = self.carried + self.counts
+        self.counts = np.zeros((n, 8), dtype=np.int64)
+        self.session = session
+        return self
+
+    # -- core.evaluation.EpisodePolicy -------------------------------------------------------------
+
+    def reset(self, n: int, process: Any) -> None:
+        self.start(n, 1)
+
+    def levels(self) -> np.ndarray:
+        """The level (1-based) of the next turn of every participant."""
+        played = int(self.counts[0].sum()) if len(self.counts) else 0
+        if self.session == 1 and played < self.plan.horizon:
+            return self.plan.decide_many(self.counts)
+        total = self.carried + self.counts
+        loglik = np.log(np.clip(np.stack([self.p, 1.0 - self.p], axis=-1).reshape(len(self.p), -1), 1e-300, None))
+        logw = np.log(self.weights)[None, :] + total @ loglik.T  # (n, K)
+        w = np.exp(logw - logw.max(axis=1, keepdims=True))
+        w /= w.sum(axis=1, keepdims=True)
+        return np.argmax(np.round(w @ self.utility, 12), axis=1) + 1
+
+    def act(self, obs: np.ndarray, turn: int, rng: np.random.Generator) -> np.ndarray:
+        return self.levels() - 1  # actions 0..3 are levels 1..4
+
+    def observe(self, obs: np.ndarray, action: np.ndarray, score: np.ndarray, engagement: np.ndarray,
+                next_obs: np.ndarray, done: bool) -> None:
+        rows = np.arange(len(action))
+        self.counts[rows, 2 * np.asarray(action) + np.where(np.asarray(score) > 0, 0, 1)] += 1
+
+
+def solve_plan(p: np.ndarray, weights: np.ndarray, obj: objective.Objective, turns: int,
+               cache: Path | None) -> bayes.Plan:
+    """The plan of a session of ``turns`` turns for the prior ``weights`` (live and offline alike)."""
+    try:
+        return solve_cached(p, weights, obj.coefficients(4), turns, 0, cache, terminal=obj.terminal(turns))
+    except bayes.PlanTooLarge as exc:
+        raise ConfigError(f"policy bayes: {exc}; play at most {exc.max_horizon} turns "
+                          "(--turns or session.turns), or another policy") from None
+
+
+def offline(ctx: OfflineContext) -> BayesSessions:
+    return BayesSessions(ctx)

@@ -8,9 +8,10 @@ from typing import Sequence
 
 import numpy as np
 
-from nao_trainer.core import mdp
+from nao_trainer.core import evaluation, mdp
 from nao_trainer.errors import ConfigError
-from nao_trainer.policies.base import StatelessPolicy
+from nao_trainer.policies.base import StatelessPolicy, TableSessions
+from nao_trainer.policies.plugin import LiveContext, OfflineContext
 
 
 class FixedSchedule(StatelessPolicy):
@@ -71,3 +72,37 @@ class UniformRandom(StatelessPolicy):
 
     def probabilities(self, state: int) -> np.ndarray | None:
         return mdp.ACTION_MASK[state] / mdp.ACTION_MASK[state].sum()
+
+
+def schedule_table(actions: Sequence[str], turns: int) -> np.ndarray:
+    """``FixedSchedule`` as a per-turn table: turn t plays actions[t mod len], or where it is not
+    allowed, the first allowed action of the schedule."""
+    idx = [mdp.ACTION_NAMES.index(a) for a in actions]
+    table = np.zeros((turns, mdp.N_STATES, mdp.N_ACTIONS))
+    for t in range(turns):
+        a = idx[t % len(idx)]
+        for s in range(mdp.N_STATES):
+            ok = a if mdp.ACTION_MASK[s, a] else next(b for b in idx if mdp.ACTION_MASK[s, b])
+            table[t, s, ok] = 1.0
+    return table
+
+
+# -- the plug-ins' entry points (policies.kinds) ------------------------------------------------------
+
+
+def live_schedule(ctx: LiveContext) -> FixedSchedule:
+    return FixedSchedule(list(ctx.settings.schedule))
+
+
+def live_random(ctx: LiveContext) -> UniformRandom:
+    return UniformRandom()
+
+
+def offline_schedule(ctx: OfflineContext) -> TableSessions:
+    """Exactly as the live schedule chooses."""
+    return TableSessions(schedule_table(tuple(ctx.settings.schedule), ctx.turns), ctx.turns)
+
+
+def offline_random(ctx: OfflineContext) -> TableSessions:
+    """Exactly as the live uniform choice (over the allowed actions)."""
+    return TableSessions(evaluation.uniform_policy(), ctx.turns)

@@ -20,8 +20,9 @@ from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.learn.artifacts import load_simulator
 from nao_trainer.learn.policy_files import (FRESH, RETRAIN, check_simulator, default_policies_dir, learner_from_payload,
                                             policy_filename, read_manifest, read_policy_file, save_policy_file)
-from nao_trainer.policies.base import Guidance, log
+from nao_trainer.policies.base import Guidance, TableSessions, log
 from nao_trainer.policies.participant_state import session_state_file, set_aside
+from nao_trainer.policies.plugin import LiveContext, OfflineContext
 from nao_trainer.ports import Transition
 
 
@@ -48,6 +49,13 @@ class LivePolicy:
         self.guidance = Guidance.from_pairs(guidance, payload.get("live", {}).get("guided"))
         self.loaded_from: Path | None = None  # the state file learning resumed from (None: the trained policy)
         self._closed = False
+
+    def state_report(self, target: Path | None, fresh: bool) -> dict[str, Any]:
+        """Which learning state the session starts from (logged as ``policy_state``) and where it saves."""
+        loaded = self.loaded_from
+        return {"policy": self.name, "loaded_from": str(loaded) if loaded else "trained policy",
+                "saves_to": str(target) if target else "session folder", "fresh": fresh,
+                "turns_learned": self.payload["live"]["turns_learned"]}
 
     def choice_values(self, state: int) -> np.ndarray:
         """What ``act`` chooses on: the learner's values ``V(s, .)`` plus the guidance term
@@ -192,3 +200,17 @@ def load_policy(spec: str, learning: bool, state_path: Path | None, policies_dir
         log.warning("policy %s: resuming from %s (%s live turns learned)", policy.name, source,
                     payload["live"]["turns_learned"])
     return policy
+
+
+# -- the plug-in's entry points (policies.kinds.USP) ------------------------------------------------
+
+
+def live(ctx: LiveContext) -> LivePolicy:
+    return load_policy(ctx.kind, ctx.common.learning, ctx.state_file, guidance=ctx.common.guidance, fresh=ctx.fresh,
+                       pseudonym=ctx.participant)
+
+
+def offline(ctx: OfflineContext) -> TableSessions:
+    """Its trained table (no learning within the simulated sessions)."""
+    policy = load_policy(ctx.kind, False, None)
+    return TableSessions(np.array([policy.probabilities(s) for s in range(mdp.N_STATES)]), ctx.turns)

@@ -1,8 +1,8 @@
 """Where a participant's learning state lives, and how a replaced one is kept.
 
 A learning policy keeps a participant's state in ``<output>/participants/<pseudonym>/<file>``
-(``state_file``; ``<file>`` is ``personalised.json`` for the personalised policy and
-``policy_state.json`` for a learned one, ``bayes.json`` for the Bayes planner). ``policy.state_path`` may name another file, with
+(``state_file``; ``<file>`` is the policy's declared ``state_filename``: ``personalised.json`` for the
+personalised policy, ``bayes.json`` for the Bayes planner, ``policy_state.json`` for a learned one). ``policy.state_path`` may name another file, with
 ``{pseudonym}`` and ``{output}``, or be ``{session}`` to keep it in the session folder (nothing
 carried over). ``--fresh-policy`` never deletes a state file: ``set_aside`` renames it to
 ``<file>.replaced-<UTC time>``. ``open_saved`` is the start-up every persisted policy shares (nothing
@@ -15,35 +15,15 @@ import logging
 import os
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Callable, Protocol, Sequence
+from typing import Any, Callable
 
 from nao_trainer.errors import DataError
-
-#: ``policy.state_path`` that keeps the state in the session folder (nothing carried over).
-SESSION_FOLDER = "{session}"
-#: The state file's name per policy kind (learned policies: ``policy_state.json``).
-STATE_FILENAMES: dict[str, str] = {"personalised": "personalised.json", "bayes": "bayes.json"}
-DEFAULT_STATE_FILENAME = "policy_state.json"
-
-
-class PolicySettings(Protocol):
-    """The ``policy`` section of a study configuration (``session.config.PolicySection``)."""
-
-    kind: str
-    schedule: Sequence[str]
-    learning: bool
-    state_path: str | None
-    guidance: float
-    assessment: Sequence[int]
-    kappa: float
-    margin: float
-    objective: str
-    prior: str | None
+from nao_trainer.policies.plugin import SESSION_FOLDER, declaration
 
 
 def state_filename(kind: str) -> str:
-    """The name of the state file of a policy ``kind`` ("personalised", "usp:2", ...)."""
-    return STATE_FILENAMES.get(kind, DEFAULT_STATE_FILENAME)
+    """The name of the state file of a policy ``kind`` ("personalised", "usp:2", ...): its declaration's."""
+    return declaration(kind).state_filename
 
 
 def state_file(kind: str, state_path: str | None, pseudonym: str, output: Path) -> Path | None:

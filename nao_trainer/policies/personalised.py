@@ -35,6 +35,7 @@ from nao_trainer.files import JsonFormat
 from nao_trainer.learn import artifacts, policy_files
 from nao_trainer.policies.base import Guidance, log
 from nao_trainer.policies.participant_state import check_owner, open_saved, session_state_file, state_file
+from nao_trainer.policies.plugin import LiveContext, OfflineContext
 from nao_trainer.ports import Transition
 
 FRESH = "start afresh with --fresh-policy (the old file is kept beside it)"
@@ -55,6 +56,16 @@ def models_fingerprint(models: ModelSet, fingerprints: Sequence[str], policy_dig
     for part in (*fingerprints, *policy_digests, ",".join(f"{p:.12g}" for p in models.prior)):
         h.update(part.encode())
     return h.hexdigest()
+
+
+def plain_name(candidate: str) -> str:
+    """A candidate's name in words: ``usp:3`` is the policy trained for user model 3, ``fixed:4`` level 4 always."""
+    kind, _, arg = candidate.partition(":")
+    if kind == "usp":
+        return f"personalised (trained for user model {arg})"
+    if kind == "fixed":
+        return f"fixed level {arg}"
+    return candidate
 
 
 class PersonalisedPolicy:
@@ -186,13 +197,17 @@ class PersonalisedPolicy:
             "phase": phase,
             "posterior": {n: round(float(p), 4) for n, p in zip(self.models.names, w)},
             "matched": self.models.names[best], "match_probability": round(float(w[best]), 4),
-            "following": following, "switches": int(self.pers.switches[0]),
+            "following": following, "policy": plain_name(following) if following else None,
+            "switches": int(self.pers.switches[0]),
             "level_success": [round(float(x), 4) for x in levels],
-            "progress": f"           posterior: {post}" + (f" -> following {following}" if following else
-                                                          " (assessment)"),
+            "progress": f"           user models, posterior: {post}" + (
+                f" -> policy: {plain_name(following)} (by expected value)" if following
+                else " (assessment: levels set in advance)"),
             "summary": (f"matched user model: {self.models.names[best]} (posterior {w[best]:.2f}; {post}); "
-                        f"following {following or 'the assessment'}; estimated success by level "
-                        + " ".join(f"L{i + 1} {x:.2f}" for i, x in enumerate(levels))),
+                        + (f"policy: {plain_name(following)}, chosen by its expected score under the posterior over "
+                           "all the user models (so not always the matched model's own policy)" if following
+                           else "policy: the assessment (levels set in advance)")
+                        + "; estimated success by level " + " ".join(f"L{i + 1} {x:.2f}" for i, x in enumerate(levels))),
         }
 
     # -- the participant's file -----------------------------------------------------------------------
@@ -292,3 +307,41 @@ def load_personalised(path: Path | None, pseudonym: str, turns: int, schedule: S
                     "no assessment", pseudonym, len(saved["sessions"]), path)
     return PersonalisedPolicy(models, learners, fingerprint, path, turns, tuple(int(x) for x in schedule), kappa,
                               margin, learning, saved, use_engagement, guidance, pseudonym)
+
+
+# -- the plug-in's entry points (policies.kinds.PERSONALISED) ----------------------------------------
+
+
+def live(ctx: LiveContext) -> PersonalisedPolicy:
+    own = ctx.settings
+    return load_personalised(ctx.state_file, ctx.participant, ctx.turns, own.assessment, float(own.kappa),
+                             float(own.margin), ctx.common.learning, ctx.fresh, guidance=ctx.common.guidance)
+
+
+class PersonalisedSessions:
+    """The offline form: ``core.assessment.Personaliser`` with the shipped user models and policies, the
+    assessment in session 1 and the posterior carried to the next session (its candidate learners do
+    not keep learning: the live policy's small in-session updates are left out)."""
+
+    def __init__(self, ctx: OfflineContext) -> None:
+        own = ctx.settings
+        live_policy = load_personalised(None, "offline", ctx.turns, own.assessment, float(own.kappa),
+                                        float(own.margin), False, False)
+        self.pers = live_policy.pers
+        self.assessment = tuple(live_policy.pers.schedule)
+        self.turns = ctx.turns
+
+    def start(self, n: int, session: int) -> assessment.Personaliser:
+        """Session ``session`` (1-based) for the same ``n`` participants as the session before."""
+        pers = self.pers
+        carried = None if session == 1 else (pers.log_w.copy(), pers.map_log_w.copy(), pers.wins.copy(),
+                                             pers.played.copy())
+        pers.schedule = self.assessment if session == 1 else ()  # a returning participant is not assessed again
+        pers.reset(n, "paper")
+        if carried is not None:
+            pers.log_w, pers.map_log_w, pers.wins, pers.played = carried
+        return pers
+
+
+def offline(ctx: OfflineContext) -> PersonalisedSessions:
+    return PersonalisedSessions(ctx)

@@ -19,12 +19,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
+from nao_trainer import registry
 from nao_trainer.core.settings import (Rule, SettingError, UnknownKey, build, check_value, optional_keys, schema_of,
                                        setting, settings)
 from nao_trainer.eeg.settings import EEGSettings
 from nao_trainer.errors import ConfigError
 from nao_trainer.files import PROJECT_ROOT, read_yaml
 from nao_trainer.policies.participant_state import state_file
+from nao_trainer.policies.plugin import compose_section
 from nao_trainer.session import config_rules as rules
 from nao_trainer.session.config_rules import DESKTOP, INPUTS, MOCK, is_robot_address  # noqa: F401 (importable from here)
 
@@ -78,10 +80,24 @@ class RobotSection:
                                   doc="during an answer window, a cheap call this often (wall seconds)")
     link_deadline_s: float = setting(kind=NUMBER, min=0.2, max=30,
                                      doc="the watchdog call's deadline: no answer = a frozen link, the turn is replayed")
+    model: str = setting("nao", kind=str, check=rules.robot_model,
+                         doc="the robot model plug-in (nao-trainer plugins lists them): nao, pepper, ...")
+    model_settings: dict = setting(factory=dict, kind=dict, free=True,
+                                   doc="the model's own settings (its Settings class; nao-trainer plugins)")
+    allow_life_on: bool = setting(False, kind=bool,
+                                  doc="go on when the robot refuses to change Autonomous Life (else check and run fail)")
 
     def __post_init__(self) -> None:
         if self.backoff_max_s < self.backoff_initial_s:
             raise SettingError("backoff_max_s", "must be >= robot.backoff_initial_s")
+        # the model's own settings, validated with the section (``key 'robot.model_settings.cool_posture' ...``)
+        from nao_trainer.robot.model import make_model
+
+        object.__setattr__(self, "_model", make_model(self.model, self.model_settings, prefix="model_settings"))
+
+    def robot_model(self):
+        """The robot model plug-in (``robot.model.RobotModel``) with its validated settings."""
+        return self._model  # type: ignore[attr-defined]
 
 
 @settings
@@ -89,7 +105,8 @@ class SessionSection:
     turns: int = setting(kind=int, min=1, max=500, doc="turns per session")
     practice: bool = setting(kind=bool, doc="one practice sequence before the first turn")
     seed: int | None = setting(kind=int, nullable=True, min=0, doc="null = drawn and recorded")
-    language: str = setting(kind=str, choices=("en",), doc="dialogue language")
+    language: str = setting(kind=str, choices=tuple(rules.LANGUAGES),
+                            doc="dialogue and speech language (en, fr, de, ...): set on the robot")
     dialogue: str = setting(kind=str, doc="dialogue file (relative: to the file that sets it)")
     behaviors: str = setting(kind=str, doc="behaviors file (relative: to the file that sets it)")
     output: str = setting(kind=str, doc="session folders are created under this folder")
@@ -145,28 +162,9 @@ class ParticipantModelSection:
     user_model: str | None = setting(kind=str, nullable=True, doc="cluster id or simulator JSON")
 
 
-@settings
-class PolicySection:
-    kind: str = setting(kind=str, check=rules.policy_spec, doc="schedule | random | usp:CLUSTER[:METHOD] | personalised | bayes")
-    schedule: tuple[str, ...] = setting(kind=list, item=str, check=rules.schedule, doc="actions, cycled")
-    learning: bool = setting(kind=bool, doc="learning policies keep learning during the session")
-    state_path: str | None = setting(kind=str, nullable=True, check=rules.state_path, doc="where learning state lives")
-    guidance: float = setting(kind=NUMBER, min=0, max=10, doc="preference for the supervisor's overrides")
-    # personalised (policies.personalised, docs/personalisation.md)
-    assessment: tuple[int, ...] = setting(kind=list, item=int, check=rules.assessment, doc="levels of the first turns")
-    kappa: float = setting(kind=NUMBER, min=0.01, doc="strength of the per-level Beta priors")
-    margin: float = setting(kind=NUMBER, min=0, doc="expected-value gain a new policy needs")
-    # bayes (policies.bayes, core/objective.py)
-    objective: str = setting("score", kind=str, check=rules.objective,
-                             doc="score (equation (1)) | target:R (keep success near rate R)")
-    prior: str | None = setting(None, kind=str, nullable=True, check=rules.bayes_prior,
-                                doc="clusters | psychometric | a psychometric prior file | a folder of user simulators; "
-                                    "null = psychometric under target:R, clusters under score")
-
-    def state_file(self, pseudonym: str, output: Path) -> Path | None:
-        """Where a learning policy keeps its state across sessions: by default the participant's
-        folder (``policies.participant_state.state_file``); None = the session folder."""
-        return state_file(self.kind, self.state_path, pseudonym, output)
+#: The ``policy`` section: ``kind``, the keys learning policies share, and each installed policy's own keys,
+#: each declared once by its owner (``policies.plugin.compose_section``; the built-ins: ``policies.kinds``).
+PolicySection = compose_section()
 
 
 @settings
@@ -184,8 +182,22 @@ SECTIONS: dict[str, type] = {
 }
 #: section -> key -> ``core.settings.Rule`` (or a nested section's schema), derived from ``SECTIONS``.
 SCHEMA: dict[str, Any] = {name: schema_of(cls) for name, cls in SECTIONS.items()}
-#: Dotted keys that may be left out (the field has a default: ``eeg.processing.*``).
+#: Dotted keys that may be left out (the field has a default: ``eeg.processing.*``, a policy's own keys).
 OPTIONAL: frozenset[str] = frozenset(optional_keys(SECTIONS))
+_COMPOSED_FOR = registry.names("policy")
+
+
+def refresh_policies() -> None:
+    """Compose the ``policy`` section again when the installed policies changed (a plug-in package
+    installed in a running process, after ``registry.reload_entry_points()``); cheap when nothing did."""
+    global PolicySection, OPTIONAL, _COMPOSED_FOR
+    if registry.names("policy") == _COMPOSED_FOR:
+        return
+    PolicySection = compose_section()
+    SECTIONS["policy"] = PolicySection
+    SCHEMA["policy"] = schema_of(PolicySection)
+    OPTIONAL = frozenset(optional_keys(SECTIONS))
+    _COMPOSED_FOR = registry.names("policy")
 
 
 @dataclass(frozen=True)
@@ -205,7 +217,7 @@ class StudyConfig:
     timing: TimingSection
     answers: AnswersSection
     participant_model: ParticipantModelSection
-    policy: PolicySection
+    policy: Any  # PolicySection (composed from the installed policies)
     console: ConsoleSection
     eeg: EEGSettings  # what the EEG monitor takes
 
@@ -221,8 +233,11 @@ class StudyConfig:
         return self.session.output_dir
 
     def policy_state_file(self) -> Path | None:
-        """The learning policy's state file for this participant (``policy.state_path``), None = session folder."""
-        return self.policy.state_file(self.participant.pseudonym, self.output_dir())
+        """The persisting policy's state file for this participant (``policy.state_path``); None = the session
+        folder, or a policy that keeps no participant state."""
+        if not self.policy.persists:
+            return None
+        return state_file(self.policy.kind, self.policy.state_path, self.participant.pseudonym, self.output_dir())
 
     def response_timeout_s(self, length: int) -> float:
         return self.timing.response_timeout_s(length)
@@ -324,6 +339,7 @@ def load_config(study: str | Path | None = None, overrides: Mapping[str, Any] | 
 
     Raises ``ConfigError`` naming file, line and key for the first problem found.
     """
+    refresh_policies()
     default_path = Path(os.path.abspath(default)) if default else DEFAULT_CONFIG
     study_path = Path(os.path.abspath(os.path.expanduser(study))) if study is not None else DEMO_STUDY
     values: dict[str, Any] = {}

@@ -81,7 +81,7 @@ class Session:
         self.log = SessionLog(recorder, ports.observer, progress, self.clock)
         self.rows: list[dict[str, Any]] = self.log.rows  # the rows this run wrote (and those before a resumption)
         self.phases = PhaseClock(ports.monitor, self.stage, ports.answers, ports.robot, self.clock, config.timing,
-                                 recorder, self.log, config.eeg.missing_alert_turns)
+                                 recorder, self.log, config.eeg.missing_alert_turns, config.eeg)
         self.desk = OperatorDesk(ports.commands, self.log, recorder, ports.monitor, ports.observer)
         self.checkpoints = Checkpointer(recorder, ports.policy, random.by_name())
         self.reconnector = Reconnector(ports.robot, config.robot, self.clock, recorder, self.log, self.stage)
@@ -209,6 +209,11 @@ class Session:
         """Session seconds since the session started (across a resumption; pauses count)."""
         return self._elapsed_before + self.clock.session(self.clock.now() - self._t0)
 
+    def wall_elapsed_s(self) -> float:
+        """Wall seconds since the session started (what the console's clock shows: a demo sped up x25 that took
+        30 s shows 30 s, not 750)."""
+        return self.clock.wall(self.elapsed_s())
+
     # -- what the session writes down (session.reporting) ----------------------------------------
 
     def _log_transition(self, event: Any) -> None:
@@ -320,6 +325,10 @@ class Session:
         turn.answer = answer
         if listening is not None:
             turn.listening = listening
+        if self.phases.lost_eeg(turn.number, listening, turn.replay, turn.notes):  # eeg.turn_requires_eeg
+            self._abandon_turn(turn, "interrupted: EEG lost during the listening phase")
+            self.replay = turn
+            return "repeat_turn"
         return "score_answer"
 
     def _do_score(self, turn: Turn) -> str:
@@ -333,7 +342,8 @@ class Session:
         score = task.score(st.level, turn.success)
         row = turn.row(score, task.signed_score(st.level, turn.success), self.clock.speed, self.monitor.records_eeg)
         self.completed += 1
-        self.total += score
+        if not turn.invalid:  # the total counts what the summary counts: turns not marked invalid
+            self.total += score
         done = self.completed >= self.n_turns
         engagement = turn.listening.engagement if turn.listening else None
         learn = None

@@ -75,7 +75,7 @@ def _running(pid: int) -> bool:
 
 def session_lock(config: StudyConfig, progress: TextIO | None = None) -> ContextManager[Path | None]:
     """The lock of the participant state the session's policy keeps (none for a policy that keeps none)."""
-    state = config.policy_state_file() if config.policy.kind not in ("schedule", "random") else None
+    state = config.policy_state_file()  # None for a policy that keeps no participant state
     return nullcontext() if state is None else participant_lock(state, config.participant.pseudonym, progress)
 
 

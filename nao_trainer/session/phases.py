@@ -8,6 +8,7 @@ starts and ends with a marker in the EEG recording. ``PhaseClock`` is a part of
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 from nao_trainer.ports import (Answer, AnswerSource, EngagementMonitor, PhaseEngagement, Robot, RobotConnectionLost,
                                watch_link)
@@ -21,7 +22,8 @@ class PhaseClock:
     """Begin and end EEG phases; open the answer window and collect the answer."""
 
     def __init__(self, monitor: EngagementMonitor, stage: Stage, answers: AnswerSource, robot: Robot, clock: Clock,
-                 timing: TimingSection, recorder: SessionRecorder, log: SessionLog, missing_alert_turns: int = 3) -> None:
+                 timing: TimingSection, recorder: SessionRecorder, log: SessionLog, missing_alert_turns: int = 3,
+                 eeg: Any = None) -> None:
         self.monitor = monitor
         self.stage = stage
         self.answers = answers
@@ -34,6 +36,8 @@ class PhaseClock:
         self.phase: str | None = None  # the EEG phase in progress
         self.onset_shift = 0.0  # beep onset minus the answer window's opening (wall seconds)
         self.missing = 0  # turns in a row without an engagement value while EEG is on
+        self.eeg = eeg  # the study's EEGSettings (turn_requires_eeg, reconnect_wait_s), None in some tests
+        self.waited_in_vain = False  # a lost stream did not return within reconnect_wait_s: no more waits until it does
 
     def begin(self, phase: str, turn: int | None) -> None:
         """Start ``phase`` (ending the one in progress) with a marker in the recording."""
@@ -107,3 +111,39 @@ class PhaseClock:
             self.rec.event("eeg_missing", turn=turn, turns=self.missing, reason=reason)
             self.log.observer.notify("eeg", {"missing_turns": self.missing, "turn": turn, "reason": reason})
             self.log.say(f"warning: no EEG for the last {self.missing} turns ({reason}): check the headband and its stream")
+
+    def lost_eeg(self, turn: int, listening: PhaseEngagement | None, replayed: bool, notes: list[str]) -> bool:
+        """After the answer: did the listening phase lose EEG (the headband's stream stopped), and is the turn
+        to be played again?
+
+        A loss is flagged in the turn's notes and in events.jsonl. With ``eeg.turn_requires_eeg`` the turn
+        is played again once (not a replay), as after a lost robot link, when the stream is back: this waits
+        up to ``eeg.reconnect_wait_s`` for it (the monitor reconnects in the background). A stream that does
+        not return is not waited for again until it does; the turn is then recorded, flagged."""
+        lost = 0.0 if listening is None else listening.lost_s
+        tolerance = 0.1 if self.eeg is None else self.eeg.processing.gap_tolerance_s
+        if not self.monitor.records_eeg or lost <= tolerance:  # a stamp jump this small is no gap in the data
+            return False
+        notes.append(f"EEG lost {lost:.1f} s in the listening phase")
+        self.rec.event("eeg_lost_in_turn", turn=turn, lost_s=round(lost, 3), replay=replayed)
+        if self.eeg is None or not self.eeg.turn_requires_eeg or replayed:
+            return False
+        wait = getattr(self.monitor, "wait_available", None)
+        if wait is None:
+            return False
+        back = getattr(self.monitor, "available", True)
+        if not back and not self.waited_in_vain:
+            self.log.say(f"turn {turn}: EEG lost; waiting up to {self.eeg.reconnect_wait_s:g} s for the headband's stream")
+            back = wait(self.eeg.reconnect_wait_s)
+            self.waited_in_vain = not back
+            if not back:
+                self.rec.event("eeg_not_back", turn=turn, waited_s=self.eeg.reconnect_wait_s)
+                self.log.say(f"warning: the EEG stream is not back after {self.eeg.reconnect_wait_s:g} s; going on "
+                             "without it (turns flagged; check the headband)")
+        elif back:
+            self.waited_in_vain = False
+        if not back:
+            notes.append(f"not replayed: the EEG stream was not back within {self.eeg.reconnect_wait_s:g} s")
+            return False
+        self.monitor.mark("eeg_turn_replay", turn)
+        return True

@@ -38,6 +38,48 @@ TURN_COLUMNS: tuple[str, ...] = (
     "engagement", "engagement_index", "eeg_quality", "answer_engagement", "engagement_note", "notes", "invalid", "replay",
     "phase",
 )
+
+
+def row_problem(row: dict[str, str]) -> str | None:
+    """Why a completed row of turns.csv (as read: strings) is not one a session writes, or None: its
+    level, length and sequence agree, its scores are equation (1)'s and the published signed score for
+    its level and outcome, and a success repeats the sequence. An edited score is refused."""
+    from nao_trainer.core import task
+
+    try:
+        level, length = int(row["level"]), int(row["length"])
+        score, signed = int(row["score"]), int(row["signed_score"])
+    except (TypeError, ValueError, KeyError):
+        return "level, length, score and signed_score must be integers"
+    if level not in task.LEVELS or length != task.length_of(level) or len(row.get("sequence") or "") != length:
+        return f"level {level}, length {length} and sequence {row.get('sequence')!r} do not agree"
+    success = row["success"] == "True"
+    if score != task.score(level, success) or signed != task.signed_score(level, success):
+        outcome = "a success" if success else "a failure"
+        return (f"score {score} / signed_score {signed} are not those of {outcome} at level {level} "
+                f"({task.score(level, success)} / {task.signed_score(level, success)})")
+    if success and not task.is_correct(row["sequence"], row.get("response") or ""):
+        return f"success with a response {row.get('response')!r} that does not repeat the sequence {row['sequence']!r}"
+    return None
+
+
+def open_no_follow(path: Path, mode: str) -> Any:
+    """``open(path, mode)`` ("a", "r+b") refusing a symbolic link (O_NOFOLLOW) or a file that is not regular:
+    a session appends only to its own files, never through a link planted in its folder."""
+    flags = {"a": os.O_WRONLY | os.O_APPEND, "r+b": os.O_RDWR}[mode] | getattr(os, "O_NOFOLLOW", 0) | os.O_NONBLOCK
+    fd = os.open(path, flags)
+    try:
+        import stat
+
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise OSError(errno.EINVAL, "not a regular file", str(path))
+        os.set_blocking(fd, True)
+        return os.fdopen(fd, mode, **({"newline": "", "encoding": "utf-8"} if "b" not in mode else {}))
+    except BaseException:
+        os.close(fd)
+        raise
+
+
 #: session.json's format and version (``data/own.py`` reads them and refuses a newer version).
 FORMAT = {"format": "nao-trainer/session", "format_version": 1}
 CHECKPOINT = "checkpoint.json"
@@ -176,9 +218,9 @@ class SessionRecorder:
         torn = drop_torn_tail(self.path)  # a row cut by a kill: never append onto half a line
         self.rows = sum(1 for _ in read_turns(self.path))
         self._write_json()
-        self._turns = open(self.path / "turns.csv", "a", newline="", encoding="utf-8")
+        self._turns = open_no_follow(self.path / "turns.csv", "a")
         self._writer = csv.DictWriter(self._turns, fieldnames=TURN_COLUMNS, extrasaction="raise")
-        self._events = open(self.path / "events.jsonl", "a", encoding="utf-8")
+        self._events = open_no_follow(self.path / "events.jsonl", "a")
         for ev in self._pending:
             self._write_event(ev)
         self._pending.clear()
@@ -285,7 +327,7 @@ def drop_torn_tail(folder: Path) -> int:
     keep = 0 if b"\n" not in data else data.rindex(b"\n") + 1
     if keep == len(data):
         return 0
-    with open(path, "r+b") as f:
+    with open_no_follow(path, "r+b") as f:
         f.truncate(keep)
         f.flush()
         os.fsync(f.fileno())

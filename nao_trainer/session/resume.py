@@ -7,6 +7,7 @@ reopens the folder and the engine continues after the last completed turn.
 from __future__ import annotations
 
 import csv
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,7 +18,7 @@ from nao_trainer.files import read_json
 from nao_trainer.ports import Policy
 from nao_trainer.session.checkpoint import checkpoint_problem
 from nao_trainer.session.config import StudyConfig, load_config
-from nao_trainer.session.record import CHECKPOINT, CHECKPOINT_FORMAT, SessionRecorder, read_turns
+from nao_trainer.session.record import CHECKPOINT, CHECKPOINT_FORMAT, SessionRecorder, read_turns, row_problem
 
 #: session.json statuses of a session that ended as planned: ``--resume`` refuses them.
 FINISHED = ("completed", "stopped", "time limit")
@@ -60,6 +61,7 @@ def prepare_resume(folder: Path) -> tuple[StudyConfig, Resumption]:
     fix = "start a new session instead"
     if not (folder / "session.json").is_file():
         raise DataError(f"{folder}: not a session folder (no session.json); give the folder a session wrote")
+    _refuse_foreign_entries(folder, fix)
     info = read_json(folder / "session.json", DataError)
     if not isinstance(info, dict):
         raise DataError(f"{folder}/session.json: not a session record (a JSON object expected); {fix}")
@@ -80,14 +82,51 @@ def prepare_resume(folder: Path) -> tuple[StudyConfig, Resumption]:
     config = _config_of(folder, info, fix)
     rows = _rows_on_disk(folder, fix)
     last = max((int(r["turn"]) for r in rows), default=0)
-    learns = config.policy.kind not in ("schedule", "random")  # the learned and personalised policies have a state
+    learns = config.policy.persists  # a policy that keeps a participant state (its declaration says so)
     problem = checkpoint_problem(checkpoint, config.session.turns, learns, last)
     if problem:
         raise DataError(f"{folder / CHECKPOINT}: {problem}; {fix}")
+    _check_against_checkpoint(folder, rows, checkpoint, last, fix)
+    for row in rows:
+        del row["_raw"], row["_line"]
     if checkpoint["completed"] >= config.session.turns:
         raise DataError(f"{folder}: all {config.session.turns} turns are recorded; nothing to resume, {fix}")
     missing = checkpoint["row"] if last < checkpoint["completed"] else None
     return config, Resumption(folder, seed, checkpoint, rows, missing)
+
+
+def _refuse_foreign_entries(folder: Path, fix: str) -> None:
+    """A session folder holds only the files and folders its session wrote: a symbolic link (turns.csv
+    pointing elsewhere would be appended to) or a FIFO, socket or device is refused before anything is read."""
+    try:
+        entries = sorted(os.scandir(folder), key=lambda e: e.name)
+    except OSError as exc:
+        raise DataError(f"{folder}: cannot list the session folder ({exc.strerror}); {fix}") from None
+    for entry in entries:
+        if entry.is_symlink():
+            raise DataError(f"{folder / entry.name}: a symbolic link in the session folder (a session writes only "
+                            f"its own files, never through a link); replace it with the file itself or {fix}")
+        if not (entry.is_file(follow_symlinks=False) or entry.is_dir(follow_symlinks=False)):
+            raise DataError(f"{folder / entry.name}: not a regular file (a FIFO, socket or device) in the session "
+                            f"folder; remove it or {fix}")
+
+
+def _check_against_checkpoint(folder: Path, rows: list[dict[str, Any]], cp: dict[str, Any], last: int, fix: str) -> None:
+    """The whole table agrees with the checkpoint: its completed rows sum to the checkpoint's total (with the
+    checkpoint's own row when a kill came before it reached turns.csv), and the last row is the checkpoint's."""
+    where = f"{folder}/turns.csv"
+    counted = list(rows) + ([cp["row"]] if last < cp["completed"] else [])
+    total = sum(int(r["score"]) for r in counted)
+    if total != cp["total"]:
+        raise DataError(f"{where}: the completed rows score {total} in all, the checkpoint {cp['total']}: a row was "
+                        f"edited, added or removed; restore the file or {fix}")
+    if last == cp["completed"]:
+        on_disk = rows[-1]["_raw"]
+        for key, value in cp["row"].items():
+            want = "" if value is None else str(value)
+            if on_disk.get(key) != want:
+                raise DataError(f"{where}: line {rows[-1]['_line']} (turn {last}): {key} is {on_disk.get(key)!r}, the "
+                                f"checkpoint recorded {want!r}; restore the file or {fix}")
 
 
 def _config_of(folder: Path, info: dict[str, Any], fix: str) -> StudyConfig:
@@ -111,18 +150,30 @@ def _rows_on_disk(folder: Path, fix: str) -> list[dict[str, Any]]:
     """The completed rows of turns.csv (a torn last line left out), typed; ``DataError`` when unreadable."""
     if not (folder / "turns.csv").is_file():
         raise DataError(f"{folder}: turns.csv is missing, the rows the checkpoint continues; {fix}")
+    where = f"{folder}/turns.csv"
     try:
         raw = read_turns(folder, complete_only=True)
         for n, r in enumerate(raw, start=2):  # line numbers: the header is line 1
             if None in r or None in r.values() or not r["turn"].isdigit():
                 raise ValueError(f"line {n} is not a turn row")
-        rows = [_typed_row(r) for r in raw if r["success"] in ("True", "False")]
+        done = [(n, r) for n, r in enumerate(raw, start=2) if r["success"] in ("True", "False")]
+        for n, r in done:  # every completed row as a session writes it (an edited score is refused)
+            problem = row_problem(r)
+            if problem:
+                raise DataError(f"{where}: line {n} (turn {r['turn']}): {problem}; restore the file or {fix}")
+        rows = [dict(_typed_row(r), _raw=r, _line=n) for n, r in done]
     except (ValueError, TypeError, KeyError, csv.Error, UnicodeDecodeError) as exc:
-        raise DataError(f"{folder}/turns.csv: not the session's rows ({type(exc).__name__}: {exc}); {fix}") from None
-    numbers = sorted({r["turn"] for r in rows})
-    if numbers != list(range(1, len(numbers) + 1)):
-        raise DataError(f"{folder}/turns.csv: the completed turns are not numbered 1..{len(numbers)}; {fix}")
-    return rows
+        raise DataError(f"{where}: not the session's rows ({type(exc).__name__}: {exc}); {fix}") from None
+    seen: dict[int, int] = {}
+    for expected, row in enumerate(rows, start=1):  # one completed row per turn, numbered 1, 2, 3, ...
+        if row["turn"] in seen:
+            raise DataError(f"{where}: line {row['_line']}: turn {row['turn']} is recorded twice (first on line "
+                            f"{seen[row['turn']]}); restore the file or {fix}")
+        if row["turn"] != expected:
+            raise DataError(f"{where}: line {row['_line']}: turn {row['turn']} where turn {expected} belongs (the "
+                            f"completed turns must be numbered 1, 2, 3, ...); restore the file or {fix}")
+        seen[row["turn"]] = row["_line"]
+    return rows  # with "_raw" (as read) and "_line": ``_check_against_checkpoint`` names them, then drops them
 
 
 def _typed_row(row: dict[str, str]) -> dict[str, Any]:

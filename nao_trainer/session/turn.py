@@ -177,14 +177,17 @@ class SessionResult:
         return None if span is None else span_dict(span)
 
     def span_line(self) -> str:
-        """``span at 75 %: 6.1 letters [4.9, 7.2]`` (90 % interval); empty without counted turns."""
+        """``span at 75 %: 6.1 letters [4.9, 7.2] (...)``: the sequence length recalled at that rate, 90 % interval;
+        empty without counted turns."""
         rec = self.span_record()
         if rec is None:
             return ""
         head = f"span at {rec['rate']:.0%}".replace("%", " %")
         if "error" in rec:
             return f"{head}: n/a ({rec['error']})"
-        return f"{head}: {rec['median']:.1f} letters [{rec['lo']:.1f}, {rec['hi']:.1f}]"
+        rate = f"{rec['rate']:.0%}".replace("%", " %")
+        return (f"{head}: {rec['median']:.1f} letters [{rec['lo']:.1f}, {rec['hi']:.1f}] (working-memory span: the "
+                f"sequence length recalled {rate} of the time; 90 % interval)")
 
     def summary(self) -> str:
         """A plain-text summary table for the terminal."""
@@ -195,7 +198,7 @@ class SessionResult:
         invalid = len(self.invalid_rows)
         lines += [
             f"turns completed: {len(self.completed_rows)}" + (f" (+{invalid} marked invalid, not counted)" if invalid else "")
-            + f"   total score: {self.total_score}   "
+            + f"   total score: {self.total_score}" + (" (valid turns only)" if invalid else "") + "   "
             f"mean engagement: {self._no_engagement() if eng is None else f'{eng:.2f}'}"
             + (f" (EEG in {self.eeg_turns} of {len(self.completed_rows)} turns)" if self.eeg_on and eng is not None else ""),
             *([span] if (span := self.span_line()) else []),
@@ -219,7 +222,9 @@ def progress_line(row: dict[str, Any], n_turns: int, total: int) -> str:
     mark = "ok " if row["success"] else "err"
     return (f"turn {row['turn']:3d}/{n_turns}  L{row['level']} {fb}  {row['sequence']:>9} vs "
             f"{row['response']:<9} {mark} {row['score']:+d}  total {total:4d}  E {eng}"
-            + (f"  ({row['notes']})" if row["notes"] else "") + (f"  [{row['phase']}]" if row.get("phase") else ""))
+            + (f"  ({row['notes']})" if row["notes"] else "")
+            + ("  (marked invalid: not in the total)" if row.get("invalid") else "")
+            + (f"  [{row['phase']}]" if row.get("phase") else ""))
 
 def summary_data(result: "SessionResult") -> dict[str, Any]:
     """The final summary as data (the console shows it)."""

@@ -10,12 +10,16 @@ session is in the outcomes; on top of it, a participant's ability moves from ses
 participant and session; 0.3 by default, an assumption: the published data hold too few repeated
 sessions of one person to estimate it).
 
-Policies: ``schedule`` and ``random`` exactly as the live ones choose; ``usp:C`` as its trained
-table (no learning within the simulated sessions); ``personalised`` as ``core.assessment.Personaliser``
-with the shipped user models and policies, the assessment in session 1 and the posterior carried to
-the next session (its candidate learners do not keep learning: the live policy's small in-session
-updates are left out). The shipped models were fitted on all 50 sessions, the users included, which
-favours the personalised arm: its power is an upper bound.
+Policies: every arm plays its policy's own offline form, declared by the policy plug-in and found
+through the registry (``policies.factory.offline_policy``): ``schedule`` and ``random`` exactly as the
+live ones choose; ``usp:C`` as its trained table (no learning within the simulated sessions);
+``personalised`` as ``core.assessment.Personaliser`` with the shipped user models and policies, the
+assessment in session 1 and the posterior carried to the next session (its candidate learners do not
+keep learning: the live policy's small in-session updates are left out); ``bayes`` as its solved plan
+in session 1, then the posterior-best level after the carried counts (``policies.bayes.BayesSessions``:
+a later live session re-solves the plan per participant, out of reach here). The shipped models were
+fitted on all 50 sessions, the users included, which favours the personalised and bayes arms: their
+power is an upper bound.
 
 The test: the protocol's model ``outcome ~ arm + session + (1|participant)``, Wald test of each arm
 against the reference arm. With every participant playing the same sessions (balanced), the REML
@@ -35,63 +39,25 @@ import numpy as np
 from nao_trainer.core import evaluation, mdp, processes
 from nao_trainer.errors import ConfigError
 from nao_trainer.files import write_json_atomic, write_text_atomic
+from nao_trainer.policies.factory import offline_policy
 from nao_trainer.study.protocol import SIMULATED_OUTCOMES, Arm, Protocol
 
 Z80 = 0.8416212335729143  # standard normal quantile of 0.8
 
 
-def schedule_table(actions: tuple[str, ...], turns: int) -> np.ndarray:
-    """The live ``FixedSchedule`` as a per-turn table: turn t plays actions[t mod len], or where it is not
-    allowed, the first allowed action of the schedule."""
-    idx = [mdp.ACTION_NAMES.index(a) for a in actions]
-    table = np.zeros((turns, mdp.N_STATES, mdp.N_ACTIONS))
-    for t in range(turns):
-        a = idx[t % len(idx)]
-        for s in range(mdp.N_STATES):
-            ok = a if mdp.ACTION_MASK[s, a] else next(b for b in idx if mdp.ACTION_MASK[s, b])
-            table[t, s, ok] = 1.0
-    return table
-
-
 class SessionPolicies:
-    """The arm's policy for a batch of ``n`` participants, session after session."""
+    """The arm's policy for a batch of ``n`` participants, session after session: the policy's own offline
+    form, found through the registry (``policies.factory.offline_policy``), whatever its kind."""
 
     def __init__(self, protocol: Protocol, arm: Arm) -> None:
         config = protocol.arm_config(arm)
         self.turns = config.session.turns
         self.kind = arm.policy
-        self._pers: Any = None
-        if arm.policy == "schedule":
-            self.table = schedule_table(tuple(config.policy.schedule), self.turns)
-        elif arm.policy == "random":
-            self.table = evaluation.uniform_policy()
-        elif arm.policy.startswith("usp:"):
-            from nao_trainer.policies.learned import load_policy
-
-            live = load_policy(arm.policy, False, None)
-            self.table = np.array([live.probabilities(s) for s in range(mdp.N_STATES)])
-        else:
-            from nao_trainer.policies.personalised import load_personalised
-
-            pol = config.policy
-            live = load_personalised(None, "power", self.turns, pol.assessment, pol.kappa, pol.margin, False, False)
-            self._pers = live.pers
-            self._assessment = tuple(live.pers.schedule)
+        self.offline = offline_policy(config.policy, self.turns)
 
     def start(self, n: int, session: int) -> Any:
         """The ``EpisodePolicy`` of session ``session`` (1-based) for the same ``n`` participants."""
-        if self._pers is None:
-            table = evaluation.TablePolicy(self.table)
-            table.reset(n, processes.get("paper"))
-            return table
-        pers = self._pers
-        carried = None if session == 1 else (pers.log_w.copy(), pers.map_log_w.copy(), pers.wins.copy(),
-                                             pers.played.copy())
-        pers.schedule = self._assessment if session == 1 else ()  # a returning participant is not assessed again
-        pers.reset(n, "paper")
-        if carried is not None:
-            pers.log_w, pers.map_log_w, pers.wins, pers.played = carried
-        return pers
+        return self.offline.start(n, session)
 
 
 def play_sessions(policy: Any, p: np.ndarray, e: np.ndarray, turns: int, rng: np.random.Generator) -> np.ndarray:
@@ -237,6 +203,8 @@ def power_study(protocol: Protocol, ns: list[int], reps: int, seed: int, users: 
     report.arms = len(protocol.arms)
     report.notes = [f"{o}: not simulated (the simulation plays {', '.join(SIMULATED_OUTCOMES)}); analysed by "
                     "study analyse" for o in protocol.outcomes if o not in SIMULATED_OUTCOMES]
+    report.notes += [f"arm {arm.name}: {pol.offline.note}" for arm, pol in zip(protocol.arms, policies)
+                     if getattr(pol.offline, "note", "")]  # what a policy's offline form leaves out
     rng = np.random.default_rng(seed)
     S = protocol.sessions.per_participant
     for n in ns:

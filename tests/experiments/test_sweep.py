@@ -22,6 +22,7 @@ from nao_trainer.learn.users import cluster_user_set
     ("epsilon=0:1:3", "unknown parameter 'epsilon'"),
     ("beta1=", "use NAME=START:STOP:COUNT"),
     ("beta1=a:b:c", "values must be numbers"),
+    ("beta1=0:10", "the COUNT is missing"),
     ("alpha=0:1:3", "not a valid setting"),
 ])
 def test_bad_sweep_specifications_are_refused_before_any_work(param, message, monkeypatch, capsys, tmp_path):

@@ -162,6 +162,8 @@ def test_mark_invalid_keeps_the_row_and_the_learner_does_not_see_the_turn(tmp_pa
     assert rows[1]["success"] == "True" and "invalid (console): door opened" in rows[1]["notes"]
     assert [t.action for t in s.ports.policy.observed] == [0, 2]  # turns 1 and 3 only
     assert any(e["event"] == "not_learned" and e["turn"] == 2 for e in read_events(path))
+    # the running total (turn lines, goodbye, checkpoints) counts what the summary counts (issue 29)
+    assert s.total == sum(int(r["score"]) for r in rows if r["invalid"] != "True")
 
 
 def test_a_recorded_turn_cannot_be_marked_invalid(tmp_path):

@@ -72,7 +72,7 @@ def test_unknown_section(tmp_path):
     ("robot:\n  url: tcps://nao:secret@10.0.0.2:9503\n", 2, "robot.url", "NAO_USER and NAO_PASSWORD"),
     ("robot:\n  url: http://10.0.0.2\n", 2, "robot.url", "tcp://HOST:9559"),
     ("policy:\n  schedule: [RF1, L2]\n", 2, "policy.schedule", "must start with a level action"),
-    ("policy:\n  kind: greedy\n", 2, "policy.kind", "'schedule', 'random', 'personalised', 'bayes' or 'usp:CLUSTER"),
+    ("policy:\n  kind: greedy\n", 2, "policy.kind", "must be one of bayes | personalised | random | schedule | usp:CLUSTER[:METHOD]"),
     ("policy:\n  prior: no/such/folder\n", 2, "policy.prior", "must be 'clusters', 'psychometric', a psychometric"),
     ("participant_model:\n  success_by_level: [1, 1, 1]\n", 2, "participant_model.success_by_level", "4 values"),
     ("participant_model:\n  success_by_level: [1, 1, 1, 1.5]\n", 2, "participant_model.success_by_level", "[0, 1]"),

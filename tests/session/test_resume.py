@@ -236,3 +236,121 @@ def test_a_tampered_checkpoint_is_refused_in_one_line_and_the_session_keeps_its_
         assert "Traceback" not in err.getvalue() and lines[-1].startswith("nao-trainer run: error: "), (what, lines)
         assert (folder / "session.json").read_bytes() == before, what  # not marked "error"
         assert not (folder / "turns.csv").exists() or "resumed" not in (folder / "events.jsonl").read_text()
+
+
+# -- issue 30, finding 7: a resumed folder is not trusted further than its files are checked -------------------
+
+
+def resume_refusal(folder: Path) -> str:
+    """Run ``run --resume`` in this process; assert a one-line refusal (exit 2, no traceback) and return it."""
+    from nao_trainer.cli import main
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        code = main(["run", "--resume", str(folder), "--quiet"])
+    lines = err.getvalue().strip().splitlines()
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("nao-trainer run: error: "), (code, lines)
+    return lines[0]
+
+
+@pytest.mark.parametrize("name", ["turns.csv", "events.jsonl"])
+def test_a_symlinked_file_in_the_session_folder_is_refused_and_its_target_untouched(interrupted, tmp_path, name):
+    """The link was followed and 15 rows appended to its target, exit 0."""
+    folder = copy_of(interrupted, tmp_path)
+    target = tmp_path / f"elsewhere-{name}"
+    shutil.move(folder / name, target)
+    (folder / name).symlink_to(target)
+    before = target.read_bytes()
+    msg = resume_refusal(folder)
+    assert f"{folder / name}: a symbolic link in the session folder" in msg
+    assert target.read_bytes() == before
+
+
+def test_a_fifo_in_the_session_folder_is_refused_before_anything_is_read(interrupted, tmp_path):
+    folder = copy_of(interrupted, tmp_path)
+    (folder / "events.jsonl").unlink()
+    os.mkfifo(folder / "events.jsonl")
+    assert f"{folder / 'events.jsonl'}: not a regular file" in resume_refusal(folder)
+
+
+def test_reopen_refuses_a_link_planted_after_the_checks(interrupted, tmp_path):
+    """The files are opened with O_NOFOLLOW too (a link put in place between the checks and the appends)."""
+    from nao_trainer.session.record import SessionRecorder
+
+    folder = copy_of(interrupted, tmp_path)
+    target = tmp_path / "elsewhere.csv"
+    shutil.move(folder / "turns.csv", target)
+    (folder / "turns.csv").symlink_to(target)
+    with pytest.raises(OSError):
+        SessionRecorder(folder.parent, "T").reopen(folder, {"after_turn": 3})
+    assert not os.path.islink(target)
+
+
+def edit_rows(folder: Path, edit) -> None:
+    lines = (folder / "turns.csv").read_bytes().decode().splitlines(keepends=True)
+    (folder / "turns.csv").write_bytes("".join(edit(lines)).encode())
+
+
+def _score_edited(lines: list[str]) -> list[str]:
+    """Turn 1's score raised by 1 (signed score left): a number the session never writes."""
+    import csv as _csv
+
+    rows = list(_csv.DictReader(io.StringIO("".join(lines), newline="")))
+    rows[0]["score"] = str(int(rows[0]["score"]) + 1)
+    out = io.StringIO(newline="")
+    writer = _csv.DictWriter(out, fieldnames=list(rows[0]))
+    writer.writeheader()
+    writer.writerows(rows)
+    return out.getvalue().splitlines(keepends=True)
+
+
+def _both_scores_edited(lines: list[str]) -> list[str]:
+    """Turn 2 turned from its outcome into the other one, consistently (success, response, both scores):
+    every row is one a session could write, but the table no longer sums to the checkpoint's total."""
+    import csv as _csv
+
+    rows = list(_csv.DictReader(io.StringIO("".join(lines), newline="")))
+    r, level = rows[1], int(rows[1]["level"])
+    ok = r["success"] != "True"
+    r.update(success=str(ok), response=r["sequence"] if ok else "", score=str(level if ok else -1),
+             signed_score=str(level if ok else -level))
+    out = io.StringIO(newline="")
+    writer = _csv.DictWriter(out, fieldnames=list(rows[0]))
+    writer.writeheader()
+    writer.writerows(rows)
+    return out.getvalue().splitlines(keepends=True)
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda lines: lines + [lines[-1]], "line 5: turn 3 is recorded twice (first on line 4)"),
+    (lambda lines: lines[:2] + [lines[2].replace("2,", "3,", 1)] + lines[3:], "line 3: turn 3 where turn 2 belongs"),
+    (lambda lines: lines[:2] + lines[3:], "line 3: turn 3 where turn 2 belongs"),
+    (_score_edited, "line 2 (turn 1): score"),
+    (_both_scores_edited, "the completed rows score"),
+], ids=["last-row-twice", "renumbered", "row-removed", "score-edited", "outcome-flipped"])
+def test_the_whole_turn_table_is_checked_against_the_checkpoint(interrupted, tmp_path, edit, words):
+    """Only the last turn number was compared: a duplicated last row gave 21 turns of 20, an edited earlier
+    score passed. Each is one line naming turns.csv and the row."""
+    folder = copy_of(interrupted, tmp_path)
+    edit_rows(folder, edit)
+    msg = resume_refusal(folder)
+    assert f"{folder}/turns.csv: " in msg and words in msg, msg
+
+
+def test_the_last_row_must_be_the_checkpoints(interrupted, tmp_path):
+    import csv as _csv
+
+    folder = copy_of(interrupted, tmp_path)
+
+    def edit(lines: list[str]) -> list[str]:
+        rows = list(_csv.DictReader(io.StringIO("".join(lines), newline="")))
+        rows[-1]["start_time"] = "2000-01-01T00:00:00.000+00:00"
+        out = io.StringIO(newline="")
+        writer = _csv.DictWriter(out, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+        return out.getvalue().splitlines(keepends=True)
+
+    edit_rows(folder, edit)
+    msg = resume_refusal(folder)
+    assert "line 4 (turn 3): start_time is '2000-01-01T00:00:00.000+00:00', the checkpoint recorded" in msg, msg

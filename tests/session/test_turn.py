@@ -69,7 +69,8 @@ def test_the_summary_gives_the_span_from_the_counted_turns_and_nothing_without_t
     want = session_span(load_prior(), level_counts([r["level"] for r in rows[:24]],
                                                    [r["success"] for r in rows[:24]]), 0.75)
     line = f"span at 75 %: {want.median:.1f} letters [{want.lo:.1f}, {want.hi:.1f}]"
-    assert line in result.summary().splitlines()
+    assert line + " (working-memory span: the sequence length recalled 75 % of the time; 90 % interval)" \
+        in result.summary().splitlines()  # spelled out (issue 29)
     assert summary_data(result)["span"] == {"rate": 0.75, "median": round(want.median, 3), "lo": round(want.lo, 3),
                                             "hi": round(want.hi, 3), "interval": 0.9}
     stronger = SessionResult(Path("x"), "completed", 0, [{**r, "success": True} for r in rows], 1).span()

@@ -11,7 +11,8 @@ from _study_data import PROTOCOL, write_protocol
 from nao_trainer.core import mdp
 from nao_trainer.policies.fixed import FixedSchedule
 from nao_trainer.study.analysis import fit_mixed
-from nao_trainer.study.power import arm_tests, power_study, schedule_table
+from nao_trainer.policies.fixed import schedule_table
+from nao_trainer.study.power import arm_tests, power_study
 from nao_trainer.study.protocol import load_protocol
 from nao_trainer.study.registry import enrol, init_study, open_study, record_session
 from nao_trainer.study.runner import plan_next
@@ -87,3 +88,77 @@ def test_study_next_warns_outside_the_interval(tmp_path):
     assert soon.number == 2 and "1.0 days after session 1" in soon.warning and "2-7 days" in soon.warning
     assert plan_next(study, "P001", {}, now=ended + dt.timedelta(days=3)).warning == ""
     assert "8.0 days" in plan_next(study, "P001", {}, now=ended + dt.timedelta(days=8)).warning
+
+
+BAYES_VS_LEVEL2 = PROTOCOL.replace("  - {name: personalised, policy: personalised}\n", "").replace(
+    "{name: random, policy: random}", "{name: bayes, policy: bayes}").replace("block_size: 6", "block_size: 4")
+
+
+class _Recorded:
+    """An episode policy that records what the wrapped one chose and what it was told."""
+
+    def __init__(self, inner):
+        self.inner, self.actions, self.scores = inner, [], []
+
+    def act(self, obs, turn, rng):
+        a = self.inner.act(obs, turn, rng)
+        self.actions.append(np.array(a))
+        return a
+
+    def observe(self, obs, a, r, en, obs2, done):
+        self.scores.append(np.array(r))
+        self.inner.observe(obs, a, r, en, obs2, done)
+
+
+def test_a_bayes_arm_is_simulated_by_the_bayes_planner(tmp_path, monkeypatch):
+    """The bug of issue 26: every arm that was not schedule, random or usp: was simulated as the personalised
+    pipeline. A bayes arm now plays the live policy's own plan: every level of session 1 is the plan's decision
+    for the counts so far, and from session 2 on the posterior-best level after the carried counts."""
+    from nao_trainer.core import bayes
+    from nao_trainer.learn.users import cluster_user_set
+    from nao_trainer.policies.bayes import BayesSessions, load_bayes
+    from nao_trainer.study.power import SessionPolicies, play_sessions, user_tables
+
+    if not bayes.available():
+        pytest.skip("numba is not installed")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    protocol = load_protocol(write_protocol(tmp_path, BAYES_VS_LEVEL2))
+    arm = next(a for a in protocol.arms if a.name == "bayes")
+    sessions = SessionPolicies(protocol, arm)
+    assert isinstance(sessions.offline, BayesSessions)
+    live = load_bayes(None, "P1", sessions.turns, "score", False, None)
+    assert sessions.offline.plan.fingerprint == live.plan.fingerprint  # the live policy's prior, objective, plan
+    p, e = user_tables(cluster_user_set())
+    rng = np.random.default_rng(4)
+    for session in (1, 2):
+        episode = _Recorded(sessions.start(len(p), session))
+        carried = sessions.offline.carried.copy()
+        play_sessions(episode, p, e, sessions.turns, rng)
+        counts = np.zeros((len(p), 8), dtype=np.int64)
+        for a, r in zip(episode.actions, episode.scores):
+            if session == 1:
+                expected = [live.plan.decide(c) - 1 for c in counts]
+            else:
+                expected = [int(np.argmax(np.round(bayes.posterior_weights(live.p, live.weights, c0 + c)
+                                                   @ live.objective.utility(live.p), 12))) for c0, c in
+                            zip(carried, counts)]
+            assert a.tolist() == expected
+            counts[np.arange(len(p)), 2 * a + np.where(r > 0, 0, 1)] += 1
+
+
+def test_study_power_runs_a_protocol_with_a_bayes_arm(tmp_path, monkeypatch, capsys):
+    import json
+
+    from nao_trainer.cli import main
+
+    from nao_trainer.core import bayes
+
+    if not bayes.available():
+        pytest.skip("numba is not installed")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    out = tmp_path / "power"
+    code = main(["study", "power", str(write_protocol(tmp_path, BAYES_VS_LEVEL2)), "--reps", "20", "--n", "8",
+                 "--users", "clusters", "--out", str(out)])
+    assert code == 0, capsys.readouterr().err
+    power = json.loads((out / "power.json").read_text())
+    assert set(power["power"]) >= {"score: bayes vs level2", "success_rate: bayes vs level2"}

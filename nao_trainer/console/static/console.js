@@ -65,7 +65,7 @@ function renderPolicyStatus() {
   if (!p || !p.posterior) { box.textContent = ""; return; }
   const ranked = Object.entries(p.posterior).sort((a, b) => b[1] - a[1]);
   box.textContent = "user models: " + ranked.map(([n, w]) => n + " " + fmt(w)).join(" | ") +
-    (p.following ? " · following " + p.following : " · assessment");
+    (p.following ? " · policy: " + (p.policy || p.following) : " · assessment");
 }
 
 function rowClass(r) {
@@ -108,9 +108,11 @@ function renderChart() {
 
 function renderTick(tick) {
   const sess = S.session || {};
-  const el = tick.elapsed, max = sess.max_duration_s;
+  // tick.elapsed is wall seconds; session.max_duration_s is in session seconds (sped up by `speed`)
+  const el = tick.elapsed, speed = sess.speed || 1, max = sess.max_duration_s ? sess.max_duration_s / speed : null;
   if (el !== undefined && el !== null) {
-    $("elapsed").textContent = Math.round(el) + " s" + (max ? " of " + Math.round(max) + " s" : " (no limit)");
+    $("elapsed").textContent = Math.round(el) + " s" + (max ? " of " + Math.round(max) + " s" : " (no limit)") +
+      (speed !== 1 ? " (wall clock; the session runs x" + speed + ")" : "");
     $("elapsed-bar").style.width = max ? Math.min(100, 100 * el / max) + "%" : "0";
   }
   const e = tick.eeg;

@@ -1,0 +1,130 @@
+"""EEG that survives a dropout: whole sessions over real LSL whose headband (a simulated Muse on its own
+source_id) goes silent for 5 s, 20 s, or for good. The monitor reconnects by itself, the gap is in the
+data, the markers and session.json, the turns it hit are flagged, and with ``eeg.turn_requires_eeg``
+the turn that lost its EEG is played again as after a lost robot link.
+
+No wall-clock bound: the session is waited for with a hang limit; the drop's length is what is tested."""
+from __future__ import annotations
+
+import csv
+import json
+import os
+import threading
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nao_trainer.eeg.lsl_scope import configure_lsl
+from nao_trainer.eeg.simulated_muse import SimulatedMuse
+from nao_trainer.session import wiring as sess
+from nao_trainer.session.config import load_config
+from nao_trainer.session.record import read_events, read_turns
+
+configure_lsl("machine")
+HANG_S = 180.0
+FAST = {"window_s": 0.5, "hop_s": 0.1, "loss_timeout_s": 0.3}
+
+
+def _uid(prefix: str) -> str:
+    return f"{prefix}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+
+
+def _wait_for(probe, what: str):
+    deadline = time.monotonic() + HANG_S
+    while time.monotonic() < deadline:
+        value = probe()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"{what}: not within {HANG_S:g} s (a hang)")
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _session_with_a_drop(tmp_path: Path, drop_s: float | None, turns: int = 4, **over):
+    """Play a session; once its first turn is recorded, the headband goes silent for ``drop_s`` seconds
+    (None: its bridge dies for good). Returns the result and the folder."""
+    name, sid = _uid("MuseD"), _uid("MuseDsrc")
+    sim = SimulatedMuse.start(np.random.default_rng(1), name=name, source_id=sid)
+    values = {"session.turns": turns, "timing.speed": 25.0, "session.output": str(tmp_path), "session.seed": 7,
+              "session.practice": False, "participant.pseudonym": _uid("P").replace("-", "_"), "eeg.mode": "lsl",
+              "eeg.stream_name": name, "eeg.source_id": sid, "eeg.processing": FAST, "eeg.xdf": False,
+              "eeg.turn_requires_eeg": True, **over}
+    cfg = load_config(None, values)
+    out: dict = {}
+    runner = threading.Thread(target=lambda: out.update(result=sess.run_session(cfg, sess.RunOptions(quiet=True))))
+    runner.start()
+    try:
+        folder = _wait_for(lambda: next(tmp_path.glob("*/turns.csv"), None), "the session folder").parent
+        _wait_for(lambda: len(read_turns(folder)) >= 1, "the first turn")
+        if drop_s is None:
+            sim.stop()  # the bridge dies: the stream is gone for good
+        else:
+            sim.pause()  # the headband goes silent; its stream stays announced
+            time.sleep(drop_s)
+            sim.resume()
+        runner.join(HANG_S)
+        assert not runner.is_alive(), "the session hangs"
+    finally:
+        sim.stop()
+        runner.join(5)
+    result = out["result"]
+    assert result.status == "completed", result.error
+    return result, folder
+
+
+def _check_replayed(result, folder: Path, drop_s: float, turns: int) -> None:
+    rows = read_turns(folder)
+    interrupted = [r for r in rows if "interrupted: EEG lost during the listening phase" in r["notes"]]
+    assert interrupted, [r["notes"] for r in rows]
+    for r in interrupted:  # flagged, never silently lost, and played again under the same number
+        assert "EEG lost" in r["notes"] and r["success"] == ""
+        again = [q for q in rows if q["turn"] == r["turn"] and q["replay"] == "True"]
+        assert again and again[-1]["success"] in ("True", "False")
+    assert len([r for r in rows if r["success"] in ("True", "False")]) == turns
+    info = json.loads((folder / "session.json").read_text())
+    gaps = [g for g in info["eeg_gaps"] if g["duration_s"] is not None and g["duration_s"] > drop_s - 1.0]
+    assert len(gaps) == 1 and not gaps[0]["until_end"], info["eeg_gaps"]  # the drop, closed; no upper bound
+    assert {int(r["turn"]) for r in interrupted} <= set(gaps[0]["turns"])
+    events = [e["event"] for e in read_events(folder)]
+    assert "eeg_lost_in_turn" in events and "turn_interrupted" in events
+    markers = [e["event"] for e in _rows(folder / "eeg" / "events.csv")]  # what the marker stream carried
+    assert markers.index("eeg_stream_lost") < markers.index("eeg_stream_restored")
+    assert f"turn_{interrupted[0]['turn']}_eeg_turn_replay" in markers
+    assert any(float(g["duration_s"]) > drop_s - 1.0 for g in _rows(folder / "eeg" / "gaps.csv"))
+
+
+def test_a_5_s_dropout_is_a_gap_and_the_turn_it_hit_is_played_again(tmp_path):
+    result, folder = _session_with_a_drop(tmp_path, 5.0, turns=3)
+    _check_replayed(result, folder, 5.0, 3)
+
+
+@pytest.mark.slow
+def test_a_20_s_dropout_waits_for_the_stream_then_plays_the_turn_again(tmp_path):
+    result, folder = _session_with_a_drop(tmp_path, 20.0, turns=3)
+    _check_replayed(result, folder, 20.0, 3)
+    events = read_events(folder)
+    assert not any(e["event"] == "eeg_not_back" for e in events)  # waited (up to 30 s), and it came back
+
+
+def test_a_stream_gone_for_good_is_waited_for_once_then_turns_are_flagged(tmp_path):
+    result, folder = _session_with_a_drop(tmp_path, None, turns=4, **{"eeg.reconnect_wait_s": 1.5})
+    rows = read_turns(folder)
+    assert len([r for r in rows if r["success"] in ("True", "False")]) == 4
+    assert not any("interrupted" in r["notes"] for r in rows)  # not back: nothing to replay with
+    flagged = [r for r in rows if "EEG lost" in r["notes"]]
+    assert flagged and all(r["engagement"] == "" for r in flagged)
+    assert all("not replayed: the EEG stream was not back within 1.5 s" in r["notes"] for r in flagged)
+    events = read_events(folder)
+    assert [e["event"] for e in events].count("eeg_not_back") == 1  # waited once, not at every turn
+    info = json.loads((folder / "session.json").read_text())
+    last = info["eeg_gaps"][-1]
+    assert last["until_end"] and last["end"] is None and set(last["turns"]) >= {int(r["turn"]) for r in flagged}
+    gaps = _rows(folder / "eeg" / "gaps.csv")
+    assert gaps[-1]["kind"].endswith("(until the end)") and gaps[-1]["end"] == ""

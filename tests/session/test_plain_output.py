@@ -1,0 +1,30 @@
+"""The session's output in plain words (issue 29): the console's clock in wall seconds, a turn marked invalid
+said on its line, the personalised policy's choice and the span spelled out."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+from nao_trainer.policies.personalised import plain_name
+from nao_trainer.session.engine import Session
+from nao_trainer.session.stage import Clock
+from nao_trainer.session.turn import progress_line
+
+
+def test_the_consoles_clock_is_wall_time_not_sped_up_time():
+    now = [100.0]
+    session = SimpleNamespace(clock=Clock(speed=25, now=lambda: now[0]), _t0=70.0, _elapsed_before=0.0)
+    session.elapsed_s = lambda: Session.elapsed_s(session)
+    assert Session.elapsed_s(session) == 750.0  # session seconds (the record's)
+    assert Session.wall_elapsed_s(session) == 30.0  # what a supervisor's watch says
+
+
+def test_a_turn_marked_invalid_says_it_is_not_in_the_total():
+    row = {"turn": 3, "level": 2, "feedback": 0, "sequence": "ABABC", "response": "ABABC", "success": True,
+           "score": 2, "engagement": 0.5, "notes": "", "phase": "", "invalid": True}
+    assert "not in the total" in progress_line(row, 25, 4)
+    assert "not in the total" not in progress_line({**row, "invalid": False}, 25, 6)
+
+
+def test_candidate_policies_are_named_in_words():
+    assert plain_name("usp:3") == "personalised (trained for user model 3)"
+    assert plain_name("fixed:4") == "fixed level 4"

@@ -1,0 +1,85 @@
+"""A lab's own plug-ins from a separate distribution (tests/plugin_package/): found through Python entry points
+(``importlib.metadata``, no pip), listed by ``nao-trainer plugins``, and a whole session played with the lab's
+policy and EEG device; nothing of nao_trainer/ names them."""
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from nao_trainer import registry
+from nao_trainer.files import PROJECT_ROOT
+
+PACKAGE = Path(__file__).parent / "plugin_package"  # an installed distribution: tiny_lab_plugins + its dist-info
+
+
+def _env() -> dict[str, str]:
+    """The environment of a process where the lab's package is installed (on the path, as site-packages is)."""
+    path = os.pathsep.join([str(PACKAGE), str(PROJECT_ROOT), os.environ.get("PYTHONPATH", "")])
+    return dict(os.environ, PYTHONPATH=path, QI_LOG_LEVEL="silent")
+
+
+@pytest.fixture
+def installed(monkeypatch):
+    """The package installed in this process; everything it registered is forgotten after the test."""
+    monkeypatch.syspath_prepend(str(PACKAGE))
+    registry.reload_entry_points()
+    yield
+    registry.unregister("policy", "alternate")
+    registry.unregister("eeg_device", "tinyband")
+    monkeypatch.undo()
+    registry.reload_entry_points()
+
+
+def test_the_packages_plugins_are_found_through_entry_points(installed):
+    assert "alternate" in registry.names("policy") and "tinyband" in registry.names("eeg_device")
+    assert registry.spec("policy", "alternate").origin == "tiny-lab-plugins"
+    from nao_trainer.policies.factory import offline_policy
+    from nao_trainer.session.config import load_config
+
+    config = load_config(None, {"policy.kind": "alternate", "policy.alternate_levels": [2, 4]})
+    assert config.policy.own().alternate_levels == (2, 4) and not config.policy.persists
+    offline = offline_policy(config.policy, 6)  # the offline form study power plays, through the registry
+    assert [int(offline.table[t, 0].argmax()) + 1 for t in range(6)] == [2, 4, 2, 4, 2, 4]
+
+
+def test_without_the_package_its_names_are_unknown():
+    assert "alternate" not in registry.names("policy") and "tinyband" not in registry.names("eeg_device")
+
+
+def test_plugins_lists_the_packages_policy_and_device_with_their_settings():
+    res = subprocess.run([sys.executable, "-m", "nao_trainer", "plugins", "--json"], capture_output=True, text=True,
+                         env=_env(), timeout=120)
+    assert res.returncode == 0, res.stderr
+    found = {(e["kind"], e["name"]): e for e in json.loads(res.stdout)}
+    policy, device = found[("policy", "alternate")], found[("eeg_device", "tinyband")]
+    assert policy["origin"] == device["origin"] == "tiny-lab-plugins"
+    assert policy["settings"] == [{"key": "policy.alternate_levels", "default": [1, 3],
+                                   "rule": "a list of integers, checked by _levels", "doc": "the levels played in turn"}]
+    assert [k["key"] for k in device["settings"]] == ["eeg.device_settings.max_std_uv"]
+
+
+@pytest.mark.slow
+def test_a_session_runs_with_the_packages_policy_and_eeg_device(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "nao_trainer", "run", "--policy", "alternate", "--eeg", "simulated",
+                          "--eeg-device", "tinyband", "--turns", "4", "--speed", "50", "--seed", "3", "--quiet",
+                          "--out", str(tmp_path)], capture_output=True, text=True, env=_env(), timeout=300)
+    assert res.returncode == 0, res.stderr
+    (folder,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    rows = list(csv.DictReader((folder / "turns.csv").open()))
+    assert [int(r["level"]) for r in rows] == [1, 3, 1, 3]  # the lab's policy chose every level
+    info = json.loads((folder / "session.json").read_text())
+    assert info["policy"] == "alternate" and info["status"] == "completed"
+    assert info["eeg_stream"]["name"] == "TinyBand" and info["eeg_stream"]["source_id"].startswith("tinyband-sim")
+    assert info["config"]["values"]["eeg"]["device"] == "tinyband"
+
+
+def test_nothing_in_nao_trainer_names_the_packages_plugins():
+    for path in (PROJECT_ROOT / "nao_trainer").rglob("*.py"):
+        text = path.read_text(encoding="utf-8")
+        assert "tiny_lab_plugins" not in text and "tinyband" not in text and "alternate_levels" not in text, path
