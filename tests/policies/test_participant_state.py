@@ -73,6 +73,9 @@ def test_one_participant_file_base_saves_reads_and_checks_owner_and_fingerprint(
     and fingerprint check."""
     import json as _json
 
+    import pytest
+
+    from nao_trainer.errors import DataError
     from nao_trainer.policies import bayes, learned, personalised
     from nao_trainer.policies.participant_state import ParticipantState
 
