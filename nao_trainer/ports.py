@@ -134,11 +134,56 @@ class RobotUpkeep(Protocol):
         returns what it set back (empty: nothing was changed, or it could not be set back); never raises."""
 
 
+    def hold_motors(self, why: str | None) -> None:
+        """``why``: never wake the motors (the robot fell) until called again with None (the operator said it is up)."""
+
+
 class NullUpkeep:
     """No robot to keep (the laptop plays it, or a test's fake)."""
 
     def between_turns(self) -> list[str]:
         return []
+
+    def hold_motors(self, why: str | None) -> None:
+        pass
+
+
+#: What a robot's health watch reports (``HealthEvent.kind``).
+HEALTH_KINDS: tuple[str, ...] = ("falling", "fallen", "hot", "battery_low", "chest", "diagnosis", "safeguard")
+
+
+@dataclass(frozen=True)
+class HealthEvent:
+    """Something the robot reported about itself during a session (an ALMemory event, ``robot.health``).
+
+    ``severity``: "info", "warning" or "critical"; ``part``: the joint or device named (heat), else "";
+    ``at``: ``time.monotonic()`` when it arrived; ``value``: what the robot sent, JSON-ready."""
+
+    kind: str
+    severity: str
+    detail: str
+    part: str = ""
+    at: float = 0.0
+    value: Any = None
+
+
+class RobotHealthWatch(Protocol):
+    """The robot's health events since the last call (``robot.health.HealthWatch``); the session drains them
+    between states, on its own thread. ``close`` stops watching."""
+
+    def pending(self) -> list[HealthEvent]: ...
+
+    def close(self) -> None: ...
+
+
+class NullHealth:
+    """Nothing watched (the laptop, test fakes)."""
+
+    def pending(self) -> list[HealthEvent]:
+        return []
+
+    def close(self) -> None:
+        pass
 
 
 # ----------------------------------------------------------------------------------------------

@@ -197,6 +197,8 @@ BUILTIN: tuple[tuple[str, str, str], ...] = (
     ("policy", "personalised", "nao_trainer.policies.kinds:PERSONALISED"),
     ("policy", "bayes", "nao_trainer.policies.kinds:BAYES"),
     ("eeg_device", "muse", "nao_trainer.eeg.devices.muse:MuseDevice"),
+    ("robot_model", "nao", "nao_trainer.robot.models.nao:NaoModel"),
+    ("robot_model", "pepper", "nao_trainer.robot.models.pepper:PepperModel"),
     ("eeg_device", "brainflow", "nao_trainer.eeg.devices.brainflow:BrainFlowDevice"),
 )
 

@@ -41,3 +41,28 @@ def study_with_one_participant(tmp_path: Path) -> Path:
     assert main(["study", "init", str(write_protocol(tmp_path)), "--out", str(root)]) == 0
     assert main(["study", "enrol", str(root), "--consent-date", "2026-11-02", "--consent-version", "v1"]) == 0
     return root
+
+
+def edit_registry(root: Path, sql: str, params: tuple = ()) -> None:
+    """Edit a study's registry.db behind nao-trainer's back (what a careless or hostile user can do with the
+    sqlite3 shell)."""
+    import sqlite3
+
+    conn = sqlite3.connect(root / "registry.db", isolation_level=None)
+    try:
+        conn.execute(sql, params) if params else conn.executescript(sql)
+    finally:
+        conn.close()
+
+
+def registry_state(root: Path) -> dict:
+    """The registry's contents (to compare before and after a refused command)."""
+    from nao_trainer.study.registry import open_study
+
+    reg = open_study(root).registry
+    return {k: v for k, v in reg.items()}
+
+
+#: two sealed allocation slots swapped (each a valid ciphertext of the study's key)
+SWAP = ("UPDATE allocation SET position = 1000 WHERE position = 0; UPDATE allocation SET position = 0 WHERE "
+        "position = 1; UPDATE allocation SET position = 1 WHERE position = 1000")

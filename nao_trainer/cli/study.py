@@ -9,10 +9,11 @@ from pathlib import Path
 from nao_trainer.cli._filters import add_filter_args, filter_from_args
 from nao_trainer.eeg.settings import MODES as EEG_MODES
 from nao_trainer.errors import ConfigError, DataError
-from nao_trainer.files import write_text_atomic
+from nao_trainer.files import read_text, write_text_atomic
 from nao_trainer.session.config import INPUTS
 
-ACTIONS = ("init", "enrol", "withdraw", "amend", "status", "next", "analyse", "power", "export", "table")
+ACTIONS = ("init", "enrol", "withdraw", "amend", "status", "next", "repair", "unblind", "analyse", "power", "export",
+           "table")
 DESCRIPTION = """\
 A controlled study (docs/study.md), in order:
   study init PROTOCOL --out STUDY_DIR        freeze the protocol, draw the concealed allocation
@@ -21,7 +22,9 @@ A controlled study (docs/study.md), in order:
   study next STUDY_DIR PSEUDONYM [run flags] that participant's next session
   study status STUDY_DIR                     enrolment, sessions, overdue, withdrawals, data quality
   study withdraw STUDY_DIR PSEUDONYM --data keep|delete
-  study amend STUDY_DIR PROTOCOL --reason R  a recorded change of the frozen protocol
+  study amend STUDY_DIR PROTOCOL --reason R [--change-arms]   a recorded change of the frozen protocol
+  study repair STUDY_DIR                     record killed sessions and session folders the registry lacks
+  study unblind STUDY_DIR --reason R         the statistician: the arms, the unblinding recorded
   study analyse STUDY_DIR                    the protocol's mixed model, estimates, figures
   study export STUDY_DIR --bids OUT | --published OUT
 And the session table: study STUDY_DIR [--out DIR] [--no-figure] (also `study table STUDY_DIR`):
@@ -53,6 +56,8 @@ def actions_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("init", help="freeze a protocol in a new study folder and draw the allocation")
     p.add_argument("protocol", type=Path, metavar="PROTOCOL")
     p.add_argument("--out", "-o", type=Path, required=True, metavar="STUDY_DIR")
+    p.add_argument("--allocation-seed-file", type=Path, metavar="FILE",
+                   help="a seed supplied by a third party (default: drawn from the operating system's entropy)")
     p = sub.add_parser("enrol", help="enrol the next participant: pseudonym and arm")
     p.add_argument("root", type=Path, metavar="STUDY_DIR")
     p.add_argument("--consent-date", required=True, metavar="YYYY-MM-DD")
@@ -68,6 +73,14 @@ def actions_parser() -> argparse.ArgumentParser:
     p.add_argument("root", type=Path, metavar="STUDY_DIR")
     p.add_argument("protocol", type=Path, metavar="PROTOCOL")
     p.add_argument("--reason", required=True)
+    p.add_argument("--change-arms", action="store_true",
+                   help="allow a change of what an enrolled arm does, or blinding turned off (recorded, reported)")
+    p = sub.add_parser("repair", help="record sessions on disk the registry does not know, and killed ones")
+    p.add_argument("root", type=Path, metavar="STUDY_DIR")
+    p = sub.add_parser("unblind", help="the statistician: reveal the arms (recorded with time, who and reason)")
+    p.add_argument("root", type=Path, metavar="STUDY_DIR")
+    p.add_argument("--reason", required=True)
+    p.add_argument("--who", default=None, help="who unblinds (default: user@host)")
     p = sub.add_parser("status", help="enrolment, sessions per arm, overdue, withdrawals, data quality")
     p.add_argument("root", type=Path, metavar="STUDY_DIR")
     p = sub.add_parser("next", help="run a participant's next session (run flags pass through)")
@@ -101,6 +114,7 @@ def _run_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot", metavar="mock|desktop|URL")
     p.add_argument("--input", choices=INPUTS)
     p.add_argument("--eeg", choices=EEG_MODES)
+    p.add_argument("--eeg-device", metavar="NAME")
     p.add_argument("--eeg-source-id", metavar="ID")
     p.add_argument("--speed", type=float, metavar="X")
     p.add_argument("--turns", type=int, metavar="N")
@@ -158,11 +172,31 @@ def _table(args: argparse.Namespace) -> int:
 def _init(args: argparse.Namespace) -> int:
     from nao_trainer.study.registry import init_study
 
-    study = init_study(args.protocol, args.out)
+    from nao_trainer.study.registry import BACKUP, REGISTRY_FILE, block_sizes
+    from nao_trainer.study.seal import key_path
+
+    seed = None
+    if args.allocation_seed_file is not None:
+        text = read_text(args.allocation_seed_file, ConfigError, fix="give the file the third party supplied")
+        try:
+            seed = int(text.strip(), 0)
+        except ValueError:
+            raise ConfigError(f"{args.allocation_seed_file}: not a whole number; the file holds the seed only") from None
+    migrating = (args.out / REGISTRY_FILE).is_file()
+    study = init_study(args.protocol, args.out, seed)
     p = study.protocol
+    if migrating:
+        print(f"{args.out}: JSON study migrated to the database ({len(study.participants)} participants; the JSON "
+              f"files are kept in {args.out / BACKUP}); key {key_path(study.registry['study_id'])}")
+        return 0
+    if p.allocation.seed is not None:
+        print(f"study init: allocation.seed in {args.protocol} is not used: the allocation is drawn from the "
+              "operating system's entropy (a seed anyone can read would reveal it)", file=sys.stderr)
+    sizes = "/".join(map(str, block_sizes(p)))
     print(f"{args.out}: study {p.name} initialised (protocol sha256 {p.sha256}; {len(p.arms)} arms, target "
-          f"{p.target_n}, blocks of {p.allocation.block_size}, seed {p.allocation.seed}); the allocation is "
-          "concealed until enrolment")
+          f"{p.target_n}, random blocks of {sizes}); the allocation is sealed with the study key "
+          f"{key_path(study.registry['study_id'])} (outside the study folder: back it up, and give it to no "
+          "operator)")
     return 0
 
 
@@ -176,28 +210,36 @@ def _enrol(args: argparse.Namespace) -> int:
             raise ConfigError(f"--stratum {item!r}: write NAME=LEVEL")
         strata[name] = level
     entry = enrol(args.root, args.consent_date, args.consent_version, strata)
-    blinded = open_study(args.root).protocol.blinding
-    arm = "arm concealed from the operator, blinding on" if blinded else f"arm {entry['arm']}"
+    study = open_study(args.root)
+    blinded = study.protocol.blinding and not study.unblinded
+    arm = "arm concealed from the operator, blinding on" if blinded else f"arm {study.arm_of(entry['pseudonym'])}"
     print(f"{entry['pseudonym']}: enrolled ({arm}; consent {entry['consent_date']} version "
           f"{entry['consent_version']}). Run the sessions with: nao-trainer study next {args.root} {entry['pseudonym']}")
     return 0
 
 
 def _withdraw(args: argparse.Namespace) -> int:
-    from nao_trainer.study.registry import withdraw
+    from nao_trainer.study.registry import open_study, withdraw
+    from nao_trainer.study.runner import repair
 
+    if not open_study(args.root).participant(args.pseudonym)["withdrawn"]:
+        repair(args.root, args.pseudonym)  # a killed session of this participant is on record first
     _entry, deleted = withdraw(args.root, args.pseudonym, args.data, args.reason)
+    sessions = [f for f in deleted if f.parent.name == "sessions" and f.name.startswith(f"{args.pseudonym}_")]
+    state = len(deleted) - len(sessions)
     print(f"{args.pseudonym}: withdrawal recorded (data {args.data}" +
-          (f"; {len(deleted)} folder(s) deleted)" if args.data == "delete" else ")"))
+          (f"; {len(sessions)} session folder(s){' and the learning state' if state else ''} deleted)"
+           if args.data == "delete" else ")"))
     return 0
 
 
 def _amend(args: argparse.Namespace) -> int:
     from nao_trainer.study.registry import amend
 
-    entry = amend(args.root, args.protocol, args.reason)
+    entry = amend(args.root, args.protocol, args.reason, args.change_arms)
+    changes = f"; CHANGES ARMS: {'; '.join(entry['changes'])}" if entry["changes"] else ""
     print(f"{args.root}: amendment recorded {entry['time']}: {entry['old_sha256'][:12]} -> {entry['new_sha256'][:12]} "
-          f"({entry['reason']})")
+          f"({entry['reason']}){changes}")
     return 0
 
 
@@ -215,7 +257,7 @@ def _next(args: argparse.Namespace) -> int:
 
     if args.console_port is not None and not 0 <= args.console_port <= 65535:
         raise ConfigError(f"--console-port {args.console_port}: a port is 0-65535 (0 = any free port)")
-    flags = {"robot.url": args.robot, "answers.input": args.input, "eeg.mode": args.eeg,
+    flags = {"robot.url": args.robot, "answers.input": args.input, "eeg.mode": args.eeg, "eeg.device": args.eeg_device,
              "eeg.source_id": args.eeg_source_id, "timing.speed": args.speed, "session.turns": args.turns,
              "participant_model.user_model": args.user_model, "session.practice": False if args.no_practice else None,
              "session.max_duration_s": args.max_duration}
@@ -230,10 +272,14 @@ def _analyse(args: argparse.Namespace) -> int:
     from nao_trainer.study.analysis import analyse
     from nao_trainer.study.registry import open_study
 
-    study = open_study(args.root)
+    study = open_study(args.root, reveal=True)
     out = args.out or args.root / "analysis"
     report = analyse(study, out)
     print(report.text)
+    for a in study.registry["amendments"]:
+        if a.get("changes"):
+            print(f"NOTE: amendment {a['time']} changed what arms do after {a['enrolled_at_amendment']} enrolment(s) "
+                  f"({'; '.join(a['changes'])}): sessions before and after it are pooled above")
     from nao_trainer.plots.trial import plot_outcomes
 
     for outcome in report.outcomes:
@@ -283,7 +329,7 @@ def _export(args: argparse.Namespace) -> int:
 
     if (args.bids is None) == (args.published is None):
         raise ConfigError("study export: give --bids OUT or --published OUT")
-    study = open_study(args.root)
+    study = open_study(args.root, reveal=True)
     if args.bids is not None:
         from nao_trainer.study.bids import export_bids
 
@@ -293,4 +339,24 @@ def _export(args: argparse.Namespace) -> int:
 
         summary = export_published(study, args.published)
     print(summary)
+    return 0
+
+
+def _repair(args: argparse.Namespace) -> int:
+    from nao_trainer.study.runner import repair
+
+    found = repair(args.root)
+    for e in found:
+        print(f"{e['pseudonym']} session {e['number']}: {e['folder'] or 'no folder'} recorded as {e['status']}")
+    print(f"{args.root}: {len(found)} session(s) recorded")
+    return 0
+
+
+def _unblind(args: argparse.Namespace) -> int:
+    from nao_trainer.study.registry import unblind
+
+    pairs = unblind(args.root, args.reason, args.who)
+    print(f"{args.root}: unblinding recorded ({args.reason}); {len(pairs)} participant(s)")
+    for pseudonym, arm in pairs:
+        print(f"{pseudonym}\t{arm}")
     return 0

@@ -98,8 +98,11 @@ class TaskLife:
     """
 
     def __init__(self, robot: Any, task_state: str = "disabled", rest_at_end: bool = True,
-                 report: Callable[..., None] | None = None, wake: bool = True) -> None:
+                 report: Callable[..., None] | None = None, wake: bool = True, allow_life_on: bool = False) -> None:
         self.robot = robot
+        self.allow_life_on = allow_life_on
+        #: Why the motors must stay as they are (the robot fell: never woken until the operator says it is up).
+        self.motors_held: str | None = None
         self.wake = wake
         self.task_state = task_state
         self.rest_at_end = rest_at_end
@@ -116,16 +119,33 @@ class TaskLife:
                         to_restore=status.left_by_earlier_session)
         if self.found is not None and self.task_state != UNCHANGED:
             self._write_marker(self.found)
-        self._apply()
+        self._apply(first=True)
         self.entered = True
         return status
 
-    def _apply(self) -> None:
+    def _apply(self, first: bool = False) -> None:
         if self.task_state != UNCHANGED and self.found is not None:
-            self._do("set_autonomous_life", lambda: self.robot.call("ALAutonomousLife", "setState", self.task_state),
-                     state=self.task_state)
-        if self.wake:
-            self._do("wake_up", lambda: self.robot.call("ALMotion", "wakeUp", timeout_s=60.0))
+            if not self._do("set_autonomous_life",
+                            lambda: self.robot.call("ALAutonomousLife", "setState", self.task_state),
+                            state=self.task_state) and first and self._refusal_stops():
+                self._write_marker("")  # nothing was changed: nothing to restore
+                raise RobotUnavailable(refused_life_line(self.task_state, self.last_error))
+        if self.wake and self.motors_held is None:
+            woke = self._do("wake_up", lambda: self.robot.call("ALMotion", "wakeUp", timeout_s=60.0))
+            if first and not woke and not is_lost(self.last_error):
+                raise RobotUnavailable(
+                    f"the robot refused to wake up ({self.last_error}): a NAO rests and refuses after a critical "
+                    "heat or a motor fault (naoqi/motion/reflexes-diagnosis.html); let it cool 15-20 minutes with "
+                    "its motors off, then run `nao-trainer check` again")
+
+    def _refusal_stops(self) -> bool:
+        """A refused setState stops the start when the study wants life off and does not allow it on."""
+        return self.task_state == "disabled" and not self.allow_life_on and not is_lost(self.last_error)
+
+    def hold_motors(self, why: str | None) -> None:
+        """``why``: keep the motors as they are (a fall) until called with None (the operator says it is up)."""
+        self.motors_held = why
+        self.report("motors_held" if why else "motors_released", why=why)
 
     def reapply(self) -> None:
         """After a reconnection (the robot may have rebooted into "solitary"): the task's state again."""
@@ -155,7 +175,7 @@ class TaskLife:
                                 lambda: self.robot.call("ALAutonomousLife", "setState", self.task_state),
                                 state=self.task_state):
                         fixed.append(f"Autonomous Life {state}")
-            if self.wake and not self.robot.call("ALMotion", "robotIsWakeUp"):
+            if self.wake and self.motors_held is None and not self.robot.call("ALMotion", "robotIsWakeUp"):
                 self.report("motors_found_off")
                 if self._do("wake_up", lambda: self.robot.call("ALMotion", "wakeUp", timeout_s=60.0)):
                     fixed.append("motors off")
@@ -181,11 +201,32 @@ class TaskLife:
     def _write_marker(self, value: str) -> None:
         self._do("robot_marker", lambda: self.robot.call("ALMemory", "insertData", MARKER_KEY, value), value=value)
 
+    last_error: str = ""
+
     def _do(self, name: str, call: Callable[[], Any], **data: Any) -> bool:
+        """Run ``call``; False (reported ``<name>_failed``) when refused, or when it answered False (``wakeUp``
+        returns whether it succeeded: a robot resting after a critical heat refuses)."""
         try:
-            call()
+            result = call()
         except (RobotCallFailed, RobotUnavailable, RobotConnectionLost) as exc:
+            self.last_error = f"{type(exc).__name__}: {exc}"
             self.report(f"{name}_failed", error=str(exc), **data)
+            return False
+        if result is False:
+            self.last_error = f"{name} answered False"
+            self.report(f"{name}_failed", error="the robot answered False (refused)", **data)
             return False
         self.report(name, **data)
         return True
+
+
+def is_lost(error: str) -> bool:
+    return error.startswith("RobotConnectionLost")
+
+
+def refused_life_line(state: str, error: str) -> str:
+    """The one line for a robot that refuses ``ALAutonomousLife.setState``."""
+    why = error.split(": ", 1)[-1] if error else "refused"
+    return (f"the robot refused to set Autonomous Life to {state!r} ({why}); a NAO refuses until its getting-started "
+            "wizard is finished: open the robot's web page (its IP in a browser) and finish it, or let the session run "
+            "with life on: robot.allow_life_on: true")

@@ -58,8 +58,15 @@ class NaoqiRobot:
         credentials: Credentials | None = None,
         timeouts: CallTimeouts = CallTimeouts(),
         debounce_s: float = 0.15,
+        buttons: dict[str, str] | None = None,
     ) -> None:
         self._session = session
+        #: ALMemory key of each answer button -> letter (the robot model's; a NAO's head by default).
+        self.buttons: dict[str, str] = dict(buttons if buttons is not None else BUTTON_LETTERS)
+        #: Optional services the robot lacks (``RobotModel.probe``): calls that need them degrade, said once.
+        self.without: set[str] = set()
+        self._watches: dict[str, Callable[[Any], None]] = {}  # ALMemory event -> callback (robot health)
+        self._watch_subs: list[tuple[str, Any, Any]] = []
         self.url = url
         self._credentials = credentials
         self.timeouts = timeouts
@@ -89,6 +96,7 @@ class NaoqiRobot:
         *,
         timeouts: CallTimeouts = CallTimeouts(),
         debounce_s: float = 0.15,
+        buttons: dict[str, str] | None = None,
     ) -> "NaoqiRobot":
         """Connect within ``deadline_s`` or raise RobotUnavailable (a one-line, user-fixable message).
 
@@ -109,7 +117,7 @@ class NaoqiRobot:
         session = new_session(creds)
         connect_session(session, qi_url, deadline_s)
         log.info("connected to the robot at %s", qi_url)
-        return cls(session, qi_url, creds, timeouts, debounce_s)
+        return cls(session, qi_url, creds, timeouts, debounce_s, buttons)
 
     def is_connected(self) -> bool:
         """True while the qi session is up (it turns False soon after the robot drops)."""
@@ -135,6 +143,9 @@ class NaoqiRobot:
         # Old signals: instant on a dead link, bounded on a frozen one (a quarter of the budget).
         self._drop_subscriptions(budget_s=min(2.0, deadline_s / 4))
         with self._lock:
+            old_watches, self._watch_subs = self._watch_subs, []
+        self._disconnect_all(old_watches, budget_s=min(2.0, deadline_s / 4))
+        with self._lock:
             self._services.clear()
         if self._session.isConnected():
             self._session.close()
@@ -144,9 +155,12 @@ class NaoqiRobot:
             # A timed-out connect leaves the session closed mid-handshake; start the next try afresh.
             self._session = new_session(self._credentials)
             raise
-        if callback is not None:
+        if callback is not None or self._watches:
             self._wait_for_service("ALMemory", max(0.5, deadline - time.monotonic()))
+        if callback is not None:
             self.subscribe_buttons(callback)
+        if self._watches:
+            self._subscribe_watches()
         log.info("reconnected to the robot at %s", self.url)
         for hook in list(self.after_reconnect):
             hook()
@@ -157,6 +171,7 @@ class NaoqiRobot:
             return
         try:
             self.unsubscribe_buttons()
+            self.unwatch_all()
         finally:
             self._closed = True
             _LIVE.discard(self)
@@ -182,6 +197,8 @@ class NaoqiRobot:
         """Speak ``text`` and return when done; ``animated`` adds gestures (body language ``mode``)."""
         if not isinstance(text, str):
             raise TypeError(f"say() needs a str, got {type(text).__name__}")
+        if animated and "ALAnimatedSpeech" in self.without:
+            animated = False  # the model degrades: plain speech (said once, at the start)
         if animated:
             if mode not in BODY_LANGUAGE_MODES:
                 raise ValueError(f"body language mode must be one of {', '.join(BODY_LANGUAGE_MODES)}, got {mode!r}")
@@ -218,7 +235,7 @@ class NaoqiRobot:
         ``RobotConnectionLost`` when no answer comes within ``deadline_s``.
         """
         t0 = time.monotonic()
-        self._call("ALMemory", "getData", "FrontTactilTouched", timeout_s=deadline_s)
+        self._call("ALMemory", "getData", next(iter(self.buttons), "FrontTactilTouched"), timeout_s=deadline_s)
         return time.monotonic() - t0
 
     def watch_link(self) -> LinkWatchdog:
@@ -235,6 +252,8 @@ class NaoqiRobot:
             raise ValueError(f"eye colour must be an int 0x000000..0xFFFFFF, got {rgb!r}")
         if not 0.0 <= float(duration_s) <= 60.0:
             raise ValueError(f"LED fade duration must be in [0, 60] seconds, got {duration_s!r}")
+        if "ALLeds" in self.without:
+            return  # the model degrades: no eye colours (said once, at the start)
         self._call("ALLeds", "fadeRGB", "FaceLeds", int(rgb), float(duration_s),
                    timeout_s=self.timeouts.default_s + float(duration_s))
 
@@ -247,9 +266,10 @@ class NaoqiRobot:
             log.warning("the robot could not reach posture %s", name)
         return ok
 
-    def wake_up(self) -> None:
-        """Stiffen the joints and stand (ALMotion.wakeUp)."""
-        self._call("ALMotion", "wakeUp", timeout_s=self.timeouts.posture_s)
+    def wake_up(self) -> bool:
+        """Stiffen the joints and stand (ALMotion.wakeUp); False when the robot refused ("True if the call
+        succeeded", ``naoqi/motion/control-stiffness-api.html``: a robot resting after a critical heat says no)."""
+        return self._call("ALMotion", "wakeUp", timeout_s=self.timeouts.posture_s) is not False
 
     def rest(self) -> None:
         """The safe end state: crouch and release the joints' stiffness (ALMotion.rest)."""
@@ -294,7 +314,7 @@ class NaoqiRobot:
         memory = self._service("ALMemory", budget)
         subscriptions: list[tuple[str, Any, Any]] = []
         try:
-            for key in BUTTON_LETTERS:
+            for key in self.buttons:
                 sub = self._remote(memory, "subscriber", key, timeout_s=left(), what=f"ALMemory.subscriber({key})", budget_s=budget)
                 link = self._remote(
                     sub.signal, "connect", _ButtonHandler(self, key),
@@ -318,6 +338,54 @@ class NaoqiRobot:
         with self._dispatch, self._lock:
             self._button_callback = None
         self._drop_subscriptions()
+
+    # -- ALMemory events (the robot's health) ------------------------------------------------------
+
+    def watch(self, events: dict[str, Callable[[Any], None]]) -> None:
+        """Call ``events[key](value)`` on each ALMemory event ``key`` (a qi thread); subscribed again after a
+        reconnection. Replaces an earlier ``watch``. A key the robot refuses to subscribe is skipped (logged)."""
+        self.unwatch_all()
+        with self._lock:
+            self._watches = dict(events)
+        self._subscribe_watches()
+
+    def _subscribe_watches(self) -> None:
+        budget = self.timeouts.subscribe_s
+        deadline = time.monotonic() + budget
+        memory = self._service("ALMemory", budget)
+        subs: list[tuple[str, Any, Any]] = []
+        with self._lock:
+            watches = dict(self._watches)
+        for key, callback in watches.items():
+            try:
+                sub = self._remote(memory, "subscriber", key, timeout_s=max(0.001, deadline - time.monotonic()),
+                                   what=f"ALMemory.subscriber({key})", budget_s=budget)
+                link = self._remote(sub.signal, "connect", _EventHandler(self, key, callback),
+                                    timeout_s=max(0.001, deadline - time.monotonic()), what=f"{key} signal connect",
+                                    budget_s=budget)
+            except RobotCallFailed as exc:
+                log.warning("not watching %s: %s", key, exc)
+                continue
+            subs.append((key, sub, link))
+        with self._lock:
+            self._watch_subs = subs
+
+    def unwatch_all(self) -> None:
+        """Disconnect the event subscriptions of ``watch``; no event callback runs once this returns."""
+        with self._dispatch, self._lock:
+            self._watches = {}
+            subs, self._watch_subs = self._watch_subs, []
+        self._disconnect_all(subs)
+
+    def _on_event(self, key: str, callback: Callable[[Any], None], value: Any) -> None:
+        with self._dispatch:
+            with self._lock:
+                if key not in self._watches:
+                    return
+            try:
+                callback(value)
+            except Exception:  # an exception here would vanish inside qi: log it loudly instead
+                log.exception("robot event callback failed for %s", key)
 
     def _drop_subscriptions(self, budget_s: float | None = None) -> None:
         with self._lock:
@@ -356,7 +424,7 @@ class NaoqiRobot:
                     return
                 self._last_press[key] = now
             try:
-                callback(BUTTON_LETTERS[key], now)
+                callback(self.buttons[key], now)
             except Exception:  # an exception here would vanish inside qi: log it loudly instead
                 log.exception("head-button callback failed for %s", key)
 
@@ -455,6 +523,16 @@ def _close_live_robots() -> None:
             robot.close()
         except Exception as exc:  # noqa: BLE001 - exiting anyway; say why, then go on
             log.debug("closing %r at exit: %s", robot, exc)
+
+
+class _EventHandler:
+    """A signal callback for one watched ALMemory event (a class: qi keeps a stable reference)."""
+
+    def __init__(self, robot: NaoqiRobot, key: str, callback: Callable[[Any], None]) -> None:
+        self._robot, self._key, self._callback = robot, key, callback
+
+    def __call__(self, value: Any) -> None:
+        self._robot._on_event(self._key, self._callback, value)
 
 
 class _ButtonHandler:

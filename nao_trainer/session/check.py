@@ -88,6 +88,11 @@ class CheckPlan:
     speed: float = 1.0
     write_dirs: tuple[Path, ...] = ()  # other folders the session writes (the participant's learning state)
     person: bool = False  # a person answers or a real robot plays: a simulated EEG stream fails (issue 17)
+    model: Any = None  # robot.model.RobotModel (None: a NAO with its defaults)
+    language: str = "en"  # session.language: its voice must be installed on the robot
+    autonomous_life: str = "disabled"  # the state a session sets: a robot refusing setState fails ...
+    allow_life_on: bool = False  # ... unless the study lets the session run with life on
+    session_minutes: float | None = None  # how long a session of the study lasts (check's battery estimate)
 
 
 def plan_from_config(config: Any) -> CheckPlan:
@@ -96,7 +101,22 @@ def plan_from_config(config: Any) -> CheckPlan:
                      needs_buttons=config.answers.input in ("tactile", "simulated"),
                      eeg_mode=config.eeg.mode, eeg=config.eeg, output_dir=config.output_dir(),
                      speed=float(config.timing.speed), write_dirs=_state_dirs(config),
-                     person=config.answers.input != "simulated" or is_robot_address(config.robot.url))
+                     person=config.answers.input != "simulated" or is_robot_address(config.robot.url),
+                     model=config.robot.robot_model(), language=config.session.language,
+                     autonomous_life=config.robot.autonomous_life, allow_life_on=config.robot.allow_life_on,
+                     session_minutes=session_minutes(config))
+
+
+def session_minutes(config: Any) -> float:
+    """A session's length in minutes, estimated from the study: its time limit, else its turns at a mid-span turn
+    (level announcement, letters, answer window used half, speech around it: ~6 s of it at a NAO's pace)."""
+    if config.session.max_duration_s is not None:
+        return float(config.session.max_duration_s) / 60
+    timing = config.timing
+    length = 5  # a mid-range sequence (core.task.LENGTHS spans 3..9 letters)
+    turn_s = (timing.pause_before_level_s + length * (timing.letter_gap_s + 0.5)
+              + timing.response_timeout_s(length) / 2 + 6.0)
+    return (config.session.turns * turn_s + 60.0) / 60  # + greeting, instructions, practice, goodbye
 
 
 def _state_dirs(config: Any) -> tuple[Path, ...]:
@@ -199,24 +219,92 @@ def _check_naoqi(url: str, plan: CheckPlan, label: str | None) -> CheckResult:
     from nao_trainer.robot.lifecycle import read_status  # heavy: qi
     from nao_trainer.robot.naoqi import NaoqiRobot
 
+    from nao_trainer.robot.model import default_model
+
     where = label or redact_url(url)
+    model = plan.model or default_model()
     try:
-        robot = NaoqiRobot.connect(url, plan.connect_deadline_s)
+        robot = NaoqiRobot.connect(url, plan.connect_deadline_s, buttons=model.buttons)
     except ConfigError:  # a malformed address or a missing login: an input error (exit 2), not the robot's
         raise
     except UserError as exc:  # unreachable, unresolvable: the message says how to fix it
         return CheckResult("robot", False, str(exc))
     try:
-        needed = TASK_SERVICES + (("ALMemory",) if plan.needs_buttons else ())
-        missing = [name for name in needed if not robot.has_service(name)]
-        if missing:
-            return CheckResult("robot", False, f"{where}: no {', '.join(missing)} service",
-                               "check the robot's NAOqi version (2.8 or 2.9) and that it has finished booting")
-        return _robot_status_result(where, len(needed), read_status(robot))
+        probe = model.probe(robot.has_service, plan.needs_buttons)
+        if probe.missing:
+            return CheckResult("robot", False, f"{where}: no {', '.join(probe.missing)} service ({model.title})",
+                               "check robot.model, the robot's NAOqi version (2.8 or 2.9) and that it has finished booting")
+        problem = _language_problem(robot, plan.language) or _life_problem(robot, plan)
+        if problem:
+            return CheckResult("robot", False, f"{where}: {problem[0]}", problem[1])
+        result = _robot_status_result(where, len(probe.present), read_status(robot))
+        if not result.ok:
+            return result
+        extra = [f"{model.title}; {line}" for line in probe.degraded]
+        estimate, fix = _endurance(robot, model, plan)
+        detail = "; ".join([result.detail, *extra, estimate])
+        return CheckResult("robot", not fix, detail, fix)
     except (RobotConnectionLost, RobotUnavailable, RobotCallFailed) as exc:
         return CheckResult("robot", False, f"{where}: {exc}", "check the robot and its network, then try again")
     finally:
         robot.close()
+
+
+def _language_problem(robot: Any, language: str) -> tuple[str, str] | None:
+    """(what, fix) when ``language``'s voice is not installed on the robot (ALTextToSpeech.getAvailableLanguages)."""
+    from nao_trainer.session.config_rules import LANGUAGES
+    from nao_trainer.session.robot_setup import available_languages, missing_language_line
+
+    name = LANGUAGES[language]
+    installed = available_languages(robot)
+    if installed is None or name in installed:
+        return None
+    line = missing_language_line(language, name, installed)
+    what, _, fix = line.partition(": ")
+    return what, fix
+
+
+def _life_problem(robot: Any, plan: CheckPlan) -> tuple[str, str] | None:
+    """(what, fix) when the robot refuses ALAutonomousLife.setState and the study wants life off without
+    allowing it on: asked with the state it is in already, so ``check`` changes nothing."""
+    from nao_trainer.robot.lifecycle import refused_life_line
+
+    if plan.autonomous_life != "disabled" or plan.allow_life_on or not robot.has_service("ALAutonomousLife"):
+        return None
+    try:
+        state = robot.call("ALAutonomousLife", "getState")
+        robot.call("ALAutonomousLife", "setState", state)
+    except RobotCallFailed as exc:
+        line = refused_life_line("disabled", f"RobotCallFailed: {exc}")
+        what, _, fix = line.partition("; ")
+        return what, fix
+    return None
+
+
+def _endurance(robot: Any, model: Any, plan: CheckPlan) -> tuple[str, str]:
+    """Will a session of the study's length last on this battery charge and with these joint temperatures?
+    (estimate line, fix; the fix is empty when it will)."""
+    from nao_trainer.robot.lifecycle import _ask
+
+    charge = _ask(lambda: robot.call("ALBattery", "getBatteryCharge"))
+    hot = []
+    for joint in model.joints:
+        status = _ask(lambda j=joint: robot.call("ALMemory", "getData", f"Device/SubDeviceList/{j}/Temperature/Sensor/Status"))
+        if isinstance(status, (int, float)) and status >= 1:
+            hot.append(f"{joint} (status {int(status)})")
+    need = plan.session_minutes
+    parts, fix = [], ""
+    if charge is not None and need is not None:
+        lasts = float(charge) / 100 * model.full_battery_minutes()
+        parts.append(f"battery {int(charge)}% lasts ~{lasts:.0f} min, the session needs ~{need:.0f} min")
+        if lasts < need:
+            fix = (f"charge the robot first (about {need / model.full_battery_minutes() * 100:.0f}% is needed), "
+                   "or shorten the session (session.turns / session.max_duration_s)")
+    if hot:
+        parts.append(f"hot joints now: {', '.join(hot)}")
+        fix = fix or (f"let the robot cool 15-20 minutes with its motors off ({model.title} sitting or resting) "
+                      "before a session: standing heats the legs further")
+    return ("; ".join(parts) or "battery and joint temperatures unknown"), fix
 
 
 def _robot_status_result(where: str, n_services: int, status: Any) -> CheckResult:

@@ -80,10 +80,24 @@ class RobotSection:
                                   doc="during an answer window, a cheap call this often (wall seconds)")
     link_deadline_s: float = setting(kind=NUMBER, min=0.2, max=30,
                                      doc="the watchdog call's deadline: no answer = a frozen link, the turn is replayed")
+    model: str = setting("nao", kind=str, check=rules.robot_model,
+                         doc="the robot model plug-in (nao-trainer plugins lists them): nao, pepper, ...")
+    model_settings: dict = setting(factory=dict, kind=dict, free=True,
+                                   doc="the model's own settings (its Settings class; nao-trainer plugins)")
+    allow_life_on: bool = setting(False, kind=bool,
+                                  doc="go on when the robot refuses to change Autonomous Life (else check and run fail)")
 
     def __post_init__(self) -> None:
         if self.backoff_max_s < self.backoff_initial_s:
             raise SettingError("backoff_max_s", "must be >= robot.backoff_initial_s")
+        # the model's own settings, validated with the section (``key 'robot.model_settings.cool_posture' ...``)
+        from nao_trainer.robot.model import make_model
+
+        object.__setattr__(self, "_model", make_model(self.model, self.model_settings, prefix="model_settings"))
+
+    def robot_model(self):
+        """The robot model plug-in (``robot.model.RobotModel``) with its validated settings."""
+        return self._model  # type: ignore[attr-defined]
 
 
 @settings
@@ -91,7 +105,8 @@ class SessionSection:
     turns: int = setting(kind=int, min=1, max=500, doc="turns per session")
     practice: bool = setting(kind=bool, doc="one practice sequence before the first turn")
     seed: int | None = setting(kind=int, nullable=True, min=0, doc="null = drawn and recorded")
-    language: str = setting(kind=str, choices=("en",), doc="dialogue language")
+    language: str = setting(kind=str, choices=tuple(rules.LANGUAGES),
+                            doc="dialogue and speech language (en, fr, de, ...): set on the robot")
     dialogue: str = setting(kind=str, doc="dialogue file (relative: to the file that sets it)")
     behaviors: str = setting(kind=str, doc="behaviors file (relative: to the file that sets it)")
     output: str = setting(kind=str, doc="session folders are created under this folder")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import re
 
+from nao_trainer.errors import ConfigError
 from nao_trainer.robot.address import parse_url, redact_url
 
 INPUTS = ("simulated", "tactile", "keyboard")
@@ -21,6 +22,23 @@ def robot_url(value: str) -> str | None:
         return None
     problem = parse_url(value)[1]  # the robot client's own rule: the two never disagree
     return f"{problem} (got {redact_url(value)!r})" if problem else None  # never echo a password
+
+
+def robot_model(value: str) -> str | None:
+    from nao_trainer import registry  # light: no plug-in is imported here
+
+    try:
+        registry.spec("robot_model", value)
+    except ConfigError as exc:
+        return str(exc)
+    return None
+
+
+#: session.language -> the NAOqi speech language of that code (ALTextToSpeech.setLanguage takes the name;
+#: NAO's standard voices: naoqi/audio/altexttospeech.html and family/nao_technical/languages_nao.html).
+LANGUAGES: dict[str, str] = {"en": "English", "fr": "French", "de": "German", "it": "Italian", "es": "Spanish",
+                             "nl": "Dutch", "ja": "Japanese", "zh": "Chinese", "pl": "Polish", "pt": "Portuguese",
+                             "el": "Greek"}
 
 
 def is_robot_address(url: str) -> bool:

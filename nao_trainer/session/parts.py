@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, NullObserver, NullUpkeep,
-                               Policy, Robot, RobotUpkeep, SessionObserver)
+from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullHealth, NullMonitor, NullObserver,
+                               NullUpkeep, Policy, Robot, RobotHealthWatch, RobotUpkeep, SessionObserver)
 from nao_trainer.session.behaviors import Behaviors
 from nao_trainer.session.dialogue import Dialogue
 
@@ -25,6 +25,7 @@ class SessionPorts:
     commands: CommandQueue = field(default_factory=CommandQueue)
     observer: SessionObserver = field(default_factory=NullObserver)
     upkeep: RobotUpkeep = field(default_factory=NullUpkeep)  # Autonomous Life and motors, between turns
+    health: RobotHealthWatch = field(default_factory=NullHealth)  # falls, heat, battery, chest button (robot.health)
 
 
 @dataclass(frozen=True)

@@ -26,8 +26,9 @@ from nao_trainer.console.keys import KeyReader
 from nao_trainer.errors import ConfigError, EEGUnavailable, Interrupted, RobotUnavailable, UserError
 from nao_trainer.files import PROJECT_ROOT, write_text_atomic
 from nao_trainer.policies.factory import make_policy
-from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullMonitor, NullObserver, NullUpkeep,
-                               Policy, Robot, RobotConnectionLost, RobotUpkeep, SessionObserver)
+from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullHealth, NullMonitor, NullObserver,
+                               NullUpkeep, Policy, Robot, RobotConnectionLost, RobotHealthWatch, RobotUpkeep,
+                               SessionObserver)
 from nao_trainer.robot.address import redact_url
 from nao_trainer.session.behaviors import Behaviors, load_behaviors
 from nao_trainer.session.check import check_disk, check_eeg, check_robot, plan_from_config
@@ -157,6 +158,7 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
         raise ConfigError(f"{dialogue.source}: dialogue language {dialogue.language!r} differs from session.language "
                           f"{language!r}; point session.dialogue at a {language} file")
     behaviors = load_behaviors(config.session.behaviors_path)
+    check_postures(config, behaviors)
     seed = config.session.seed if resume is None else resume.seed
     seed = int(seed) if seed is not None else secrets.randbelow(2**31)
     simulator = build_simulator(config) if config.answers.input == "simulated" else None
@@ -175,6 +177,19 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
         with _signals_as_interrupt():
             return _run_wired(config, progress, dialogue, behaviors, seed, simulator, policy, options, resume,
                               console_bind)
+
+
+def check_postures(config: StudyConfig, behaviors: Behaviors) -> None:
+    """The behaviors file's postures exist on the study's robot model (one line naming the file and the fix)."""
+    if config.robot.url == DESKTOP:
+        return
+    model = config.robot.robot_model()
+    for which, posture in (("start", behaviors.start_posture), ("end", behaviors.end_posture),
+                           ("safe", behaviors.safe_posture)):
+        problem = model.check_posture(which, posture)
+        if problem:
+            raise ConfigError(f"{config.session.behaviors_path}: {problem} (or point session.behaviors at a "
+                              f"file for {model.title})")
 
 
 def _console_bind(config: StudyConfig, options: RunOptions) -> str | None:
@@ -272,9 +287,13 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
     stack.callback(_close_quietly, robot, recorder, out)
     setup = RobotSetup(recorder)
     upkeep: RobotUpkeep = NullUpkeep()
+    health: RobotHealthWatch = NullHealth()
     if config.robot.url != DESKTOP:  # Autonomous Life and motors as the study says; kept; restored at the end
-        upkeep = setup.prepare(robot, config.robot)
+        upkeep = setup.prepare(robot, config.robot, config.session.language,
+                               config.answers.input in ("tactile", "simulated"), progress)
         stack.callback(upkeep.leave)
+        health = _watch_health(robot, config)
+        stack.callback(_close_quietly, health, recorder, out)
     stack.callback(_leave_robot_safe, out, robot, behaviors, config, recorder)
     commands = options.commands if options.commands is not None else CommandQueue()  # an empty queue is falsy
     # The console's port is taken before the folder exists: a port in use leaves no empty session folder.
@@ -296,7 +315,7 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
     stack.callback(_close_quietly, answers, recorder, out)
     policy.bind_state_dir(path)
     stack.callback(_close_policy, policy, out, recorder)  # closed (a learning policy saved) once the folder exists
-    ports = SessionPorts(robot, answers, policy, monitor, commands, observer or NullObserver(), upkeep)
+    ports = SessionPorts(robot, answers, policy, monitor, commands, observer or NullObserver(), upkeep, health)
     session = Session(config, ports, recorder, Script(dialogue, behaviors),
                       Randomness(np.random.default_rng(session_ss), np.random.default_rng(policy_ss),
                                  {"participant": participant_rng}),
@@ -317,15 +336,29 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
     out.status, out.error = session.status, session.error
 
 
+def _watch_health(robot: Robot, config: StudyConfig) -> RobotHealthWatch:
+    """Falls, heat, the diagnosis, a low battery and the chest button, as the robot model declares them."""
+    from nao_trainer.robot.health import HealthWatch  # qi-side: only for a robot over NAOqi
+
+    return HealthWatch.start(robot, config.robot.robot_model())
+
+
 def _start_standin(stack: ExitStack, config: StudyConfig) -> Any:
     """The in-process stand-in of ``--robot mock`` (None otherwise); stopped last of all."""
     if config.robot.url != MOCK:
         return None
     from nao_trainer.robot.standin import StandIn  # heavy: qi
 
-    standin = StandIn.start("tcp://127.0.0.1:0", speed=config.timing.speed)
+    standin = StandIn.start("tcp://127.0.0.1:0", speed=config.timing.speed, model=_standin_model(config))
     stack.callback(standin.stop)
     return standin
+
+
+def _standin_model(config: StudyConfig) -> str:
+    """The robot the in-process stand-in plays: the study's model when the stand-in can play it, else a NAO."""
+    from nao_trainer.robot.standin.services import MODEL_POSTURES
+
+    return config.robot.model if config.robot.model in MODEL_POSTURES else "nao"
 
 
 def _open_record(recorder: SessionRecorder, config: StudyConfig, seed: int, robot: Robot, standin: bool,

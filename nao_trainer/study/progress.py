@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from nao_trainer.study.registry import Study
-from nao_trainer.study.runner import DONE, days_between, done_sessions
+from nao_trainer.study.runner import DONE, days_between, done_sessions, pending_sessions
 
 
 @dataclass(frozen=True)
@@ -69,7 +69,7 @@ def study_status(study: Study, now: dt.datetime | None = None, show_arms: bool |
              f"complete {sum(len(done_sessions(p)) >= protocol.sessions.per_participant for p in people)}"]
     if show:
         for arm in protocol.arms:
-            mine = [p for p in people if p["arm"] == arm.name]
+            mine = [p for p in people if study.arm_of(p["pseudonym"]) == arm.name]
             lines.append(f"  arm {arm.name}: {len(mine)} participants, "
                          f"{sum(len(done_sessions(p)) for p in mine)} sessions done")
     else:
@@ -90,8 +90,8 @@ def study_status(study: Study, now: dt.datetime | None = None, show_arms: bool |
     rows = []
     for p in people:
         for s in p["sessions"]:
-            q = session_quality(study.sessions_dir / s["folder"])
-            rows.append({"pseudonym": p["pseudonym"], "arm": p["arm"] if show else "blinded", "session": s["number"],
+            q = session_quality(study.sessions_dir / s["folder"]) if s.get("folder") else None
+            rows.append({"pseudonym": p["pseudonym"], "arm": study.arm_of(p["pseudonym"]) if show else "blinded", "session": s["number"],
                          "folder": s["folder"], "status": s["status"],
                          "counts": s["status"] in DONE, "outside_interval": s.get("outside_interval", False),
                          **({"turns": q.turns, "turns_eeg": q.with_eeg, "invalid": q.invalid,
@@ -106,4 +106,16 @@ def study_status(study: Study, now: dt.datetime | None = None, show_arms: bool |
             lines.append(f"{r['pseudonym']:<10} {r['arm']:<14} {r['session']:>7}  {r['status']:<10} {q[0]:>6} "
                          f"{q[1]:>9} {q[2]:>8} {q[3]:>12} {q[4]:>11}" + ("  (outside interval)" if
                                                                           r["outside_interval"] else ""))
+    pending = pending_sessions(study)
+    if pending:
+        lines.append(f"not yet recorded: {len(pending)} session(s) on disk or killed while running; record them "
+                     f"with `nao-trainer study repair {study.root}`")
+        lines += [f"  {e['pseudonym']} session {e['number']}: {e['folder'] or 'no folder'} ({e['status']})"
+                  for e in pending]
+    amended = [a for a in study.registry["amendments"] if a.get("changes")]
+    for a in amended:
+        lines.append(f"amendment {a['time'][:10]} changed what arms do after {a['enrolled_at_amendment']} "
+                     f"enrolment(s): {'; '.join(a['changes'])}")
+    if study.unblinded:
+        lines += [f"unblinded {u['time']} by {u['who']} ({u['reason']})" for u in study.registry["unblindings"]]
     return Status(lines, rows, overdue)

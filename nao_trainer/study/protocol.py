@@ -23,6 +23,7 @@ from typing import Any
 from nao_trainer.errors import ConfigError
 from nao_trainer.files import read_yaml
 from nao_trainer.session.config import SCHEMA, StudyConfig, check_value, load_config
+from nao_trainer.study.names import name_problem
 
 #: Outcomes per session the analysis knows; ``span``: the length at the study's rate (``data.study``).
 OUTCOMES: tuple[str, ...] = ("score", "engagement", "success_rate", "span")
@@ -31,7 +32,6 @@ SIMULATED_OUTCOMES: tuple[str, ...] = ("score", "engagement", "success_rate")
 #: Fixed effects a model may name besides the intercept.
 TERMS: tuple[str, ...] = ("arm", "session")
 _MODEL = re.compile(r"^\s*(\w+)\s*~\s*(.+?)\s*\+\s*\(\s*1\s*\|\s*participant\s*\)\s*$")
-_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9]*$")  # arm names become BIDS-safe labels (letters and digits)
 _KEYS = {"protocol", "study_config", "arms", "sessions", "target_n", "allocation", "blinding", "outcomes",
          "analysis", "pseudonym_prefix"}
 
@@ -63,7 +63,7 @@ class Stratum:
 @dataclass(frozen=True)
 class Allocation:
     block_size: int
-    seed: int
+    seed: int | None  # not used to allocate (see _allocation)
     strata: tuple[Stratum, ...]
 
     def stratum_keys(self) -> list[str]:
@@ -162,6 +162,8 @@ def load_protocol(path: str | os.PathLike, base: Path | None = None) -> Protocol
             raise where.error(str(key), f"unknown key; valid keys: {', '.join(sorted(_KEYS))}")
     head = _get(data, "protocol", where, "protocol", dict)
     name = _get(head, "name", where, "protocol.name", str)
+    if name_problem(name, "name"):
+        raise where.error("protocol.name", f"{name!r} must be {name_problem(name, 'name')}")
     description = _get(head, "description", where, "protocol.description", str, "")
     config_path = Path(_get(data, "study_config", where, "study_config", str)).expanduser()
     config_path = config_path if config_path.is_absolute() else ((base or path.parent) / config_path).resolve()
@@ -191,8 +193,8 @@ def load_protocol(path: str | os.PathLike, base: Path | None = None) -> Protocol
                               f"unknown outcome {o!r}; use one of {', '.join(OUTCOMES)}")
     analysis = _analysis(_get(data, "analysis", where, "analysis", dict), where, arms)
     prefix = _get(data, "pseudonym_prefix", where, "pseudonym_prefix", str, "P")
-    if not _NAME.match(prefix):
-        raise where.error("pseudonym_prefix", f"{prefix!r} must be letters and digits, starting with a letter")
+    if name_problem(prefix):
+        raise where.error("pseudonym_prefix", f"{prefix!r} must be {name_problem(prefix)}")
     protocol = Protocol(name, description, config_path, arms, Sessions(per, lo, hi), target, allocation, blinding,
                         primary, secondary, analysis, prefix, str(path), text)
     for i, arm in enumerate(arms):  # every arm's configuration must load (overrides, policy, files)
@@ -214,9 +216,8 @@ def _arms(items: list, where: _Where) -> tuple[Arm, ...]:
             raise where.error("arms", f"arm {i + 1}: unknown key(s) {', '.join(sorted(unknown))}; "
                                       "valid: name, policy, overrides, ratio")
         name = _get(item, "name", where, key, str)
-        if not _NAME.match(name):
-            raise where.error("arms", f"arm name {name!r} must be letters and digits, starting with a letter "
-                                      "(it becomes a BIDS label)")
+        if name_problem(name):
+            raise where.error("arms", f"arm name {name!r} must be {name_problem(name)} (it becomes a BIDS label)")
         policy = _get(item, "policy", where, key, str)
         problem = check_value(policy, SCHEMA["policy"]["kind"])
         if problem:
@@ -247,7 +248,9 @@ def _allocation(a: dict, where: _Where) -> Allocation:
     if method != "blocked":
         raise where.error("allocation.method", f"{method!r}: only 'blocked' randomisation is supported")
     size = _get(a, "block_size", where, "allocation.block_size", int)
-    seed = _get(a, "seed", where, "allocation.seed", int)
+    # Not used to allocate (study init draws the seed from the operating system's entropy, or takes one
+    # supplied by a third party): a seed in a protocol anyone can read would reveal the sequence.
+    seed = _get(a, "seed", where, "allocation.seed", int, None)
     strata = []
     for name, levels in _get(a, "strata", where, "allocation.strata", dict, {}).items():
         if not isinstance(levels, list) or len(levels) < 2 or not all(isinstance(v, str) and v for v in levels):

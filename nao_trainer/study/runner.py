@@ -22,6 +22,7 @@ import os
 import re
 import socket
 import sys
+import uuid
 from pathlib import Path
 from typing import Any, Iterator, TextIO
 
@@ -29,7 +30,8 @@ from nao_trainer.errors import ConfigError, DataError, UserError
 from nao_trainer.policies.participant_state import participant_template
 from nao_trainer.ports import CommandQueue
 from nao_trainer.session.config import StudyConfig
-from nao_trainer.study.registry import Study, now_iso, open_study, pid_alive, record_session
+from nao_trainer.study.registry import (Study, _running_session, now_iso, open_study, participant_folders, pid_alive, read_lock,
+                                       record_session)
 
 BLIND_LABEL = "arm (blinded)"
 #: Sessions that count towards the protocol's number (the others are kept on record).
@@ -48,6 +50,7 @@ class NextSession:
     config: StudyConfig
     warning: str  # outside the interval (empty when inside)
     resume: Any = None  # session.wiring.Resumption when an interrupted session is continued
+    key: str = ""  # the session's key in the registry (idempotent: recorded once whatever retries)
 
     def label(self, blinded: bool) -> str:
         return BLIND_LABEL if blinded else f"arm {self.arm}"
@@ -58,8 +61,8 @@ def done_sessions(participant: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def session_seed(study: Study, pseudonym: str, number: int) -> int:
-    """A reproducible seed per participant and session (from the allocation seed)."""
-    text = f"{study.protocol.allocation.seed}:{pseudonym}:{number}"
+    """A reproducible seed per participant and session (from the study's salt, not the allocation's seed)."""
+    text = f"{study.registry['session_salt']}:{pseudonym}:{number}"
     return int(hashlib.sha256(text.encode()).hexdigest()[:8], 16) % 2**31
 
 
@@ -86,13 +89,13 @@ def plan_next(study: Study, pseudonym: str, flags: dict[str, Any], now: dt.datet
         if not lo <= gap <= hi:
             warning = (f"{pseudonym}'s session {number} comes {gap:.1f} days after session {number - 1}; the protocol "
                        f"allows {lo:g}-{hi:g} days (the session is recorded as outside the interval)")
-    arm = protocol.arm(p["arm"])
+    arm = protocol.arm(study.arm_of(pseudonym))
     extra = {**{k: v for k, v in flags.items() if v is not None},
              "participant.pseudonym": pseudonym, "session.output": str(study.sessions_dir.resolve()),
              "session.seed": session_seed(study, pseudonym, number)}
     if "policy.state_path" not in dict(arm.overrides):  # learning state per participant, across sessions
         extra["policy.state_path"] = participant_template(arm.policy)
-    return NextSession(pseudonym, arm.name, number, protocol.arm_config(arm, extra), warning)
+    return NextSession(pseudonym, arm.name, number, protocol.arm_config(arm, extra), warning, key=uuid.uuid4().hex)
 
 
 def plan_resume(study: Study, pseudonym: str) -> NextSession:
@@ -105,42 +108,53 @@ def plan_resume(study: Study, pseudonym: str) -> NextSession:
     if p["withdrawn"]:
         raise DataError(f"{pseudonym}: withdrew on {p['withdrawn']['time'][:10]}; no further sessions")
     last = p["sessions"][-1] if p["sessions"] else None
-    if last is None or last["status"] in DONE:
+    if last is None or last["status"] in DONE or not last.get("folder"):
         raise DataError(f"{pseudonym}: no interrupted session to resume; run the next one without --resume")
     config, resumption = prepare_resume(study.sessions_dir / last["folder"])
-    return NextSession(pseudonym, p["arm"], int(last["number"]), config, "", resumption)
+    return NextSession(pseudonym, study.arm_of(pseudonym), int(last["number"]), config, "", resumption,
+                       key=last["key"])
 
 
 @contextlib.contextmanager
 def participant_lock(study: Study, pseudonym: str, notice: TextIO | None = None) -> Iterator[None]:
-    """Exclusive per participant: a second ``study next`` is refused while the first one's process lives."""
+    """Exclusive per participant: a second ``study next`` is refused while the first one's process lives.
+
+    The lock file is written whole under a temporary name and hard-linked into place (``link`` fails when
+    the lock exists): it never exists empty, even when the disk fills while it is written. A lock that
+    cannot be read, or names no live process of this host, is stale and taken over."""
     folder = study.root / "locks"
-    folder.mkdir(exist_ok=True)
     path = folder / f"{pseudonym}.lock"
     mine = {"pid": os.getpid(), "host": socket.gethostname(), "started": now_iso()}
-    for _attempt in range(2):
-        try:
-            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            try:
-                held = json.loads(path.read_text(encoding="utf-8"))
-                pid, host = int(held["pid"]), str(held["host"])
-            except (OSError, ValueError, KeyError, TypeError):
-                held, pid, host = {}, -1, mine["host"]  # torn lock (killed while writing it): stale
-            if host != mine["host"] or pid_alive(pid):
-                raise ConfigError(f"{path}: a session of {pseudonym} is running (pid {pid} on {host}, started "
-                                  f"{held.get('started', '?')}); wait for it to end") from None
-            if notice:
-                print(f"study next: a stale lock of {pseudonym} (pid {pid} no longer runs) is taken over",
-                      file=notice, flush=True)
-            with contextlib.suppress(FileNotFoundError):
-                path.unlink()
-            continue
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+    tmp = folder / f".{pseudonym}.lock.tmp-{os.getpid()}"
+    try:
+        folder.mkdir(exist_ok=True)
+        with open(tmp, "w", encoding="utf-8") as fh:
             fh.write(json.dumps(mine))
-        break
-    else:
-        raise ConfigError(f"{path}: cannot take the lock of {pseudonym}; remove the file if no session runs")
+            fh.flush()
+            os.fsync(fh.fileno())
+        for _attempt in range(2):
+            try:
+                os.link(tmp, path)
+                break
+            except FileExistsError:
+                held = read_lock(path)
+                if held is not None and (held[1] != mine["host"] or pid_alive(held[0])):
+                    raise ConfigError(f"{path}: a session of {pseudonym} is running (pid {held[0]} on {held[1]}); "
+                                      "wait for it to end") from None
+                if notice:
+                    print(f"study next: a stale lock of {pseudonym} ("
+                          f"{'unreadable' if held is None else f'pid {held[0]} no longer runs'}) is taken over",
+                          file=notice, flush=True)
+                with contextlib.suppress(FileNotFoundError):
+                    path.unlink()
+        else:
+            raise ConfigError(f"{path}: cannot take the lock of {pseudonym}; remove the file if no session runs")
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot write the lock of {pseudonym} ({exc.strerror}); free disk space and "
+                          "run the command again") from None
+    finally:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
     try:
         yield
     finally:
@@ -196,6 +210,7 @@ def play(study: Study, plan: NextSession, options: Any, progress: TextIO) -> Any
             if options.console:
                 options, console = stack.enter_context(blinded_console(plan, options, progress))
         before = set(study.sessions_dir.glob(f"{plan.pseudonym}_*"))
+        register_start(study, plan)
         try:
             result = run_session(plan.config, options, progress=stream, resume=plan.resume)
         except UserError as exc:  # e.g. the robot lost for good: a folder written is still recorded
@@ -211,13 +226,99 @@ def play(study: Study, plan: NextSession, options: Any, progress: TextIO) -> Any
     return dataclasses.replace(result, policy_summary="") if blinded else result
 
 
+def register_start(study: Study, plan: NextSession) -> None:
+    """The session is in the registry before it starts (``running``, with this process and host): a
+    session killed at any moment is listed, counted when its folder says it completed, and resumable."""
+    record_session(study.root, plan.pseudonym, {
+        "key": plan.key, "number": plan.number, "folder": plan.resume.folder.name if plan.resume else None,
+        "status": "running", "exit_code": None, "started": now_iso(), "ended": None,
+        "outside_interval": bool(plan.warning), "protocol_sha256": study.protocol.sha256,
+        "host": socket.gethostname(), "pid": os.getpid(), "files": None})
+
+
+def file_checksums(folder: Path) -> dict[str, str]:
+    """SHA-256 of each regular file of a session folder (the registry references the files by these)."""
+    out = {}
+    for f in sorted(folder.rglob("*")):
+        if f.is_file() and not f.is_symlink():
+            h = hashlib.sha256()
+            with open(f, "rb") as fh:
+                for chunk in iter(lambda: fh.read(1 << 20), b""):
+                    h.update(chunk)
+            out[str(f.relative_to(folder))] = h.hexdigest()
+    return out
+
+
 def _record(study: Study, plan: NextSession, folder: Path, status: str, exit_code: int) -> None:
     info = _session_info(folder)
     record_session(study.root, plan.pseudonym, {
-        "number": plan.number, "folder": folder.name, "status": info.get("status") or status,
+        "key": plan.key, "number": plan.number, "folder": folder.name, "status": info.get("status") or status,
         "exit_code": info.get("exit_code", exit_code), "started": info.get("started"),
         "ended": info.get("ended") or now_iso(), "outside_interval": bool(plan.warning),
-        "protocol_sha256": study.protocol.sha256})
+        "protocol_sha256": study.protocol.sha256, "host": socket.gethostname(), "pid": None,
+        "files": file_checksums(folder)})
+
+
+def _stamp_time(name: str) -> dt.datetime | None:
+    m = re.search(r"_(\d{8}-\d{6})(?:_\d+)?$", name)
+    return dt.datetime.strptime(m.group(1), "%Y%m%d-%H%M%S") if m else None
+
+
+def pending_sessions(study: Study, pseudonym: str | None = None) -> list[dict[str, Any]]:
+    """What the registry does not yet say about sessions on disk (nothing is written here):
+
+    * a ``running`` session whose process is gone (killed): its folder (the first of the participant's
+      unrecorded folders created after it started) and its status from the folder's ``session.json``
+      (``completed`` counts; otherwise ``interrupted``, resumable with ``study next --resume``);
+    * a session folder of an enrolled participant that no session references (an orphan): adopted.
+
+    Returns the session entries to record (``study repair`` and ``study next`` record them)."""
+    host = socket.gethostname()
+    out = []
+    for p in study.participants:
+        if pseudonym is not None and p["pseudonym"] != pseudonym:
+            continue
+        if _running_session(study.root, p["pseudonym"]):
+            continue  # its session runs: the folder it is writing is not an orphan
+        known = {s["folder"] for s in p["sessions"] if s.get("folder")}
+        free = [f for f in participant_folders(study, p["pseudonym"]) if f.name not in known]
+        number = max([s["number"] for s in p["sessions"]], default=0)
+        for s in p["sessions"]:
+            if s["status"] != "running" or (s.get("host") == host and s.get("pid") and pid_alive(s["pid"])):
+                continue
+            if s.get("host") not in (None, host):
+                continue  # another site's laptop: it records its own session when it is back
+            folder = s.get("folder")
+            if folder is None:
+                start = dt.datetime.fromisoformat(s["started"]).astimezone().replace(tzinfo=None, microsecond=0)
+                after = [f for f in free if (_stamp_time(f.name) or start) >= start]
+                if after:
+                    folder = after[0].name
+                    free.remove(after[0])
+            out.append(_adopted(study, s, folder))
+        for f in free:
+            number += 1
+            out.append(_adopted(study, {"key": f.name, "number": number, "pseudonym": p["pseudonym"],
+                                        "outside_interval": False, "protocol_sha256": study.protocol.sha256}, f.name))
+    return out
+
+
+def _adopted(study: Study, s: dict[str, Any], folder: str | None) -> dict[str, Any]:
+    info = _session_info(study.sessions_dir / folder) if folder else {}
+    status = info.get("status") if info.get("status") in DONE else "interrupted"
+    return {**s, "folder": folder, "status": status, "exit_code": info.get("exit_code"),
+            "started": s.get("started") or info.get("started"), "ended": info.get("ended") or s.get("started")
+            or now_iso(), "pid": None, "host": s.get("host") or socket.gethostname(),
+            "files": file_checksums(study.sessions_dir / folder) if folder else None}
+
+
+def repair(root: Path, pseudonym: str | None = None) -> list[dict[str, Any]]:
+    """Record what :func:`pending_sessions` found; returns the entries recorded."""
+    study = open_study(root)
+    found = pending_sessions(study, pseudonym)
+    for entry in found:
+        record_session(study.root, entry["pseudonym"], entry)
+    return found
 
 
 def check_blinding(study: Study, plan: NextSession, options: Any) -> None:
@@ -287,6 +388,11 @@ def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any,
     """``study next``: plan, lock, warn, play, record. Returns the plan and the session result."""
     progress = progress or sys.stderr
     study = open_study(root)
+    study.participant(pseudonym)
+    for entry in repair(root, pseudonym):  # a killed session of this participant: recorded first
+        print(f"study next: {pseudonym}'s session {entry['number']} ({entry['folder'] or 'no folder'}) was "
+              f"interrupted; recorded as {entry['status']}", file=progress, flush=True)
+    study = open_study(root)
     if resume:
         given = [k for k, v in flags.items() if v is not None]
         if given:
@@ -297,6 +403,9 @@ def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any,
     with participant_lock(study, pseudonym, progress):
         # Planned again under the lock: a session of this participant that ended between the first plan and
         # the lock counts, so this one gets the next number (or is refused), never the same one twice.
+        for entry in repair(root, pseudonym):  # a killed session of this participant: recorded first
+            print(f"study next: {pseudonym}'s session {entry['number']} ({entry['folder'] or 'no folder'}) was "
+                  f"interrupted; recorded as {entry['status']}", file=progress, flush=True)
         study = open_study(root)
         plan = plan_resume(study, pseudonym) if resume else plan_next(study, pseudonym, flags)
         if plan.warning:

@@ -82,7 +82,7 @@ def test_a_completed_session_disables_life_wakes_the_motors_and_restores_both(ro
     info = json.loads((folder / "session.json").read_text())
     assert info["robot_status"]["autonomous_life"] == "solitary" and info["robot_status"]["naoqi_version"] == "2.8.5.10"
     assert info["robot_status"]["name"] == "nao-standin" and info["robot_status"]["output_volume"] == 60
-    assert [e["event"] for e in info["robot_setup"]] == ["robot_marker", "set_autonomous_life", "wake_up"]
+    assert [e["event"] for e in info["robot_setup"]] == ["speech_language", "robot_marker", "set_autonomous_life", "wake_up"]
     events = [e["event"] for e in read_events(folder)]
     assert events.index("rest") < events.index("restore_autonomous_life")
     calls = [(e["service"], e["method"], e["args"]) for e in control.transcript()]

@@ -43,7 +43,7 @@ def test_a_ready_robot_passes_and_a_quiet_muted_or_flat_one_fails_with_the_fix(s
     lines = res.stdout.strip().splitlines()
     assert res.returncode == 0, res.stdout + res.stderr
     assert [ln.split()[:2] for ln in lines] == [["OK", "disk"], ["OK", "robot"], ["OK", "eeg"]]
-    assert "7 services the task needs" in lines[1]  # ALMemory too: tactile answers
+    assert "12 services the task needs" in lines[1]  # the NAO model's 7 required and 5 optional ones
     assert "nao-standin (NAOqi 2.8.5.10), volume 60%, battery 85%, Autonomous Life solitary" in lines[1]
 
     def failing(call: tuple, undo: tuple) -> str:

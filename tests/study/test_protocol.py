@@ -11,7 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from _study_data import PROTOCOL, write_protocol
+import numpy as np
+
+from _study_data import PROTOCOL, SWAP, edit_registry, registry_state, write_protocol
 from nao_trainer.cli import main
 from nao_trainer.files import PROJECT_ROOT
 from nao_trainer.study.protocol import load_protocol
@@ -30,14 +32,19 @@ def test_the_shipped_example_protocol_loads():
     assert p.primary == "score" and p.analysis.terms == ("arm", "session") and len(p.sha256) == 64
 
 
-def test_blocked_allocation_balances_every_block_and_is_reproducible(tmp_path):
+def test_blocked_allocation_has_random_block_sizes_and_stays_balanced(tmp_path):
     p = load_protocol(write_protocol(tmp_path))
-    seq = allocation_sequence(p)[""]
-    assert len(seq) == 12 and seq == allocation_sequence(p)[""]
-    for block in (seq[:6], seq[6:]):
-        assert Counter(block) == {"personalised": 2, "level2": 2, "random": 2}
-    other = load_protocol(write_protocol(tmp_path, PROTOCOL.replace("seed: 7", "seed: 8"), "other.yaml"))
-    assert allocation_sequence(other)[""] != seq  # the seed decides
+    seq = allocation_sequence(p, np.random.default_rng(1))[""]
+    assert seq == allocation_sequence(p, np.random.default_rng(1))[""]  # the seed decides (not the protocol's)
+    first_three_balanced = set()
+    for seed in range(60):
+        seq = allocation_sequence(p, np.random.default_rng(seed))[""]
+        assert len(seq) >= 12 and len(seq) % 3 == 0 and set(Counter(seq).values()) == {len(seq) // 3}
+        for n in range(1, len(seq) + 1):  # blocks of 3 or 6: no arm ever more than 2 ahead of another
+            counts = Counter(seq[:n])
+            assert max(counts.values()) - min(counts[a] for a in ("personalised", "level2", "random")) <= 2
+        first_three_balanced.add(len(Counter(seq[:3])) == 3)
+    assert first_three_balanced == {True, False}  # a first block of 3 sometimes, of 6 other times
 
 
 BAD = {
@@ -80,7 +87,7 @@ def test_enrolment_follows_the_concealed_sequence_and_records_consent(tmp_path, 
         assert code == 0, err
         assert out.startswith(f"P{i + 1:03d}: enrolled (arm ")
         arms.append(out.split("(arm ")[1].split(";")[0])
-    assert arms == allocation_sequence(load_protocol(tmp_path / "protocol.yaml"))[""]
+    assert arms == [open_study(study).arm_of(f"P{i:03d}") for i in range(1, 13)]
     assert Counter(arms) == {"personalised": 4, "level2": 4, "random": 4}
     reg = open_study(study).registry
     assert reg["participants"][0]["consent_date"] == "2026-11-02" and reg["participants"][0]["consent_version"] == "v3"
@@ -91,9 +98,9 @@ def test_enrolment_follows_the_concealed_sequence_and_records_consent(tmp_path, 
 @pytest.mark.parametrize("date", ["02/11/2026", "2999-01-01"])
 def test_a_bad_consent_date_is_refused_and_nothing_written(tmp_path, capsys, date):
     study = _init(tmp_path, capsys)
-    before = (study / "registry.json").read_bytes()
+    before = registry_state(study)
     code, _, err = cli(capsys, "study", "enrol", study, "--consent-date", date, "--consent-version", "v1")
-    assert code == 2 and "consent date" in err and (study / "registry.json").read_bytes() == before
+    assert code == 2 and "consent date" in err and registry_state(study) == before
 
 
 def test_blinded_enrolment_does_not_show_the_arm(tmp_path, capsys):
@@ -109,25 +116,17 @@ def test_a_tampered_study_folder_is_refused_in_one_line(tmp_path, capsys, what):
     study = _init(tmp_path, capsys)
     cli(capsys, "study", "enrol", study, "--consent-date", "2026-11-02", "--consent-version", "v1")
     if what == "registry":
-        doc = json.loads((study / "registry.json").read_text())
-        doc["payload"]["participants"][0]["arm"] = "random" if doc["payload"]["participants"][0]["arm"] != "random" \
-            else "level2"
-        (study / "registry.json").write_text(json.dumps(doc))
+        edit_registry(study, "UPDATE participants SET consent_version = 'v2'")
     elif what == "protocol":
-        (study / "protocol.yaml").write_text((study / "protocol.yaml").read_text().replace("seed: 7", "seed: 9"))
-    else:
-        doc = json.loads((study / "allocation.json").read_text())
-        doc["payload"]["sequences"][""].reverse()
-        from nao_trainer.files import canonical_sha256
-
-        doc["sha256"] = canonical_sha256(doc["payload"])  # a consistent but different file: still refused
-        (study / "allocation.json").write_text(json.dumps(doc))
-    before = (study / "registry.json").read_bytes()
+        (study / "protocol.yaml").write_text((study / "protocol.yaml").read_text().replace("max: 7", "max: 9"))
+    else:  # two sealed slots swapped: each is a valid ciphertext of the study key
+        edit_registry(study, SWAP)
+    before = (study / "registry.db").read_bytes()
     for args in (("status", study), ("enrol", study, "--consent-date", "2026-11-02", "--consent-version", "v1")):
         code, _, err = cli(capsys, "study", *args)
         assert code == 2 and len(err.strip().splitlines()) == 1, err
-        assert any(w in err for w in ("checksum mismatch", "altered", "not the allocation")), err
-    assert (study / "registry.json").read_bytes() == before
+        assert any(w in err for w in ("edited outside nao-trainer", "altered")), err
+    assert (study / "registry.db").read_bytes() == before
 
 
 def test_the_frozen_protocol_changes_only_by_a_recorded_amendment(tmp_path, capsys):
@@ -145,7 +144,7 @@ def test_the_frozen_protocol_changes_only_by_a_recorded_amendment(tmp_path, caps
     (entry,) = reg["amendments"]
     assert entry["reason"] == "holidays" and entry["new_sha256"] == load_protocol(changed).sha256
     assert open_study(study).protocol.sessions.max_days == 10
-    redesign = write_protocol(tmp_path, PROTOCOL.replace("seed: 7", "seed: 70"), "v3.yaml")
+    redesign = write_protocol(tmp_path, PROTOCOL.replace("block_size: 6", "block_size: 3"), "v3.yaml")
     code, _, err = cli(capsys, "study", "amend", study, redesign, "--reason", "x")
     assert code == 2 and "after enrolment began" in err and len(open_study(study).registry["amendments"]) == 1
 
@@ -269,12 +268,11 @@ def test_strata_have_their_own_balanced_sequences(tmp_path, capsys):
         code, _, err = cli(capsys, "study", "enrol", study, "--consent-date", "2026-11-02", "--consent-version", "v1",
                            "--stratum", f"age={level}")
         assert code == 0, err
-    people = open_study(study).participants
-    seqs = allocation_sequence(load_protocol(tmp_path / "protocol.yaml"))
-    for level in ("young", "old"):
-        mine = [p["arm"] for p in people if p["stratum"] == f"age={level}"]
-        assert mine == seqs[f"age={level}"][:3]
-    assert seqs["age=young"] != seqs["age=old"]
+    opened = open_study(study)
+    for level in ("young", "old"):  # one sequence per stratum: each stratum's positions count from 0
+        mine = [p for p in opened.participants if p["stratum"] == f"age={level}"]
+        assert [p["allocation_index"] for p in mine] == [0, 1, 2]
+        assert all(opened.arm_of(p["pseudonym"]) in ("personalised", "level2", "random") for p in mine)
 
 
 def test_a_session_that_fails_after_writing_its_folder_is_recorded_and_not_counted(tmp_path, capsys, monkeypatch):

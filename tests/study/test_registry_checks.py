@@ -1,34 +1,25 @@
-"""A registry edited with its checksum recomputed: refused in one line, exit 2, nothing written.
-
-The checksum only catches edits that do not recompute it; the registry must also agree with itself and
-with the concealed allocation (each participant's arm is the one the sequence gave)."""
+"""A registry edited behind nao-trainer's back (the sqlite3 shell): refused in one line by every command,
+exit 2, nothing written. The registry's HMAC (a key outside the study folder) covers every row, so a
+participant removed with the allocation position moved back (issue 30, finding 9) is caught like any edit;
+a registry too deep or not a database is refused the same way."""
 from __future__ import annotations
-
-import json
 
 import pytest
 
-from _study_data import write_protocol
+from _study_data import SWAP, edit_registry, write_protocol
 from nao_trainer.cli import main
-from nao_trainer.files import canonical_sha256
-
-
-def _participants(pl):
-    return pl["participants"]
-
 
 EDITS = {
-    "arm swapped": (lambda pl: _participants(pl)[0].update(
-        arm="random" if _participants(pl)[0]["arm"] != "random" else "level2"), "not the one the allocation gave"),
-    "arm removed": (lambda pl: _participants(pl)[0].pop("arm"), "not the one the allocation gave"),
-    "participants not a list": (lambda pl: pl.update(participants="x"), "not lists"),
-    "protocol entry removed": (lambda pl: pl.pop("protocol"), "protocol entry"),
-    "participant repeated": (lambda pl: _participants(pl).append(dict(_participants(pl)[0])), "repeated"),
-    "pseudonym a path": (lambda pl: _participants(pl)[0].update(pseudonym="../../x"), "malformed"),
-    "sessions not a list": (lambda pl: _participants(pl)[0].update(sessions=5), "sessions are malformed"),
-    "allocation position": (lambda pl: pl.update(next={"": "a"}), "allocation position"),
-    "position moved back": (lambda pl: pl.update(next={"": 0}), "allocation is at 0"),
-    "withdrawal malformed": (lambda pl: _participants(pl)[0].update(withdrawn="yes"), "withdrawal"),
+    "arm slot swapped": SWAP,
+    "participant moved to another slot": "UPDATE participants SET allocation_index = 5 WHERE number = 1",
+    "last participant removed, position moved back": "DELETE FROM participants WHERE number = 2",
+    "position moved back": "UPDATE meta SET value = '{\"\": 1}' WHERE key = 'next'",
+    "pseudonym a path": "UPDATE participants SET pseudonym = '../../x' WHERE number = 1",
+    "pseudonym with a newline": "UPDATE participants SET pseudonym = 'P' || char(10) || '001' WHERE number = 1",
+    "withdrawal forged": "UPDATE participants SET withdrawn = '{\"data\": \"keep\"}' WHERE number = 1",
+    "protocol entry nested 100000 deep": "UPDATE meta SET value = '" + "[" * 100000 + "' WHERE key = 'protocol'",
+    "a session added": "INSERT INTO sessions (key, pseudonym, number, status, protocol_sha256) "
+                       "VALUES ('k', 'P001', 1, 'completed', 'x')",
 }
 
 
@@ -41,25 +32,37 @@ def _study(tmp_path, capsys):
     return study
 
 
-@pytest.mark.parametrize("case", sorted(EDITS))
-def test_a_consistently_checksummed_but_edited_registry_is_refused_by_every_command(tmp_path, capsys, case):
-    edit, message = EDITS[case]
-    study = _study(tmp_path, capsys)
-    doc = json.loads((study / "registry.json").read_text())
-    edit(doc["payload"])
-    doc["sha256"] = canonical_sha256(doc["payload"])
-    (study / "registry.json").write_text(json.dumps(doc))
-    before = sorted(p.relative_to(study) for p in study.rglob("*"))
-    registry = (study / "registry.json").read_bytes()
-    for args in (["status", study], ["enrol", study, "--consent-date", "2026-11-02", "--consent-version", "v1"],
-                 ["next", study, "P001", "--no-keys"], ["analyse", study], ["export", study, "--bids", tmp_path / "b"],
-                 ["withdraw", study, "P001", "--data", "delete"]):
-        code = main(["study", *map(str, args)])
+COMMANDS = (["status"], ["enrol", "--consent-date", "2026-11-02", "--consent-version", "v1"],
+            ["next", "P001", "--no-keys"], ["analyse"], ["withdraw", "P001", "--data", "delete"], ["repair"],
+            ["amend", "protocol.yaml", "--reason", "x"])
+
+
+def _refused_by_every_command(tmp_path, capsys, study, message):
+    before = sorted(p.relative_to(study) for p in study.rglob("*") if "registry.db" not in p.name)
+    registry = (study / "registry.db").read_bytes()
+    for words in COMMANDS:
+        args = [words[0], str(study), *[str(tmp_path / w) if w.endswith(".yaml") else w for w in words[1:]]]
+        code = main(["study", *args])
         out, err = capsys.readouterr()
         assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, (args, err)
-        assert message in err and "registry.json" in err, err
-    assert (study / "registry.json").read_bytes() == registry
-    assert sorted(p.relative_to(study) for p in study.rglob("*")) == before and not (tmp_path / "b").exists()
+        assert message in err and "registry.db" in err, err
+    assert (study / "registry.db").read_bytes() == registry
+    assert sorted(p.relative_to(study) for p in study.rglob("*") if "registry.db" not in p.name) == before
+
+
+@pytest.mark.parametrize("case", sorted(EDITS))
+def test_a_registry_edited_with_the_sqlite_shell_is_refused_by_every_command(tmp_path, capsys, case):
+    study = _study(tmp_path, capsys)
+    edit_registry(study, EDITS[case])
+    _refused_by_every_command(tmp_path, capsys, study, "edited outside nao-trainer")
+
+
+def test_a_file_that_is_not_a_database_is_refused(tmp_path, capsys):
+    study = _study(tmp_path, capsys)
+    for extra in ("registry.db-wal", "registry.db-shm"):
+        (study / extra).unlink(missing_ok=True)
+    (study / "registry.db").write_bytes(b"[" * 100000)
+    _refused_by_every_command(tmp_path, capsys, study, "not a readable study registry")
 
 
 def test_an_untouched_registry_still_opens(tmp_path, capsys):

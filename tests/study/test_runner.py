@@ -16,7 +16,7 @@ def test_each_arm_keeps_the_participants_state_where_a_session_outside_a_study_w
     by_arm = {}
     for _ in range(6):  # one block: every arm at least once
         entry = enrol(root, "2026-12-01", "v1")
-        by_arm.setdefault(entry["arm"], entry["pseudonym"])
+        by_arm.setdefault(open_study(root).arm_of(entry["pseudonym"]), entry["pseudonym"])
     study = open_study(root)
     sessions = study.sessions_dir.resolve()
     for arm, pseudonym in by_arm.items():

@@ -81,13 +81,12 @@ def test_a_three_arm_study_from_init_to_bids(tmp_path):
     for _ in range(12):
         res = _cli("study", "enrol", study, "--consent-date", "2026-11-20", "--consent-version", "2.1")
         assert res.returncode == 0 and "concealed" in res.stdout, res.stderr
-    registry = json.loads((study / "registry.json").read_text())["payload"]
-    arms = [p["arm"] for p in registry["participants"]]
+    from nao_trainer.study.registry import open_study
+
+    opened = open_study(study)
+    arms = [opened.arm_of(f"P{i:03d}") for i in range(1, 13)]  # sealed: read with the study key
     assert Counter(arms) == {"personalised": 4, "level2": 4, "random": 4}
-    assert all(Counter(arms[b:b + 6]) == Counter(arms[:6]) for b in (0, 6))  # balanced in every block
-    again = tmp_path / "again"  # the recorded seed reproduces the sequence
-    assert _cli("study", "init", tmp_path / "protocol.yaml", "--out", again).returncode == 0
-    assert json.loads((again / "allocation.json").read_text())["payload"]["sequences"][""] == arms
+    registry = opened.registry
 
     people = [f"P{i:03d}" for i in range(1, 13)]
     outputs = []
@@ -113,6 +112,11 @@ def test_a_three_arm_study_from_init_to_bids(tmp_path):
     eeg_turns = {r[0]: int(r[5]) for r in rows}
     assert all(eeg_turns[p] > 0 for p in WITH_EEG) and eeg_turns["P003"] == 0
 
+    res = _cli("study", "analyse", study)
+    assert res.returncode == 2 and "study unblind" in res.stderr  # blinded: the statistician unblinds first
+    res = _cli("study", "unblind", study, "--reason", "final analysis", "--who", "statistician")
+    assert res.returncode == 0 and [line.split("\t") for line in res.stdout.splitlines()[1:]] == \
+        [[p, a] for p, a in zip([f"P{i:03d}" for i in range(1, 13)], arms)]
     res = _cli("study", "analyse", study)
     assert res.returncode == 0, res.stderr
     sha = registry["protocol"]["sha256"]

@@ -6,7 +6,7 @@ import socket
 import subprocess
 import sys
 
-from _study_data import write_protocol
+from _study_data import registry_state, write_protocol
 from nao_trainer.cli import main
 
 
@@ -21,11 +21,11 @@ def test_withdrawal_waits_for_the_running_session_and_is_recorded_after(tmp_path
     try:
         lock.write_text(json.dumps({"pid": sleeper.pid, "host": socket.gethostname(), "started": "now"}))
         capsys.readouterr()
-        registry = (root / "registry.json").read_bytes()
+        registry = registry_state(root)
         code = main(["study", "withdraw", str(root), "P001", "--data", "delete"])
         err = capsys.readouterr().err
         assert code == 2 and "a session is running" in err and len(err.strip().splitlines()) == 1, err
-        assert (root / "registry.json").read_bytes() == registry
+        assert registry_state(root) == registry
         assert (root / "sessions" / "P001_20261102-100000").exists()
     finally:
         sleeper.kill()

@@ -14,6 +14,16 @@ NAOqi 2.8.5 SDK documentation (``doc/`` of the SDK; pages named in docs/robot.md
   ``setOutputVolume``, ``isAudioOutMuted``, ``muteAudioOut``.
 * ``ALBattery.getBatteryCharge`` (percent), ``ALSystem.robotName`` / ``systemVersion``.
 
+* A fall (``Control.fall``): the fall manager raises ``ALMotion/RobotIsFalling``, sets the stiffness off and
+  raises ``robotHasFallen`` (``naoqi/motion/reflexes-fall-manager.html``); the stand-in lies ``LyingBelly``.
+* Heat (``Control.heat``): ``HotDeviceDetected`` with ``[[joint, status]]`` (the value's shape is a guess to
+  confirm with the conformance kit); at status 3 (critical) the motors go off and ``ALMotion.wakeUp`` answers
+  False until the joint cools (``naoqi/motion/reflexes-diagnosis.html``; "True if the call succeeded",
+  ``naoqi/motion/control-stiffness-api.html``).
+* ``ALBattery/BatteryLow`` (True) when the battery is set low (``naoqi/sensors/albattery-api.html``).
+* ``ALAutonomousLife.setState`` refused with "Calls to the setState method are not currently allowed" when
+  ``Control.refuse_life`` is on (seen on robots whose getting-started wizard was not finished).
+
 Modelling choices (not documented behaviour): asleep, the stand-in refuses speech and sound with
 "NAO is asleep" until ``wakeUp`` runs, Autonomous Life is set again, or a head button is touched
 (the touch wakes it and does not reach the task)."""
@@ -47,6 +57,12 @@ class Body:
     battery: int = 85
     name: str = "nao-standin"
     version: str = NAOQI_VERSION
+    model: str = "nao"  # the robot model the stand-in plays (nao, pepper)
+    #: Installed speech languages: a guess (a NAO ships English plus the languages bought; confirm with the kit).
+    languages: list = field(default_factory=lambda: ["English", "French"])
+    fallen: bool = False
+    hot: dict = field(default_factory=dict)  # joint -> temperature status 1..3
+    life_refused: bool = False
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def check_awake(self, what: str) -> None:
@@ -80,6 +96,10 @@ class AutonomousLife:
     @qi.bind(qi.Void, [qi.String])
     def setState(self, state: str) -> None:
         self._rec.record("ALAutonomousLife", "setState", [state])
+        with self._body.lock:
+            refused = self._body.life_refused
+        if refused:
+            raise RuntimeError("ALAutonomousLife::setState: Calls to the setState method are not currently allowed")
         if state not in LIFE_STATES:
             raise RuntimeError(f"ALAutonomousLife::setState: unknown state {state!r} (states: {', '.join(LIFE_STATES)})")
         with self._body.lock:
@@ -150,3 +170,22 @@ class System:
     @qi.bind(qi.String, [])
     def systemVersion(self) -> str:
         return self._body.version
+
+
+@qi.multiThreaded()
+class BodyTemperature:
+    """ALBodyTemperature (naoqi/sensors/albodytemperature.html): it raises ``HotDeviceDetected`` (the control
+    service's ``heat`` does, through ALMemory); ``getTemperatureDiagnosis`` summarises the hot joints (the
+    return shape is a guess: ``[[joint, status], ...]``)."""
+
+    def __init__(self, body: Body) -> None:
+        self._body = body
+
+    @qi.bind(qi.Dynamic, [])
+    def getTemperatureDiagnosis(self) -> list:
+        with self._body.lock:
+            return [[joint, status] for joint, status in sorted(self._body.hot.items())]
+
+    @qi.bind(qi.Void, [qi.Bool])
+    def setEnableNotifications(self, enabled: bool) -> None:
+        pass

@@ -10,7 +10,7 @@ import qi  # noqa: E402
 
 from nao_trainer.errors import ConfigError  # noqa: E402
 from nao_trainer.robot.standin.body import (SLEEP_HOLD_S, STOP_ACTIVITY_HOLD_S, AudioDevice,  # noqa: E402
-                                             AutonomousLife, Battery, Body, System)
+                                             AutonomousLife, Battery, Body, BodyTemperature, System)
 from nao_trainer.robot.standin.recorder import Channel, Recorder, check_speed  # noqa: E402
 from nao_trainer.robot.standin.services import (PRESS_HOLD_S, Memory, AnimatedSpeech, AudioPlayer,  # noqa: E402
                                                 Leds, Motion, RobotPosture, TextToSpeech, button_key)
@@ -136,6 +136,8 @@ class Control:
         name and address, a double click removes the stiffness); returns what it did. Modelled: the
         double click sets the motors off (posture unchanged); the simple click says nothing here."""
         self._rec.record("NaoTrainerStandIn", "chest", [clicks])
+        if clicks == 1:
+            self._memory.emit("ALChestButton/SimpleClickOccurred", True)  # naoqi/sensors/alchestbutton-api.html
         if clicks == 2:
             with self._body.lock:
                 self._body.motors_on = False
@@ -149,13 +151,90 @@ class Control:
         self._rec.arm(call, lambda: threading.Thread(target=self.chest, args=(int(clicks),), name="standin-chest",
                                                      daemon=True).start())
 
+    # -- the robot's health (robot.health watches these events) -----------------------------------
+
+    @qi.bind(qi.Void, [])
+    def fall(self) -> None:
+        """The fall manager: ``ALMotion/RobotIsFalling``, stiffness off, ``robotHasFallen``
+        (naoqi/motion/reflexes-fall-manager.html); the stand-in then lies on its belly."""
+        self._rec.record("NaoTrainerStandIn", "fall", [])
+        self._memory.emit("ALMotion/RobotIsFalling", True)
+        with self._body.lock:
+            self._body.motors_on, self._body.posture, self._body.fallen = False, "LyingBelly", True
+        self._memory.emit("robotHasFallen", True)
+
+    @qi.bind(qi.Void, [])
+    def stand_up(self) -> None:
+        """Someone stood the robot up (motors still off: ``wakeUp`` is the session's to call)."""
+        self._rec.record("NaoTrainerStandIn", "stand_up", [])
+        with self._body.lock:
+            self._body.posture, self._body.fallen = "Crouch", False
+
+    @qi.bind(qi.Void, [qi.String, qi.Int32])
+    def heat(self, joint: str, status: int) -> None:
+        """``joint``'s temperature status (0 normal .. 3 critical): ``HotDeviceDetected`` with ``[[joint, status]]``
+        (the value's shape is a guess); at 3 the motors go off and ``wakeUp`` answers False until it cools."""
+        self._rec.record("NaoTrainerStandIn", "heat", [joint, status])
+        status = max(0, min(3, int(status)))
+        with self._body.lock:
+            if status:
+                self._body.hot[joint] = status
+            else:
+                self._body.hot.pop(joint, None)
+            if status >= 3:
+                self._body.motors_on = False
+        self._memory.emit(f"Device/SubDeviceList/{joint}/Temperature/Sensor/Status", status)
+        if status:
+            self._memory.emit("HotDeviceDetected", [[joint, status]])
+
+    @qi.bind(qi.Void, [])
+    def battery_low(self) -> None:
+        """The battery runs low: charge 10 % and ``ALBattery/BatteryLow`` (True)."""
+        self._rec.record("NaoTrainerStandIn", "battery_low", [])
+        with self._body.lock:
+            self._body.battery = min(self._body.battery, 10)
+        self._memory.emit("ALBattery/BatteryLow", True)
+
+    @qi.bind(qi.Void, [])
+    def safeguard(self) -> None:
+        """Pepper's Autonomous Life goes to ``safeguard`` (``AutonomousLife/State``)."""
+        self._rec.record("NaoTrainerStandIn", "safeguard", [])
+        with self._body.lock:
+            self._body.life = "safeguard"
+        self._memory.emit("AutonomousLife/State", "safeguard")
+
+    @qi.bind(qi.Void, [qi.Bool])
+    def refuse_life(self, refused: bool) -> None:
+        """``ALAutonomousLife.setState`` refused ("not currently allowed") while True."""
+        with self._body.lock:
+            self._body.life_refused = bool(refused)
+
+    @qi.bind(qi.Void, [qi.List(qi.String)])
+    def set_languages(self, languages: list[str]) -> None:
+        """The speech languages installed (``ALTextToSpeech.getAvailableLanguages``)."""
+        with self._body.lock:
+            self._body.languages = [str(x) for x in languages]
+
+    @qi.bind(qi.Void, [qi.String, qi.String, qi.List(qi.Dynamic)])
+    def act_after(self, call: str, action: str, args: list[Any]) -> None:
+        """Run ``action(*args)`` (fall, heat, battery_low, chest, safeguard, stand_up) once the next ``call`` has
+        returned (``Recorder.arm``), so it falls at a known point of a session however slow the machine is."""
+        actions = {"fall": self.fall, "heat": self.heat, "battery_low": self.battery_low, "chest": self.chest,
+                   "safeguard": self.safeguard, "stand_up": self.stand_up}
+        if action not in actions:
+            raise RuntimeError(f"act_after: unknown action {action!r} (known: {', '.join(actions)})")
+        self._rec.record("NaoTrainerStandIn", "act_after", [call, action, list(args)])
+        self._rec.arm(call, lambda: threading.Thread(target=actions[action], args=tuple(args), name="standin-act",
+                                                     daemon=True).start())
+
     @qi.bind(qi.Map(qi.String, qi.Dynamic), [])
     def body(self) -> dict[str, Any]:
         """The robot's state as tests read it: life, motors_on, posture, asleep, volume, muted, battery."""
         b = self._body
         with b.lock:
             return {"life": b.life, "motors_on": b.motors_on, "posture": b.posture, "asleep": b.asleep,
-                    "volume": b.volume, "muted": b.muted, "battery": b.battery}
+                    "volume": b.volume, "muted": b.muted, "battery": b.battery, "fallen": b.fallen,
+                    "hot": dict(b.hot), "model": b.model, "languages": list(b.languages)}
 
     @qi.bind(qi.List(qi.Map(qi.String, qi.Dynamic)), [])
     def transcript(self) -> list[dict[str, Any]]:
@@ -177,10 +256,12 @@ class Control:
         return self._rec.speed
 
 
-def build_services(rec: Recorder, body: Body | None = None) -> tuple[dict[str, Any], Memory, Control]:
-    """One stand-in's services by the names a NAO offers them under (+ the control service)."""
+def build_services(rec: Recorder, body: Body | None = None,
+                   without: tuple[str, ...] = ()) -> tuple[dict[str, Any], Memory, Control]:
+    """One stand-in's services by the names a NAO offers them under (+ the control service); ``without``:
+    NAOqi services this robot lacks (a Pepper 2.9 without some of NAO's)."""
     body = body or Body()
-    memory = Memory(rec)
+    memory = Memory(rec, body)
     player = AudioPlayer(rec, body)
     control = Control(rec, memory, body, player)
     speech = Channel(rec)  # say and animated say share one voice: stopAll cuts both
@@ -196,6 +277,11 @@ def build_services(rec: Recorder, body: Body | None = None) -> tuple[dict[str, A
         "ALAudioDevice": AudioDevice(rec, body),
         "ALBattery": Battery(body),
         "ALSystem": System(body),
+        "ALBodyTemperature": BodyTemperature(body),
         "NaoTrainerStandIn": control,
     }
+    for name in without:
+        if name == "NaoTrainerStandIn" or name not in services:
+            raise ConfigError(f"the stand-in cannot go without {name!r}: it serves {', '.join(sorted(services))}")
+        del services[name]
     return services, memory, control

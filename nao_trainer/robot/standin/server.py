@@ -18,6 +18,7 @@ os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise; mu
 import qi  # noqa: E402
 
 from nao_trainer.errors import ConfigError, RobotUnavailable  # noqa: E402
+from nao_trainer.robot.standin.body import Body  # noqa: E402
 from nao_trainer.robot.standin.recorder import Recorder, check_speed  # noqa: E402
 from nao_trainer.robot.standin.control import Control, build_services  # noqa: E402
 from nao_trainer.robot.standin.link import Link  # noqa: E402
@@ -72,6 +73,8 @@ class StandIn:
         self._rec = recorder
         self._memory = memory
         self._control = control
+        #: The control service (``NaoTrainerStandIn``): fall, heat, battery_low, act_after, refuse_life, ...
+        self.control = control
         self.link = link
         control.link = link
         self._stopped = False
@@ -85,12 +88,17 @@ class StandIn:
         allow_remote: bool = False,
         echo: TextIO | None = None,
         login: Login | None = None,
+        model: str = "nao",
+        without: tuple[str, ...] = (),
+        profile: Any = None,
     ) -> "StandIn":
         """Serve the stand-in on ``url`` (port 0 picks a free port; ``.url`` tells which).
 
         Clients reach the qi server (on a private loopback port) through a ``Link`` that can add
         latency and freeze. ``tcps://`` (NAOqi 2.9) needs ``login``: the only user and password
         accepted. ``echo``: a stream that gets one readable line per call (the robot's actions, live).
+        ``model``: the robot the stand-in plays ("nao", "pepper"); ``without``: NAOqi services it lacks;
+        ``profile``: a conformance profile (``robot.profile.Profile``) whose answers it gives instead of its guesses.
         """
         url = check_listen_url(url, allow_remote)
         scheme, _, rest = url.partition("://")
@@ -120,7 +128,13 @@ class StandIn:
             raise RobotUnavailable(
                 f"the stand-in cannot listen on {url}: {reason}; pick another port or use port 0"
             ) from None
-        services, memory, control = build_services(rec)
+        body = Body(model=model)
+        if profile is not None:
+            profile.apply(body)
+            without = tuple(without) + tuple(profile.without)
+        services, memory, control = build_services(rec, body, tuple(without))
+        if profile is not None:
+            profile.apply_services(services)
         ids = [session.registerService(name, obj) for name, obj in services.items()]
         link.target_port = int(_bound_url(session, "tcp://127.0.0.1:0").rsplit(":", 1)[1])
         return cls(session, f"{scheme}://{host}:{link.port}", rec, memory, control, ids, link)
@@ -241,6 +255,8 @@ def serve(
     latency_s: float = 0.0,
     beep_latency_s: float = 0.0,
     freeze_s: float = 10.0,
+    model: str = "nao",
+    profile: Any = None,
     on_ready: Callable[["StandIn"], Callable[[], None] | None] | None = None,
 ) -> int:
     """Run the stand-in until SIGINT/SIGTERM (``nao-trainer mock-robot``); prints the ready line.
@@ -255,7 +271,7 @@ def serve(
     handlers[signal.SIGUSR1] = signal.signal(signal.SIGUSR1, lambda *_: standin.freeze(freeze_s) if standin else None)
     try:
         standin = StandIn.start(url, speed=speed, transcript_path=transcript_path, allow_remote=allow_remote, echo=echo,
-                                login=login)
+                                login=login, model=model, profile=profile)
         standin.set_latency(latency_s, beep_latency_s)
         try:
             print(f"{READY_PREFIX}{standin.url}", file=out, flush=True)

@@ -21,8 +21,12 @@ from nao_trainer.robot.standin.recorder import Channel, Recorder  # noqa: E402
 SECONDS_PER_CHARACTER = 0.06
 #: Time a posture change takes at speed 1.0 and posture speed 1.0.
 POSTURE_SECONDS = 1.5
-#: Postures ALRobotPosture knows on a NAO.
+#: Postures ALRobotPosture knows on a NAO (naoqi/motion/alrobotposture.html), and on a Pepper.
 POSTURES = ("Stand", "StandInit", "StandZero", "Crouch", "Sit", "SitRelax", "LyingBelly", "LyingBack")
+MODEL_POSTURES = {"nao": POSTURES, "pepper": ("Stand", "StandInit", "StandZero", "Crouch")}
+#: What ALMemory's ``RobotConfig/Body/Type`` says per model (a guess to confirm with the kit; Pepper's
+#: internal name is "juliette").
+BODY_TYPES = {"nao": "nao", "pepper": "juliette"}
 #: ALAnimatedSpeech body language modes.
 BODY_LANGUAGE_MODES = ("disabled", "random", "contextual")
 #: How long a simulated finger stays on a head button (seconds, at speed 1.0).
@@ -41,7 +45,7 @@ class TextToSpeech:
         self._speech = speech
         self._body = body
         self._lock = threading.Lock()
-        self._language = "English"
+        self._language = body.languages[0] if body.languages else "English"
         self._params: dict[str, float] = {"speed": 100.0, "pitchShift": 1.0, "volume": 1.0}
         self._volume = 1.0
 
@@ -59,6 +63,11 @@ class TextToSpeech:
     @qi.bind(qi.Void, [qi.String])
     def setLanguage(self, language: str) -> None:
         self._rec.record("ALTextToSpeech", "setLanguage", [language])
+        with self._body.lock:
+            installed = list(self._body.languages)
+        if language not in installed:  # modelled: a language not installed is refused (confirm with the kit)
+            raise RuntimeError(f"ALTextToSpeech::setLanguage: language {language!r} is not installed "
+                               f"(installed: {', '.join(installed)})")
         with self._lock:
             self._language = language
 
@@ -69,7 +78,8 @@ class TextToSpeech:
 
     @qi.bind(qi.List(qi.String), [])
     def getAvailableLanguages(self) -> list[str]:
-        return ["English", "French", "Greek"]
+        with self._body.lock:
+            return list(self._body.languages)
 
     @qi.bind(qi.Void, [qi.String, qi.Float])
     def setParameter(self, name: str, value: float) -> None:
@@ -216,8 +226,9 @@ class RobotPosture:
     @qi.bind(qi.Bool, [qi.String, qi.Float])
     def goToPosture(self, name: str, speed: float) -> bool:
         self._rec.record("ALRobotPosture", "goToPosture", [name, speed])
-        if name not in POSTURES:
-            raise RuntimeError(f"ALRobotPosture::goToPosture: unknown posture {name!r} (known: {', '.join(POSTURES)})")
+        known = MODEL_POSTURES.get(self._body.model, POSTURES)
+        if name not in known:
+            raise RuntimeError(f"ALRobotPosture::goToPosture: unknown posture {name!r} (known: {', '.join(known)})")
         if not 0.0 < speed <= 1.0:
             raise RuntimeError(f"ALRobotPosture::goToPosture: speed must be in (0, 1], got {speed}")
         with self._body.lock:
@@ -236,7 +247,7 @@ class RobotPosture:
 
     @qi.bind(qi.List(qi.String), [])
     def getPostureList(self) -> list[str]:
-        return list(POSTURES)
+        return list(MODEL_POSTURES.get(self._body.model, POSTURES))
 
 
 @qi.multiThreaded()
@@ -247,17 +258,24 @@ class Motion:
         self._rec = rec
         self._body = body
 
-    @qi.bind(qi.Void, [])
-    def wakeUp(self) -> None:
+    @qi.bind(qi.Bool, [])
+    def wakeUp(self) -> bool:
+        """True if the call succeeded (naoqi/motion/control-stiffness-api.html); False while a joint is
+        critically hot (the robot rests: naoqi/motion/reflexes-diagnosis.html)."""
         self._rec.record("ALMotion", "wakeUp", [])
         with self._body.lock:
+            if any(status >= 3 for status in self._body.hot.values()):
+                return False
             already = self._body.motors_on
             self._body.asleep = False
         if already:  # "if the robot is already stiffened, the call returns immediately"
-            return
+            return True
         self._rec.wait(POSTURE_SECONDS)
         with self._body.lock:
-            self._body.motors_on, self._body.posture = True, "Stand"
+            self._body.motors_on, self._body.fallen = True, False
+            if self._body.posture not in ("LyingBelly", "LyingBack"):
+                self._body.posture = "Stand"
+        return True
 
     @qi.bind(qi.Void, [])
     def rest(self) -> None:
@@ -283,10 +301,12 @@ class _MemorySubscriber:
 class Memory:
     """ALMemory (subset): key-value data and events; subscribers of a key get every raised value."""
 
-    def __init__(self, rec: Recorder) -> None:
+    def __init__(self, rec: Recorder, body: Body | None = None) -> None:
         self._rec = rec
         self._lock = threading.Lock()
         self._data: dict[str, Any] = {key: 0.0 for key in BUTTON_LETTERS}
+        model = body.model if body is not None else "nao"
+        self._data["RobotConfig/Body/Type"] = BODY_TYPES.get(model, model)
         self._subscribers: dict[str, list[_MemorySubscriber]] = {}
 
     @qi.bind(qi.Object, [qi.String])

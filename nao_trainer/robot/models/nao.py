@@ -1,0 +1,65 @@
+"""The NAO (V5/V6, NAOqi 2.8) as a robot model: registered as ``nao`` (``registry.BUILTIN``).
+
+Each value names the NAOqi 2.8.5 SDK page it follows (``doc/`` of the SDK):
+
+* postures: ``naoqi/motion/alrobotposture.html`` (Crouch, LyingBack, LyingBelly, Sit, SitRelax, Stand,
+  StandInit, StandZero); the safe ones are those a NAO can be left in with its motors off;
+* answer buttons: the three head tactile sensors ``FrontTactilTouched``, ``MiddleTactilTouched``,
+  ``RearTactilTouched`` (``naoqi/sensors/altouch.html``: 1.0 on touch, 0.0 on release);
+* falls: ``ALMotion/RobotIsFalling`` and ``robotHasFallen``, raised when the fall manager starts and
+  finishes (``naoqi/motion/reflexes-fall-manager.html``);
+* heat: ``HotDeviceDetected`` (``naoqi/sensors/albodytemperature.html``: a joint, actuator or the battery
+  with a non-null temperature status); at critical status the motors are set off and the robot rests
+  (``naoqi/motion/reflexes-diagnosis.html``);
+* battery: ``ALBattery/BatteryLow``, "raised when the battery level is low and will soon need charging",
+  status always True (``naoqi/sensors/albattery-api.html``);
+* chest button: one click makes NAO say its name and IP (``naoqi/sensors/alchestbutton.html``);
+  ``ALChestButton/SimpleClickOccurred`` (``naoqi/sensors/alchestbutton-api.html``).
+"""
+from __future__ import annotations
+
+from nao_trainer.core.settings import setting, settings
+from nao_trainer.ports import BUTTON_LETTERS
+from nao_trainer.robot.model import HealthKeys, RobotModel, Service
+
+POSTURES = ("Stand", "StandInit", "StandZero", "Crouch", "Sit", "SitRelax", "LyingBelly", "LyingBack")
+SAFE_POSTURES = ("Crouch", "Sit", "SitRelax")
+#: The joints that carry a standing NAO (they heat first: ``check`` reads their temperature).
+LEG_JOINTS = ("LHipPitch", "RHipPitch", "LKneePitch", "RKneePitch", "LAnklePitch", "RAnklePitch")
+#: The services every session calls (a missing one fails ``check``).
+TASK_SERVICES = ("ALTextToSpeech", "ALAnimatedSpeech", "ALAudioPlayer", "ALLeds", "ALRobotPosture", "ALMotion",
+                 "ALMemory")
+
+
+@settings
+class NaoSettings:
+    """``robot.model_settings`` of a NAO."""
+
+    cool_posture: str = setting("Sit", kind=str, choices=SAFE_POSTURES,
+                                doc="where a NAO with a hot joint (critical) waits between turns")
+    full_battery_minutes: float = setting(60.0, kind=(int, float), min=5, max=1440,
+                                          doc="minutes a full charge lasts in a session (check's estimate; "
+                                              "about an hour of activity; measure yours)")
+
+
+class NaoModel(RobotModel):
+    """A NAO: stands or sits, answers on its three head buttons, can fall, has a chest button."""
+
+    Settings = NaoSettings
+    title = "NAO"
+    postures = POSTURES
+    safe_postures = SAFE_POSTURES
+    buttons = dict(BUTTON_LETTERS)
+    health = HealthKeys(falling="ALMotion/RobotIsFalling", fallen="robotHasFallen", hot="HotDeviceDetected",
+                        battery_low="ALBattery/BatteryLow", chest="ALChestButton/SimpleClickOccurred",
+                        diagnosis="ALDiagnosis/RobotIsReady")
+    services = tuple(Service(name) for name in TASK_SERVICES) + (
+        Service("ALAutonomousLife", False, "Autonomous Life is left as found"),
+        Service("ALAudioDevice", False, "the system volume and mute are not checked"),
+        Service("ALBattery", False, "the battery is not checked"),
+        Service("ALSystem", False, "the robot's name and NAOqi version are not recorded"),
+        Service("ALBodyTemperature", False, "joint heat is not watched"),
+    )
+    capabilities = frozenset({"sit", "fall", "chest_button", "tactile_answers"})
+    joints = LEG_JOINTS
+    type_names = ("nao",)
