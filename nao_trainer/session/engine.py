@@ -54,8 +54,8 @@ from nao_trainer.session.turn import Turn, progress_line
 EXIT_OK, EXIT_ROBOT_LOST, EXIT_INTERRUPTED = 0, RobotUnavailable.exit_code, Interrupted.exit_code
 #: The operator stopped the session (a key or the console): goodbye and safe posture, then this code.
 EXIT_OPERATOR_STOP = 5
-#: Every turn was played and recorded, but events.jsonl could not be written to the end (a full disk).
-EXIT_EVENTS_LOST = 6
+#: Every turn was played and recorded, but events.jsonl or session.xdf could not be written to the end (a full disk).
+EXIT_RECORD_INCOMPLETE = 6
 
 
 class Session:

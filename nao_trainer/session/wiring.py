@@ -36,7 +36,7 @@ from nao_trainer.session.check import check_disk, check_eeg, check_robot, plan_f
 from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig, is_robot_address
 from nao_trainer.session.dialogue import Dialogue, load_dialogue
 from nao_trainer.session.participant import check_pseudonym, session_lock
-from nao_trainer.session.engine import EXIT_EVENTS_LOST, EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session
+from nao_trainer.session.engine import EXIT_RECORD_INCOMPLETE, EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session
 from nao_trainer.session.operator import who_stopped
 from nao_trainer.session.parts import Randomness, Script, SessionPorts
 from nao_trainer.session.record import SessionRecorder, ensure_output_dir, os_error_in, versions, write_failure
@@ -341,14 +341,14 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
 
 def _report_lost_events(out: "_Outcome", recorder: SessionRecorder) -> None:
     """A session whose events.jsonl could not be written says so: in its error (the summary's status line
-    and session.json) and, when it otherwise completed, with exit code ``EXIT_EVENTS_LOST``. Its status
+    and session.json) and, when it otherwise completed, with exit code ``EXIT_RECORD_INCOMPLETE``. Its status
     stays what the session did (every turn is in turns.csv: a study counts it)."""
     lost = recorder.events_lost()
     if not lost:
         return
     out.error = f"{out.error}; {lost}" if out.error else lost
     if out.code == 0:
-        out.code = EXIT_EVENTS_LOST
+        out.code = EXIT_RECORD_INCOMPLETE
 
 
 def _watch_health(robot: Robot, config: StudyConfig) -> RobotHealthWatch:
@@ -471,6 +471,11 @@ def _close_record(recorder: SessionRecorder, out: _Outcome, policy: Policy, stan
             recorder.event("close_failed", what="robot_transcript.jsonl", error=str(exc))
     if out.summary:
         recorder.event("policy_summary", summary=out.summary)
+    xdf = getattr(out.monitor, "xdf_problem", "")  # session.xdf cut short (known once the monitor closed)
+    if xdf:
+        out.error = f"{out.error}; {xdf}" if out.error else xdf
+        if out.code == 0:
+            out.code = EXIT_RECORD_INCOMPLETE
     result = out.result(recorder)
     recorder.close(out.status, out.code, total_score=out.session.total if out.session else 0, error=out.error,
                    policy_summary=out.summary or None,
