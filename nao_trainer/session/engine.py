@@ -41,6 +41,7 @@ from nao_trainer.session.checkpoint import Checkpointer, Standing
 from nao_trainer.session.config import StudyConfig
 from nao_trainer.session.machine import (AGAIN_STATES, FINAL_STATES, IN_TURN, INTRO_STATES, REPLAYABLE, STATES,
                                         TRANSITIONS, TURN_STATES)
+from nao_trainer.session.health import HealthDesk
 from nao_trainer.session.operator import HOLD_STATES, OperatorDesk, who_stopped
 from nao_trainer.session.parts import Randomness, Script, SessionPorts
 from nao_trainer.session.phases import PhaseClock
@@ -53,6 +54,8 @@ from nao_trainer.session.turn import Turn, progress_line
 EXIT_OK, EXIT_ROBOT_LOST, EXIT_INTERRUPTED = 0, RobotUnavailable.exit_code, Interrupted.exit_code
 #: The operator stopped the session (a key or the console): goodbye and safe posture, then this code.
 EXIT_OPERATOR_STOP = 5
+#: Every turn was played and recorded, but events.jsonl could not be written to the end (a full disk).
+EXIT_EVENTS_LOST = 6
 
 
 class Session:
@@ -84,6 +87,10 @@ class Session:
         self.phases = PhaseClock(ports.monitor, self.stage, ports.answers, ports.robot, self.clock, config.timing,
                                  recorder, self.log, config.eeg.missing_alert_turns, config.eeg)
         self.desk = OperatorDesk(ports.commands, self.log, recorder, ports.monitor, ports.observer)
+        model = config.robot.robot_model()
+        self.health = HealthDesk(ports.health, ports.upkeep, ports.commands, self.log, recorder, ports.monitor,
+                                 ports.observer, model.cool_posture(),
+                                 bool(getattr(model.settings, "pause_on_safeguard", True)))
         self.checkpoints = Checkpointer(recorder, ports.policy, random.by_name())
         self.reconnector = Reconnector(ports.robot, config.robot, self.clock, recorder, self.log, self.stage)
         self.task = ports.task
@@ -161,7 +168,7 @@ class Session:
         if self.state == "done":
             if self.status == "stopped":
                 return EXIT_OPERATOR_STOP
-            if self.status != "time limit":
+            if self.status not in ("time limit", "battery low"):
                 self.status = "completed"
             return EXIT_OK
         return EXIT_INTERRUPTED if self.status == "interrupted" else EXIT_ROBOT_LOST
@@ -380,7 +387,11 @@ class Session:
         # (with this row and the transition not yet learned), then the row, then the policy learns and
         # saves. A kill or a failed write in between loses nothing: a resumption appends the checkpoint's
         # row when turns.csv lacks it, and hands the policy the transition.
-        self.checkpoints.write(self._standing(), row, self.elapsed_s(), self.desk.override, learn)
+        try:
+            self.checkpoints.write(self._standing(), row, self.elapsed_s(), self.desk.override, learn)
+        except OSError:  # a full disk: the answered turn is still kept in turns.csv, then the failure ends the session
+            self.log.row(turn, row)
+            raise
         self.log.row(turn, row)
         if learn is not None:
             self.policy.observe(learn)
@@ -435,10 +446,21 @@ class Session:
         """
         if self.state == "operator_pause":
             return None  # its handler says the pause line first, then takes the commands
+        self.health.take(self.state, self.turn)  # the robot's falls, heat, battery, chest button (session.health)
         trigger = self._apply_pending(hold=self.state in HOLD_STATES)
         if trigger is None and self.state == "select_action" and self._time_up():
             return self._end_for_time()
+        if trigger is None and self.state == "select_action" and self.health.before_turn(self.stage):
+            return self._end_for_battery()
         return trigger
+
+    def _end_for_battery(self) -> str:
+        """BatteryLow: the turn in flight was finished; end cleanly, saying what to do."""
+        self.status = "battery low"
+        self.rec.event("battery_low_end", completed=self.completed)
+        self.log.say(f"robot battery low: the session ends after turn {self.completed} of {self.n_turns}; charge "
+                     "the robot (plug it in, about an hour to full) before the next session")
+        return "time_up"
 
     def _apply_pending(self, hold: bool = False) -> str | None:
         """Apply the due commands in order until one changes the state; the rest wait for the next point."""
@@ -496,6 +518,7 @@ class Session:
             trigger = self._apply_pending()
             if trigger is not None:
                 if trigger != "operator_stop":
+                    self.health.resumed()  # the operator says the robot is up: its motors may wake again
                     self.monitor.mark("pause_end", self._turn_number())
                     self.log.resumed()
                     self.stage.say("resumed", behavior="greeting")

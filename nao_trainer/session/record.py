@@ -22,6 +22,8 @@ import io
 import json
 import os
 import platform
+import stat
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -33,7 +35,7 @@ from nao_trainer.core import task
 from nao_trainer.tasks.sequence import COLUMNS as SEQUENCE_COLUMNS
 from nao_trainer.tasks.sequence.rules import is_correct
 from nao_trainer.errors import ConfigError, DataError
-from nao_trainer.files import write_text_atomic
+from nao_trainer.files import WRITE_CAUSES, write_text_atomic
 
 #: The sequence task's turns.csv columns, declared once by the task (``tasks.sequence.COLUMNS``); a recorder
 #: writes its task's ``columns``.
@@ -67,8 +69,6 @@ def open_no_follow(path: Path, mode: str) -> Any:
     flags = {"a": os.O_WRONLY | os.O_APPEND, "r+b": os.O_RDWR}[mode] | getattr(os, "O_NOFOLLOW", 0) | os.O_NONBLOCK
     fd = os.open(path, flags)
     try:
-        import stat
-
         if not stat.S_ISREG(os.fstat(fd).st_mode):
             raise OSError(errno.EINVAL, "not a regular file", str(path))
         os.set_blocking(fd, True)
@@ -107,20 +107,6 @@ def _fsync(f) -> None:
 
 _OUTPUT_FIX = "point session.output (or --out) at a folder you can write to"
 
-#: What a failed write means, by errno: (the cause, how to fix it).
-WRITE_CAUSES: dict[int, tuple[str, str]] = {
-    errno.ENOSPC: ("the disk is full", "free some space on it"),
-    errno.EDQUOT: ("the disk quota is used up", "free some space or raise the quota"),
-    errno.EROFS: ("the file system is read-only", "make it writable or choose another folder"),
-    errno.EACCES: ("no permission to write there", "make the folder writable for this user"),
-    errno.EPERM: ("no permission to write there", "make the folder writable for this user"),
-    errno.EMFILE: ("too many open files", "raise the limit (ulimit -n) or close other programs"),
-    errno.ENFILE: ("too many open files on this system", "close other programs"),
-    errno.EFBIG: ("the file is larger than this system allows", "raise the file size limit (ulimit -f)"),
-    errno.EIO: ("an input/output error of the disk", "check the disk"),
-}
-
-
 def os_error_in(exc: BaseException | None) -> OSError | None:
     """The failed file write behind ``exc`` (itself, its cause or its context: a library may wrap it), or None.
 
@@ -140,7 +126,16 @@ def write_failure(exc: OSError, folder: Path | None) -> DataError:
     cause, fix = WRITE_CAUSES.get(exc.errno or 0, (exc.strerror or type(exc).__name__, "check the disk"))
     where = exc.filename or folder or "the session folder"
     kept = f"; the completed turns are on disk: continue with nao-trainer run --resume {folder}" if folder else ""
+    if folder and not (Path(folder) / CHECKPOINT).exists():  # failed before the first turn was recorded
+        kept = f"; no turn was recorded (the session folder {folder} holds nothing to resume)"
+    elif folder and str(where).endswith(CHECKPOINT):  # the last turn's row is written, its checkpoint is not
+        kept = (f"; the completed turns are kept in {Path(folder) / 'turns.csv'}, but the checkpoint lags behind "
+                "them: start a new session to continue")
     return DataError(f"{where}: cannot write ({cause}); {fix}{kept}")
+
+
+def _warn(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
 
 
 def ensure_output_dir(out: Path) -> Path:
@@ -189,6 +184,9 @@ class SessionRecorder:
     rows: int = 0
     columns: tuple[str, ...] = TURN_COLUMNS  # the task's turns.csv columns (``tasks.base.Task.columns``)
     events_failed: OSError | None = None  # the first failed write of events.jsonl (later events are dropped)
+    events_written: int = 0  # events written to events.jsonl by this process
+    #: Where the warning of a failed events.jsonl write goes, at once (the terminal, also with --quiet).
+    warn: Any = field(default=None, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock)  # events come from the console's thread too
 
     def open(self, info: dict[str, Any]) -> Path:
@@ -253,8 +251,20 @@ class SessionRecorder:
                 try:
                     self._events.write(line)
                     self._events.flush()
+                    self.events_written += 1
                 except OSError as exc:  # the log must not end a session the turns can still be written in
                     self.events_failed = exc
+                    (self.warn or _warn)(f"nao-trainer: warning: {self.events_lost()}")
+
+    def events_lost(self) -> str:
+        """One line on a failed events.jsonl write (empty when none failed): which file, why, how to fix, what is kept."""
+        exc = self.events_failed
+        if exc is None:
+            return ""
+        cause, fix = WRITE_CAUSES.get(exc.errno or 0, (exc.strerror or type(exc).__name__, "check the disk"))
+        where = self.path / "events.jsonl" if self.path is not None else "events.jsonl"
+        return (f"{where}: cannot write ({cause}): the events after the first {self.events_written} are lost, the "
+                f"turns are kept in turns.csv; {fix}")
 
     def turn(self, row: dict[str, Any]) -> None:
         """Append one turn row and make it durable before returning."""
@@ -288,7 +298,7 @@ class SessionRecorder:
         if self._turns is not None:
             self._info.update(info, status=status, exit_code=exit_code, ended=now_iso(), turns_recorded=self.rows)
             if self.events_failed is not None:
-                self._info["events_lost"] = f"events.jsonl stopped at a failed write ({self.events_failed.strerror})"
+                self._info["events_lost"] = self.events_lost()
             for write in (self._write_json, self._write_json_in_place):
                 try:
                     write()

@@ -37,7 +37,7 @@ from nao_trainer.session.check import check_disk, check_eeg, check_robot, plan_f
 from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig, is_robot_address
 from nao_trainer.session.dialogue import Dialogue, load_dialogue
 from nao_trainer.session.participant import check_pseudonym, session_lock
-from nao_trainer.session.engine import EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session
+from nao_trainer.session.engine import EXIT_EVENTS_LOST, EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session
 from nao_trainer.session.operator import who_stopped
 from nao_trainer.session.parts import Randomness, Script, SessionPorts
 from nao_trainer.session.record import SessionRecorder, ensure_output_dir, os_error_in, versions, write_failure
@@ -353,6 +353,19 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
         session.interrupted_by_operator(who_stopped(exc))
         out.code = EXIT_INTERRUPTED
     out.status, out.error = session.status, session.error
+    _report_lost_events(out, recorder)
+
+
+def _report_lost_events(out: "_Outcome", recorder: SessionRecorder) -> None:
+    """A session whose events.jsonl could not be written says so: in its error (the summary's status line
+    and session.json) and, when it otherwise completed, with exit code ``EXIT_EVENTS_LOST``. Its status
+    stays what the session did (every turn is in turns.csv: a study counts it)."""
+    lost = recorder.events_lost()
+    if not lost:
+        return
+    out.error = f"{out.error}; {lost}" if out.error else lost
+    if out.code == 0:
+        out.code = EXIT_EVENTS_LOST
 
 
 def _watch_health(robot: Robot, config: StudyConfig) -> RobotHealthWatch:
