@@ -113,7 +113,7 @@ def test_run_with_the_brainflow_device_from_the_command_line(tmp_path):
 
 
 @pytest.mark.slow
-def test_session_xdf_records_the_board_and_the_markers(tmp_path):
+def test_session_xdf_records_the_board_the_markers_and_a_dropout(tmp_path):
     pyxdf = pytest.importorskip("pyxdf")
     monitor = open_monitor("simulated", {"device": "brainflow", "processing": FAST}, tmp_path,
                            np.random.default_rng(2), pseudonym=_uid("P"), record_xdf=True)
@@ -124,6 +124,8 @@ def test_session_xdf_records_the_board_and_the_markers(tmp_path):
         _wait(lambda: len(monitor.windows) >= 4, "windows from the synthetic board")
         monitor.mark("listening_end", 1)
         monitor.end_phase()
+        monitor.simulator.interrupt()  # a dropout: its markers go into the file too
+        _wait(lambda: monitor.gaps and monitor.gaps[-1].end is not None, "the gap, closed")
     finally:
         monitor.close()
     streams, _ = pyxdf.load_xdf(str(tmp_path / "session.xdf"))
@@ -134,3 +136,4 @@ def test_session_xdf_records_the_board_and_the_markers(tmp_path):
     assert labels == ["Fz", "C3", "Cz", "C4"]
     markers = [m[0] for m in by_type["Markers"]["time_series"]]
     assert "turn_1_listening_start" in markers and "turn_1_listening_end" in markers
+    assert markers.index("eeg_stream_lost") < markers.index("eeg_stream_restored")
