@@ -9,12 +9,14 @@ from __future__ import annotations
 import sqlite3
 from collections import Counter
 
+import pytest
+
 from _study_data import PROTOCOL, write_protocol
 from nao_trainer.cli import main
 from nao_trainer.study.registry import open_study
 
 BLINDED = PROTOCOL.replace("blinding: false", "blinding: true")
-SECRETS = ("personalised", "level2", "random", "schedule", "L2")
+SECRETS = ("personalised", "level2", "random", "schedule")
 
 
 def _run(capsys, *args) -> str:
@@ -34,6 +36,7 @@ def _study(tmp_path, capsys, name="study"):
     return root, seen
 
 
+@pytest.mark.slow
 def test_nothing_an_operator_reads_names_or_predicts_an_arm(tmp_path, capsys):
     root, seen = _study(tmp_path, capsys)
     # the operator's outputs: no arm, no policy (the seed is stored nowhere: drawn, used, forgotten)
