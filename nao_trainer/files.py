@@ -171,9 +171,15 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> None:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
+    except OSError as exc:  # name the file being written (a full disk fails in write(), which names none)
+        if exc.filename is not None and exc.filename != str(tmp):
+            raise
+        raise OSError(exc.errno, exc.strerror, str(path)) from exc
     finally:
-        if tmp.exists():
+        try:
             tmp.unlink()
+        except OSError:  # renamed (the usual case), or never created
+            pass
     try:
         fd = os.open(path.parent, os.O_RDONLY)
     except OSError:

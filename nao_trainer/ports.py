@@ -197,8 +197,9 @@ class TurnContext:
 
     turn: int
     state: int  # turn-state index (core.mdp)
-    length: int
-    sequence: tuple[str, ...]
+    length: int  # the trial's size (the sequence task: its letters)
+    sequence: tuple[str, ...]  # the trial's stimuli
+    trial: Any = None  # the task's ``tasks.base.Trial`` (a task's own simulated participant reads it)
 
 
 @dataclass(frozen=True)

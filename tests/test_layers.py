@@ -17,6 +17,7 @@ PACKAGE = Path(nao_trainer.__file__).parent
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("__init__", "errors", "files", "ports", "registry"),
     ("core",),
+    ("tasks",),
     ("data",),
     ("robot", "eeg", "answers", "console"),
     ("learn",),

@@ -20,11 +20,8 @@ from nao_trainer.answers.inputs import TactileAnswers
 from nao_trainer.core import task
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import RobotUnavailable
+from nao_trainer.tasks.sequence.rules import MISTAKES, make_mistake  # noqa: F401 - this module's API
 from nao_trainer.ports import Answer, EngagementMonitor, Intention, NullMonitor, Press, RobotConnectionLost, TurnContext
-
-#: Relative frequency of mistake kinds when a turn fails.
-MISTAKES: dict[str, float] = {"substitute": 0.6, "swap": 0.25, "omit": 0.15}
-
 
 @dataclass(frozen=True)
 class Plan:
@@ -34,27 +31,6 @@ class Plan:
     response: tuple[str, ...]
     times: tuple[float, ...]
     mistake: str = ""
-
-
-def make_mistake(sequence: tuple[str, ...], rng: np.random.Generator) -> tuple[tuple[str, ...], str]:
-    """A response that differs from ``sequence`` the way people err; returns (response, kind)."""
-    kinds = list(MISTAKES)
-    kind = kinds[int(rng.choice(len(kinds), p=np.array(list(MISTAKES.values()))))]
-    seq = list(sequence)
-    if kind == "swap":
-        pairs = [i for i in range(len(seq) - 1) if seq[i] != seq[i + 1]]
-        if pairs:
-            i = pairs[int(rng.integers(len(pairs)))]
-            seq[i], seq[i + 1] = seq[i + 1], seq[i]
-            return tuple(seq), kind
-        kind = "substitute"
-    if kind == "omit":
-        del seq[int(rng.integers(len(seq)))]
-        return tuple(seq), kind
-    i = int(rng.integers(len(seq)))
-    others = [c for c in task.LETTERS if c != seq[i]]
-    seq[i] = others[int(rng.integers(len(others)))]
-    return tuple(seq), "substitute"
 
 
 class SimulatedParticipant:

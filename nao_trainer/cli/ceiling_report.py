@@ -20,6 +20,9 @@ def add_arguments(p) -> None:
     g.add_argument("--loo-bayes", action="store_true",
                    help="also the Bayes planner with the prior made of the other users (one solve per user, "
                         "about 3-5 s each)")
+    g.add_argument("--questplus-fitted", action="store_true",
+                   help="also QUEST+ with its prior fitted on the other people (one exact run per user, "
+                        "about 6 s each)")
     g.add_argument("--multi-session", default=None, metavar="S1,S2,...",
                    help="also value S sessions of the same participant, e.g. 2,5,10 (level-only users)")
     g.add_argument("--no-ceiling", action="store_true", help="skip the Bayes ceiling")
@@ -91,7 +94,7 @@ def _section(args, obj, rows, rates, train, clusters, priors, turns) -> dict[str
     print(f"ceiling: solving the Bayes planner ({obj}, {len(rates)} users"
           f"{', leave-one-out' if args.loo_bayes else ''})", file=sys.stderr)
     return ceiling.evaluation_ceiling(rows, rates, train, clusters, obj, turns, args.loo_bayes, priors,
-                                      _sessions(args))
+                                      _sessions(args), getattr(args, "questplus_fitted", False))
 
 
 def _ci(v, digits: int = 2) -> str:
@@ -104,6 +107,10 @@ def _share(s: dict) -> str:
         return "-"
     ci = s.get("share_ci")
     return f"{100 * s['share']:.0f} % " + (_ci([100 * x for x in ci], 0) if ci else "[unbounded]")
+
+
+def _levels(mean, sd) -> str:
+    return " ".join(f"{m:.2f}±{v:.2f}" for m, v in zip(mean, sd))
 
 
 def _d(s: dict, key: str, digits: int) -> str:
@@ -131,6 +138,11 @@ def format_section(section: dict[str, Any] | None) -> str:
                      f"{_d(s, 'd_reference', digits):>24} {_d(s, 'd_ceiling', digits):>24} "
                      f"{_d(s, 'd_bayes_loo', digits):>24} {_share(s['achievable_share']):>18} "
                      f"{_share(s['oracle_share']):>16}")
+    for c in section.get("prior_checks", []):
+        pv = ("" if "predicted_value" not in c else
+              f"; expects {c['predicted_value']:.{digits}f}, achieves {c['achieved_value']:.{digits}f}")
+        lines.append(f"  prior check {c['prior']:<30} success by level predicted {_levels(c['prior_mean'], c['prior_sd'])}"
+                     f" vs users {_levels(c['users_mean'], c['users_sd'])}{pv}")
     if section.get("multi_session_note"):
         lines.append("  " + section["multi_session_note"])
     for m in section.get("multi_session", []):

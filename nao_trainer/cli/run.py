@@ -31,6 +31,8 @@ def register(sub) -> None:
     p.add_argument("--out", metavar="DIR", help="folder under which the session folder is created")
     p.add_argument("--pseudonym", metavar="ID", help="participant pseudonym (names the session folder)")
     p.add_argument("--eeg", choices=EEG_MODES, help="EEG: off, the device's simulation, or the live headband (lsl)")
+    p.add_argument("--task", metavar="NAME", help="the task trained: sequence | nback | an installed plug-in's "
+                   "(task.name; nao-trainer plugins lists them)")
     p.add_argument("--eeg-device", metavar="NAME",
                    help="EEG device plug-in (eeg.device): muse (muselsl / simulated Muse), brainflow (a BrainFlow "
                         "board, its synthetic board when simulated); nao-trainer plugins lists them")
@@ -84,6 +86,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, object]:
         "participant.pseudonym": args.pseudonym,
         "eeg.mode": args.eeg,
         "eeg.device": args.eeg_device,
+        "task.name": args.task,
         "eeg.source_id": args.eeg_source_id,
         "eeg.allow_simulated": True if args.allow_simulated_eeg else None,
         "policy.kind": args.policy,

@@ -114,6 +114,7 @@ def _run_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot", metavar="mock|desktop|URL")
     p.add_argument("--input", choices=INPUTS)
     p.add_argument("--eeg", choices=EEG_MODES)
+    p.add_argument("--eeg-device", metavar="NAME")
     p.add_argument("--eeg-source-id", metavar="ID")
     p.add_argument("--speed", type=float, metavar="X")
     p.add_argument("--turns", type=int, metavar="N")
@@ -256,7 +257,7 @@ def _next(args: argparse.Namespace) -> int:
 
     if args.console_port is not None and not 0 <= args.console_port <= 65535:
         raise ConfigError(f"--console-port {args.console_port}: a port is 0-65535 (0 = any free port)")
-    flags = {"robot.url": args.robot, "answers.input": args.input, "eeg.mode": args.eeg,
+    flags = {"robot.url": args.robot, "answers.input": args.input, "eeg.mode": args.eeg, "eeg.device": args.eeg_device,
              "eeg.source_id": args.eeg_source_id, "timing.speed": args.speed, "session.turns": args.turns,
              "participant_model.user_model": args.user_model, "session.practice": False if args.no_practice else None,
              "session.max_duration_s": args.max_duration}

@@ -1,17 +1,12 @@
-"""The sequence learning task (paper section 3.1): levels, sequences and scoring.
+"""The MDP's difficulty levels and the paper's scores (equation (1)), shared by every task.
 
-Pure: no I/O, no global randomness. Randomness comes in as a ``numpy.random.Generator``.
-
-Difficulty level ``D`` in 1..4 is proportional to sequence length ``L`` in 3/5/7/9 over the
-letters A, B, C. The participant repeats the spoken sequence on three buttons.
+Pure. A task (``nao_trainer.tasks``) says what a level means; the MDP (``core.mdp``) has four levels whose
+coordinate in its state label is the sequence length ``L`` in 3/5/7/9 of the published data (level ``D`` = 1..4),
+kept so that stored policies, simulators and the published data's states keep their meaning. The sequence
+task's letters, sequences and judging live in ``tasks/sequence`` (issue 26).
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
-
-import numpy as np
-
-LETTERS: tuple[str, ...] = ("A", "B", "C")
 LEVELS: tuple[int, ...] = (1, 2, 3, 4)
 LENGTHS: tuple[int, ...] = (3, 5, 7, 9)
 
@@ -28,17 +23,6 @@ def level_of(length: int) -> int:
     if length not in LENGTHS:
         raise ValueError(f"sequence length must be one of {LENGTHS}, got {length!r}")
     return LENGTHS.index(length) + 1
-
-
-def generate_sequence(rng: np.random.Generator, length: int) -> tuple[str, ...]:
-    """A uniformly random sequence of ``length`` letters drawn from A/B/C with ``rng``."""
-    level_of(length)  # validates
-    return tuple(LETTERS[i] for i in rng.integers(0, len(LETTERS), size=length))
-
-
-def is_correct(sequence: Sequence[str], response: Sequence[str]) -> bool:
-    """True when the response repeats the sequence exactly (same letters, same order, same count)."""
-    return tuple(s.upper() for s in sequence) == tuple(r.upper() for r in response)
 
 
 def score(level: int, success: bool) -> int:

@@ -8,17 +8,25 @@ only; on a level-only user both are evaluated exactly (no Monte Carlo):
                session. 2-down/1-up converges where p^2 = 1/2 (70.7 %), 3-down/1-up where
                p^3 = 1/2 (79.4 %) (Levitt 1971), so they are the rules that match target:0.707 and
                target:0.794.
-``questplus``  the QUEST+ posterior (Watson 2017, J. Vision 17(3):10; the ``questplus`` package)
-               over a psychometric function of sequence length: success =
-               lapse-scaled normal CDF of (threshold - length) / spread, on a grid of thresholds
-               2-12, spreads 0.5-4 and lapse rates 0-10 %, uniform prior. The next level is the one
-               whose posterior mean success has the highest utility (target:R: the level expected
-               nearest R, QUEST's placement at the R-threshold; score: the highest expected score).
-               Ranking levels by the posterior expected utility instead, which counts the posterior
-               variance against a level, keeps it at level 1 for good under target:R (level 1 is the
-               level it is surest about), so it is not used. QUEST+'s own placement (minimum
-               expected entropy) serves estimation, not training, and is not used either. The posterior depends on
-               the per-level counts only, so ``core.bayes.evaluate_rule`` runs it exactly.
+``questplus``  QUEST+ (Watson 2017, J. Vision 17(3):10; the ``questplus`` package) over a
+               psychometric function of sequence length: success = lapse-scaled normal CDF of
+               (threshold - length) / spread, on a grid of thresholds 2-12, spreads 0.5-4 and lapse
+               rates 0-10 %, uniform prior; the next level is QUEST+'s own: the one whose outcome
+               minimises the expected entropy of the posterior (``stim_selection_method=
+               "min_entropy"``, checked against the package's ``next_stim``). It estimates the
+               participant's function; it does not aim at a rate.
+``questplus-fitted``  the same with the prior fitted on the other people (the planner gets a fitted
+               prior, so QUEST+ gets one too): the mixture of their posteriors under the uniform
+               prior, each from 6 pseudo-turns per level at the person's rates (about the data's
+               turns per level).
+``questplus-mean``  the QUEST+ posterior with the level whose posterior mean success has the highest
+               utility (target: the level expected nearest R, QUEST's placement at the
+               R-threshold; score: the highest expected score); the project's earlier "QUEST+".
+``staircase-tuned``  the n-down/1-up rule and start level (n = 1..4, start 1..4) best on average over
+               the other people under the objective: a staircase tuned to the 4-level ladder.
+
+The QUEST+ posterior depends on the per-level counts only, so ``core.bayes.evaluate_rule`` runs
+each rule exactly.
 """
 from __future__ import annotations
 
@@ -78,15 +86,27 @@ class QuestPlusGrid:
     def build(cls) -> "QuestPlusGrid":
         from questplus import QuestPlus
 
-        qp = QuestPlus(stim_domain={"intensity": -np.array(LENGTHS, dtype=float)},
-                       param_domain={"mean": -THRESHOLDS, "sd": SPREADS, "lower_asymptote": np.array([0.0]),
-                                     "lapse_rate": LAPSES},
-                       outcome_domain={"response": ["Correct", "Incorrect"]}, func="norm_cdf", stim_scale="linear")
+        qp = package_questplus(QuestPlus)
         lik = qp.likelihoods.sel(response="Correct").transpose("intensity", "mean", "sd", "lower_asymptote",
                                                                "lapse_rate").values
         psi = np.clip(lik.reshape(len(LENGTHS), -1).T, 1e-9, 1 - 1e-9)
         prior = qp.prior.transpose("mean", "sd", "lower_asymptote", "lapse_rate").values.reshape(-1)
         return cls(psi, np.log(prior / prior.sum()))
+
+    def with_prior(self, weights: np.ndarray) -> "QuestPlusGrid":
+        w = np.asarray(weights, dtype=float)
+        with np.errstate(divide="ignore"):
+            return QuestPlusGrid(self.psi, np.log(w / w.sum()))
+
+    def fitted(self, p_people: np.ndarray, turns_per_level: float = 6.0) -> "QuestPlusGrid":
+        """The grid prior fitted on people with these success rates per level (rows): the mixture of
+        their posteriors under this grid's prior, each from ``turns_per_level`` pseudo-turns."""
+        p = np.atleast_2d(np.asarray(p_people, dtype=float))
+        counts = np.zeros((len(p), 8))
+        counts[:, 0::2] = turns_per_level * p
+        counts[:, 1::2] = turns_per_level * (1 - p)
+        w, _ = self.predictive(counts)
+        return self.with_prior(w.mean(axis=0) + 1e-300)
 
     def predictive(self, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(weights (R, G), P(success) per level (R, 4)) after count rows (R, 8)."""
@@ -101,13 +121,67 @@ class QuestPlusGrid:
 
     def choose(self, counts: np.ndarray, obj: Objective) -> np.ndarray:
         """Level index (0..3) for each count row: the utility of the posterior mean success
-        (target:R: the level expected nearest R; score: the highest expected score)."""
+        (target: the level expected nearest R; score: the highest expected score)."""
         _, mean = self.predictive(counts)
         return np.argmax(np.round(obj.utility(mean), 12), axis=1)
 
+    def expected_entropy(self, counts: np.ndarray) -> np.ndarray:
+        """(R, 4): the expected entropy (nats) of the posterior after one more turn at each level,
+        as ``questplus.QuestPlus.next_stim`` computes it. With the joint ``w q`` and its total ``pk``,
+        ``H = log pk - (sum w q log w + sum w q log q) / pk``: four matrix products, no loop over
+        the grid per state."""
+        c = np.atleast_2d(np.asarray(counts, dtype=float))
+        logl = np.empty((8, self.psi.shape[0]))
+        logl[0::2] = np.log(self.psi).T
+        logl[1::2] = np.log1p(-self.psi).T
+        logw = self.log_prior + c @ logl
+        logw -= logw.max(axis=1, keepdims=True)
+        w = np.exp(logw)
+        norm = w.sum(axis=1, keepdims=True)
+        w /= norm
+        logw -= np.log(norm)
+        wlogw = np.where(w > 0, w * logw, 0.0)  # (R, G); 0 log 0 = 0
+        out = np.zeros((len(w), self.psi.shape[1]))
+        for q in (self.psi, 1.0 - self.psi):  # success, failure: (G, 4)
+            pk = w @ q  # (R, 4)
+            s = wlogw @ q + w @ (q * np.log(q))
+            out += pk * np.log(pk) - s
+        return out
 
-def questplus_values(p_users: np.ndarray, obj: Objective, turns: int = 25) -> bayes.PlanValue:
-    """Exact expected results of the ``questplus`` rule on each user (rows of ``p_users``)."""
-    grid = QuestPlusGrid.build()
-    return bayes.evaluate_rule(lambda states, n: grid.choose(states, obj), p_users, obj.coefficients(4), turns,
-                               obj.terminal(turns))
+    def choose_entropy(self, counts: np.ndarray) -> np.ndarray:
+        """Level index (0..3) for each count row: QUEST+'s minimum expected entropy."""
+        return np.argmin(self.expected_entropy(counts), axis=1)
+
+
+def package_questplus(QuestPlus):
+    """The ``questplus`` package's QUEST+ on the grid of this module (levels as -length), uniform prior."""
+    return QuestPlus(stim_domain={"intensity": -np.array(LENGTHS, dtype=float)},
+                     param_domain={"mean": -THRESHOLDS, "sd": SPREADS, "lower_asymptote": np.array([0.0]),
+                                   "lapse_rate": LAPSES},
+                     outcome_domain={"response": ["Correct", "Incorrect"]}, func="norm_cdf", stim_scale="linear",
+                     stim_selection_method="min_entropy")
+
+
+def questplus_values(p_users: np.ndarray, obj: Objective, turns: int = 25, method: str = "entropy",
+                     grid: QuestPlusGrid | None = None) -> bayes.PlanValue:
+    """Exact expected results of QUEST+ on each user (rows of ``p_users``): ``method`` "entropy"
+    (QUEST+'s own placement) or "mean" (the utility of the posterior mean)."""
+    grid = grid or QuestPlusGrid.build()
+    if method == "entropy":
+        rule = lambda states, n: grid.choose_entropy(states)  # noqa: E731
+    elif method == "mean":
+        rule = lambda states, n: grid.choose(states, obj)  # noqa: E731
+    else:
+        raise ValueError(f"QUEST+ placement must be 'entropy' or 'mean', got {method!r}")
+    return bayes.evaluate_rule(rule, p_users, obj.coefficients(4), turns, obj.terminal(turns))
+
+
+def tuned_staircase(p_train: np.ndarray, obj: Objective, turns: int) -> tuple[int, int]:
+    """(n, start): the n-down/1-up rule (n = 1..4) and start level best on average over ``p_train``."""
+    best, arg = -np.inf, (2, 2)
+    for need in (1, 2, 3, 4):
+        for start in (1, 2, 3, 4):
+            v = float(np.mean([staircase_exact(need, start, p, turns, obj)["utility"] for p in p_train]))
+            if v > best + 1e-12:
+                best, arg = v, (need, start)
+    return arg

@@ -102,13 +102,14 @@ def prior_rows(priors: dict[str, tuple[np.ndarray, np.ndarray]], rates: dict[str
         v = bayes.evaluate_plan(plan, p[None])
         out.append(plan_row(name, clusters.get(name, ""), policy, p, None, v, 0, turns, obj,
                            evaluation.optimal(_table(p), turns).value))
+        out[-1]["predicted"] = round(plan.value, 9)  # what the prior expects the plan to earn
     return out
 
 
 def report(rows: list[dict[str, Any]], rates: dict[str, np.ndarray], train_rates: dict[str, np.ndarray],
            clusters: dict[str, str], obj: Objective, turns: int = 25, loo: bool = False,
-           priors: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] | None = None, cache: Path | None = None
-           ) -> dict[str, Any]:
+           priors: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] | None = None, cache: Path | None = None,
+           fitted_questplus: bool = False) -> dict[str, Any]:
     """Every policy of an evaluation (``rows``, not changed) beside the ceiling, under ``obj``: the
     ``achievable`` summary and the rows added here (ceiling, bayes, fixed levels, oracle).
     ``priors[policy][user] = (p (K, 4), weights)``: the planner with that prior, one row per user."""
@@ -120,31 +121,89 @@ def report(rows: list[dict[str, Any]], rates: dict[str, np.ndarray], train_rates
     extra += bayes_rows(names, [clusters.get(n, "") for n in names], p, None, obj, turns, loo, cache)
     for policy, per_user in (priors or {}).items():  # e.g. "bayes": the fitted clusters, per user
         extra += prior_rows(per_user, rates, clusters, obj, turns, cache, policy)
-    extra += adaptive_rows(rates, clusters, obj, turns)
-    return {"objective": str(obj), "turns": turns, "summary": achievable(mine + extra), "rows": extra}
+    extra += adaptive_rows(rates, clusters, obj, turns, fitted=fitted_questplus)
+    return {"objective": str(obj), "turns": turns, "summary": achievable(mine + extra), "rows": extra,
+            "prior_checks": prior_checks(extra, priors or {}, p)}
+
+
+def prior_checks(rows: list[dict[str, Any]], priors: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]],
+                 p: np.ndarray) -> list[dict[str, Any]]:
+    """For each prior: what it predicts (per-level success mean and SD, averaged over the users' own
+    priors; for a planner also the value it expects, ``predicted``) beside what the users show and
+    what the planner achieves on them. A prior whose predicted value is far above the achieved one
+    believes in more to win than the users have."""
+    from nao_trainer.experiments import adaptive
+
+    out = []
+    for policy, per_user in priors.items():
+        checks = [prior_check(np.asarray(pk), np.asarray(wk), p) for pk, wk in per_user.values()]
+        mine = [r for r in rows if r["policy"] == policy and "predicted" in r]
+        entry = {"prior": policy, "prior_mean": np.mean([c["prior_mean"] for c in checks], axis=0).round(4).tolist(),
+                 "prior_sd": np.mean([c["prior_sd"] for c in checks], axis=0).round(4).tolist(),
+                 "users_mean": checks[0]["users_mean"], "users_sd": checks[0]["users_sd"]}
+        if mine:
+            entry["predicted_value"] = float(np.mean([r["predicted"] for r in mine]))
+            entry["achieved_value"] = float(np.mean([r["utility"] for r in mine]))
+        out.append(entry)
+    grid = adaptive.QuestPlusGrid.build()
+    for name, g in (("questplus (uniform grid)", grid), ("questplus-fitted (all users)", grid.fitted(p))):
+        out.append({"prior": name, **prior_check(g.psi, np.exp(g.log_prior), p)})
+    out.append({"prior": "ceiling (uniform over the users)", **prior_check(p, np.ones(len(p)), p)})
+    return out
 
 
 def adaptive_rows(rates: dict[str, np.ndarray], clusters: dict[str, str], obj: Objective, turns: int = 25,
-                  start: int = 2) -> list[dict[str, Any]]:
-    """Staircases 2-down/1-up and 3-down/1-up and QUEST+ (``experiments.adaptive``), exact."""
+                  start: int = 2, fitted: bool = True) -> list[dict[str, Any]]:
+    """The adaptive baselines of ``experiments.adaptive``, exact, each seeing every outcome at once:
+    staircases 2-down/1-up and 3-down/1-up from level ``start``, the staircase tuned on the other
+    people (rule and start), QUEST+ by expected entropy with a uniform prior and (``fitted``) with
+    the prior fitted on the other people, and QUEST+ by its posterior mean."""
     from nao_trainer.experiments import adaptive
 
     names = list(rates)
     p = np.array([rates[n] for n in names])
     out = []
+
+    def stair(n: str, need: int, st: int, policy: str) -> dict[str, Any]:
+        r = adaptive.staircase_exact(need, st, rates[n], turns, obj)
+        return {"user": n, "cluster": clusters.get(n, ""), "policy": policy, "seed": None, "assessment": None,
+                "score": round(r["score"], 9), "success": round(r["success"], 9),
+                "visits": np.round(r["visits"], 4).tolist(), "samples": 0, "utility": round(r["utility"], 9),
+                "objective": str(obj), "success_var": round(r["success_var"], 12)}
+
     for need in (2, 3):
-        for n in names:
-            r = adaptive.staircase_exact(need, start, rates[n], turns, obj)
-            out.append({"user": n, "cluster": clusters.get(n, ""), "policy": f"staircase-{need}d1u@{start}",
-                        "seed": None, "assessment": None, "score": round(r["score"], 9),
-                        "success": round(r["success"], 9), "visits": np.round(r["visits"], 4).tolist(),
-                        "samples": 0, "utility": round(r["utility"], 9), "objective": str(obj),
-                        "success_var": round(r["success_var"], 12)})
-    qv = adaptive.questplus_values(p, obj, turns)
+        out += [stair(n, need, start, f"staircase-{need}d1u@{start}") for n in names]
     for i, n in enumerate(names):
-        out.append(plan_row(n, clusters.get(n, ""), "questplus", p[i], None, qv, i, turns, obj,
-                            evaluation.optimal(_table(p[i]), turns).value))
+        others = people.others(names, i)
+        need, st = adaptive.tuned_staircase(p[others], obj, turns) if len(others) else (2, start)
+        out.append(stair(n, need, st, "staircase-tuned") | {"rule": f"{need}d1u@{st}"})
+    grid = adaptive.QuestPlusGrid.build()
+    oracle = [evaluation.optimal(_table(pi), turns).value for pi in p]
+    for policy, method in (("questplus", "entropy"), ("questplus-mean", "mean")):
+        qv = adaptive.questplus_values(p, obj, turns, method, grid)
+        out += [plan_row(n, clusters.get(n, ""), policy, p[i], None, qv, i, turns, obj, oracle[i])
+                for i, n in enumerate(names)]
+    if fitted:
+        for i, n in enumerate(names):
+            others = people.others(names, i)
+            if not len(others):
+                continue
+            qv = adaptive.questplus_values(p[i:i + 1], obj, turns, "entropy", grid.fitted(p[others]))
+            out.append(plan_row(n, clusters.get(n, ""), "questplus-fitted", p[i], None, qv, 0, turns, obj, oracle[i]))
     return out
+
+
+def prior_check(p_models: np.ndarray, weights: np.ndarray, rates: np.ndarray) -> dict[str, Any]:
+    """Prior-predictive check per level: the mean and SD of success a prior (models ``p_models``
+    with ``weights``) predicts for a participant, beside the users' mean and SD (their rates)."""
+    pk, w = np.asarray(p_models, dtype=float), np.asarray(weights, dtype=float)
+    w = w / w.sum()
+    mean = w @ pk
+    sd = np.sqrt(np.maximum(w @ pk ** 2 - mean ** 2, 0.0))
+    r = np.asarray(rates, dtype=float)
+    return {"prior_mean": mean.round(4).tolist(), "prior_sd": sd.round(4).tolist(),
+            "users_mean": r.mean(axis=0).round(4).tolist(),
+            "users_sd": (r.std(axis=0, ddof=1) if len(r) > 1 else np.zeros(r.shape[1])).round(4).tolist()}
 
 
 def _table(p_level: np.ndarray) -> np.ndarray:
@@ -390,10 +449,10 @@ def session_users(source: Path, compat: str | None, k: int = 3, session_prior: f
 def evaluation_ceiling(rows: list[dict[str, Any]], rates: dict[str, np.ndarray], train: dict[str, np.ndarray],
                        clusters: dict[str, str], obj: Objective, turns: int = 25, loo: bool = False,
                        priors: dict[str, dict[str, tuple[np.ndarray, np.ndarray]]] | None = None,
-                       sessions: Sequence[int] = ()) -> dict[str, Any]:
+                       sessions: Sequence[int] = (), fitted_questplus: bool = False) -> dict[str, Any]:
     """The ceiling section of an evaluation: ``report`` and, for ``sessions`` (e.g. 2, 5, 10), the
     value of that many sessions of the same participant (``multi_session``)."""
-    out = report(rows, rates, train, clusters, obj, turns, loo, priors)
+    out = report(rows, rates, train, clusters, obj, turns, loo, priors, fitted_questplus=fitted_questplus)
     if sessions and obj.per_session:  # commit turns score per turn; a rate objective is per session
         out["multi_session_note"] = f"not computed under {obj}: commit turns have no per-session rate"
     elif sessions:
@@ -425,3 +484,50 @@ def personalise_inputs(result: dict[str, Any]) -> tuple[dict[str, np.ndarray], d
               "bayes-psychometric": {n: PooledModel(**fits[n]["psychometric"]).mixture() for n in rates}}
     return rates, train, clusters, priors
 
+
+
+# ----------------------------------------------------------------------------------------------
+# How much of the oracle gap is noise: the spread of true rates the beta-binomial fit supports
+# ----------------------------------------------------------------------------------------------
+
+
+def noise_corrected_oracle(counts: dict[str, np.ndarray], obj: Objective, turns: int = 25, shrink: float = 2.0,
+                           draws: int = 20000, rng: np.random.Generator | None = None) -> dict[str, Any]:
+    """The fixed-level oracle gap, E[max_l V_l(p)] - max_l E[V_l(p)], two ways, by person:
+
+    ``own_rates``   over the people's own success per level (their sessions' counts pooled, shrunk by
+                    ``shrink`` pseudo-turns toward the level's mean): the "own rates" users, whose
+                    spread is mostly binomial noise of 5-7 turns per level;
+    ``population``  over rates drawn from the per-level Beta the beta-binomial fit supports (mean
+                    and between-person variance by the method of moments, ``learn.users.
+                    beta_concentration``: observed variance minus binomial noise), levels drawn
+                    independently: the gap that exists if people differ as much as the data say.
+
+    ``counts[name]`` = (s1, f1, ..., s4, f4) of a session; ``V_l`` = ``obj.fixed_value``."""
+    from nao_trainer.learn.users import beta_concentration
+
+    rng = rng or np.random.default_rng(0)
+    per: dict[str, np.ndarray] = {}
+    for name, c in counts.items():
+        key = people.person_of(name)
+        per[key] = per.get(key, np.zeros(8)) + np.asarray(c, dtype=float)
+    c = np.array(list(per.values()))
+    wins, n = c[:, 0::2], c[:, 0::2] + c[:, 1::2]
+    m = wins.sum(axis=0) / np.maximum(n.sum(axis=0), 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rates = np.where(n > 0, wins / np.maximum(n, 1), m)
+    kappa = np.array([beta_concentration(rates[:, lv], n[:, lv]) for lv in range(4)])
+    own = (wins + shrink * m) / (n + shrink)
+    draw = rng.beta(m * kappa, (1 - m) * kappa, size=(draws, 4))
+    out: dict[str, Any] = {"objective": str(obj), "people": len(c), "level_mean": m.tolist(),
+                           "kappa": kappa.tolist(), "between_sd": np.sqrt(m * (1 - m) / (kappa + 1)).tolist()}
+    for label, p in (("own_rates", own), ("population", draw)):
+        v = np.array([obj.fixed_value(pi, turns) for pi in p])
+        gap = v.max(axis=1) - v[:, int(np.argmax(v.mean(axis=0)))]
+        out[label] = {"oracle_gap": float(gap.mean()), "oracle_gap_ci": None if label == "population" else _ci(gap),
+                      "best_fixed_level": int(np.argmax(v.mean(axis=0))) + 1,
+                      "oracle_levels": np.bincount(v.argmax(axis=1), minlength=4).tolist() if label == "own_rates"
+                      else (np.bincount(v.argmax(axis=1), minlength=4) / len(v)).round(3).tolist()}
+    g_own, g_pop = out["own_rates"]["oracle_gap"], out["population"]["oracle_gap"]
+    out["noise_share"] = None if g_own <= 0 else float(1 - g_pop / g_own)
+    return out

@@ -42,12 +42,14 @@ from nao_trainer.core.posterior import level_means
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import JsonFormat
 from nao_trainer.learn.bayes_cache import solve_cached
-from nao_trainer.policies.participant_state import check_owner, open_saved
+from nao_trainer.policies.participant_state import FRESH, ParticipantState, open_saved
 from nao_trainer.policies.plugin import LiveContext, OfflineContext
 from nao_trainer.ports import Transition
 
-FRESH = "start afresh with --fresh-policy (the old file is kept beside it)"
 STATE_FILE = JsonFormat("nao-trainer/participant-bayes", 1, "participant Bayes state", "participant state", FRESH)
+#: The participant's file (policies.participant_state: one save, read, owner and fingerprint check).
+PARTICIPANT = ParticipantState(lambda p: STATE_FILE.read(p, DataError), STATE_FILE.write,
+                               lambda saved: saved.get("prior_fingerprint"), "another prior or objective")
 FILENAME = "bayes.json"
 #: ``policy.prior`` names (anything else is a psychometric prior file or a folder of user simulators).
 PRIORS = ("clusters", "psychometric")
@@ -179,26 +181,18 @@ class BayesPolicy:
                 "updated": datetime.now(timezone.utc).isoformat(timespec="seconds")}
 
     def save(self) -> None:
-        if self.path is None:
-            return
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            STATE_FILE.write(self.path, self.payload())
-        except OSError as exc:
-            raise DataError(f"{self.path}: cannot save the participant's state ({exc.strerror or exc}); "
-                            "make session.output writable") from None
+        if self.path is not None:
+            PARTICIPANT.save(self.path, self.payload())
+
+
+def _made_with(saved: dict[str, Any]) -> str:
+    return ", ".join(str(x) for x in (saved.get("prior"), saved.get("objective")) if x is not None)
 
 
 def read_state(path: Path, fingerprint: str, pseudonym: str | None = None) -> dict[str, Any]:
-    """A participant's saved counts, checked; DataError in one line otherwise. A state that names
-    another participant than ``pseudonym`` is refused (a file copied between folders)."""
-    saved = STATE_FILE.read(path, DataError)
-    check_owner(path, saved, pseudonym, FRESH)
-    if saved.get("prior_fingerprint") != fingerprint:
-        made = ", ".join(str(x) for x in (saved.get("prior"), saved.get("objective")) if x is not None)
-        raise DataError(f"{path}: participant state made with another prior or objective ({made}, "
-                        f"fingerprint {str(saved.get('prior_fingerprint'))[:12]}..., now {fingerprint[:12]}...); use "
-                        f"the prior (policy.prior) and objective it was made with, or {FRESH}")
+    """A participant's saved counts, checked; DataError in one line otherwise (``PARTICIPANT``: the shared
+    owner and fingerprint checks; a file copied between folders is refused)."""
+    saved = PARTICIPANT.read(path, fingerprint, pseudonym, _made_with)
     counts = saved.get("counts")
     if not (isinstance(counts, list) and len(counts) == 8 and all(isinstance(c, int) and c >= 0 for c in counts)):
         raise DataError(f"{path}: participant state has invalid counts; {FRESH}")
@@ -274,7 +268,7 @@ def load_bayes(path: Path | None, pseudonym: str, turns: int, objective_text: st
     prior = prior or default_prior(obj)
     names, p, w = model_prior(prior, models_dir)
     fp = prior_fingerprint(names, p, w, obj)
-    saved = open_saved(path, fresh, lambda f: read_state(f, fp, pseudonym), "bayes", log)
+    saved = open_saved(path, fresh, lambda f: read_state(f, fp, pseudonym), "bayes", log)  # + the counts' checks
     if saved is not None:
         log.warning("policy bayes: %s returns after %d session(s) with counts %s (%s)", pseudonym,
                     len(saved["sessions"]), saved["counts"], path)

@@ -21,9 +21,25 @@ from nao_trainer.learn.artifacts import load_simulator
 from nao_trainer.learn.policy_files import (FRESH, RETRAIN, check_simulator, default_policies_dir, learner_from_payload,
                                             policy_filename, read_manifest, read_policy_file, save_policy_file)
 from nao_trainer.policies.base import Guidance, TableSessions, log
-from nao_trainer.policies.participant_state import session_state_file, set_aside
+from nao_trainer.policies.participant_state import ParticipantState, digest, session_state_file
 from nao_trainer.policies.plugin import LiveContext, OfflineContext
 from nao_trainer.ports import Transition
+
+
+#: What a participant's learning state was made from: it must be the trained policy being loaded.
+TRAINED = ("cluster", "method", "simulator", "hyperparameters")
+
+
+def _made_with(saved: dict[str, Any]) -> str:
+    return f"cluster {saved.get('cluster')!r}, method {saved.get('method')!r}"
+
+
+#: The participant's file (policies.participant_state: one save, read, owner and fingerprint check); a valid
+#: policy file, its owner in ``live.pseudonym``.
+PARTICIPANT = ParticipantState(lambda p: read_policy_file(p, fix=FRESH), save_policy_file,
+                               lambda saved: digest(saved, TRAINED), "another policy",
+                               owner=lambda saved: (saved.get("live") or {}).get("pseudonym"), fix=FRESH,
+                               saved_what="the policy's state", save_fix="choose a writable policy.state_path")
 
 
 class LivePolicy:
@@ -125,12 +141,7 @@ class LivePolicy:
         if self.state_path is None:
             raise ConfigError("policy.state_path: a learning policy needs a file to save its state to")
         self.payload.update(self.learner.state_dict())
-        try:
-            self.state_path.parent.mkdir(parents=True, exist_ok=True)
-            save_policy_file(self.state_path, self.payload)
-        except OSError as exc:
-            raise DataError(f"{self.state_path}: cannot save the policy's state ({exc.strerror or exc}); "
-                            "choose a writable policy.state_path") from None
+        PARTICIPANT.save(self.state_path, self.payload)
 
     def close(self) -> None:
         if self.learning and not self._closed:
@@ -176,20 +187,9 @@ def load_policy(spec: str, learning: bool, state_path: Path | None, policies_dir
                         f"not {cluster!r} {method!r}; {RETRAIN}")
     check_simulator(payload, load_simulator(cluster, models_dir), path)
     source = path
-    if fresh and state_path is not None and Path(state_path).exists():
-        # --fresh-policy: start from the trained policy; the old state is kept beside, never deleted.
-        aside = set_aside(Path(state_path))
-        log.warning("policy %s: starting fresh; the previous state was moved to %s", spec, aside)
-    if state_path is not None and Path(state_path).exists():
-        saved = read_policy_file(Path(state_path), fix=FRESH)
-        for key in ("cluster", "method", "simulator", "hyperparameters"):
-            if saved.get(key) != payload.get(key):
-                raise DataError(f"{state_path}: holds the learning state of another policy ({key} differs from "
-                                f"{path.name}); {FRESH}, or choose another policy.state_path")
-        owner = (saved.get("live") or {}).get("pseudonym")
-        if pseudonym is not None and owner is not None and owner != pseudonym:
-            raise DataError(f"{state_path}: the learning state of participant {owner!r}, not of {pseudonym!r} "
-                            f"(copied from another participant's folder?); {FRESH}")
+    # --fresh-policy: start from the trained policy; the old state is kept beside, never deleted
+    saved = PARTICIPANT.open(state_path, fresh, digest(payload, TRAINED), pseudonym, spec, log, _made_with)
+    if saved is not None:
         payload, source = saved, Path(state_path)
     learner = learner_from_payload(payload, source, FRESH if source != path else RETRAIN)
     if pseudonym is not None:

@@ -11,8 +11,11 @@ Standard library only: the configuration imports this module and ``nao-trainer -
 """
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 import os
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable
@@ -89,3 +92,65 @@ def open_saved(path: Path | None, fresh: bool, read: Callable[[Path], dict[str, 
         log.warning("policy %s: starting fresh from the prior; the previous state was moved to %s", kind, kept)
         return None
     return read(Path(path))
+
+
+#: What every refusal of a participant's state file says to do.
+FRESH = "start afresh with --fresh-policy (the old file is kept beside it)"
+
+
+@dataclass(frozen=True)
+class ParticipantState:
+    """The participant file of one persisting policy: the one save, read, owner and fingerprint check.
+
+    ``read_file(path)`` reads and verifies the file's format (checksum, version; DataError in one line);
+    ``owner(saved)`` is the pseudonym it names (None: an older file, which passes); ``fingerprint(saved)``
+    what it was made with (models, prior, objective, trained policy), compared with the running policy's,
+    refused with ``made_with`` in the message when it differs."""
+
+    read_file: Callable[[Path], dict[str, Any]]
+    write_file: Callable[[Path, dict[str, Any]], None]
+    fingerprint: Callable[[dict[str, Any]], Any]
+    made_with: str  # "another prior or objective", "other user models or policies", ...
+    owner: Callable[[dict[str, Any]], Any] = field(default=lambda saved: saved.get("pseudonym"))
+    fix: str = FRESH
+    saved_what: str = "the participant's state"  # in "cannot save ..."
+    save_fix: str = "make session.output writable"
+
+    def save(self, path: Path | None, payload: dict[str, Any]) -> None:
+        """Write ``payload`` atomically to ``path`` (nothing when None: the session folder does not exist yet)."""
+        if path is None:
+            return
+        try:
+            Path(path).parent.mkdir(parents=True, exist_ok=True)
+            self.write_file(Path(path), payload)
+        except OSError as exc:
+            raise DataError(f"{path}: cannot save {self.saved_what} ({exc.strerror or exc}); {self.save_fix}") from None
+
+    def read(self, path: Path, fingerprint: Any, pseudonym: str | None,
+             described: Callable[[dict[str, Any]], str] | None = None) -> dict[str, Any]:
+        """The saved state at ``path``, checked: its format, its owner, its fingerprint (``described(saved)``:
+        what the file says it was made with, for the message)."""
+        saved = self.read_file(Path(path))
+        check_owner(path, {"pseudonym": self.owner(saved)}, pseudonym, self.fix)
+        if fingerprint is not None and self.fingerprint(saved) != fingerprint:
+            shown = _short(self.fingerprint(saved)), _short(fingerprint)
+            made = f"{described(saved)}, " if described and described(saved) else ""
+            raise DataError(f"{path}: participant state made with {self.made_with} ({made}fingerprint {shown[0]}, "
+                            f"now {shown[1]}); use what it was made with, or {self.fix}")
+        return saved
+
+    def open(self, path: Path | None, fresh: bool, fingerprint: Any, pseudonym: str | None, kind: str,
+             log: logging.Logger, described: Callable[[dict[str, Any]], str] | None = None) -> dict[str, Any] | None:
+        """``open_saved`` with this file's ``read``."""
+        return open_saved(path, fresh, lambda f: self.read(f, fingerprint, pseudonym, described), kind, log)
+
+
+def digest(saved: dict[str, Any], keys: tuple[str, ...]) -> str:
+    """A fingerprint of ``keys`` of a saved state (what it was made with), for a file that stores them whole."""
+    text = json.dumps({k: saved.get(k) for k in keys}, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _short(value: Any) -> str:
+    text = value if isinstance(value, str) else repr(value)
+    return text[:12] + "..." if len(text) > 15 else text

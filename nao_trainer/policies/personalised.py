@@ -34,13 +34,15 @@ from nao_trainer.errors import DataError
 from nao_trainer.files import JsonFormat
 from nao_trainer.learn import artifacts, policy_files
 from nao_trainer.policies.base import Guidance, log
-from nao_trainer.policies.participant_state import check_owner, open_saved, session_state_file, state_file
+from nao_trainer.policies.participant_state import FRESH, ParticipantState, open_saved, session_state_file, state_file
 from nao_trainer.policies.plugin import LiveContext, OfflineContext
 from nao_trainer.ports import Transition
 
-FRESH = "start afresh with --fresh-policy (the old file is kept beside it)"
 PARTICIPANT_FILE = JsonFormat("nao-trainer/participant-personalisation", 1, "participant personalisation state",
                               "participant state", FRESH)
+#: The participant's file (policies.participant_state: one save, read, owner and fingerprint check).
+PARTICIPANT = ParticipantState(lambda p: PARTICIPANT_FILE.read(p, DataError), PARTICIPANT_FILE.write,
+                               lambda saved: saved.get("models_fingerprint"), "other user models or policies")
 
 
 def participant_file(output: Path, pseudonym: str) -> Path:
@@ -229,28 +231,17 @@ class PersonalisedPolicy:
         }
 
     def save(self) -> None:
-        if self.path is None:
-            return  # the session folder does not exist yet: nothing has been played
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            PARTICIPANT_FILE.write(self.path, self.payload())
-        except OSError as exc:
-            raise DataError(f"{self.path}: cannot save the participant's state ({exc.strerror or exc}); "
-                            "make session.output writable") from None
+        if self.path is not None:  # None: the session folder does not exist yet, nothing has been played
+            PARTICIPANT.save(self.path, self.payload())
 
 
 def read_state(path: Path, fingerprint: str, pseudonym: str | None = None) -> dict[str, Any]:
     """A participant's saved state, checked; DataError in one line otherwise (module docstring).
     A state that names another participant than ``pseudonym`` is refused (a file copied between folders)."""
-    saved = PARTICIPANT_FILE.read(path, DataError)
-    check_owner(path, saved, pseudonym, FRESH)
+    saved = PARTICIPANT.read(path, fingerprint, pseudonym)
     if saved.get("mdp_definition") != mdp.DEFINITION:
         raise DataError(f"{path}: participant state made for another MDP ({str(saved.get('mdp_definition'))[:40]}...); "
                         f"{FRESH}")
-    if saved.get("models_fingerprint") != fingerprint:
-        raise DataError(f"{path}: participant state made with other user models or policies (fingerprint "
-                        f"{str(saved.get('models_fingerprint'))[:12]}..., now {fingerprint[:12]}...); use the models "
-                        f"and policies it was made with, or {FRESH}")
     for key in ("log_w", "map_log_w", "wins", "played", "learners", "sessions"):
         if key not in saved:
             raise DataError(f"{path}: participant state lacks {key!r}; {FRESH}")

@@ -23,6 +23,7 @@ from nao_trainer import registry
 from nao_trainer.core.settings import (Rule, SettingError, UnknownKey, build, check_value, optional_keys, schema_of,
                                        setting, settings)
 from nao_trainer.eeg.settings import EEGSettings
+from nao_trainer.tasks.settings import TaskSettings
 from nao_trainer.errors import ConfigError
 from nao_trainer.files import PROJECT_ROOT, read_yaml
 from nao_trainer.policies.participant_state import state_file
@@ -176,7 +177,8 @@ class ConsoleSection:
 
 #: The sections of a study, in file order. Each dataclass is its own schema (``core.settings``).
 SECTIONS: dict[str, type] = {
-    "study": StudySection, "participant": ParticipantSection, "robot": RobotSection, "session": SessionSection,
+    "study": StudySection, "task": TaskSettings, "participant": ParticipantSection, "robot": RobotSection,
+    "session": SessionSection,
     "timing": TimingSection, "answers": AnswersSection, "participant_model": ParticipantModelSection,
     "policy": PolicySection, "console": ConsoleSection, "eeg": EEGSettings,
 }
@@ -211,6 +213,7 @@ class StudyConfig:
     sources: tuple[str, ...]  # files that were merged, in order
     text_sha256: str  # sha256 over the texts of those files and the overrides
     study: StudySection
+    task: TaskSettings  # which task is trained (``tasks.settings``)
     participant: ParticipantSection
     robot: RobotSection
     session: SessionSection

@@ -14,9 +14,10 @@ returns the next trigger. Interruptions are uniform:
 * operator commands (``session.operator``) act between states: pause, resume, stop (exit code 5);
   ``session.max_duration_s`` ends the session between turns (status "time limit", exit 0).
 
-A turn (``core.mdp``): ``select_action`` (policy, new turn state and sequence), ``feedback`` (RF
-actions), ``announce``, ``speak_sequence``, ``beep`` (the answer window opens), ``await_answer``,
-``score`` (equation (1)), ``record`` (turns.csv, fsynced; the policy observes the transition).
+A turn (``core.mdp``): ``select_action`` (policy, new turn state and the task's trial), ``feedback`` (RF
+actions), ``announce``, ``present`` (the task presents its trial), ``open_window`` (the beep), ``collect``,
+``judge`` (the task judges and scores: equation (1) for the sequence task), ``record`` (turns.csv, fsynced; the
+policy observes the transition). The session is generic over ``tasks.base.Task`` (``SessionPorts.task``).
 The parts ``Session`` composes, each in its own module and built with only what it touches:
 ``session.operator.OperatorDesk`` (commands), ``session.checkpoint.Checkpointer`` (``--resume``),
 ``session.phases.PhaseClock`` (EEG phases, the answer window), ``session.reporting.SessionLog`` (rows,
@@ -32,7 +33,7 @@ from typing import Any, Callable, TextIO
 import numpy as np
 from transitions import Machine
 
-from nao_trainer.core import mdp, task
+from nao_trainer.core import mdp
 from nao_trainer.errors import Interrupted, RobotUnavailable
 from nao_trainer.ports import (Command, Press, RobotCallFailed, RobotConnectionLost, SessionObserver, Transition,
                                TurnContext)
@@ -40,6 +41,7 @@ from nao_trainer.session.checkpoint import Checkpointer, Standing
 from nao_trainer.session.config import StudyConfig
 from nao_trainer.session.machine import (AGAIN_STATES, FINAL_STATES, IN_TURN, INTRO_STATES, REPLAYABLE, STATES,
                                         TRANSITIONS, TURN_STATES)
+from nao_trainer.session.health import HealthDesk
 from nao_trainer.session.operator import HOLD_STATES, OperatorDesk, who_stopped
 from nao_trainer.session.parts import Randomness, Script, SessionPorts
 from nao_trainer.session.phases import PhaseClock
@@ -52,6 +54,8 @@ from nao_trainer.session.turn import Turn, progress_line
 EXIT_OK, EXIT_ROBOT_LOST, EXIT_INTERRUPTED = 0, RobotUnavailable.exit_code, Interrupted.exit_code
 #: The operator stopped the session (a key or the console): goodbye and safe posture, then this code.
 EXIT_OPERATOR_STOP = 5
+#: Every turn was played and recorded, but events.jsonl could not be written to the end (a full disk).
+EXIT_EVENTS_LOST = 6
 
 
 class Session:
@@ -83,8 +87,13 @@ class Session:
         self.phases = PhaseClock(ports.monitor, self.stage, ports.answers, ports.robot, self.clock, config.timing,
                                  recorder, self.log, config.eeg.missing_alert_turns, config.eeg)
         self.desk = OperatorDesk(ports.commands, self.log, recorder, ports.monitor, ports.observer)
+        model = config.robot.robot_model()
+        self.health = HealthDesk(ports.health, ports.upkeep, ports.commands, self.log, recorder, ports.monitor,
+                                 ports.observer, model.cool_posture(),
+                                 bool(getattr(model.settings, "pause_on_safeguard", True)))
         self.checkpoints = Checkpointer(recorder, ports.policy, random.by_name())
         self.reconnector = Reconnector(ports.robot, config.robot, self.clock, recorder, self.log, self.stage)
+        self.task = ports.task
         self.n_turns = config.session.turns
         self.mdp_state = mdp.START
         self.last_success: bool | None = None
@@ -157,7 +166,7 @@ class Session:
         if self.state == "done":
             if self.status == "stopped":
                 return EXIT_OPERATOR_STOP
-            if self.status != "time limit":
+            if self.status not in ("time limit", "battery low"):
                 self.status = "completed"
             return EXIT_OK
         return EXIT_INTERRUPTED if self.status == "interrupted" else EXIT_ROBOT_LOST
@@ -251,16 +260,25 @@ class Session:
 
     def _do_practice(self) -> str:
         self.stage.say("practice_intro", behavior="practice")
-        length = task.LENGTHS[0]
-        context = TurnContext(0, mdp.encode(length, 0, 0), length, task.generate_sequence(self.rng, length))
+        trial = self.task.practice_trial(self.rng)
+        size = self.task.size(trial)
+        context = TurnContext(0, mdp.encode(mdp.LENGTHS[trial.level - 1], 0, 0), size, trial.stimuli, trial)
         self.answers.prepare(context)
-        self.stage.announce(1, length, look=False, turn=0)
-        self.stage.letters(context.sequence, turn=0)
-        answer, _ = self.phases.collect(0, length, self.phases.beep(0))
-        ok = not answer.timed_out and task.is_correct(context.sequence, answer.response)
-        self.rec.event("practice", sequence="".join(context.sequence), response="".join(answer.response), success=ok)
+        self.stage.announce(trial.level, size, look=False, turn=0)
+        self.task.present(self.stage, trial, 0)
+        answer, _ = self.phases.collect(0, self._presses(trial), self._timeout_s(trial), self.phases.beep(0))
+        ok = not answer.timed_out and self.task.judge(trial, answer).success
+        self.rec.event("practice", sequence="".join(trial.stimuli), response="".join(answer.response), success=ok)
         self.stage.say("practice_success" if ok else "practice_failure", behavior="practice")
         return "begin_turns"
+
+    def _presses(self, trial) -> int:
+        """Presses that end the answer window early (a stream task waits for its timeout)."""
+        return trial.presses if trial.presses is not None else 10**6
+
+    def _timeout_s(self, trial) -> float:
+        t = self.cfg.timing
+        return self.task.response_timeout_s(trial, t.response_timeout_base_s, t.response_timeout_per_letter_s)
 
     # -- a turn ----------------------------------------------------------------------------------
 
@@ -283,9 +301,10 @@ class Session:
         self.ports.upkeep.between_turns()  # Autonomous Life or the motors changed by someone: set back
         self.turn = turn = self._next_turn()
         st = turn.turn_state
-        turn.sequence = task.generate_sequence(self.rng, st.length)
+        turn.trial = self.task.make_trial(st.level, self.rng)
+        turn.sequence = turn.trial.stimuli
         turn.start_time = now_iso()
-        self.answers.prepare(TurnContext(turn.number, turn.state, st.length, turn.sequence))
+        self.answers.prepare(TurnContext(turn.number, turn.state, self.task.size(turn.trial), turn.sequence, turn.trial))
         plan = self.answers.intended()  # a simulated participant says what it intends
         if plan is not None:
             self.rec.event("simulated_plan", turn=turn.number, success=plan.success,
@@ -309,19 +328,20 @@ class Session:
 
     def _do_announce(self, turn: Turn) -> str:
         st = turn.turn_state
-        self.stage.announce(st.level, st.length, turn=turn.number)
+        self.stage.announce(st.level, self.task.size(turn.trial), turn=turn.number)
         return "speak"
 
-    def _do_speak_sequence(self, turn: Turn) -> str:
-        self.stage.letters(turn.sequence, turn=turn.number)
+    def _do_present(self, turn: Turn) -> str:
+        self.task.present(self.stage, turn.trial, turn.number)
         return "sound_beep"
 
-    def _do_beep(self, turn: Turn) -> str:
+    def _do_open_window(self, turn: Turn) -> str:
         self._beep_onset = self.phases.beep(turn.number)
         return "wait_answer"
 
-    def _do_await_answer(self, turn: Turn) -> str:
-        answer, listening = self.phases.collect(turn.number, len(turn.sequence), self._beep_onset)
+    def _do_collect(self, turn: Turn) -> str:
+        answer, listening = self.phases.collect(turn.number, self._presses(turn.trial), self._timeout_s(turn.trial),
+                                                self._beep_onset)
         turn.answer = answer
         if listening is not None:
             turn.listening = listening
@@ -331,16 +351,16 @@ class Session:
             return "repeat_turn"
         return "score_answer"
 
-    def _do_score(self, turn: Turn) -> str:
+    def _do_judge(self, turn: Turn) -> str:
         turn.answering = self.phases.end(turn.number)
-        turn.judge()
+        turn.judge(self.task)
         return "record_turn"
 
     def _do_record(self, turn: Turn) -> str:
-        assert turn.success is not None  # judged in score
+        assert turn.success is not None  # judged in judge
         st = turn.turn_state
-        score = task.score(st.level, turn.success)
-        row = turn.row(score, task.signed_score(st.level, turn.success), self.clock.speed, self.monitor.records_eeg)
+        score = self.task.score(st.level, turn.success)
+        row = turn.row(score, self.task.signed_score(st.level, turn.success), self.clock.speed, self.monitor.records_eeg)
         self.completed += 1
         if not turn.invalid:  # the total counts what the summary counts: turns not marked invalid
             self.total += score
@@ -356,7 +376,11 @@ class Session:
         # (with this row and the transition not yet learned), then the row, then the policy learns and
         # saves. A kill or a failed write in between loses nothing: a resumption appends the checkpoint's
         # row when turns.csv lacks it, and hands the policy the transition.
-        self.checkpoints.write(self._standing(), row, self.elapsed_s(), self.desk.override, learn)
+        try:
+            self.checkpoints.write(self._standing(), row, self.elapsed_s(), self.desk.override, learn)
+        except OSError:  # a full disk: the answered turn is still kept in turns.csv, then the failure ends the session
+            self.log.row(turn, row)
+            raise
         self.log.row(turn, row)
         if learn is not None:
             self.policy.observe(learn)
@@ -411,10 +435,21 @@ class Session:
         """
         if self.state == "operator_pause":
             return None  # its handler says the pause line first, then takes the commands
+        self.health.take(self.state, self.turn)  # the robot's falls, heat, battery, chest button (session.health)
         trigger = self._apply_pending(hold=self.state in HOLD_STATES)
         if trigger is None and self.state == "select_action" and self._time_up():
             return self._end_for_time()
+        if trigger is None and self.state == "select_action" and self.health.before_turn(self.stage):
+            return self._end_for_battery()
         return trigger
+
+    def _end_for_battery(self) -> str:
+        """BatteryLow: the turn in flight was finished; end cleanly, saying what to do."""
+        self.status = "battery low"
+        self.rec.event("battery_low_end", completed=self.completed)
+        self.log.say(f"robot battery low: the session ends after turn {self.completed} of {self.n_turns}; charge "
+                     "the robot (plug it in, about an hour to full) before the next session")
+        return "time_up"
 
     def _apply_pending(self, hold: bool = False) -> str | None:
         """Apply the due commands in order until one changes the state; the rest wait for the next point."""
@@ -472,6 +507,7 @@ class Session:
             trigger = self._apply_pending()
             if trigger is not None:
                 if trigger != "operator_stop":
+                    self.health.resumed()  # the operator says the robot is up: its motors may wake again
                     self.monitor.mark("pause_end", self._turn_number())
                     self.log.resumed()
                     self.stage.say("resumed", behavior="greeting")

@@ -10,20 +10,25 @@ from typing import Any
 
 from nao_trainer.files import PROJECT_ROOT
 
-TURN_STATES = ("select_action", "feedback", "announce", "speak_sequence", "beep", "await_answer", "score", "record")
+#: A turn's states, task-neutral: the task (``nao_trainer.tasks``) decides what each one presents or asks.
+#: ``present`` plays the trial (the sequence task speaks its letters), ``open_window`` opens the answer window
+#: (a beep), ``collect`` waits for the answer, ``judge`` judges and scores it, ``record`` writes the row.
+TURN_STATES = ("select_action", "feedback", "announce", "present", "open_window", "collect", "judge", "record")
 INTRO_STATES = ("greet", "instructions", "practice")
 ACTIVE_STATES = INTRO_STATES + TURN_STATES + ("goodbye",)
+#: Groups are named, never sliced by position: inserting a state changes no group silently (a test checks
+#: every turn state is in exactly the groups listed here).
 #: A turn is in flight in these states (it has been chosen and not yet recorded).
-IN_TURN = TURN_STATES[1:]
+IN_TURN = ("feedback", "announce", "present", "open_window", "collect", "judge", "record")
 #: A turn in flight can be played again from these (not once its answer is judged: it is recorded first).
-REPLAYABLE = IN_TURN[:5]
+REPLAYABLE = ("feedback", "announce", "present", "open_window", "collect")
 #: Played again after a call refused by a robot that was then set back (``engine.Session._set_back``).
 AGAIN_STATES = (*INTRO_STATES, "goodbye")
 #: ``paused``: the robot was lost; ``operator_pause``: the operator paused (robot idle, EEG recording).
 STATES: list[str] = [*ACTIVE_STATES, "paused", "operator_pause", "aborted", "done"]
-#: Where pause, stop and repeat act. Not in score/record: an answer already given is recorded first
+#: Where pause, stop and repeat act. Not in judge/record: an answer already given is recorded first
 #: (the engine holds those commands until the next turn begins).
-INTERRUPTIBLE = INTRO_STATES + TURN_STATES[:6]
+INTERRUPTIBLE = (*INTRO_STATES, "select_action", "feedback", "announce", "present", "open_window", "collect")
 _PLAYING = [*INTRO_STATES, *TURN_STATES]
 TRANSITIONS: list[dict[str, Any]] = [
     {"trigger": "explain", "source": "greet", "dest": "instructions"},
@@ -31,11 +36,11 @@ TRANSITIONS: list[dict[str, Any]] = [
     {"trigger": "begin_turns", "source": ["instructions", "practice"], "dest": "select_action"},
     {"trigger": "give_feedback", "source": "select_action", "dest": "feedback"},
     {"trigger": "announce_level", "source": ["select_action", "feedback"], "dest": "announce"},
-    {"trigger": "speak", "source": "announce", "dest": "speak_sequence"},
-    {"trigger": "sound_beep", "source": "speak_sequence", "dest": "beep"},
-    {"trigger": "wait_answer", "source": "beep", "dest": "await_answer"},
-    {"trigger": "score_answer", "source": "await_answer", "dest": "score"},
-    {"trigger": "record_turn", "source": "score", "dest": "record"},
+    {"trigger": "speak", "source": "announce", "dest": "present"},
+    {"trigger": "sound_beep", "source": "present", "dest": "open_window"},
+    {"trigger": "wait_answer", "source": "open_window", "dest": "collect"},
+    {"trigger": "score_answer", "source": "collect", "dest": "judge"},
+    {"trigger": "record_turn", "source": "judge", "dest": "record"},
     {"trigger": "next_turn", "source": "record", "dest": "select_action"},
     {"trigger": "finish_turns", "source": "record", "dest": "goodbye"},
     {"trigger": "end", "source": "goodbye", "dest": "done"},

@@ -26,7 +26,7 @@ from nao_trainer.session.turn import Turn
 #: How often (wall seconds) a paused session looks at the command queue and the clock.
 PAUSE_POLL_S = 0.2
 #: States where pause, stop and repeat wait for the turn to be recorded.
-HOLD_STATES = ("score", "record")
+HOLD_STATES = ("judge", "record")
 #: The commands held while a turn is scored and recorded.
 HELD_KINDS = ("pause", "stop", "repeat")
 

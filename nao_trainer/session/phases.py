@@ -68,9 +68,10 @@ class PhaseClock:
         self.onset_shift = max(0.0, onset - opened)
         return onset
 
-    def collect(self, turn: int, length: int, onset: float) -> tuple[Answer, PhaseEngagement | None]:
+    def collect(self, turn: int, presses: int, timeout_s: float, onset: float) -> tuple[Answer, PhaseEngagement | None]:
         """Close the listening phase at beep + tail (EEG), then wait for the answer.
 
+        ``presses`` end the window early; ``timeout_s`` (session seconds) is the task's answer window.
         Returns the answer and the listening phase's engagement (None when no listening phase ran).
         """
         listening = None
@@ -81,7 +82,7 @@ class PhaseClock:
         # The window opened at the beep; the timeout counts from there (sources measure from open_window).
         # Nothing else talks to the robot meanwhile: a watchdog does (a frozen link goes unnoticed ~60 s).
         with watch_link(self.robot) as link:
-            answer = self.answers.collect(length, self.clock.wall(self.timing.response_timeout_s(length)))
+            answer = self.answers.collect(presses, self.clock.wall(timeout_s))
         if self.onset_shift:
             answer = Answer(tuple(replace(p, t=p.t - self.onset_shift) for p in answer.presses), answer.timed_out)
         self.rec.event("answer", turn=turn, timed_out=answer.timed_out,  # each press, seconds from the beep

@@ -22,6 +22,8 @@ import io
 import json
 import os
 import platform
+import stat
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -29,23 +31,21 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from nao_trainer.core import task
+from nao_trainer.tasks.sequence import COLUMNS as SEQUENCE_COLUMNS
+from nao_trainer.tasks.sequence.rules import is_correct
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import write_text_atomic
 
-TURN_COLUMNS: tuple[str, ...] = (
-    "turn", "start_time", "state", "length", "level", "feedback", "previous_score", "action",
-    "sequence", "response", "success", "score", "signed_score", "reaction_time", "completion_time",
-    "engagement", "engagement_index", "eeg_quality", "answer_engagement", "engagement_note", "notes", "invalid", "replay",
-    "phase",
-)
+#: The sequence task's turns.csv columns, declared once by the task (``tasks.sequence.COLUMNS``); a recorder
+#: writes its task's ``columns``.
+TURN_COLUMNS: tuple[str, ...] = SEQUENCE_COLUMNS
 
 
 def row_problem(row: dict[str, str]) -> str | None:
     """Why a completed row of turns.csv (as read: strings) is not one a session writes, or None: its
     level, length and sequence agree, its scores are equation (1)'s and the published signed score for
     its level and outcome, and a success repeats the sequence. An edited score is refused."""
-    from nao_trainer.core import task
-
     try:
         level, length = int(row["level"]), int(row["length"])
         score, signed = int(row["score"]), int(row["signed_score"])
@@ -58,7 +58,7 @@ def row_problem(row: dict[str, str]) -> str | None:
         outcome = "a success" if success else "a failure"
         return (f"score {score} / signed_score {signed} are not those of {outcome} at level {level} "
                 f"({task.score(level, success)} / {task.signed_score(level, success)})")
-    if success and not task.is_correct(row["sequence"], row.get("response") or ""):
+    if success and not is_correct(row["sequence"], row.get("response") or ""):
         return f"success with a response {row.get('response')!r} that does not repeat the sequence {row['sequence']!r}"
     return None
 
@@ -69,8 +69,6 @@ def open_no_follow(path: Path, mode: str) -> Any:
     flags = {"a": os.O_WRONLY | os.O_APPEND, "r+b": os.O_RDWR}[mode] | getattr(os, "O_NOFOLLOW", 0) | os.O_NONBLOCK
     fd = os.open(path, flags)
     try:
-        import stat
-
         if not stat.S_ISREG(os.fstat(fd).st_mode):
             raise OSError(errno.EINVAL, "not a regular file", str(path))
         os.set_blocking(fd, True)
@@ -142,7 +140,16 @@ def write_failure(exc: OSError, folder: Path | None) -> DataError:
     cause, fix = WRITE_CAUSES.get(exc.errno or 0, (exc.strerror or type(exc).__name__, "check the disk"))
     where = exc.filename or folder or "the session folder"
     kept = f"; the completed turns are on disk: continue with nao-trainer run --resume {folder}" if folder else ""
+    if folder and not (Path(folder) / CHECKPOINT).exists():  # failed before the first turn was recorded
+        kept = f"; no turn was recorded (the session folder {folder} holds nothing to resume)"
+    elif folder and str(where).endswith(CHECKPOINT):  # the last turn's row is written, its checkpoint is not
+        kept = (f"; the completed turns are kept in {Path(folder) / 'turns.csv'}, but the checkpoint lags behind "
+                "them: start a new session to continue")
     return DataError(f"{where}: cannot write ({cause}); {fix}{kept}")
+
+
+def _warn(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
 
 
 def ensure_output_dir(out: Path) -> Path:
@@ -189,7 +196,11 @@ class SessionRecorder:
     _writer = None
     _events = None
     rows: int = 0
+    columns: tuple[str, ...] = TURN_COLUMNS  # the task's turns.csv columns (``tasks.base.Task.columns``)
     events_failed: OSError | None = None  # the first failed write of events.jsonl (later events are dropped)
+    events_written: int = 0  # events written to events.jsonl by this process
+    #: Where the warning of a failed events.jsonl write goes, at once (the terminal, also with --quiet).
+    warn: Any = field(default=None, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock)  # events come from the console's thread too
 
     def open(self, info: dict[str, Any]) -> Path:
@@ -198,7 +209,7 @@ class SessionRecorder:
         self._info = dict(FORMAT, **info, status="running", started=now_iso())
         self._write_json()
         self._turns = open(self.path / "turns.csv", "w", newline="", encoding="utf-8")
-        self._writer = csv.DictWriter(self._turns, fieldnames=TURN_COLUMNS, extrasaction="raise")
+        self._writer = csv.DictWriter(self._turns, fieldnames=self.columns, extrasaction="raise")
         self._writer.writeheader()
         _fsync(self._turns)
         self._events = open(self.path / "events.jsonl", "w", encoding="utf-8")
@@ -219,7 +230,7 @@ class SessionRecorder:
         self.rows = sum(1 for _ in read_turns(self.path))
         self._write_json()
         self._turns = open_no_follow(self.path / "turns.csv", "a")
-        self._writer = csv.DictWriter(self._turns, fieldnames=TURN_COLUMNS, extrasaction="raise")
+        self._writer = csv.DictWriter(self._turns, fieldnames=self.columns, extrasaction="raise")
         self._events = open_no_follow(self.path / "events.jsonl", "a")
         for ev in self._pending:
             self._write_event(ev)
@@ -254,13 +265,25 @@ class SessionRecorder:
                 try:
                     self._events.write(line)
                     self._events.flush()
+                    self.events_written += 1
                 except OSError as exc:  # the log must not end a session the turns can still be written in
                     self.events_failed = exc
+                    (self.warn or _warn)(f"nao-trainer: warning: {self.events_lost()}")
+
+    def events_lost(self) -> str:
+        """One line on a failed events.jsonl write (empty when none failed): which file, why, how to fix, what is kept."""
+        exc = self.events_failed
+        if exc is None:
+            return ""
+        cause, fix = WRITE_CAUSES.get(exc.errno or 0, (exc.strerror or type(exc).__name__, "check the disk"))
+        where = self.path / "events.jsonl" if self.path is not None else "events.jsonl"
+        return (f"{where}: cannot write ({cause}): the events after the first {self.events_written} are lost, the "
+                f"turns are kept in turns.csv; {fix}")
 
     def turn(self, row: dict[str, Any]) -> None:
         """Append one turn row and make it durable before returning."""
-        clean = {k: ("" if row.get(k) is None else row.get(k)) for k in TURN_COLUMNS}
-        unknown = set(row) - set(TURN_COLUMNS)
+        clean = {k: ("" if row.get(k) is None else row.get(k)) for k in self.columns}
+        unknown = set(row) - set(self.columns)
         if unknown:
             raise KeyError(f"unknown turns.csv columns: {sorted(unknown)}")
         try:
@@ -289,7 +312,7 @@ class SessionRecorder:
         if self._turns is not None:
             self._info.update(info, status=status, exit_code=exit_code, ended=now_iso(), turns_recorded=self.rows)
             if self.events_failed is not None:
-                self._info["events_lost"] = f"events.jsonl stopped at a failed write ({self.events_failed.strerror})"
+                self._info["events_lost"] = self.events_lost()
             for write in (self._write_json, self._write_json_in_place):
                 try:
                     write()

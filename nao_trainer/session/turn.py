@@ -12,6 +12,7 @@ from nao_trainer.core.psychometric import SPAN_RATE, Span, level_counts, session
 from nao_trainer.errors import DataError
 from nao_trainer.learn.psychometric_prior import load_prior
 from nao_trainer.ports import Answer, PhaseEngagement
+from nao_trainer.tasks.base import Task
 
 
 @dataclass
@@ -22,7 +23,9 @@ class Turn:
     previous_state: int  # the MDP state the action was chosen in (START for the first turn)
     action: int
     state: int  # this turn's state (L, RF, PR)
-    sequence: tuple[str, ...] = ()
+    sequence: tuple[str, ...] = ()  # the trial's stimuli (the sequence task: its letters)
+    trial: Any = None  # the task's ``tasks.base.Trial``
+    fields: dict[str, Any] = field(default_factory=dict)  # the task's own row fields, set by its judgement
     start_time: str = ""
     answer: Answer | None = None
     listening: PhaseEngagement | None = None
@@ -55,20 +58,13 @@ class Turn:
     def turn_state(self) -> mdp.State:
         return mdp.decode(self.state)
 
-    def judge(self) -> None:
-        """Score the answer against the sequence (equation (1) needs only success) and note why it failed."""
-        answer, n = self.answer, len(self.sequence)
-        assert answer is not None
-        invalid = [p.key for p in answer.presses if p.letter is None]
-        if not answer.presses:
-            self.notes.append("timeout: no answer")
-        elif answer.timed_out:
-            self.notes.append(f"timeout: {len(answer.presses)} of {n} presses")
-        elif len(answer.presses) > n:
-            self.notes.append(f"too many presses: {len(answer.presses)} of {n}")
-        self.notes += [f"invalid key {k!r}" for k in invalid]
-        self.success = (not answer.timed_out and len(answer.presses) == n and not invalid
-                        and task.is_correct(self.sequence, answer.response))
+    def judge(self, task: Task) -> None:
+        """Judge the answer with the task (equation (1) needs only success) and note why it failed."""
+        assert self.answer is not None and self.trial is not None
+        judgement = task.judge(self.trial, self.answer)
+        self.notes += list(judgement.notes)
+        self.fields = dict(judgement.fields)
+        self.success = judgement.success
 
     def row(self, score: int | None, signed: int | None, speed: float, eeg_on: bool) -> dict[str, Any]:
         """This turn's line of turns.csv. Times measured on the wall clock are reported in session
@@ -93,6 +89,7 @@ class Turn:
             "invalid": True if self.invalid else None,
             "replay": True if self.replay else None,
             "phase": self.phase,
+            **self.fields,
         }
 
 

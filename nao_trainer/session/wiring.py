@@ -30,12 +30,13 @@ from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, Nu
                                NullUpkeep, Policy, Robot, RobotConnectionLost, RobotHealthWatch, RobotUpkeep,
                                SessionObserver)
 from nao_trainer.robot.address import redact_url
+from nao_trainer.tasks.base import Task
 from nao_trainer.session.behaviors import Behaviors, load_behaviors
 from nao_trainer.session.check import check_disk, check_eeg, check_robot, plan_from_config
 from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig, is_robot_address
 from nao_trainer.session.dialogue import Dialogue, load_dialogue
 from nao_trainer.session.participant import check_pseudonym, session_lock
-from nao_trainer.session.engine import EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session
+from nao_trainer.session.engine import EXIT_EVENTS_LOST, EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session
 from nao_trainer.session.operator import who_stopped
 from nao_trainer.session.parts import Randomness, Script, SessionPorts
 from nao_trainer.session.record import SessionRecorder, ensure_output_dir, os_error_in, versions, write_failure
@@ -248,11 +249,12 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
     Every adapter is built inside one ``ExitStack``: it is closed in the reverse order of building,
     whatever happens (the record is closed last but the stand-in, so every close is logged in it)."""
     out = _Outcome(seed, span_rate=span_rate(config.policy.objective))
-    recorder = SessionRecorder(config.output_dir(), config.participant.pseudonym)
+    task = config.task.build_task()
+    recorder = SessionRecorder(config.output_dir(), config.participant.pseudonym, columns=task.columns)
     stack = ExitStack()
     try:
         _play(stack, out, recorder, config, progress, dialogue, behaviors, simulator, policy, options, resume,
-              console_bind)
+              console_bind, task)
     except (KeyboardInterrupt, Interrupted):
         out.status, out.code = "interrupted", EXIT_INTERRUPTED
     except RobotConnectionLost as exc:  # dropped while setting up (buttons): nothing was played yet
@@ -277,7 +279,7 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
 
 def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: StudyConfig, progress: TextIO | None,
           dialogue: Dialogue, behaviors: Behaviors, simulator: UserSimulator | None, policy: Policy,
-          options: RunOptions, resume: Resumption | None, console_bind: str | None) -> None:
+          options: RunOptions, resume: Resumption | None, console_bind: str | None, task: Task) -> None:
     """Build the adapters in order, each one's closer pushed on ``stack`` as soon as it exists; play."""
     session_ss, policy_ss, participant_ss, eeg_ss = np.random.SeedSequence(out.seed).spawn(4)
     standin = _start_standin(stack, config)
@@ -315,7 +317,7 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
     stack.callback(_close_quietly, answers, recorder, out)
     policy.bind_state_dir(path)
     stack.callback(_close_policy, policy, out, recorder)  # closed (a learning policy saved) once the folder exists
-    ports = SessionPorts(robot, answers, policy, monitor, commands, observer or NullObserver(), upkeep, health)
+    ports = SessionPorts(robot, answers, policy, monitor, commands, observer or NullObserver(), upkeep, health, task)
     session = Session(config, ports, recorder, Script(dialogue, behaviors),
                       Randomness(np.random.default_rng(session_ss), np.random.default_rng(policy_ss),
                                  {"participant": participant_rng}),
@@ -334,6 +336,19 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
         session.interrupted_by_operator(who_stopped(exc))
         out.code = EXIT_INTERRUPTED
     out.status, out.error = session.status, session.error
+    _report_lost_events(out, recorder)
+
+
+def _report_lost_events(out: "_Outcome", recorder: SessionRecorder) -> None:
+    """A session whose events.jsonl could not be written says so: in its error (the summary's status line
+    and session.json) and, when it otherwise completed, with exit code ``EXIT_EVENTS_LOST``. Its status
+    stays what the session did (every turn is in turns.csv: a study counts it)."""
+    lost = recorder.events_lost()
+    if not lost:
+        return
+    out.error = f"{out.error}; {lost}" if out.error else lost
+    if out.code == 0:
+        out.code = EXIT_EVENTS_LOST
 
 
 def _watch_health(robot: Robot, config: StudyConfig) -> RobotHealthWatch:

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from _waits import returns
 
+from nao_trainer.tasks.sequence import rules
 from nao_trainer.answers.inputs import KeyboardAnswers, PressWindow, TactileAnswers
 from nao_trainer.core import mdp, task
 from nao_trainer.core.simulation import UserSimulator
@@ -149,10 +150,10 @@ def test_mistakes_always_differ_from_the_sequence():
     rng = np.random.default_rng(3)
     kinds = set()
     for _ in range(300):
-        seq = task.generate_sequence(rng, int(rng.choice(task.LENGTHS)))
+        seq = rules.generate_sequence(rng, int(rng.choice(task.LENGTHS)))
         resp, kind = make_mistake(seq, rng)
         kinds.add(kind)
-        assert not task.is_correct(seq, resp)
+        assert not rules.is_correct(seq, resp)
         assert len(resp) in (len(seq), len(seq) - 1)
     assert kinds == {"substitute", "swap", "omit"}
 
@@ -163,11 +164,11 @@ def test_simulated_participant_direct_answers_follow_the_model():
     results = []
     for length in (3, 7):
         state = mdp.encode(length, 0, 0)
-        seq = task.generate_sequence(np.random.default_rng(length), length)
+        seq = rules.generate_sequence(np.random.default_rng(length), length)
         p.prepare(TurnContext(1, state, length, seq))
         p.open_window()
         ans = p.collect(length, timeout_s=5.0)
-        results.append(task.is_correct(seq, ans.response) and not ans.timed_out)
+        results.append(rules.is_correct(seq, ans.response) and not ans.timed_out)
         times = [x.t for x in ans.presses]
         assert times == sorted(times) and 0.5 / 20 <= times[0] <= 0.6 / 20
     assert results == [True, False]  # level 1 always succeeds, level 3 never

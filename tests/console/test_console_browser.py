@@ -133,8 +133,8 @@ def test_the_console_shows_the_session_live_and_steers_it(browser, tmp_path):
             return [e for e in run.events() if e["event"] == "command" and e["kind"] == "invalid"]
 
         for attempt in range(8):
-            page.wait_for_function("document.getElementById('machine').textContent.includes('speak_sequence') || "
-                                   "document.getElementById('machine').textContent.includes('await_answer')", timeout=30000)
+            page.wait_for_function("document.getElementById('machine').textContent.includes('present') || "
+                                   "document.getElementById('machine').textContent.includes('collect')", timeout=30000)
             page.fill("#invalid-note", "phone rang")
             page.click("#btn-invalid")
             ok = run.wait(lambda: len(invalid_commands()) > attempt and invalid_commands(), 20, "the invalid command")[-1]

@@ -22,6 +22,9 @@ def test_the_three_down_rule_plays_levels_and_moves_after_three_successes():
 
     st = baselines.Staircase("3d1u", 2)
     st.reset(1, processes.get("informed"))
-    obs_success = np.array([1])  # informed MDP: odd observation = the turn just played succeeded
-    levels = [int(st.act(obs_success, t, np.random.default_rng(0))[0]) + 1 for t in range(5)]
+    obs = np.array([1])
+    levels = []
+    for t in range(5):
+        levels.append(int(st.act(obs, t, np.random.default_rng(0))[0]) + 1)
+        st.observe(obs, np.array([levels[-1] - 1]), np.array([float(levels[-1])]))  # a success: +level
     assert levels == [2, 2, 2, 3, 3]  # turn 0 knows nothing; three successes known by turn 3

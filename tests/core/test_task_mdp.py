@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+from nao_trainer.tasks.sequence import rules
 from nao_trainer.core import mdp, task
 
 
@@ -12,10 +13,10 @@ def test_levels_and_lengths():
 
 
 def test_sequences_are_seeded_and_use_abc():
-    a = task.generate_sequence(np.random.default_rng(7), 9)
-    b = task.generate_sequence(np.random.default_rng(7), 9)
+    a = rules.generate_sequence(np.random.default_rng(7), 9)
+    b = rules.generate_sequence(np.random.default_rng(7), 9)
     assert a == b and len(a) == 9 and set(a) <= {"A", "B", "C"}
-    seqs = {task.generate_sequence(np.random.default_rng(s), 5) for s in range(50)}
+    seqs = {rules.generate_sequence(np.random.default_rng(s), 5) for s in range(50)}
     assert len(seqs) > 40
 
 
@@ -23,7 +24,7 @@ def test_scores():
     assert [task.score(lv, True) for lv in task.LEVELS] == [1, 2, 3, 4]
     assert {task.score(lv, False) for lv in task.LEVELS} == {-1}
     assert [task.signed_score(lv, False) for lv in task.LEVELS] == [-1, -2, -3, -4]
-    assert task.is_correct(("A", "b"), ("a", "B")) and not task.is_correct(("A", "B"), ("A",))
+    assert rules.is_correct(("A", "b"), ("a", "B")) and not rules.is_correct(("A", "B"), ("A",))
 
 
 def test_paper_s0_index_and_roundtrip():

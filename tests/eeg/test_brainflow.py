@@ -110,3 +110,30 @@ def test_run_with_the_brainflow_device_from_the_command_line(tmp_path):
     assert "(EEG in 2 of 2 turns)" in res.stdout, res.stdout
     info = json.loads((folder / "session.json").read_text())
     assert info["eeg_stream"]["name"] == "BrainFlow" and info["eeg_stream"]["acquisition"] == "synthetic"
+
+
+@pytest.mark.slow
+def test_session_xdf_records_the_board_the_markers_and_a_dropout(tmp_path):
+    pyxdf = pytest.importorskip("pyxdf")
+    monitor = open_monitor("simulated", {"device": "brainflow", "processing": FAST}, tmp_path,
+                           np.random.default_rng(2), pseudonym=_uid("P"), record_xdf=True)
+    try:
+        assert monitor.xdf is not None and monitor.xdf.ready
+        monitor.begin_phase("listening", 1)
+        monitor.mark("listening_start", 1)
+        _wait(lambda: len(monitor.windows) >= 4, "windows from the synthetic board")
+        monitor.mark("listening_end", 1)
+        monitor.end_phase()
+        monitor.simulator.interrupt()  # a dropout: its markers go into the file too
+        _wait(lambda: monitor.gaps and monitor.gaps[-1].end is not None, "the gap, closed")
+    finally:
+        monitor.close()
+    streams, _ = pyxdf.load_xdf(str(tmp_path / "session.xdf"))
+    by_type = {s["info"]["type"][0]: s for s in streams}
+    eeg = by_type["EEG"]
+    assert eeg["info"]["name"][0] == "BrainFlow" and len(eeg["time_stamps"]) > 250
+    labels = [c["label"][0] for c in eeg["info"]["desc"][0]["channels"][0]["channel"]]
+    assert labels == ["Fz", "C3", "Cz", "C4"]
+    markers = [m[0] for m in by_type["Markers"]["time_series"]]
+    assert "turn_1_listening_start" in markers and "turn_1_listening_end" in markers
+    assert markers.index("eeg_stream_lost") < markers.index("eeg_stream_restored")

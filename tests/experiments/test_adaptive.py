@@ -39,7 +39,39 @@ def test_questplus_posterior_is_the_packages():
 
 
 def test_questplus_targets_the_rate():
-    """For a user whose level 3 succeeds at 0.75, QUEST+ under target:0.75 ends up at level 3 most."""
+    """For a user whose level 3 succeeds at 0.75, QUEST+ placing by its posterior mean under target:0.75
+    ends up at level 3 most."""
     p = np.array([[0.99, 0.95, 0.75, 0.35]])
-    v = adaptive.questplus_values(p, objective.parse("target:0.75"), 25)
+    v = adaptive.questplus_values(p, objective.parse("target:0.75"), 25, "mean")
     assert int(np.argmax(v.visits[0])) == 2
+
+
+def test_our_questplus_places_the_next_level_as_the_package_does():
+    """QUEST+'s own placement (minimum expected entropy): after a fixed history our next level is the
+    package's ``next_stim`` at every step."""
+    questplus = pytest.importorskip("questplus")
+    grid = adaptive.QuestPlusGrid.build()
+    qp = adaptive.package_questplus(questplus.QuestPlus)
+    counts = np.zeros(8)
+    for length, ok in ((5, True), (7, False), (7, True), (9, False), (3, True), (5, True), (7, True)):
+        theirs = int(round(-qp.next_stim["intensity"]))
+        mine = LENGTHS_OF[int(grid.choose_entropy(counts)[0])]
+        assert mine == theirs, (counts, mine, theirs)
+        qp.update(stim={"intensity": -float(length)}, outcome={"response": "Correct" if ok else "Incorrect"})
+        counts[2 * ((length - 3) // 2) + (0 if ok else 1)] += 1
+    assert LENGTHS_OF[int(grid.choose_entropy(counts)[0])] == int(round(-qp.next_stim["intensity"]))
+
+
+LENGTHS_OF = (3, 5, 7, 9)
+
+
+def test_tuned_staircase_and_fitted_questplus_run_exactly():
+    p = np.array([[0.99, 0.95, 0.75, 0.35], [0.98, 0.8, 0.5, 0.2]])
+    obj = objective.parse("target-rate:0.75")
+    need, start = adaptive.tuned_staircase(p, obj, 25)
+    assert 1 <= need <= 4 and 1 <= start <= 4
+    grid = adaptive.QuestPlusGrid.build()
+    fitted = grid.fitted(p)
+    assert np.isclose(np.exp(fitted.log_prior).sum(), 1.0)
+    v = adaptive.questplus_values(p, obj, 25, "entropy", fitted)
+    assert np.allclose(v.visits.sum(axis=1), 25) and v.successes_var is not None

@@ -108,7 +108,7 @@ def test_state_file_of_another_policy_or_torn_is_not_silently_reset(trained, tmp
     state = tmp_path / "learner.json"
     policy = load(trained, "usp:2:shaping", state_path=state)
     policy.observe(Transition(mdp.START, 1, 2, 0.5, mdp.encode(5, 0, 0), False))
-    with pytest.raises(DataError, match="learner.json: holds the learning state of another policy"):
+    with pytest.raises(DataError, match="learner.json: participant state made with another policy"):
         load(trained, "usp:1:shaping", state_path=state)
     state.write_text(state.read_text()[:100])
     with pytest.raises(DataError, match="learner.json:.*not valid JSON"):

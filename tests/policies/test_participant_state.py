@@ -66,3 +66,30 @@ def test_open_saved_reads_sets_aside_or_finds_nothing(tmp_path):
     check_owner(path, {}, "P1", "fix")  # an older file naming no one passes
     with pytest.raises(DataError, match=r"the participant state of 'P1', not of 'P2' .*; fix$"):
         check_owner(path, {"pseudonym": "P1"}, "P2", "fix")
+
+
+def test_one_participant_file_base_saves_reads_and_checks_owner_and_fingerprint(tmp_path):
+    """The shared base of every persisting policy (bayes, personalised, learned): one save, read, owner check
+    and fingerprint check."""
+    import json as _json
+
+    import pytest
+
+    from nao_trainer.errors import DataError
+    from nao_trainer.policies import bayes, learned, personalised
+    from nao_trainer.policies.participant_state import ParticipantState
+
+    assert all(isinstance(m.PARTICIPANT, ParticipantState) for m in (bayes, learned, personalised))
+    state = ParticipantState(lambda p: _json.loads(p.read_text()), lambda p, d: p.write_text(_json.dumps(d)),
+                             lambda saved: saved.get("fp"), "other models")
+    path = tmp_path / "deep" / "state.json"
+    state.save(path, {"pseudonym": "P1", "fp": "abc"})
+    assert state.read(path, "abc", "P1") == {"pseudonym": "P1", "fp": "abc"}
+    with pytest.raises(DataError, match=r"the participant state of 'P1', not of 'P2'"):
+        state.read(path, "abc", "P2")
+    with pytest.raises(DataError, match=r"state.json: participant state made with other models \(fingerprint abc, now "
+                                        r"xyz\); use what it was made with, or start afresh with --fresh-policy"):
+        state.read(path, "xyz", "P1")
+    (tmp_path / "file").write_text("")
+    with pytest.raises(DataError, match=r"cannot save the participant's state .*; make session.output writable"):
+        state.save(tmp_path / "file" / "state.json", {})

@@ -246,7 +246,7 @@ def test_commands_sent_together_act_one_state_change_at_a_time(tmp_path):
     assert run(s, rec) == EXIT_OK
     cmds = commands(path)
     assert [(c["kind"], c["state"], c["accepted"]) for c in cmds] == [
-        ("pause", "speak_sequence", True), ("note", "operator_pause", True), ("resume", "operator_pause", True)]
+        ("pause", "present", True), ("note", "operator_pause", True), ("resume", "operator_pause", True)]
     assert robot.said().count(PAUSE_LINE) == 1 and len([r for r in read_turns(path) if r["success"]]) == 3
 
 

@@ -207,7 +207,7 @@ def test_a_lost_robot_is_reconnected_and_the_turn_replayed(tmp_path):
     assert finish(s, rec) == EXIT_OK and s.completed == 3
     rows = read_turns(path)
     assert [r["turn"] for r in rows] == ["1", "2", "2", "3"]
-    assert rows[1]["success"] == "" and "robot lost during beep" in rows[1]["notes"]
+    assert rows[1]["success"] == "" and "robot lost during open_window" in rows[1]["notes"]
     assert rows[2]["notes"] == "replay of interrupted turn" and rows[2]["action"] == rows[1]["action"]
     assert rows[2]["state"] == rows[1]["state"] and rows[2]["sequence"] != ""
     assert [r["replay"] for r in rows] == ["", "", "True", ""]  # the replay says so in a column

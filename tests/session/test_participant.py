@@ -124,7 +124,7 @@ def test_a_state_file_copied_from_another_participant_is_refused(tmp_path):
     shutil.copy(state, participants / "P8" / "policy_state.json")
     with pytest.raises(DataError) as exc:
         run_session(config(tmp_path, "P8"), RunOptions(quiet=True))
-    assert "participant 'P7', not of 'P8'" in one_line(exc) and "--fresh-policy" in str(exc.value)
+    assert "of 'P7', not of 'P8'" in one_line(exc) and "--fresh-policy" in str(exc.value)
     fresh = run_session(config(tmp_path, "P8"), RunOptions(quiet=True, fresh_policy=True))
     assert fresh.exit_code == 0  # the copy is set aside, P8 starts from the trained policy
     assert json.loads((participants / "P8" / "policy_state.json").read_text())["payload"]["live"]["pseudonym"] == "P8"
