@@ -193,9 +193,9 @@ def _init(args: argparse.Namespace) -> int:
     if p.allocation.seed is not None:
         print(f"study init: allocation.seed in {args.protocol} is not used: the allocation is drawn from the "
               "operating system's entropy (a seed anyone can read would reveal it)", file=sys.stderr)
-    sizes = "/".join(map(str, block_sizes(p)))
+    sizes = " or ".join(map(str, block_sizes(p)))
     print(f"{args.out}: study {p.name} initialised (protocol sha256 {p.sha256}; {len(p.arms)} arms, target "
-          f"{p.target_n}, random blocks of {sizes}); the allocation is sealed with the study key "
+          f"{p.target_n}, blocks of {sizes}, each size drawn by chance); the allocation is sealed with the study key "
           f"{key_path(study.registry['study_id'])} (outside the study folder: back it up, and give it to no "
           "operator)")
     return 0
