@@ -94,6 +94,8 @@ class Session:
         self.checkpoints = Checkpointer(recorder, ports.policy, random.by_name())
         self.reconnector = Reconnector(ports.robot, config.robot, self.clock, recorder, self.log, self.stage)
         self.task = ports.task
+        self.in_window = bool(getattr(ports.task, "presents_in_window", False))  # answers come during present
+        self.stage.mark = ports.monitor.mark
         self.n_turns = config.session.turns
         self.mdp_state = mdp.START
         self.last_success: bool | None = None
@@ -238,7 +240,7 @@ class Session:
         self.answers.abandon()
         turn.notes.append(why)
         turn.success = None
-        row = self.log.row(turn, turn.row(None, None, self.clock.speed, self.monitor.records_eeg))
+        row = self.log.row(turn, turn.row(None, None, self.clock.speed, self.monitor.records_eeg, self.task.columns))
         self.rec.event("turn_interrupted", turn=turn.number, reason=why)
         self.observer.notify("row", {**row, "total": self.total, "elapsed_s": round(self.elapsed_s(), 2)})
         self.log.say(f"turn {turn.number:3d}/{self.n_turns}  {why}")
@@ -265,8 +267,13 @@ class Session:
         context = TurnContext(0, mdp.encode(mdp.LENGTHS[trial.level - 1], 0, 0), size, trial.stimuli, trial)
         self.answers.prepare(context)
         self.stage.announce(trial.level, size, look=False, turn=0)
-        self.task.present(self.stage, trial, 0)
-        answer, _ = self.phases.collect(0, self._presses(trial), self._timeout_s(trial), self.phases.beep(0))
+        if self.in_window:
+            onset = self.phases.beep(0)
+            self.task.present(self.stage, trial, 0, onset)
+        else:
+            self.task.present(self.stage, trial, 0)
+            onset = self.phases.beep(0)
+        answer, _ = self.phases.collect(0, self._presses(trial), self._timeout_s(trial), onset)
         ok = not answer.timed_out and self.task.judge(trial, answer).success
         self.rec.event("practice", sequence="".join(trial.stimuli), response="".join(answer.response), success=ok)
         self.stage.say("practice_success" if ok else "practice_failure", behavior="practice")
@@ -329,15 +336,18 @@ class Session:
     def _do_announce(self, turn: Turn) -> str:
         st = turn.turn_state
         self.stage.announce(st.level, self.task.size(turn.trial), turn=turn.number)
-        return "speak"
+        return "open_first" if self.in_window else "speak"
 
     def _do_present(self, turn: Turn) -> str:
+        if self.in_window:
+            self.task.present(self.stage, turn.trial, turn.number, self._beep_onset)
+            return "collect_presented"
         self.task.present(self.stage, turn.trial, turn.number)
         return "sound_beep"
 
     def _do_open_window(self, turn: Turn) -> str:
         self._beep_onset = self.phases.beep(turn.number)
-        return "wait_answer"
+        return "present_in_window" if self.in_window else "wait_answer"
 
     def _do_collect(self, turn: Turn) -> str:
         answer, listening = self.phases.collect(turn.number, self._presses(turn.trial), self._timeout_s(turn.trial),
@@ -360,7 +370,8 @@ class Session:
         assert turn.success is not None  # judged in judge
         st = turn.turn_state
         score = self.task.score(st.level, turn.success)
-        row = turn.row(score, self.task.signed_score(st.level, turn.success), self.clock.speed, self.monitor.records_eeg)
+        row = turn.row(score, self.task.signed_score(st.level, turn.success), self.clock.speed, self.monitor.records_eeg,
+                       self.task.columns)
         self.completed += 1
         if not turn.invalid:  # the total counts what the summary counts: turns not marked invalid
             self.total += score

@@ -16,6 +16,7 @@ import pytest
 
 pytest.importorskip("brainflow")
 
+from nao_trainer.data import own  # noqa: E402
 from nao_trainer.eeg.devices.brainflow import BrainFlowBridge  # noqa: E402
 from nao_trainer.eeg.factory import open_monitor  # noqa: E402
 from nao_trainer.eeg.lsl_scope import configure_lsl  # noqa: E402
@@ -94,6 +95,9 @@ def test_the_synthetic_board_drives_the_monitor_and_survives_a_dropout(tmp_path)
     assert any(float(g["duration_s"]) > 1.0 for g in gaps), gaps
     events = [r["event"] for r in _rows(tmp_path / "eeg" / "events.csv")]
     assert events.index("eeg_stream_lost") < events.index("eeg_stream_restored")
+    phases, notes = own.replay_phases(tmp_path)  # the offline pipeline recomputes the board's phase exactly
+    assert notes == [] and len(phases) == 1 and phases[0].engagement is not None
+    assert abs(phases[0].engagement - phases[0].live_engagement) <= 1e-9
 
 
 def test_run_with_the_brainflow_device_from_the_command_line(tmp_path):

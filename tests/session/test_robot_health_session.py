@@ -190,3 +190,47 @@ def test_check_says_whether_the_battery_and_the_joints_will_last_the_session(tmp
     standin.control.heat("RKneePitch", 1)
     warm = check_robot(plan_from_config(config))
     assert not warm.ok and "hot joints now: RKneePitch (status 1)" in warm.detail and "let the robot cool" in warm.fix
+
+
+def test_a_session_on_a_pepper_with_safeguard_mid_session(tmp_path):
+    """Pepper over the same adapter (issue 27 item 4): the stand-in plays a Pepper 2.9 without ALLeds; the
+    session says once that the eye colours are skipped, uses Pepper's postures, pauses while Autonomous Life is
+    in safeguard (motors held) and plays on after the operator resumes."""
+    pepper = StandIn.start(speed=50, model="pepper", without=("ALLeds",))
+    try:
+        pepper.control.act_after("ALAudioPlayer.playSine", "safeguard", [])
+        commands, watcher = CommandQueue(), _Watcher()
+        paused = watcher.when("pause", lambda d: d.get("paused"))
+
+        def operator():
+            if paused.wait(HANG_S):
+                commands.submit("resume", source="test")
+
+        threading.Thread(target=operator, daemon=True).start()
+        config = _config(tmp_path, pepper.url, **{"robot.model": "pepper"})
+        result = _play(config, RunOptions(quiet=True, commands=commands, observer=watcher))
+        calls = pepper.transcript()
+    finally:
+        pepper.stop()
+    assert result.status == "completed" and len([r for r in result.rows if r["success"] in (True, False)]) == 3
+    import json
+    events = read_events(result.path)
+    setup = json.loads((result.path / "session.json").read_text())["robot_setup"]  # before the folder existed
+    degraded = [e["detail"] for e in setup if e["event"] == "robot_degraded"]
+    assert "Pepper offers no ALLeds: the eye colours of the behaviors file are not shown" in degraded
+    assert any(e["event"] == "robot_health" and e["kind"] == "safeguard" for e in events)
+    assert [e["event"] for e in events].count("motors_held") == 1
+    postures = {c["args"][0] for c in calls if c["method"] == "goToPosture"}
+    assert postures <= {"Stand", "StandInit", "StandZero", "Crouch"} and "Stand" in postures
+    assert not [c for c in calls if c["service"] == "ALLeds"]
+
+
+def test_mock_robot_plays_the_study_model(tmp_path):
+    config = _config(tmp_path, "mock", **{"robot.model": "pepper"})
+    result = _play(config, RunOptions(quiet=True))
+    assert result.status == "completed"
+    import json
+    info = json.loads((result.path / "session.json").read_text())
+    assert info["config"]["values"]["robot"]["model"] == "pepper"
+    degraded = [e["detail"] for e in info["robot_setup"] if e["event"] == "robot_degraded"]
+    assert degraded == ["Pepper offers no ALTracker: nothing: the task does not track faces (Pepper 2.9 has no ALTracker)"]
