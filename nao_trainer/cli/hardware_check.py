@@ -7,6 +7,7 @@ import sys
 
 from nao_trainer.errors import ConfigError
 from nao_trainer.files import PROJECT_ROOT
+from nao_trainer.session.config import DESKTOP, MOCK, load_config
 
 
 def register(sub) -> None:
@@ -34,7 +35,6 @@ def register(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from nao_trainer.robot.hardware_check import run_hardware_check, verdict
     from nao_trainer.robot.naoqi import NaoqiRobot, redact_url
-    from nao_trainer.session.config import DESKTOP, MOCK, load_config
 
     if not 1 <= args.timeout <= 600:
         raise ConfigError(f"--timeout must be between 1 and 600 seconds, got {args.timeout:g}")

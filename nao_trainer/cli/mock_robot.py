@@ -5,6 +5,7 @@ import argparse
 import sys
 
 from nao_trainer.errors import ConfigError
+from nao_trainer.robot.address import credentials_from_env
 
 
 def register(sub) -> None:
@@ -60,7 +61,6 @@ def register(sub) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from nao_trainer.robot.address import credentials_from_env
     from nao_trainer.robot.standin import Login, serve  # imports qi: keep `nao-trainer --help` fast
 
     login = None
