@@ -213,6 +213,7 @@ class SessionRecorder:
         for key in ("ended", "exit_code", "error"):
             self._info.pop(key, None)
         torn = drop_torn_tail(self.path)  # a row cut by a kill: never append onto half a line
+        torn_events = drop_torn_tail(self.path, "events.jsonl")  # an event cut by a kill or a full disk
         self.rows = sum(1 for _ in read_turns(self.path))
         self._write_json()
         self._turns = open_no_follow(self.path / "turns.csv", "a")
@@ -223,6 +224,8 @@ class SessionRecorder:
         self._pending.clear()
         if torn:
             self.event("torn_row_dropped", bytes=torn, file="turns.csv")
+        if torn_events:
+            self.event("torn_event_dropped", bytes=torn_events, file="events.jsonl")
         return self.path
 
     def checkpoint(self, data: dict[str, Any]) -> None:
@@ -329,9 +332,9 @@ def _complete_length(text: str) -> int:
     return 0 if "\n" not in text else text.rindex("\n") + 1
 
 
-def drop_torn_tail(folder: Path) -> int:
-    """Cut a torn last line off ``folder/turns.csv`` (fsynced); returns the bytes dropped (0: none)."""
-    path = Path(folder) / "turns.csv"
+def drop_torn_tail(folder: Path, name: str = "turns.csv") -> int:
+    """Cut a torn last line off ``folder/name`` (fsynced); returns the bytes dropped (0: none)."""
+    path = Path(folder) / name
     data = path.read_bytes()
     keep = 0 if b"\n" not in data else data.rindex(b"\n") + 1
     if keep == len(data):

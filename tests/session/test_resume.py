@@ -354,3 +354,16 @@ def test_the_last_row_must_be_the_checkpoints(interrupted, tmp_path):
     edit_rows(folder, edit)
     msg = resume_refusal(folder)
     assert "line 4 (turn 3): start_time is '2000-01-01T00:00:00.000+00:00', the checkpoint recorded" in msg, msg
+
+
+def test_a_torn_last_event_is_cut_before_events_are_appended(interrupted, tmp_path):
+    """events.jsonl cut mid-line (a kill, or a full disk at its limit) got the resumed session's first event glued
+    onto its half line: a line no JSON reader can read."""
+    folder = copy_of(interrupted, tmp_path)
+    data = (folder / "events.jsonl").read_bytes()
+    (folder / "events.jsonl").write_bytes(data[:-25])
+    cfg, resumption = prepare_resume(folder)
+    result = run_session(cfg, RunOptions(quiet=True), resume=resumption)
+    assert result.exit_code == 0
+    events = read_events(folder)  # every line whole JSON
+    assert any(e["event"] == "torn_event_dropped" for e in events)
