@@ -2,7 +2,9 @@
 SHELL := /bin/bash
 VENV := .venv
 BIN := $(VENV)/bin
-# qi's wheels exist for CPython 3.10-3.12 only: take the first interpreter that runs and fits.
+# qi 3.1.5 (the NAOqi SDK) on the package index: wheels for CPython 3.8-3.12 on Linux x86_64 only (checked with
+# `pip download --no-deps qi==3.1.5 --python-version 3.X --only-binary=:all:`: none for 3.13, macOS, Windows or
+# Linux aarch64); the project needs 3.10+. Take the first interpreter that runs and fits.
 PYTHON ?= $(shell for p in python3.11 python3.12 python3.10 python3; do \
 	$$p -c 'import sys; sys.exit(not (3,10) <= sys.version_info[:2] <= (3,12))' 2>/dev/null && { echo $$p; break; }; done)
 SHARED ?= ../shared
@@ -13,7 +15,8 @@ export NAO_TRAINER_SHARED ?= $(abspath $(SHARED))
 
 .PHONY: demo test docs docs-serve bench figures clean os-packages
 $(VENV)/.installed: setup.py
-	@test -n "$(PYTHON)" || { echo "error: needs Python 3.10-3.12 (qi has no wheels for others)"; exit 1; }
+	@test "$$(uname -sm)" = "Linux x86_64" || { echo "error: qi (the NAOqi SDK) has wheels for Linux x86_64 only, this is $$(uname -sm): use a Linux x86_64 machine, VM or container (e.g. docker run -it python:3.11 bash)"; exit 1; }
+	@test -n "$(PYTHON)" || { echo "error: needs Python 3.10, 3.11 or 3.12 (qi 3.1.5 has wheels for 3.8-3.12, the project needs 3.10+; none is on PATH): install one, e.g. sudo apt-get install python3.11 python3.11-venv (Ubuntu: the deadsnakes PPA), or pyenv install 3.11, then make demo (or make demo PYTHON=/path/to/python3.11)"; exit 1; }
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q -e '.[all,test]'

@@ -16,7 +16,8 @@ setup(
     # namespace packages too: console/static (the page, no __init__.py) is then a package of its own, not data
     # setuptools warns about on every install
     packages=find_namespace_packages(include=["nao_trainer", "nao_trainer.*"], exclude=["*.__pycache__"]),
-    # qi (the NAOqi SDK) ships wheels for CPython 3.8-3.12 on Linux x86_64 only.
+    # qi 3.1.5 (the NAOqi SDK) on the package index: wheels for CPython 3.8-3.12, Linux x86_64 only (pip download
+    # per version, 2026-12: none for 3.13, macOS, Windows, Linux aarch64); the project itself needs 3.10+.
     python_requires=">=3.10,<3.13",
     install_requires=[
         "qi==3.1.5",

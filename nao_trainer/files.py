@@ -1,6 +1,7 @@
 """Reading and writing the project's files: one-line errors on reads, never half a file on writes."""
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
@@ -12,6 +13,35 @@ from typing import Any
 import yaml
 
 from nao_trainer.errors import ConfigError, UserError
+
+#: What a failed write means, by errno: (the cause, how to fix it).
+WRITE_CAUSES: dict[int, tuple[str, str]] = {
+    errno.ENOSPC: ("the disk is full", "free some space on it"),
+    errno.EDQUOT: ("the disk quota is used up", "free some space or raise the quota"),
+    errno.EROFS: ("the file system is read-only", "make it writable or choose another folder"),
+    errno.EACCES: ("no permission to write there", "make the folder writable for this user"),
+    errno.EPERM: ("no permission to write there", "make the folder writable for this user"),
+    errno.EMFILE: ("too many open files", "raise the limit (ulimit -n) or close other programs"),
+    errno.ENFILE: ("too many open files on this system", "close other programs"),
+    errno.EFBIG: ("the file is larger than this system allows", "raise the file size limit (ulimit -f)"),
+    errno.EIO: ("an input/output error of the disk", "check the disk"),
+}
+#: The errors of a disk that fills or fails (no file name needed to know it is a write that failed).
+DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EROFS})
+
+
+def cannot_write(where: Any, what: str, exc: OSError, other: str) -> str:
+    """``<file>: cannot write <what> (<cause>); <fix>``: the file (``exc``'s own when it names one), the
+    cause by errno (full disk, file size limit, read-only, ...) and its fix, else ``other`` (e.g. "choose
+    another --out")."""
+    place = exc.filename if exc.filename is not None else where
+    if exc.errno in WRITE_CAUSES:
+        cause, fix = WRITE_CAUSES[exc.errno]
+        fix = f"{fix}, or {other}" if other else fix
+    else:
+        cause, fix = exc.strerror or type(exc).__name__, other or "check the disk"
+    return f"{place}: cannot write{' ' + what if what else ''} ({cause}); {fix}"
+
 
 #: The checkout that holds config/, dialogue/, behaviors/ and sim/ beside the package.
 PROJECT_ROOT = Path(__file__).resolve().parents[1]

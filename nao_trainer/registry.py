@@ -192,6 +192,7 @@ def installed(kind: str) -> tuple[Installed, ...]:
 #: The project's own plug-ins: (kind, name, entry point). Each home owns its settings and behaviour.
 BUILTIN: tuple[tuple[str, str, str], ...] = (
     ("task", "sequence", "nao_trainer.tasks.sequence:SequenceTask"),
+    ("task", "nback", "nao_trainer.tasks.nback:NBackTask"),
     ("policy", "schedule", "nao_trainer.policies.kinds:SCHEDULE"),
     ("policy", "random", "nao_trainer.policies.kinds:RANDOM"),
     ("policy", "usp", "nao_trainer.policies.kinds:USP"),

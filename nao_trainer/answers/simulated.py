@@ -12,7 +12,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -50,7 +50,7 @@ class SimulatedParticipant:
 
     def __init__(self, simulator: UserSimulator, rng: np.random.Generator, speed: float = 1.0,
                  monitor: EngagementMonitor | None = None, press: Callable[[str], object] | None = None,
-                 inner: TactileAnswers | None = None, min_gap_s: float = 0.2) -> None:
+                 inner: TactileAnswers | None = None, min_gap_s: float = 0.2, task: Any = None) -> None:
         if (press is None) != (inner is None):
             raise ValueError("press and inner go together: presses need an answer source that receives them")
         self.simulator = simulator
@@ -60,6 +60,8 @@ class SimulatedParticipant:
         self.press = press
         self.inner = inner
         self.min_gap_s = float(min_gap_s)
+        #: A task with its own simulated participant (``simulated_answer``, e.g. n-back's signal-detection observer).
+        self.own_answer = getattr(task, "simulated_answer", None)
         self.plan: Plan | None = None
         self._opened = 0.0
         self._presser: threading.Thread | None = None
@@ -75,6 +77,12 @@ class SimulatedParticipant:
 
     def prepare(self, context: TurnContext) -> None:
         """Decide the turn's outcome, response and timing; set the simulated Muse's target."""
+        if self.own_answer is not None and context.trial is not None:
+            rt, _ = self.simulator.sample_times(context.trial.level, self.rng)
+            success, response, times, mistake = self.own_answer(context.trial, self.rng, min(rt, 1.5))
+            self.plan = Plan(success, response, times, mistake)
+            self.monitor.set_target(self.simulator.engagement_of(context.state, success))
+            return
         success = self.simulator.sample_success(context.state, self.rng)
         response, mistake = (context.sequence, "") if success else make_mistake(context.sequence, self.rng)
         rt, ct = self.simulator.sample_times(task.level_of(context.length), self.rng)

@@ -12,7 +12,8 @@ import os
 import sys
 
 from nao_trainer import __version__
-from nao_trainer.errors import Interrupted, UserError
+from nao_trainer.errors import DataError, Interrupted, UserError
+from nao_trainer.files import DISK_ERRNOS, cannot_write
 
 #: Subcommand modules, in the order ``--help`` lists them.
 COMMANDS = ("run", "check", "hardware_check", "mock_robot", "simulate_muse", "engagement", "import_data", "fit",
@@ -54,6 +55,14 @@ def main(argv: list[str] | None = None) -> int:
     except (KeyboardInterrupt, Interrupted):
         print(f"nao-trainer {args.command}: interrupted", file=sys.stderr)
         return Interrupted.exit_code
+    except OSError as exc:  # a write the command did not catch itself failed: a full disk or a file size limit
+        if exc.errno not in DISK_ERRNOS or isinstance(exc, BrokenPipeError):
+            raise
+        out = getattr(args, "out", None)
+        message = cannot_write(out or "an output file", "an output file" if out and exc.filename is None else "", exc,
+                               f"choose another output folder (--out) for {args.command}")
+        print(f"nao-trainer {args.command}: error: {message}", file=sys.stderr)
+        return DataError.exit_code
     except BrokenPipeError:  # the reader went away (`nao-trainer study status DIR | head`): nothing to say to it
         _quiet_stdout()
         return 0

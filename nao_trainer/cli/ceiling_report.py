@@ -9,6 +9,7 @@ import sys
 from typing import Any
 
 from nao_trainer.errors import ConfigError
+from nao_trainer.files import write_json_atomic
 
 
 def add_arguments(p) -> None:
@@ -161,7 +162,6 @@ def run_user_models(args) -> int:
     from pathlib import Path
 
     from nao_trainer.experiments import user_models
-    from nao_trainer.files import write_json_atomic
     from nao_trainer.learn import artifacts
 
     source = args.data if args.users == "sessions" or args.data is not None else Path(args.users)

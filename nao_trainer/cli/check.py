@@ -24,6 +24,7 @@ def register(sub) -> None:
     p.add_argument("--robot", metavar="mock|desktop|URL", help="robot address (overrides robot.url)")
     p.add_argument("--eeg", choices=EEG_MODES, help="EEG mode (overrides eeg.mode)")
     p.add_argument("--eeg-device", metavar="NAME", help="EEG device plug-in (overrides eeg.device)")
+    p.add_argument("--robot-model", metavar="NAME", help="robot model plug-in: nao, pepper (overrides robot.model)")
     p.add_argument("--allow-simulated-eeg", action="store_true",
                    help="pilots only: accept a simulated or replayed stream (simulate-muse) for a session where a "
                         "person answers or a real robot plays (eeg.allow_simulated)")
@@ -39,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
 
     if not 0.5 <= args.seconds <= 60:
         raise ConfigError(f"--seconds must be between 0.5 and 60, got {args.seconds:g}")
-    overrides = {"robot.url": args.robot, "eeg.mode": args.eeg, "eeg.device": args.eeg_device, "eeg.source_id": args.eeg_source_id,
+    overrides = {"robot.url": args.robot, "eeg.mode": args.eeg, "eeg.device": args.eeg_device, "robot.model": args.robot_model, "eeg.source_id": args.eeg_source_id,
                  "eeg.allow_simulated": True if args.allow_simulated_eeg else None, "answers.input": args.input,
                  "session.output": str(Path(args.out).resolve()) if args.out else None}
     config = load_config(args.config, overrides)

@@ -5,6 +5,7 @@ import argparse
 import sys
 
 from nao_trainer.errors import ConfigError
+from nao_trainer.robot.address import credentials_from_env
 
 
 def register(sub) -> None:
@@ -41,6 +42,9 @@ def register(sub) -> None:
         help="allow a non-loopback --listen address (serves other machines on the network)",
     )
     p.add_argument("--no-keys", action="store_true", help="do not read head-button keys (a, b, c) from the terminal")
+    p.add_argument("--profile", metavar="FILE", help="answer as the robot recorded in FILE does (`nao-trainer "
+                   "hardware-check --record FILE`; config/robot-profiles/naoqi-2.8-docs.json: the NAOqi 2.8 docs)")
+    p.add_argument("--model", default="nao", choices=("nao", "pepper"), help="the robot played (default nao)")
     p.set_defaults(func=_run)
     actions = p.add_subparsers(dest="mock_action", metavar="ACTION")
     press = actions.add_parser("press", help="touch a head button of a running stand-in (from another shell)",
@@ -57,7 +61,6 @@ def register(sub) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from nao_trainer.robot.address import credentials_from_env
     from nao_trainer.robot.standin import Login, serve  # imports qi: keep `nao-trainer --help` fast
 
     login = None
@@ -74,7 +77,14 @@ def _run(args: argparse.Namespace) -> int:
 
     return serve(args.listen, on_ready=keys, speed=args.speed, transcript_path=args.transcript, allow_remote=args.allow_remote,
                  echo=sys.stderr if args.echo else None, login=login, latency_s=args.latency_ms / 1000,
-                 beep_latency_s=args.beep_latency_ms / 1000, freeze_s=args.freeze_s)
+                 beep_latency_s=args.beep_latency_ms / 1000, freeze_s=args.freeze_s, model=args.model,
+                 profile=_profile(args.profile))
+
+
+def _profile(path: str | None):
+    from nao_trainer.robot.profile import load_profile
+
+    return None if path is None else load_profile(path)
 
 
 def _press(args: argparse.Namespace) -> int:

@@ -11,7 +11,8 @@ from nao_trainer.core.settings import declared, rule_text
 from nao_trainer.policies.plugin import PolicyCommon
 
 #: Where a kind's settings live in a study configuration (the dotted prefix of its keys).
-PREFIX = {"policy": "policy.", "eeg_device": "eeg.device_settings."}
+PREFIX = {"policy": "policy.", "eeg_device": "eeg.device_settings.", "robot_model": "robot.model_settings.",
+          "task": "task.settings."}
 TITLES = {"task": "tasks", "policy": "policies", "eeg_device": "EEG devices", "robot_model": "robot models"}
 
 

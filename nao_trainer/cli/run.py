@@ -33,6 +33,8 @@ def register(sub) -> None:
     p.add_argument("--eeg", choices=EEG_MODES, help="EEG: off, the device's simulation, or the live headband (lsl)")
     p.add_argument("--task", metavar="NAME", help="the task trained: sequence | nback | an installed plug-in's "
                    "(task.name; nao-trainer plugins lists them)")
+    p.add_argument("--robot-model", metavar="NAME",
+                   help="robot model plug-in: nao, pepper (overrides robot.model; nao-trainer plugins lists them)")
     p.add_argument("--eeg-device", metavar="NAME",
                    help="EEG device plug-in (eeg.device): muse (muselsl / simulated Muse), brainflow (a BrainFlow "
                         "board, its synthetic board when simulated); nao-trainer plugins lists them")
@@ -86,6 +88,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, object]:
         "participant.pseudonym": args.pseudonym,
         "eeg.mode": args.eeg,
         "eeg.device": args.eeg_device,
+        "robot.model": args.robot_model,
         "task.name": args.task,
         "eeg.source_id": args.eeg_source_id,
         "eeg.allow_simulated": True if args.allow_simulated_eeg else None,

@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+from nao_trainer.eeg.lsl_scope import configure_lsl
 from nao_trainer.errors import ConfigError, Interrupted
 
 
@@ -47,7 +48,6 @@ def register(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from nao_trainer.eeg.lsl_scope import configure_lsl
     from nao_trainer.eeg.simulated_muse import ReplayMuse, SimulatedMuse
 
     if not 0.0 <= args.engagement <= 1.0:

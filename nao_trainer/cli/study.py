@@ -11,6 +11,8 @@ from nao_trainer.eeg.settings import MODES as EEG_MODES
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import read_text, write_text_atomic
 from nao_trainer.session.config import INPUTS
+from nao_trainer.study.protocol import load_protocol
+from nao_trainer.study.seal import key_path
 
 ACTIONS = ("init", "enrol", "withdraw", "amend", "status", "next", "repair", "unblind", "analyse", "power", "export",
            "table")
@@ -173,7 +175,6 @@ def _init(args: argparse.Namespace) -> int:
     from nao_trainer.study.registry import init_study
 
     from nao_trainer.study.registry import BACKUP, REGISTRY_FILE, block_sizes
-    from nao_trainer.study.seal import key_path
 
     seed = None
     if args.allocation_seed_file is not None:
@@ -192,9 +193,9 @@ def _init(args: argparse.Namespace) -> int:
     if p.allocation.seed is not None:
         print(f"study init: allocation.seed in {args.protocol} is not used: the allocation is drawn from the "
               "operating system's entropy (a seed anyone can read would reveal it)", file=sys.stderr)
-    sizes = "/".join(map(str, block_sizes(p)))
+    sizes = " or ".join(map(str, block_sizes(p)))
     print(f"{args.out}: study {p.name} initialised (protocol sha256 {p.sha256}; {len(p.arms)} arms, target "
-          f"{p.target_n}, random blocks of {sizes}); the allocation is sealed with the study key "
+          f"{p.target_n}, blocks of {sizes}, each size drawn by chance); the allocation is sealed with the study key "
           f"{key_path(study.registry['study_id'])} (outside the study folder: back it up, and give it to no "
           "operator)")
     return 0
@@ -289,7 +290,6 @@ def _analyse(args: argparse.Namespace) -> int:
 
 def _power(args: argparse.Namespace) -> int:
     from nao_trainer.study.power import power_study
-    from nao_trainer.study.protocol import load_protocol
 
     try:
         ns = sorted({int(x) for x in args.n.split(",") if x.strip()})

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from nao_trainer.errors import ConfigError, DataError
+from nao_trainer.files import cannot_write
 from nao_trainer.cli._checks import make_output_dir, require_matplotlib
 
 #: ``core.qlearning.METHODS``, repeated here so that ``--help`` does not import numpy (a test keeps them equal).
@@ -72,7 +73,7 @@ def run(args) -> int:
 
             paths.update(write_figures(result, args.out))
     except OSError as exc:
-        raise DataError(f"{args.out}: cannot write outputs ({exc.strerror}); choose a writable --out") from None
+        raise DataError(cannot_write(args.out, "outputs", exc, "choose a writable --out")) from None
     if args.json:
         print(json.dumps(result.summary_json()))
     else:

@@ -19,7 +19,7 @@ import numpy as np
 
 from nao_trainer.core import mdp
 from nao_trainer.errors import DataError, UserError
-from nao_trainer.files import read_text, write_text_atomic
+from nao_trainer.files import cannot_write, read_text, write_text_atomic
 
 #: Columns that label a session (what study, who answered) rather than describe a turn: not fingerprinted.
 LABELS = ("study", "input")
@@ -118,7 +118,7 @@ def write_table(table: TurnTable, path: Path, provenance: dict[str, Any]) -> Pat
             write_text_atomic(target, content)
     except OSError as exc:
         where = exc.filename or path
-        raise UserError(f"{where}: cannot write the turn table ({exc.strerror}); choose another --out") from None
+        raise UserError(cannot_write(where, "the turn table", exc, "choose another --out")) from None
     return path
 
 

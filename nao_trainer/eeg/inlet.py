@@ -16,9 +16,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nao_trainer.errors import EEGUnavailable
 from nao_trainer.core.montage import Montage
+from nao_trainer.eeg.device import make_device
 from nao_trainer.eeg.lsl_scope import configure_lsl
+from nao_trainer.errors import EEGUnavailable
 
 log = logging.getLogger(__name__)
 
@@ -166,8 +167,6 @@ class EEGInlet:
         import pylsl
 
         if montage is None:
-            from nao_trainer.eeg.device import make_device
-
             montage = make_device("muse").montage()
         inlet = pylsl.StreamInlet(info, max_buflen=60, recover=True)
         full = inlet.info(correction_timeout_s)

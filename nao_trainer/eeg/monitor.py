@@ -38,7 +38,7 @@ from nao_trainer.eeg.settings import EEGSettings, simulated_refusal
 from nao_trainer.eeg.markers import MarkerOutlet, event_name
 from nao_trainer.eeg.session_files import (EVENTS_HEADER, GAPS_HEADER, PHASES_HEADER, SEGMENTS_HEADER, WINDOWS_HEADER,
                                            SessionFiles, fmt)
-from nao_trainer.eeg.xdf import XdfRecorder, XdfUnavailable
+from nao_trainer.eeg.xdf import XdfRecorder, XdfUnavailable, truncation
 from nao_trainer.ports import PhaseEngagement
 
 log = logging.getLogger(__name__)
@@ -121,6 +121,7 @@ class LslMonitor:
         self._lost = False
         self._closed = False
         self.xdf = None  # the session.xdf recorder (eeg.xdf.XdfRecorder) once a stream is attached
+        self.xdf_problem = ""  # why session.xdf is not whole (cut by a full disk), once stopped
         self._xdf_wanted = record_xdf and settings.xdf and session_dir is not None and markers is not None
         if inlet is not None:
             self._attach(inlet)
@@ -221,6 +222,12 @@ class LslMonitor:
         self._event("xdf_stopped" if code == 0 else "xdf_failed", f"exit {code} (log: eeg/xdf.log)", publish=False)
         if code != 0:
             log.warning("session.xdf: the recorder ended with exit code %s; see %s", code, self.xdf.log_path)
+        cut = truncation(self.xdf.path) if code == 0 else None
+        if cut is not None:  # a full disk or a file size limit: the engine itself reports nothing
+            self.xdf_problem = (f"{self.xdf.path}: {cut} (a full disk or a file size limit); free some space or "
+                                "raise the limit (ulimit -f); eeg/raw.csv records the same EEG")
+            log.warning("%s", self.xdf_problem)
+            self._event("xdf_incomplete", self.xdf_problem, publish=False)
 
     def _event(self, event: str, detail: str = "", turn: int | None = None, publish: bool = True) -> float:
         name = event_name(event, turn)
@@ -341,8 +348,11 @@ class LslMonitor:
         row = ",".join(["%r"] * (1 + len(labels))) + "\n"  # exact: the offline re-analysis replays these
         with self.files.lock:
             fh = log_.raw_file()
-            fh.write((row * len(block)) % tuple(block.ravel().tolist()))  # one format op: cheap
-            fh.flush()
+            try:
+                fh.write((row * len(block)) % tuple(block.ravel().tolist()))  # one format op: cheap
+                fh.flush()
+            except OSError as exc:  # name the file: a full disk fails in write(), which names none
+                raise OSError(exc.errno, exc.strerror, str(log_.path)) from exc
 
     def _prune(self) -> None:
         """Forget windows no open phase can still need (keeps ``end_phase`` cheap in long sessions)."""

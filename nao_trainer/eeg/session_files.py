@@ -28,9 +28,12 @@ class CsvLog:
             self._fh.flush()
 
     def write(self, rows: list[list[Any]], flush: bool = True) -> None:
-        self._w.writerows(rows)
-        if flush:
-            self._fh.flush()
+        try:
+            self._w.writerows(rows)
+            if flush:
+                self._fh.flush()
+        except OSError as exc:  # name the file: a full disk fails in write(), which names none
+            raise OSError(exc.errno, exc.strerror, str(self.path)) from exc
 
     def raw_file(self):
         return self._fh

@@ -54,6 +54,34 @@ GUARD_EXTRA_S = 30.0
 FLUSH_S = 1.0
 
 
+def truncation(path: Path) -> str | None:
+    """Why ``path`` is not a whole XDF file (cut by a full disk or a file size limit: the engine writes
+    through a C++ stream that reports nothing), or None. Walks the chunks: the magic ``XDF:``, then
+    per chunk the count of length bytes (1, 4 or 8), the length, and that many bytes (tag and content);
+    a whole file ends exactly after its last chunk, a stream footer (tag 6)."""
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror})"
+    if data[:4] != b"XDF:":
+        return f"holds {len(data)} bytes and no XDF header"
+    pos, tag = 4, None
+    while pos < len(data):
+        width = data[pos]
+        if width not in (1, 4, 8) or pos + 1 + width > len(data):
+            return f"cut at {len(data)} bytes, inside a chunk"
+        length = int.from_bytes(data[pos + 1:pos + 1 + width], "little")
+        start = pos + 1 + width
+        if length < 2 or start + length > len(data):
+            return f"cut at {len(data)} bytes, inside a chunk of {length} bytes"
+        tag = int.from_bytes(data[start:start + 2], "little")
+        pos = start + length
+    if tag != 6:
+        return f"ends at {len(data)} bytes without its stream footers"
+    return None
+
+
 class XdfUnavailable(EEGUnavailable):
     """No XDF recording: the engine is not installed, or it found no stream."""
 

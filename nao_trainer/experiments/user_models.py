@@ -23,6 +23,9 @@ from typing import Any
 import numpy as np
 
 from nao_trainer.core import evaluation, psychometric
+from nao_trainer.core.people import people, per_person
+from nao_trainer.learn.fitting import Turns
+from nao_trainer.learn.users import beta_concentration, hold_out, leave_one_person_out, read_turns
 
 MODELS: tuple[str, ...] = ("per-level", "clusters", "psychometric")
 CLIP = 1e-3
@@ -42,8 +45,6 @@ def _session_counts(turns: Any) -> tuple[list[str], np.ndarray]:
 
 
 def _one(turns: Any, session: str, k: int, n_init: int, seed: int, rate: float) -> dict[str, Any]:
-    from nao_trainer.learn.users import beta_concentration, hold_out
-
     split = hold_out(turns, session, k, n_init, seed)
     rest, own = split.rest, split.own
     names, counts = _session_counts(rest)
@@ -85,9 +86,6 @@ def _one(turns: Any, session: str, k: int, n_init: int, seed: int, rate: float) 
 
 def run(source: Path, compat: str | None, k: int = 3, n_init: int = 50, seed: int = 0, workers: int = 2,
         rate: float = 0.75) -> dict[str, Any]:
-    from nao_trainer.learn.fitting import Turns
-    from nao_trainer.learn.users import leave_one_person_out, read_turns
-
     turns = Turns.from_columns(read_turns(Path(source), compat).columns)
     parts = leave_one_person_out(turns, _one, (k, n_init, seed, rate), k, source, workers)
     return summarise(parts, rate)
@@ -114,8 +112,6 @@ def calibration(pairs: list[tuple[float, int]], bins: int = 10) -> dict[str, Any
 
 
 def summarise(parts: list[dict[str, Any]], rate: float) -> dict[str, Any]:
-    from nao_trainer.core.people import people, per_person
-
     names = [p["session"] for p in parts]
     out: dict[str, Any] = {"sessions": len(parts), "people": len(people(names)), "rate": rate, "models": []}
     base = per_person(names, [p["ll"]["per-level"] for p in parts])

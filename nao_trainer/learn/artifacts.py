@@ -22,7 +22,7 @@ from typing import Any
 from nao_trainer.core.simulation import FORMAT_VERSION as SIMULATOR_FORMAT_VERSION
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.errors import DataError, UserError
-from nao_trainer.files import PROJECT_ROOT, JsonFormat, read_json, write_json_atomic
+from nao_trainer.files import PROJECT_ROOT, JsonFormat, cannot_write, read_json, write_json_atomic
 
 MANIFEST = "manifest.json"
 MANIFEST_FORMAT = "nao-trainer/user-models"
@@ -70,8 +70,7 @@ def save_models(out_dir: Path, simulators: list[UserSimulator], clusters: list[d
             write_json_atomic(out / name, sim.to_dict())
             rows.append({**row, "file": name, "fingerprint": sim.fingerprint()})
     except OSError as exc:
-        where = exc.filename or out
-        raise UserError(f"{where}: cannot write the user models ({exc.strerror}); choose another --out") from None
+        raise UserError(cannot_write(out, "the user models", exc, "choose another --out")) from None
     manifest = {
         **MANIFEST_FILE.header(),
         "simulator_format_version": SIMULATOR_FORMAT_VERSION,
@@ -83,7 +82,7 @@ def save_models(out_dir: Path, simulators: list[UserSimulator], clusters: list[d
     try:
         write_json_atomic(path, manifest)
     except OSError as exc:
-        raise UserError(f"{path}: cannot write ({exc.strerror}); choose another --out") from None
+        raise UserError(cannot_write(path, "", exc, "choose another --out")) from None
     return path
 
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from nao_trainer.core import psychometric
 from nao_trainer.errors import DataError, UserError
-from nao_trainer.files import PROJECT_ROOT, JsonFormat, read_json, write_json_atomic
+from nao_trainer.files import PROJECT_ROOT, JsonFormat, cannot_write, read_json, write_json_atomic
 
 PRIOR_FILE = JsonFormat("nao-trainer/psychometric-prior", 1, "psychometric prior", "psychometric prior",
                         "refit with `nao-trainer fit SOURCE --out DIR --psychometric FILE`")
@@ -46,8 +46,7 @@ def save_prior(path: Path, model: psychometric.PooledModel, info: dict[str, Any]
         path.parent.mkdir(parents=True, exist_ok=True)
         write_json_atomic(path, doc)
     except OSError as exc:
-        raise UserError(f"{path}: cannot write the psychometric prior ({exc.strerror}); choose another "
-                        "--psychometric") from None
+        raise UserError(cannot_write(path, "the psychometric prior", exc, "choose another --psychometric")) from None
     return path
 
 

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from nao_trainer.core import mdp
+from nao_trainer.core.people import people, person_of
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.core.usermodel import cluster_users, user_models
 from nao_trainer.data import dataset, turn_table
@@ -152,8 +153,6 @@ def hold_out(turns: Any, session: str, k: int, n_init: int, seed: int) -> HeldOu
     The one rule of leave-one-out: what is fitted never sees the held-out session's turns, nor
     those of the person's other sessions (user_1 and user_4 played two: leave the PERSON out).
     """
-    from nao_trainer.core.people import person_of
-
     mine = turns.session == session
     me = person_of(session)
     same_person = np.array([person_of(s) == me for s in turns.session], dtype=bool)
@@ -191,8 +190,6 @@ def leave_one_person_out(turns: Any, one: Any, extra: tuple, k: int, source: Any
     session's person (``hold_out``): the one leave-out loop of the project (user models, per-session
     users, personalisation, the ceiling's users). DataError when the people left to cluster are too
     few for K clusters."""
-    from nao_trainer.core.people import people
-
     sessions = sorted(np.unique(turns.session).tolist())
     who = people(sessions)
     if len(who) < 2 * k + 1:

@@ -41,7 +41,10 @@ from nao_trainer.core import bayes, mdp, objective
 from nao_trainer.core.posterior import level_means
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import JsonFormat
+from nao_trainer.learn import artifacts
+from nao_trainer.learn.artifacts import load_simulator_file
 from nao_trainer.learn.bayes_cache import solve_cached
+from nao_trainer.learn.psychometric_prior import load_prior
 from nao_trainer.policies.participant_state import FRESH, ParticipantState, open_saved
 from nao_trainer.policies.plugin import LiveContext, OfflineContext
 from nao_trainer.ports import Transition
@@ -208,8 +211,6 @@ def default_prior(obj: objective.Objective) -> str:
 
 def cluster_prior(models_dir: Path | None = None) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
     """(names, success per level (K, 4), weights): the fitted clusters, weighted by their sessions."""
-    from nao_trainer.learn import artifacts
-
     manifest = artifacts.load_manifest(models_dir)
     rows = manifest.get("clusters", [])
     if not rows:
@@ -222,16 +223,12 @@ def cluster_prior(models_dir: Path | None = None) -> tuple[tuple[str, ...], np.n
 def psychometric_prior(file: Path | None = None) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
     """(names, success per level (G, 4), weights): the pooled psychometric model of ``file`` (default:
     the shipped one) as the mixture over its grid of spans, the same as the evaluation's ``bayes-psychometric``."""
-    from nao_trainer.learn.psychometric_prior import load_prior
-
     theta, p, w = load_prior(file).components()
     return tuple(f"span {t:.1f}" for t in theta), p, w
 
 
 def users_prior(users_dir: Path) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
     """(names, success per level (K, 4), equal weights): every user simulator file of ``users_dir``."""
-    from nao_trainer.learn.artifacts import load_simulator_file
-
     files = sorted(Path(users_dir).glob("*.json"))
     if not files:
         raise ConfigError(f"policy.prior {users_dir}: no user simulator files (*.json) in that folder; "

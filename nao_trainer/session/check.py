@@ -25,7 +25,7 @@ from nao_trainer.errors import ConfigError, RobotUnavailable, UserError
 from nao_trainer.ports import RobotCallFailed, RobotConnectionLost
 from nao_trainer.robot.address import redact_url
 from nao_trainer.robot.desktop import DesktopRobot
-from nao_trainer.session.config_rules import is_robot_address
+from nao_trainer.session.config_rules import LANGUAGES, is_robot_address
 from nao_trainer.session.record import WRITE_CAUSES
 
 #: Exit codes of failed required checks, by kind (as `nao-trainer run` would fail later).
@@ -252,7 +252,6 @@ def _check_naoqi(url: str, plan: CheckPlan, label: str | None) -> CheckResult:
 
 def _language_problem(robot: Any, language: str) -> tuple[str, str] | None:
     """(what, fix) when ``language``'s voice is not installed on the robot (ALTextToSpeech.getAvailableLanguages)."""
-    from nao_trainer.session.config_rules import LANGUAGES
     from nao_trainer.session.robot_setup import available_languages, missing_language_line
 
     name = LANGUAGES[language]

@@ -28,6 +28,7 @@ from nao_trainer.errors import ConfigError
 from nao_trainer.files import PROJECT_ROOT, read_yaml
 from nao_trainer.policies.participant_state import state_file
 from nao_trainer.policies.plugin import compose_section
+from nao_trainer.robot.model import make_model
 from nao_trainer.session import config_rules as rules
 from nao_trainer.session.config_rules import DESKTOP, INPUTS, MOCK, is_robot_address  # noqa: F401 (importable from here)
 
@@ -92,7 +93,6 @@ class RobotSection:
         if self.backoff_max_s < self.backoff_initial_s:
             raise SettingError("backoff_max_s", "must be >= robot.backoff_initial_s")
         # the model's own settings, validated with the section (``key 'robot.model_settings.cool_posture' ...``)
-        from nao_trainer.robot.model import make_model
 
         object.__setattr__(self, "_model", make_model(self.model, self.model_settings, prefix="model_settings"))
 

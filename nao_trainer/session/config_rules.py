@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import re
 
+from nao_trainer import registry
 from nao_trainer.errors import ConfigError
 from nao_trainer.robot.address import parse_url, redact_url
 
@@ -25,8 +26,6 @@ def robot_url(value: str) -> str | None:
 
 
 def robot_model(value: str) -> str | None:
-    from nao_trainer import registry  # light: no plug-in is imported here
-
     try:
         registry.spec("robot_model", value)
     except ConfigError as exc:

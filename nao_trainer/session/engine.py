@@ -41,6 +41,7 @@ from nao_trainer.session.checkpoint import Checkpointer, Standing
 from nao_trainer.session.config import StudyConfig
 from nao_trainer.session.machine import (AGAIN_STATES, FINAL_STATES, IN_TURN, INTRO_STATES, REPLAYABLE, STATES,
                                         TRANSITIONS, TURN_STATES)
+from nao_trainer.session.health import HealthDesk
 from nao_trainer.session.operator import HOLD_STATES, OperatorDesk, who_stopped
 from nao_trainer.session.parts import Randomness, Script, SessionPorts
 from nao_trainer.session.phases import PhaseClock
@@ -53,8 +54,8 @@ from nao_trainer.session.turn import Turn, progress_line
 EXIT_OK, EXIT_ROBOT_LOST, EXIT_INTERRUPTED = 0, RobotUnavailable.exit_code, Interrupted.exit_code
 #: The operator stopped the session (a key or the console): goodbye and safe posture, then this code.
 EXIT_OPERATOR_STOP = 5
-#: Every turn was played and recorded, but events.jsonl could not be written to the end (a full disk).
-EXIT_EVENTS_LOST = 6
+#: Every turn was played and recorded, but events.jsonl or session.xdf could not be written to the end (a full disk).
+EXIT_RECORD_INCOMPLETE = 6
 
 
 class Session:
@@ -86,9 +87,15 @@ class Session:
         self.phases = PhaseClock(ports.monitor, self.stage, ports.answers, ports.robot, self.clock, config.timing,
                                  recorder, self.log, config.eeg.missing_alert_turns, config.eeg)
         self.desk = OperatorDesk(ports.commands, self.log, recorder, ports.monitor, ports.observer)
+        model = config.robot.robot_model()
+        self.health = HealthDesk(ports.health, ports.upkeep, ports.commands, self.log, recorder, ports.monitor,
+                                 ports.observer, model.cool_posture(),
+                                 bool(getattr(model.settings, "pause_on_safeguard", True)))
         self.checkpoints = Checkpointer(recorder, ports.policy, random.by_name())
         self.reconnector = Reconnector(ports.robot, config.robot, self.clock, recorder, self.log, self.stage)
         self.task = ports.task
+        self.in_window = bool(getattr(ports.task, "presents_in_window", False))  # answers come during present
+        self.stage.mark = ports.monitor.mark
         self.n_turns = config.session.turns
         self.mdp_state = mdp.START
         self.last_success: bool | None = None
@@ -161,7 +168,7 @@ class Session:
         if self.state == "done":
             if self.status == "stopped":
                 return EXIT_OPERATOR_STOP
-            if self.status != "time limit":
+            if self.status not in ("time limit", "battery low"):
                 self.status = "completed"
             return EXIT_OK
         return EXIT_INTERRUPTED if self.status == "interrupted" else EXIT_ROBOT_LOST
@@ -233,7 +240,7 @@ class Session:
         self.answers.abandon()
         turn.notes.append(why)
         turn.success = None
-        row = self.log.row(turn, turn.row(None, None, self.clock.speed, self.monitor.records_eeg))
+        row = self.log.row(turn, turn.row(None, None, self.clock.speed, self.monitor.records_eeg, self.task.columns))
         self.rec.event("turn_interrupted", turn=turn.number, reason=why)
         self.observer.notify("row", {**row, "total": self.total, "elapsed_s": round(self.elapsed_s(), 2)})
         self.log.say(f"turn {turn.number:3d}/{self.n_turns}  {why}")
@@ -260,8 +267,13 @@ class Session:
         context = TurnContext(0, mdp.encode(mdp.LENGTHS[trial.level - 1], 0, 0), size, trial.stimuli, trial)
         self.answers.prepare(context)
         self.stage.announce(trial.level, size, look=False, turn=0)
-        self.task.present(self.stage, trial, 0)
-        answer, _ = self.phases.collect(0, self._presses(trial), self._timeout_s(trial), self.phases.beep(0))
+        if self.in_window:
+            onset = self.phases.beep(0)
+            self.task.present(self.stage, trial, 0, onset)
+        else:
+            self.task.present(self.stage, trial, 0)
+            onset = self.phases.beep(0)
+        answer, _ = self.phases.collect(0, self._presses(trial), self._timeout_s(trial), onset)
         ok = not answer.timed_out and self.task.judge(trial, answer).success
         self.rec.event("practice", sequence="".join(trial.stimuli), response="".join(answer.response), success=ok)
         self.stage.say("practice_success" if ok else "practice_failure", behavior="practice")
@@ -324,15 +336,18 @@ class Session:
     def _do_announce(self, turn: Turn) -> str:
         st = turn.turn_state
         self.stage.announce(st.level, self.task.size(turn.trial), turn=turn.number)
-        return "speak"
+        return "open_first" if self.in_window else "speak"
 
     def _do_present(self, turn: Turn) -> str:
+        if self.in_window:
+            self.task.present(self.stage, turn.trial, turn.number, self._beep_onset)
+            return "collect_presented"
         self.task.present(self.stage, turn.trial, turn.number)
         return "sound_beep"
 
     def _do_open_window(self, turn: Turn) -> str:
         self._beep_onset = self.phases.beep(turn.number)
-        return "wait_answer"
+        return "present_in_window" if self.in_window else "wait_answer"
 
     def _do_collect(self, turn: Turn) -> str:
         answer, listening = self.phases.collect(turn.number, self._presses(turn.trial), self._timeout_s(turn.trial),
@@ -355,7 +370,8 @@ class Session:
         assert turn.success is not None  # judged in judge
         st = turn.turn_state
         score = self.task.score(st.level, turn.success)
-        row = turn.row(score, self.task.signed_score(st.level, turn.success), self.clock.speed, self.monitor.records_eeg)
+        row = turn.row(score, self.task.signed_score(st.level, turn.success), self.clock.speed, self.monitor.records_eeg,
+                       self.task.columns)
         self.completed += 1
         if not turn.invalid:  # the total counts what the summary counts: turns not marked invalid
             self.total += score
@@ -430,10 +446,21 @@ class Session:
         """
         if self.state == "operator_pause":
             return None  # its handler says the pause line first, then takes the commands
+        self.health.take(self.state, self.turn)  # the robot's falls, heat, battery, chest button (session.health)
         trigger = self._apply_pending(hold=self.state in HOLD_STATES)
         if trigger is None and self.state == "select_action" and self._time_up():
             return self._end_for_time()
+        if trigger is None and self.state == "select_action" and self.health.before_turn(self.stage):
+            return self._end_for_battery()
         return trigger
+
+    def _end_for_battery(self) -> str:
+        """BatteryLow: the turn in flight was finished; end cleanly, saying what to do."""
+        self.status = "battery low"
+        self.rec.event("battery_low_end", completed=self.completed)
+        self.log.say(f"robot battery low: the session ends after turn {self.completed} of {self.n_turns}; charge "
+                     "the robot (plug it in, about an hour to full) before the next session")
+        return "time_up"
 
     def _apply_pending(self, hold: bool = False) -> str | None:
         """Apply the due commands in order until one changes the state; the rest wait for the next point."""
@@ -491,6 +518,7 @@ class Session:
             trigger = self._apply_pending()
             if trigger is not None:
                 if trigger != "operator_stop":
+                    self.health.resumed()  # the operator says the robot is up: its motors may wake again
                     self.monitor.mark("pause_end", self._turn_number())
                     self.log.resumed()
                     self.stage.say("resumed", behavior="greeting")

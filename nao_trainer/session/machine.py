@@ -41,6 +41,10 @@ TRANSITIONS: list[dict[str, Any]] = [
     {"trigger": "wait_answer", "source": "open_window", "dest": "collect"},
     {"trigger": "score_answer", "source": "collect", "dest": "judge"},
     {"trigger": "record_turn", "source": "judge", "dest": "record"},
+    # A task whose answers come while it presents (n-back): the window opens first, then the stream.
+    {"trigger": "open_first", "source": "announce", "dest": "open_window"},
+    {"trigger": "present_in_window", "source": "open_window", "dest": "present"},
+    {"trigger": "collect_presented", "source": "present", "dest": "collect"},
     {"trigger": "next_turn", "source": "record", "dest": "select_action"},
     {"trigger": "finish_turns", "source": "record", "dest": "goodbye"},
     {"trigger": "end", "source": "goodbye", "dest": "done"},

@@ -35,7 +35,7 @@ from nao_trainer.core import task
 from nao_trainer.tasks.sequence import COLUMNS as SEQUENCE_COLUMNS
 from nao_trainer.tasks.sequence.rules import is_correct
 from nao_trainer.errors import ConfigError, DataError
-from nao_trainer.files import write_text_atomic
+from nao_trainer.files import WRITE_CAUSES, write_text_atomic
 
 #: The sequence task's turns.csv columns, declared once by the task (``tasks.sequence.COLUMNS``); a recorder
 #: writes its task's ``columns``.
@@ -106,20 +106,6 @@ def _fsync(f) -> None:
 
 
 _OUTPUT_FIX = "point session.output (or --out) at a folder you can write to"
-
-#: What a failed write means, by errno: (the cause, how to fix it).
-WRITE_CAUSES: dict[int, tuple[str, str]] = {
-    errno.ENOSPC: ("the disk is full", "free some space on it"),
-    errno.EDQUOT: ("the disk quota is used up", "free some space or raise the quota"),
-    errno.EROFS: ("the file system is read-only", "make it writable or choose another folder"),
-    errno.EACCES: ("no permission to write there", "make the folder writable for this user"),
-    errno.EPERM: ("no permission to write there", "make the folder writable for this user"),
-    errno.EMFILE: ("too many open files", "raise the limit (ulimit -n) or close other programs"),
-    errno.ENFILE: ("too many open files on this system", "close other programs"),
-    errno.EFBIG: ("the file is larger than this system allows", "raise the file size limit (ulimit -f)"),
-    errno.EIO: ("an input/output error of the disk", "check the disk"),
-}
-
 
 def os_error_in(exc: BaseException | None) -> OSError | None:
     """The failed file write behind ``exc`` (itself, its cause or its context: a library may wrap it), or None.

@@ -66,6 +66,8 @@ class Stage:
         self.clock = clock
         self.timing = timing
         self.posture_speed = posture_speed
+        #: Publishes an EEG/XDF marker (the engine sets it to the monitor's ``mark``); a stream task marks each stimulus.
+        self.mark: Callable[[str, int | None], None] = lambda event, turn=None: None
 
     def _optional(self, what: str, call: Callable[[], Any]) -> None:
         try:
@@ -118,6 +120,22 @@ class Stage:
                 self.clock.wait(self.timing.letter_gap_s)
             self.robot.say(letter, False, "disabled")
             self.rec.event("say", what="letter", text=letter, turn=turn, index=i + 1)
+
+    def stream(self, stimuli: tuple[str, ...], soa_s: float, onset: float, turn: int,
+               targets: tuple[bool, ...] | None = None) -> list[float]:
+        """Each stimulus on a fixed grid after the beep (stimulus i at (i + 1) x ``soa_s`` session seconds), each
+        an event and an EEG/XDF marker; returns the actual onsets in wall seconds after the beep (a slow call
+        shifts a later stimulus, never the grid)."""
+        self.look("sequence")
+        onsets: list[float] = []
+        for i, letter in enumerate(stimuli):
+            self.clock.wait_until(onset + self.clock.wall((i + 1) * soa_s))
+            onsets.append(self.clock.now() - onset)
+            self.mark(f"stimulus_{i + 1}", turn)
+            self.robot.say(letter, False, "disabled")
+            extra = {} if targets is None else {"target": bool(targets[i])}
+            self.rec.event("say", what="stimulus", text=letter, turn=turn, index=i + 1, **extra)
+        return onsets
 
     def beep(self, turn: int) -> float:
         """Beep (the answer window must be open already); returns the onset on the monotonic clock.

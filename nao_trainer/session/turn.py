@@ -66,12 +66,14 @@ class Turn:
         self.fields = dict(judgement.fields)
         self.success = judgement.success
 
-    def row(self, score: int | None, signed: int | None, speed: float, eeg_on: bool) -> dict[str, Any]:
-        """This turn's line of turns.csv. Times measured on the wall clock are reported in session
-        seconds (x ``speed``); ``eeg_quality`` stays empty when EEG is off."""
+    def row(self, score: int | None, signed: int | None, speed: float, eeg_on: bool,
+            columns: tuple[str, ...] | None = None) -> dict[str, Any]:
+        """This turn's line of turns.csv, in the task's ``columns`` (the sequence task's by default). Times
+        measured on the wall clock are reported in session seconds (x ``speed``); ``eeg_quality`` stays empty
+        when EEG is off."""
         st = self.turn_state
         a, lis, ans = self.answer, self.listening, self.answering
-        return {
+        row = {
             "turn": self.number, "start_time": self.start_time, "state": self.state, "length": st.length,
             "level": st.level, "feedback": st.feedback, "previous_score": st.previous,
             "action": mdp.ACTION_NAMES[self.action], "sequence": "".join(self.sequence),
@@ -91,6 +93,7 @@ class Turn:
             "phase": self.phase,
             **self.fields,
         }
+        return row if columns is None else {k: row[k] for k in columns if k in row}
 
 
 @dataclass
@@ -108,6 +111,7 @@ class SessionResult:
     policy_summary: str = ""  # what the policy concluded (e.g. the user model the participant matched)
     span_prior: Path | None = None  # the psychometric prior of the span (default: the shipped one)
     span_rate: float = SPAN_RATE  # the success rate the span is given at (``span_rate``)
+    task: Any = None  # the task played (``tasks.base.Task``); None: the sequence task
 
     @property
     def completed_rows(self) -> list[dict[str, Any]]:
@@ -166,12 +170,19 @@ class SessionResult:
         return session_span(load_prior(self.span_prior), counts, self.span_rate)
 
     def span_record(self) -> dict[str, Any] | None:
-        """The span for session.json and the console: rate, median, interval (letters); None without turns."""
+        """The span for session.json and the console: rate, median, interval (letters); None without turns
+        or for a task whose levels are not sequence lengths (its own line: ``Task.span``)."""
+        if self._own_span():
+            return None
         try:
             span = self.span()
         except (DataError, ValueError) as exc:  # an unreadable prior, or one whose lapse rules the rate out
             return {"rate": self.span_rate, "error": str(exc)}
         return None if span is None else span_dict(span)
+
+    def _own_span(self) -> bool:
+        """The task has a capacity line of its own (the span in letters is the sequence task's)."""
+        return self.task is not None and "sequence" not in self.task.columns
 
     def span_line(self) -> str:
         """``span at 75 %: 6.1 letters [4.9, 7.2] (...)``: the sequence length recalled at that rate, 90 % interval;
@@ -198,7 +209,8 @@ class SessionResult:
             + f"   total score: {self.total_score}" + (" (valid turns only)" if invalid else "") + "   "
             f"mean engagement: {self._no_engagement() if eng is None else f'{eng:.2f}'}"
             + (f" (EEG in {self.eeg_turns} of {len(self.completed_rows)} turns)" if self.eeg_on and eng is not None else ""),
-            *([span] if (span := self.span_line()) else []),
+            *([span] if (span := (self.task.span(self.completed_rows) or "") if self._own_span()
+                         else self.span_line()) else []),
             f"status: {self.status} (exit {self.exit_code})" + (f": {self.error}" if self.error else ""),
             *([self.summary_extra] if self.summary_extra else []),
             f"session folder: {self.path if self.path else '(none written)'}",
@@ -217,8 +229,11 @@ def progress_line(row: dict[str, Any], n_turns: int, total: int) -> str:
     fb = {0: "   ", 1: "enc", 2: "chl"}[row["feedback"]]
     eng = "-" if row["engagement"] is None else f"{row['engagement']:.2f}"
     mark = "ok " if row["success"] else "err"
-    return (f"turn {row['turn']:3d}/{n_turns}  L{row['level']} {fb}  {row['sequence']:>9} vs "
-            f"{row['response']:<9} {mark} {row['score']:+d}  total {total:4d}  E {eng}"
+    if "sequence" in row:  # the sequence task: what was said vs what was pressed
+        what = f"{row['sequence']:>9} vs {row['response']:<9}"
+    else:  # a task with hits and false alarms (n-back)
+        what = f"hits {row.get('hits', '-')}/{row.get('targets', '').count('1')} false alarms {row.get('false_alarms', '-')}"
+    return (f"turn {row['turn']:3d}/{n_turns}  L{row['level']} {fb}  {what} {mark} {row['score']:+d}  total {total:4d}  E {eng}"
             + (f"  ({row['notes']})" if row["notes"] else "")
             + ("  (marked invalid: not in the total)" if row.get("invalid") else "")
             + (f"  [{row['phase']}]" if row.get("phase") else ""))

@@ -23,6 +23,7 @@ from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.answers.inputs import KeyboardAnswers, TactileAnswers
 from nao_trainer.answers.simulated import SimulatedParticipant, StandInButtons
 from nao_trainer.console.keys import KeyReader
+from nao_trainer import registry
 from nao_trainer.errors import ConfigError, EEGUnavailable, Interrupted, RobotUnavailable, UserError
 from nao_trainer.files import PROJECT_ROOT, write_text_atomic
 from nao_trainer.policies.factory import make_policy
@@ -36,7 +37,7 @@ from nao_trainer.session.check import check_disk, check_eeg, check_robot, plan_f
 from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig, is_robot_address
 from nao_trainer.session.dialogue import Dialogue, load_dialogue
 from nao_trainer.session.participant import check_pseudonym, session_lock
-from nao_trainer.session.engine import EXIT_EVENTS_LOST, EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session
+from nao_trainer.session.engine import EXIT_RECORD_INCOMPLETE, EXIT_INTERRUPTED, EXIT_ROBOT_LOST, Session
 from nao_trainer.session.operator import who_stopped
 from nao_trainer.session.parts import Randomness, Script, SessionPorts
 from nao_trainer.session.record import SessionRecorder, ensure_output_dir, os_error_in, versions, write_failure
@@ -107,6 +108,16 @@ def _no_interrupts() -> Iterator[None]:
             signal.signal(s, h)
 
 
+def dialogue_for(config: StudyConfig) -> Path:
+    """The study's dialogue file; the task's own (``Task.dialogue_file``) when the study keeps the shipped default
+    (the sequence task's words would tell an n-back participant the wrong rules)."""
+    own = getattr(registry.load("task", config.task.name), "dialogue_file", None)
+    shipped = (PROJECT_ROOT / "dialogue" / "en.yaml").resolve()
+    if own is not None and Path(config.session.dialogue_path).resolve() == shipped:
+        return Path(own)
+    return Path(config.session.dialogue_path)
+
+
 def build_simulator(config: StudyConfig) -> UserSimulator:
     """The simulated participant's model: a fitted one (``participant_model.user_model``, ``--user-model``)
     or the config's level rates."""
@@ -121,6 +132,9 @@ def build_simulator(config: StudyConfig) -> UserSimulator:
             spec = str(shipped)  # a file shipped with the project (e.g. the demo's sim/participants/level4.json)
         return load_simulator(spec)
     pm = config.participant_model
+    own = getattr(config.task.build_task(), "level_success", None)  # a task with its own simulated observer
+    if own is not None:
+        return UserSimulator.from_level_rates(f"{config.task.name}-observer", list(own()), list(pm.engagement_by_level))
     return UserSimulator.from_level_rates("config-levels", list(pm.success_by_level), list(pm.engagement_by_level))
 
 
@@ -154,7 +168,7 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
     progress = None if options.quiet else (progress or sys.stderr)
     check_pseudonym(config)  # refused in one line when a person answers and nobody entered a pseudonym
     language = config.session.language
-    dialogue = load_dialogue(config.session.dialogue_path)
+    dialogue = load_dialogue(dialogue_for(config))
     if dialogue.language != language:
         raise ConfigError(f"{dialogue.source}: dialogue language {dialogue.language!r} differs from session.language "
                           f"{language!r}; point session.dialogue at a {language} file")
@@ -234,11 +248,12 @@ class _Outcome:
     session: Session | None = None
     monitor: Any = None  # the EEG monitor, for the stream's identity in session.json
     span_rate: float = SPAN_RATE  # the study's target rate, else 75 % (core.psychometric.span_rate)
+    task: Any = None  # the task played
 
     def result(self, recorder: SessionRecorder) -> SessionResult:
         session = self.session
         return SessionResult(recorder.path, self.status, self.code, session.rows if session else [], self.seed,
-                             self.error, policy_summary=self.summary, span_rate=self.span_rate)
+                             self.error, policy_summary=self.summary, span_rate=self.span_rate, task=self.task)
 
 
 def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue, behaviors: Behaviors, seed: int,
@@ -250,6 +265,7 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
     whatever happens (the record is closed last but the stand-in, so every close is logged in it)."""
     out = _Outcome(seed, span_rate=span_rate(config.policy.objective))
     task = config.task.build_task()
+    out.task = task
     recorder = SessionRecorder(config.output_dir(), config.participant.pseudonym, columns=task.columns)
     stack = ExitStack()
     try:
@@ -312,7 +328,8 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
     if config.eeg.mode != "off" and progress:  # which headband this session listens to (events.jsonl too)
         print(f"EEG ({config.eeg.mode}): {monitor.describe()}", file=progress, flush=True)
     participant_rng = np.random.default_rng(participant_ss)
-    answers, buttons = _make_answers(config, robot, standin, connect_url, simulator, monitor, participant_rng, progress)
+    answers, buttons = _make_answers(config, robot, standin, connect_url, simulator, monitor, participant_rng, progress,
+                                     task)
     stack.callback(_close_quietly, buttons, recorder, out)
     stack.callback(_close_quietly, answers, recorder, out)
     policy.bind_state_dir(path)
@@ -341,14 +358,14 @@ def _play(stack: ExitStack, out: _Outcome, recorder: SessionRecorder, config: St
 
 def _report_lost_events(out: "_Outcome", recorder: SessionRecorder) -> None:
     """A session whose events.jsonl could not be written says so: in its error (the summary's status line
-    and session.json) and, when it otherwise completed, with exit code ``EXIT_EVENTS_LOST``. Its status
+    and session.json) and, when it otherwise completed, with exit code ``EXIT_RECORD_INCOMPLETE``. Its status
     stays what the session did (every turn is in turns.csv: a study counts it)."""
     lost = recorder.events_lost()
     if not lost:
         return
     out.error = f"{out.error}; {lost}" if out.error else lost
     if out.code == 0:
-        out.code = EXIT_EVENTS_LOST
+        out.code = EXIT_RECORD_INCOMPLETE
 
 
 def _watch_health(robot: Robot, config: StudyConfig) -> RobotHealthWatch:
@@ -471,6 +488,11 @@ def _close_record(recorder: SessionRecorder, out: _Outcome, policy: Policy, stan
             recorder.event("close_failed", what="robot_transcript.jsonl", error=str(exc))
     if out.summary:
         recorder.event("policy_summary", summary=out.summary)
+    xdf = getattr(out.monitor, "xdf_problem", "")  # session.xdf cut short (known once the monitor closed)
+    if xdf:
+        out.error = f"{out.error}; {xdf}" if out.error else xdf
+        if out.code == 0:
+            out.code = EXIT_RECORD_INCOMPLETE
     result = out.result(recorder)
     recorder.close(out.status, out.code, total_score=out.session.total if out.session else 0, error=out.error,
                    policy_summary=out.summary or None,
@@ -500,7 +522,7 @@ def _policy_state(policy: Policy, config: StudyConfig, fresh: bool, progress: Te
 
 def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, simulator: UserSimulator | None,
                   monitor: EngagementMonitor, rng: np.random.Generator,
-                  progress: TextIO | None = None) -> tuple[AnswerSource, Any]:
+                  progress: TextIO | None = None, task: Task | None = None) -> tuple[AnswerSource, Any]:
     speed = config.timing.speed
     debounce, grace = config.answers.debounce_s / speed, config.timing.grace_s / speed
     kind = config.answers.input
@@ -515,10 +537,10 @@ def _make_answers(config: StudyConfig, robot: Robot, standin: Any, url: str, sim
         buttons = StandInButtons.probe(url)
         press = buttons
     if press is None:  # a real robot: hand the answers over directly
-        return SimulatedParticipant(simulator, rng, speed, monitor), None
+        return SimulatedParticipant(simulator, rng, speed, monitor, task=task), None
     inner = TactileAnswers(robot, debounce, grace)
     return SimulatedParticipant(simulator, rng, speed, monitor, press=press, inner=inner,
-                                min_gap_s=max(0.3, 4 * config.answers.debounce_s)), buttons
+                                min_gap_s=max(0.3, 4 * config.answers.debounce_s), task=task), buttons
 
 
 def _close_quietly(obj: Any, recorder: SessionRecorder | None, out: "_Outcome | None" = None) -> None:

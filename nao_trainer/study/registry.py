@@ -196,7 +196,7 @@ def _create_db(out: Path, protocol: Protocol, sequences: dict[str, list[str]], e
             tx.key = key
             tx.set_meta("study_id", study_id)
             tx.set_meta("created", extra.pop("created", now_iso()))
-            tx.set_meta("protocol", _protocol_entry(protocol))
+            tx.set_meta("protocol", extra.pop("protocol_entry", None) or _protocol_entry(protocol))
             tx.set_meta("protocol_text", protocol.text)
             tx.set_meta("next", {k: 0 for k in sequences})
             for k, v in extra.items():
@@ -237,7 +237,9 @@ def migrate_json(out: Path) -> Study:
     amendments = [{**a, "changes": a.get("changes", [])} for a in registry["amendments"]]
     # the sessions' seeds continue as before (they were derived from the protocol's seed)
     extra = {"session_salt": str(protocol.allocation.seed), "created": registry.get("created", now_iso()),
-             "migrated": {"time": now_iso(), "from": "registry.json"}}
+             "migrated": {"time": now_iso(), "from": "registry.json"},
+             "protocol_entry": {k: registry["protocol"][k] for k in ("name", "sha256", "source", "base", "study_config",
+                                                                      "study_config_sha256") if k in registry["protocol"]}}
     _create_db(out, protocol, allocation["sequences"], extra, people, amendments)
     backup = out / BACKUP
     backup.mkdir(exist_ok=True)

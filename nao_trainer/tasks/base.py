@@ -5,6 +5,9 @@ presented through the robot (``Presenter``: speech, beeps, LEDs), which answer i
 how an answer is judged and scored, the columns it adds to a turn row, its dialogue events and its settings.
 The session's states call it in order: ``present`` (``Task.present``), ``open_window`` (the beep), ``collect``
 (``Trial.presses`` presses within ``Task.response_timeout_s``), ``judge`` (``Task.judge``, ``Task.score``).
+A task that takes its answers while it presents (n-back) sets ``presents_in_window``: the window opens first.
+Optional hooks: ``Settings`` (its ``task.settings`` class), ``level_success()`` and ``simulated_answer(trial, rng,
+reaction_s)`` (its own simulated participant; without them the user model's plan is used).
 
 Levels: the MDP of the paper (``core.mdp``) has four difficulty levels and six actions; a task's ``levels`` are
 those four (``core.task.LEVELS``) so every learner, planner, objective and the evaluation apply unchanged. The
@@ -67,6 +70,9 @@ class Presenter(Protocol):
 
     def beep(self, turn: int) -> float: ...
 
+    def stream(self, stimuli: tuple[str, ...], soa_s: float, onset: float, turn: int,
+               targets: tuple[bool, ...] | None = None) -> list[float]: ...
+
     def leds(self, rgb: int) -> None: ...
 
 
@@ -96,7 +102,9 @@ class Task(Protocol):
         """What ``{length}`` means in the dialogue's level announcement (letters of the trial)."""
 
     def present(self, stage: Presenter, trial: Trial, turn: int) -> None:
-        """Play the trial through the robot (the ``present`` state)."""
+        """Play the trial through the robot (the ``present`` state). A task whose class sets
+        ``presents_in_window = True`` (n-back) is presented after the window opened and is given its
+        ``onset`` (monotonic seconds of the beep) as a fourth argument; the others before it."""
 
     def response_timeout_s(self, trial: Trial, base_s: float, per_item_s: float) -> float:
         """Session seconds the answer window stays open (the study's timing rule is handed in)."""

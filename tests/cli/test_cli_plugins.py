@@ -17,6 +17,7 @@ def test_plugins_lists_the_builtin_policies_and_eeg_devices_with_their_settings(
         assert f"\n  {name} " in out
     assert "policy.kappa = 10.0  (a number, >= 0.01)" in out
     assert "policy.objective = \"score\"" in out and "muse" in out
+    assert "\n  sequence " in out and "\n  nao " in out and "robot.model_settings.cool_posture" in out  # every kind
     assert "(every policy) policy.kind, policy.learning, policy.state_path, policy.guidance" in out
 
 

@@ -16,6 +16,7 @@ import pytest
 
 pytest.importorskip("brainflow")
 
+from nao_trainer.data import own  # noqa: E402
 from nao_trainer.eeg.devices.brainflow import BrainFlowBridge  # noqa: E402
 from nao_trainer.eeg.factory import open_monitor  # noqa: E402
 from nao_trainer.eeg.lsl_scope import configure_lsl  # noqa: E402
@@ -94,6 +95,9 @@ def test_the_synthetic_board_drives_the_monitor_and_survives_a_dropout(tmp_path)
     assert any(float(g["duration_s"]) > 1.0 for g in gaps), gaps
     events = [r["event"] for r in _rows(tmp_path / "eeg" / "events.csv")]
     assert events.index("eeg_stream_lost") < events.index("eeg_stream_restored")
+    phases, notes = own.replay_phases(tmp_path)  # the offline pipeline recomputes the board's phase exactly
+    assert notes == [] and len(phases) == 1 and phases[0].engagement is not None
+    assert abs(phases[0].engagement - phases[0].live_engagement) <= 1e-9
 
 
 def test_run_with_the_brainflow_device_from_the_command_line(tmp_path):
@@ -113,7 +117,7 @@ def test_run_with_the_brainflow_device_from_the_command_line(tmp_path):
 
 
 @pytest.mark.slow
-def test_session_xdf_records_the_board_and_the_markers(tmp_path):
+def test_session_xdf_records_the_board_the_markers_and_a_dropout(tmp_path):
     pyxdf = pytest.importorskip("pyxdf")
     monitor = open_monitor("simulated", {"device": "brainflow", "processing": FAST}, tmp_path,
                            np.random.default_rng(2), pseudonym=_uid("P"), record_xdf=True)
@@ -124,6 +128,8 @@ def test_session_xdf_records_the_board_and_the_markers(tmp_path):
         _wait(lambda: len(monitor.windows) >= 4, "windows from the synthetic board")
         monitor.mark("listening_end", 1)
         monitor.end_phase()
+        monitor.simulator.interrupt()  # a dropout: its markers go into the file too
+        _wait(lambda: monitor.gaps and monitor.gaps[-1].end is not None, "the gap, closed")
     finally:
         monitor.close()
     streams, _ = pyxdf.load_xdf(str(tmp_path / "session.xdf"))
@@ -134,3 +140,4 @@ def test_session_xdf_records_the_board_and_the_markers(tmp_path):
     assert labels == ["Fz", "C3", "Cz", "C4"]
     markers = [m[0] for m in by_type["Markers"]["time_series"]]
     assert "turn_1_listening_start" in markers and "turn_1_listening_end" in markers
+    assert markers.index("eeg_stream_lost") < markers.index("eeg_stream_restored")

@@ -100,6 +100,7 @@ def _check_replayed(result, folder: Path, drop_s: float, turns: int) -> None:
     assert any(float(g["duration_s"]) > drop_s - 1.0 for g in _rows(folder / "eeg" / "gaps.csv"))
 
 
+@pytest.mark.slow  # ~10 s: the 5 s drop and a three-turn session
 def test_a_5_s_dropout_is_a_gap_and_the_turn_it_hit_is_played_again(tmp_path):
     result, folder = _session_with_a_drop(tmp_path, 5.0, turns=3)
     _check_replayed(result, folder, 5.0, 3)

@@ -67,3 +67,33 @@ def test_no_room_for_session_json_at_the_start_is_one_line_and_promises_no_resum
     assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
     assert "session.json: cannot write (the file is larger than this system allows)" in lines[-1], lines
     assert "no turn was recorded" in lines[-1] and "--resume" not in lines[-1]
+
+
+def test_eeg_files_past_the_limit_are_one_line_naming_the_file(tmp_path):
+    """eeg/raw.csv past the limit was a traceback (OSError without a file name: raised by write())."""
+    done = run_limited(tmp_path, 12288, "--turns", "3", "--policy", "schedule", "--eeg", "simulated")
+    folder = folder_of(tmp_path)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert lines[-1].startswith("nao-trainer run: error: " + str(folder / "eeg")), lines
+    assert "cannot write (the file is larger than this system allows); raise the file size limit" in lines[-1]
+
+
+def xdf_chunk(tag: int, content: bytes) -> bytes:
+    body = tag.to_bytes(2, "little") + content
+    return bytes([4]) + len(body).to_bytes(4, "little") + body
+
+
+def test_a_cut_xdf_file_is_found(tmp_path):
+    """The XDF engine writes through a C++ stream that reports no error: a file cut by a full disk is found by
+    walking its chunks (a whole file ends after its stream footers, tag 6)."""
+    from nao_trainer.eeg.xdf import truncation
+
+    whole = b"XDF:" + xdf_chunk(1, b"<info/>") + xdf_chunk(3, b"\x01" * 300) + xdf_chunk(6, b"<footer/>")
+    path = tmp_path / "session.xdf"
+    path.write_bytes(whole)
+    assert truncation(path) is None
+    for n, words in ((len(whole) - 3, "inside a chunk"), (len(whole) - len(xdf_chunk(6, b"<footer/>")),
+                                                           "without its stream footers"), (2, "no XDF header")):
+        path.write_bytes(whole[:n])
+        assert words in truncation(path), n

@@ -87,7 +87,7 @@ def _shim():
 
 
 class BrainFlowDevice(EEGDevice):
-    """A BrainFlow board republished to LSL (see the module docstring)."""
+    """A Muse 2 / Muse S (BLE or BLED112) or BrainFlow's synthetic board, read with brainflow, republished to LSL."""
 
     Settings = BrainFlowSettings
     opens_in_process = True

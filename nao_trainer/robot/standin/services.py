@@ -48,6 +48,8 @@ class TextToSpeech:
         self._language = body.languages[0] if body.languages else "English"
         self._params: dict[str, float] = {"speed": 100.0, "pitchShift": 1.0, "volume": 1.0}
         self._volume = 1.0
+        #: Robot seconds per character spoken (a guess; a conformance profile sets the measured one).
+        self.seconds_per_character = SECONDS_PER_CHARACTER
 
     @qi.bind(qi.Void, qi.AnyArguments)
     def say(self, *args: Any) -> None:
@@ -56,7 +58,7 @@ class TextToSpeech:
             raise RuntimeError("ALTextToSpeech::say expects (text) or (text, language)")
         self._rec.record("ALTextToSpeech", "say", list(args))
         self._body.check_awake("ALTextToSpeech::say")
-        self._speech.run(SECONDS_PER_CHARACTER * len(args[0]))
+        self._speech.run(self.seconds_per_character * len(args[0]))
         self._rec.finished("ALTextToSpeech.say")
         self._rec.finished("speech")
 
@@ -120,6 +122,7 @@ class AnimatedSpeech:
         self._rec = rec
         self._speech = speech
         self._body = body
+        self.seconds_per_character = SECONDS_PER_CHARACTER
 
     @qi.bind(qi.Void, qi.AnyArguments)
     def say(self, *args: Any) -> None:
@@ -136,7 +139,7 @@ class AnimatedSpeech:
                 )
         self._rec.record("ALAnimatedSpeech", "say", list(args))
         self._body.check_awake("ALAnimatedSpeech::say")
-        self._speech.run(SECONDS_PER_CHARACTER * len(_strip_annotations(args[0])))
+        self._speech.run(self.seconds_per_character * len(_strip_annotations(args[0])))
         self._rec.finished("ALAnimatedSpeech.say")
         self._rec.finished("speech")
 

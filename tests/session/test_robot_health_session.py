@@ -1,0 +1,236 @@
+"""A whole session over real qi while the robot reports on its health (issue 27 item 1): the stand-in falls,
+heats a knee, runs low on battery and has its chest button pressed at known points of the session (armed
+inside the stand-in after a given call), and the session pauses, sits, ends or replays as it should."""
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import pytest
+
+from nao_trainer.ports import CommandQueue
+from nao_trainer.robot.standin import StandIn
+from nao_trainer.session.config import load_config
+from nao_trainer.session.record import read_events, read_turns
+from nao_trainer.session.wiring import RunOptions, run_session
+from tests._waits import HANG_S, returns
+
+
+def _config(tmp_path: Path, url: str, **over):
+    values = {"session.turns": 3, "timing.speed": 50.0, "session.output": str(tmp_path), "session.seed": 4,
+              "session.practice": False, "robot.url": url, "eeg.mode": "off", "policy.kind": "schedule",
+              "answers.input": "simulated", "participant.pseudonym": "P1"}
+    values.update(over)
+    return load_config(None, values)
+
+
+class _Watcher:
+    """Observes the session; ``when(kind, test)`` gives an Event set once a matching notification arrived."""
+
+    def __init__(self) -> None:
+        self.seen: list[tuple[str, dict]] = []
+        self._waits: list[tuple[str, object, threading.Event]] = []
+        self._lock = threading.Lock()
+
+    def when(self, kind, test=lambda d: True) -> threading.Event:
+        event = threading.Event()
+        with self._lock:
+            self._waits.append((kind, test, event))
+        return event
+
+    def notify(self, kind, data):
+        with self._lock:
+            self.seen.append((kind, dict(data)))
+            for k, test, event in self._waits:
+                if k == kind and test(data):
+                    event.set()
+
+
+def _play(config, options):
+    return returns(lambda: run_session(config, options))
+
+
+@pytest.fixture
+def standin():
+    s = StandIn.start(speed=50)
+    yield s
+    s.stop()
+
+
+def test_a_fall_pauses_and_the_motors_stay_off_until_the_operator_says_the_robot_is_up(tmp_path, standin):
+    standin.control.act_after("ALAudioPlayer.playSine", "fall", [])  # at turn 1's beep
+    commands, watcher = CommandQueue(), _Watcher()
+    paused = watcher.when("pause", lambda d: d.get("paused"))
+
+    def operator():
+        assert paused.wait(HANG_S), "the session never paused after the fall"
+        calls_at_pause = len(standin.transcript())
+        standin.control.stand_up()
+        woken_while_paused.extend(c for c in standin.transcript()[:] if c["method"] == "wakeUp")
+        marks.append(calls_at_pause)
+        commands.submit("resume", source="test")
+
+    woken_while_paused, marks = [], []
+    helper = threading.Thread(target=operator, daemon=True)
+    helper.start()
+    result = _play(_config(tmp_path, standin.url), RunOptions(quiet=True, commands=commands, observer=watcher))
+    helper.join(HANG_S)
+    assert result.status == "completed"
+    folder = result.path
+    events = read_events(folder)
+    health = [e for e in events if e["event"] == "robot_health"]
+    assert {"falling", "fallen"} <= {e["kind"] for e in health}
+    calls = [(c["service"], c["method"]) for c in standin.transcript()]
+    fell = calls.index(("NaoTrainerStandIn", "fall"))
+    resumed = next(i for i, c in enumerate(standin.transcript()) if c["method"] == "stand_up")
+    assert ("ALMotion", "wakeUp") not in calls[fell:resumed]  # never woken on the floor
+    assert ("ALMotion", "wakeUp") in calls[resumed:]  # woken once the operator said it is up
+    assert [e["event"] for e in events].count("motors_held") == 1
+    rows = read_turns(folder)
+    assert sum(r["success"] in ("True", "False") for r in rows) == 3  # all played (one replayed if the fall cut it)
+
+
+def test_battery_low_finishes_the_turn_then_ends_cleanly_with_what_to_do(tmp_path, standin):
+    standin.control.act_after("ALAudioPlayer.playSine", "battery_low", [])  # during turn 1
+    result = _play(_config(tmp_path, standin.url, **{"session.turns": 4}), RunOptions(quiet=True))
+    assert result.status == "battery low" and result.exit_code == 0
+    folder = next(tmp_path.glob("*_*"))
+    rows = read_turns(folder)
+    assert [r["success"] in ("True", "False") for r in rows] == [True]  # the turn in flight finished, scored
+    events = read_events(folder)
+    assert any(e["event"] == "battery_low_end" for e in events)
+    assert any(e["event"] == "robot_health" and e["kind"] == "battery_low" and "charge the robot" in e["decision"]
+               for e in events)
+
+
+def test_a_chest_press_during_a_trial_replays_that_turn(tmp_path, standin):
+    standin.control.act_after("ALAudioPlayer.playSine", "chest", [1])  # NAO says its IP over turn 1's answer
+    result = _play(_config(tmp_path, standin.url), RunOptions(quiet=True))
+    assert result.status == "completed"
+    folder = next(tmp_path.glob("*_*"))
+    rows = read_turns(folder)
+    first = rows[0]
+    assert first["invalid"] == "True" and "chest button" in first["notes"]  # marked invalid, never learned from
+    again = rows[1]  # played again: the same turn (interrupted, then replayed) or, once scored, its action next
+    assert again["action"] == first["action"]
+    assert again["success"] in ("True", "False") and not again.get("invalid")
+    commands = [e for e in read_events(folder) if e["event"] == "command" and e["source"] == "robot"]
+    assert [(c["kind"], c["accepted"]) for c in commands] == [("repeat", True)]
+
+
+def test_a_critically_hot_knee_makes_the_nao_sit_before_the_next_turn(tmp_path, standin):
+    standin.control.act_after("ALAudioPlayer.playSine", "heat", ["LKneePitch", 3])
+    result = _play(_config(tmp_path, standin.url), RunOptions(quiet=True))
+    assert result.status == "completed"
+    events = read_events(folder := next(tmp_path.glob("*_*")))
+    cooling = [e for e in events if e["event"] == "cooling_posture"]
+    assert len(cooling) == 1 and cooling[0]["joint"] == "LKneePitch" and cooling[0]["posture"] == "Sit"
+    assert ("ALRobotPosture", "goToPosture") in [(c["service"], c["method"]) for c in standin.transcript()]
+    refused = [e for e in events if e["event"] == "wake_up_failed"]
+    assert refused  # the resting robot refused wakeUp: honoured, never logged as set back
+    assert len(read_turns(folder)) == 3
+
+
+def test_a_session_in_french_sets_the_robots_voice_and_speaks_the_french_dialogue(tmp_path, standin):
+    from nao_trainer.files import PROJECT_ROOT
+
+    config = _config(tmp_path, standin.url, **{"session.language": "fr",
+                                               "session.dialogue": str(PROJECT_ROOT / "dialogue" / "fr.yaml")})
+    result = _play(config, RunOptions(quiet=True))
+    assert result.status == "completed"
+    calls = standin.transcript()
+    set_language = [c["args"] for c in calls if c["method"] == "setLanguage"]
+    assert set_language == [["French"]]
+    first_say = next(i for i, c in enumerate(calls) if c["method"] == "say")
+    assert calls.index(next(c for c in calls if c["method"] == "setLanguage")) < first_say  # set before speaking
+    spoken = " ".join(str(c["args"][0]) for c in calls if c["method"] == "say")
+    assert "Niveau" in spoken and "Level" not in spoken
+
+
+def test_a_language_the_robot_lacks_or_a_dialogue_in_another_stops_the_start_in_one_line(tmp_path, standin):
+    from nao_trainer.errors import ConfigError, RobotUnavailable
+    from nao_trainer.files import PROJECT_ROOT
+
+    standin.control.set_languages(["English"])
+    config = _config(tmp_path, standin.url, **{"session.language": "fr",
+                                               "session.dialogue": str(PROJECT_ROOT / "dialogue" / "fr.yaml")})
+    with pytest.raises(RobotUnavailable, match=r"needs the robot's French voice, but it has only English"):
+        _play(config, RunOptions(quiet=True))
+    assert not list(tmp_path.glob("*_*"))  # nothing written
+    with pytest.raises(ConfigError, match=r"dialogue language 'en' differs from session.language 'fr'"):
+        _play(_config(tmp_path, standin.url, **{"session.language": "fr"}), RunOptions(quiet=True))
+
+
+def test_a_refused_life_change_fails_check_and_the_start_unless_life_on_is_allowed(tmp_path, standin):
+    from nao_trainer.errors import RobotUnavailable
+    from nao_trainer.session.check import check_robot, plan_from_config
+
+    standin.control.refuse_life(True)
+    config = _config(tmp_path, standin.url)
+    result = check_robot(plan_from_config(config))
+    assert not result.ok and result.exit_code == 3 and "not currently allowed" in result.detail
+    assert "getting-started wizard" in result.fix
+    with pytest.raises(RobotUnavailable, match="refused to set Autonomous Life"):
+        _play(config, RunOptions(quiet=True))
+    allowed = _config(tmp_path, standin.url, **{"robot.allow_life_on": True})
+    assert check_robot(plan_from_config(allowed)).ok
+    assert _play(allowed, RunOptions(quiet=True)).status == "completed"
+
+
+def test_check_says_whether_the_battery_and_the_joints_will_last_the_session(tmp_path, standin):
+    from nao_trainer.session.check import check_robot, plan_from_config
+
+    config = _config(tmp_path, standin.url, **{"session.turns": 60})
+    result = check_robot(plan_from_config(config))
+    assert result.ok and "battery 85% lasts ~51 min, the session needs ~25 min" in result.detail
+    standin.control.set_battery(35)  # above the 30 % floor, below what 60 turns need
+    low = check_robot(plan_from_config(config))
+    assert not low.ok and "lasts ~21 min" in low.detail and "charge the robot first" in low.fix
+    standin.control.set_battery(90)
+    standin.control.heat("RKneePitch", 1)
+    warm = check_robot(plan_from_config(config))
+    assert not warm.ok and "hot joints now: RKneePitch (status 1)" in warm.detail and "let the robot cool" in warm.fix
+
+
+def test_a_session_on_a_pepper_with_safeguard_mid_session(tmp_path):
+    """Pepper over the same adapter (issue 27 item 4): the stand-in plays a Pepper 2.9 without ALLeds; the
+    session says once that the eye colours are skipped, uses Pepper's postures, pauses while Autonomous Life is
+    in safeguard (motors held) and plays on after the operator resumes."""
+    pepper = StandIn.start(speed=50, model="pepper", without=("ALLeds",))
+    try:
+        pepper.control.act_after("ALAudioPlayer.playSine", "safeguard", [])
+        commands, watcher = CommandQueue(), _Watcher()
+        paused = watcher.when("pause", lambda d: d.get("paused"))
+
+        def operator():
+            if paused.wait(HANG_S):
+                commands.submit("resume", source="test")
+
+        threading.Thread(target=operator, daemon=True).start()
+        config = _config(tmp_path, pepper.url, **{"robot.model": "pepper"})
+        result = _play(config, RunOptions(quiet=True, commands=commands, observer=watcher))
+        calls = pepper.transcript()
+    finally:
+        pepper.stop()
+    assert result.status == "completed" and len([r for r in result.rows if r["success"] in (True, False)]) == 3
+    import json
+    events = read_events(result.path)
+    setup = json.loads((result.path / "session.json").read_text())["robot_setup"]  # before the folder existed
+    degraded = [e["detail"] for e in setup if e["event"] == "robot_degraded"]
+    assert "Pepper offers no ALLeds: the eye colours of the behaviors file are not shown" in degraded
+    assert any(e["event"] == "robot_health" and e["kind"] == "safeguard" for e in events)
+    assert [e["event"] for e in events].count("motors_held") == 1
+    postures = {c["args"][0] for c in calls if c["method"] == "goToPosture"}
+    assert postures <= {"Stand", "StandInit", "StandZero", "Crouch"} and "Stand" in postures
+    assert not [c for c in calls if c["service"] == "ALLeds"]
+
+
+def test_mock_robot_plays_the_study_model(tmp_path):
+    config = _config(tmp_path, "mock", **{"robot.model": "pepper"})
+    result = _play(config, RunOptions(quiet=True))
+    assert result.status == "completed"
+    import json
+    info = json.loads((result.path / "session.json").read_text())
+    assert info["config"]["values"]["robot"]["model"] == "pepper"
+    degraded = [e["detail"] for e in info["robot_setup"] if e["event"] == "robot_degraded"]
+    assert degraded == ["Pepper offers no ALTracker: nothing: the task does not track faces (Pepper 2.9 has no ALTracker)"]
