@@ -74,12 +74,30 @@ class Allocation:
         return keys
 
 
+#: How the analysis treats what is missing (``analysis.missing``), named in the protocol before the data:
+#: ``observed-sessions``: intention to treat, every randomised participant in the arm allocated; a session
+#: not completed is missing at random given the arm and the participant's other sessions (the mixed model's
+#: likelihood, no imputation); a participant with no completed session is counted as randomised and
+#: reported per arm, and contributes no outcome.
+MISSING_RULES: tuple[str, ...] = ("observed-sessions",)
+#: Residual variance structure (``analysis.variance``): ``arm`` = each arm its own (the default, Welch-type
+#: tests with Satterthwaite's df), ``pooled`` = one for all arms (the former model, kept to reproduce it).
+VARIANCES: tuple[str, ...] = ("arm", "pooled")
+#: Outcomes the policy sets (the difficulty it chooses decides them): a manipulation check, never primary.
+POLICY_SET: tuple[str, ...] = ("success_rate",)
+
+
 @dataclass(frozen=True)
 class Analysis:
     model: str  # as written, e.g. "outcome ~ arm + session + (1|participant)"
     terms: tuple[str, ...]  # fixed effects in the model (arm, session)
     reference_arm: str
     alpha: float
+    primary_contrast: str = ""  # the arm compared with reference_arm on the primary outcome (tested at alpha)
+    variance: str = "arm"
+    multiplicity: str = "holm"  # every test but the primary one: Holm's step-down adjustment
+    missing: str = "observed-sessions"
+    baseline_covariate: bool = False  # session 1's outcome as a covariate of the later sessions
 
 
 @dataclass(frozen=True)
@@ -191,6 +209,10 @@ def load_protocol(path: str | os.PathLike, base: Path | None = None) -> Protocol
         if o not in OUTCOMES:
             raise where.error("outcomes.primary" if i == 0 else "outcomes.secondary",
                               f"unknown outcome {o!r}; use one of {', '.join(OUTCOMES)}")
+    if primary in POLICY_SET:
+        raise where.error("outcomes.primary", f"{primary!r} is set by the policy (the difficulty it chooses), so it "
+                                              "measures the policy, not a benefit; keep it as a secondary outcome "
+                                              "(a manipulation check) and make span or score primary")
     analysis = _analysis(_get(data, "analysis", where, "analysis", dict), where, arms)
     prefix = _get(data, "pseudonym_prefix", where, "pseudonym_prefix", str, "P")
     if name_problem(prefix):
@@ -288,4 +310,22 @@ def _analysis(a: dict, where: _Where, arms: tuple[Arm, ...]) -> Analysis:
     alpha = _get(a, "alpha", where, "analysis.alpha", float, 0.05)
     if not 0 < alpha < 0.5:
         raise where.error("analysis.alpha", f"{alpha} must be in (0, 0.5)")
-    return Analysis(model, terms, ref, alpha)
+    others = [x.name for x in arms if x.name != ref]
+    contrast = _get(a, "primary_contrast", where, "analysis.primary_contrast", str, others[0] if others else "")
+    if contrast not in others:
+        raise where.error("analysis.primary_contrast", f"{contrast!r} is not an arm other than the reference "
+                                                       f"{ref!r}; use one of {', '.join(others)}")
+    variance = _get(a, "variance", where, "analysis.variance", str, "arm")
+    if variance not in VARIANCES:
+        raise where.error("analysis.variance", f"{variance!r}: use arm (each arm its own residual variance) or pooled")
+    multiplicity = _get(a, "multiplicity", where, "analysis.multiplicity", str, "holm")
+    if multiplicity != "holm":
+        raise where.error("analysis.multiplicity", f"{multiplicity!r}: the analysis adjusts the non-primary tests "
+                                                   "by holm")
+    missing = _get(a, "missing", where, "analysis.missing", str, "observed-sessions")
+    if missing not in MISSING_RULES:
+        raise where.error("analysis.missing", f"{missing!r}: use {', '.join(MISSING_RULES)}")
+    baseline = _get(a, "baseline_covariate", where, "analysis.baseline_covariate", bool, False)
+    if baseline and "session" not in terms:
+        raise where.error("analysis.baseline_covariate", "needs the session term (session 1 is the baseline)")
+    return Analysis(model, terms, ref, alpha, contrast, variance, multiplicity, missing, baseline)

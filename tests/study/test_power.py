@@ -30,7 +30,7 @@ def test_the_schedule_table_plays_what_the_live_schedule_plays():
         state = mdp.next_state(state, chosen, bool(rng.random() < 0.6))
 
 
-def test_the_closed_form_test_is_the_mixed_models_wald_test_on_balanced_data():
+def test_the_closed_form_test_is_the_analysis_test_on_balanced_data():
     rng = np.random.default_rng(3)
     n, sessions = 18, 2
     arms = np.repeat([0, 1, 2], 6)
@@ -46,9 +46,9 @@ def test_the_closed_form_test_is_the_mixed_models_wald_test_on_balanced_data():
     for a, name in ((1, "b"), (2, "c")):
         diff, se, p = (float(x[0]) for x in tests[a])
         assert diff == pytest.approx(fitted[f"arm[{name}]"]["estimate"], abs=1e-6)
-        half = (fitted[f"arm[{name}]"]["ci_high"] - fitted[f"arm[{name}]"]["ci_low"]) / 2
-        assert se == pytest.approx(half / 1.959964, rel=0.02)
-        assert p == pytest.approx(fitted[f"arm[{name}]"]["p"], rel=0.05, abs=1e-4)
+        assert se == pytest.approx(fitted[f"arm[{name}]"]["se"], rel=1e-6)
+        assert p == pytest.approx(fitted[f"arm[{name}]"]["p"], rel=1e-6, abs=1e-9)
+    assert fitted["session"]["estimate"] == pytest.approx(0.5, abs=1.0)  # the session term of MixedLM
 
 
 def test_power_finds_a_large_difference_and_grows_with_n(tmp_path):
@@ -162,3 +162,49 @@ def test_study_power_runs_a_protocol_with_a_bayes_arm(tmp_path, monkeypatch, cap
     assert code == 0, capsys.readouterr().err
     power = json.loads((out / "power.json").read_text())
     assert set(power["power"]) >= {"score: bayes vs level2", "success_rate: bayes vs level2"}
+
+
+def test_type_one_error_is_five_percent_on_a_three_arm_null_with_unequal_variances():
+    """No arm differs, the arms' SDs of participant means are 12.3, 7.1 and 7.1 (the random and level-2
+    arms of the published data), 8 participants per arm: each contrast must reject 5 % +- 3 Monte
+    Carlo SEs. A variance pooled over the arms (the old test) rejects the 7.1-vs-7.1 contrast about
+    1.5 % of the time, and a normal reference rejects too often at this N."""
+    rng = np.random.default_rng(11)
+    reps, per = 20000, 8
+    arms = np.tile(np.repeat([0, 1, 2], per), (reps, 1))
+    sd = np.array([12.3, 7.1, 7.1])[arms]
+    y = rng.normal(0.0, 1.0, arms.shape) * sd
+    mc = 3 * np.sqrt(0.05 * 0.95 / reps)
+    for a, (diff, se, p) in arm_tests(y, arms, 3, 1).items():
+        assert abs(np.mean(p < 0.05) - 0.05) < mc, (a, np.mean(p < 0.05))
+
+
+def test_the_multiplicity_plan_adjusts_all_but_the_primary_test():
+    from nao_trainer.study.analysis import holm
+
+    assert holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])
+    assert holm([0.5]) == [0.5]
+
+
+def test_baseline_covariate_model_and_arm_specific_variances_on_data():
+    """Session 1 as covariate: an ANCOVA of the later sessions (HC2); the arms' own variances make
+    the contrast between the two quiet arms narrower than a pooled variance would."""
+    from nao_trainer.study.analysis import fit_baseline
+
+    rng = np.random.default_rng(4)
+    arms = np.repeat(["a", "b", "c"], 10)
+    sd = {"a": 1.0, "b": 1.0, "c": 6.0}
+    data = []
+    for i, arm in enumerate(arms):
+        u = rng.normal(0, sd[arm])
+        for s in (1, 2, 3):
+            data.append({"participant": f"P{i}", "arm": arm, "session": s,
+                         "score": u + (1.5 if arm == "b" and s > 1 else 0.0) + rng.normal(0, 0.5)})
+    rows, notes = fit_baseline(data, "score", "a")
+    b = {r["term"]: r for r in rows}["arm[b]"]
+    assert not notes and b["ci_low"] < 1.5 < b["ci_high"] and b["n_participants"] == 30
+    own, _ = fit_mixed(data, "score", ("arm", "session"), "a", variance="arm")
+    pooled, _ = fit_mixed(data, "score", ("arm", "session"), "a", variance="pooled")
+    w = {r["term"]: r for r in own}["arm[b]"]
+    pw = {r["term"]: r for r in pooled}["arm[b]"]
+    assert w["se"] < 0.6 * pw["se"] and w["df"] < 27

@@ -29,7 +29,8 @@ def cli(capsys, *args: str) -> tuple[int, str, str]:
 def test_the_shipped_example_protocol_loads():
     p = load_protocol(PROJECT_ROOT / "config" / "protocols" / "example-3arm.yaml")
     assert [a.name for a in p.arms] == ["personalised", "level2", "random"] and p.blinding
-    assert p.primary == "score" and p.analysis.terms == ("arm", "session") and len(p.sha256) == 64
+    assert p.primary == "span" and p.analysis.terms == ("arm", "session") and len(p.sha256) == 64
+    assert p.analysis.primary_contrast == "personalised" and p.analysis.variance == "arm"
 
 
 def test_blocked_allocation_has_random_block_sizes_and_stays_balanced(tmp_path):
@@ -57,6 +58,12 @@ BAD = {
     "bad override": (("policy.schedule: [L2]", "policy.shedule: [L2]"), "not a study configuration key"),
     "bad override value": (("[L2]", "[L7]"), "does not load"),
     "unknown outcome": (("primary: score", "primary: points"), "unknown outcome 'points'"),
+    "policy-set primary": (("primary: score", "primary: success_rate"), "is set by the policy"),
+    "bad primary contrast": (("reference_arm: level2}", "reference_arm: level2, primary_contrast: level2}"),
+                             "is not an arm other than the reference"),
+    "bad variance": (("reference_arm: level2}", "reference_arm: level2, variance: robust}"), "use arm"),
+    "bad missing rule": (("reference_arm: level2}", "reference_arm: level2, missing: complete-case}"),
+                         "use observed-sessions"),
 }
 
 
