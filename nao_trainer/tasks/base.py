@@ -6,7 +6,8 @@ how an answer is judged and scored, the columns it adds to a turn row, its dialo
 The session's states call it in order: ``present`` (``Task.present``), ``open_window`` (the beep), ``collect``
 (``Trial.presses`` presses within ``Task.response_timeout_s``), ``judge`` (``Task.judge``, ``Task.score``).
 A task that takes its answers while it presents (n-back) sets ``presents_in_window``: the window opens first.
-Optional hooks: ``Settings`` (its ``task.settings`` class), ``level_success()`` and ``simulated_answer(trial, rng,
+Optional hooks: ``Settings`` (its ``task.settings`` class), ``describe(row)`` (the middle of the terminal's
+progress line: what was presented and answered), ``dialogue_file`` (its own words), ``level_success()`` and ``simulated_answer(trial, rng,
 reaction_s)`` (its own simulated participant; without them the user model's plan is used).
 
 Levels: the MDP of the paper (``core.mdp``) has four difficulty levels and six actions; a task's ``levels`` are

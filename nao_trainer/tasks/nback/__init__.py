@@ -115,6 +115,10 @@ class NBackTask:
     def signed_score(self, level: int, success: bool) -> int:
         return levels.signed_score(level, success)
 
+    def describe(self, row: dict[str, Any]) -> str:
+        """The progress line's middle: hits of the targets, false alarms."""
+        return f"hits {row['hits']}/{row['targets'].count('1')} false alarms {row['false_alarms']}"
+
     def span(self, rows: list[dict[str, Any]]) -> str | None:
         """Mean d′ per level played (the n-back's capacity line)."""
         by: dict[int, list[float]] = {}

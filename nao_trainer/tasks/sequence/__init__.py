@@ -69,5 +69,9 @@ class SequenceTask:
     def signed_score(self, level: int, success: bool) -> int:
         return levels.signed_score(level, success)
 
+    def describe(self, row: dict[str, Any]) -> str:
+        """The progress line's middle: what was said vs what was pressed."""
+        return f"{row['sequence']:>9} vs {row['response']:<9}"
+
     def span(self, rows: list[dict[str, Any]]) -> str | None:
         return None  # the session summary's span line (core.psychometric) is the sequence task's already
