@@ -51,6 +51,11 @@ class NBackSettings:
                               doc="simulated participant: criterion c at n = 1..4 (c > 0: conservative)")
 
 
+#: ``evaluate --task nback``'s population: the default observer's d′ at every level scaled by these abilities
+#: (criteria kept). An assumption of ours, not a fitted spread: the published data are the sequence task's.
+ABILITIES: tuple[float, ...] = (0.6, 0.8, 1.0, 1.2, 1.4, 1.6)
+
+
 class NBackTask:
     """Auditory n-back, levels n = 1..4 (see the module docstring)."""
 
@@ -136,6 +141,13 @@ class NBackTask:
         s = self.settings
         return tuple(rules.success_probability(d, c, n, s.targets, s.fillers)
                      for n, d, c in zip(self.levels, s.d_prime, s.criterion))
+
+    def simulated_users(self) -> tuple[tuple[str, tuple[float, ...]], ...]:
+        """(name, P(block succeeds) at each of ``levels``) of the evaluation's observers (``ABILITIES``)."""
+        s = self.settings
+        return tuple((f"nback-d{a:g}x", tuple(rules.success_probability(a * d, c, n, s.targets, s.fillers)
+                                               for n, d, c in zip(self.levels, s.d_prime, s.criterion)))
+                     for a in ABILITIES)
 
     def simulated_answer(self, trial: Trial, rng: np.random.Generator,
                          reaction_s: float) -> tuple[bool, tuple[str, ...], tuple[float, ...], str]:

@@ -27,6 +27,9 @@ class SequenceTask:
     columns: ClassVar[tuple[str, ...]] = COLUMNS
     dialogue_events: ClassVar[Mapping[str, frozenset[str]]] = {}  # the letters are spoken as they are
     answer_letters: ClassVar[tuple[str, ...]] = LETTERS
+    #: The published data (the paper's sessions), the user models fitted on them and their reproductions are of
+    #: this task: ``evaluate``'s fitted user sets (clusters, level-only, sessions) describe its participants.
+    published_data: ClassVar[bool] = True
 
     def __init__(self, settings: Any = None) -> None:
         self.settings = settings
