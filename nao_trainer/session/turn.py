@@ -181,8 +181,9 @@ class SessionResult:
         return None if span is None else span_dict(span)
 
     def _own_span(self) -> bool:
-        """The task has a capacity line of its own (the span in letters is the sequence task's)."""
-        return self.task is not None and "sequence" not in self.task.columns
+        """The task has a capacity line of its own (the span in letters, under the prior fitted on the published
+        data, is the sequence task's: ``Task.published_data``)."""
+        return self.task is not None and not getattr(self.task, "published_data", False)
 
     def span_line(self) -> str:
         """``span at 75 %: 6.1 letters [4.9, 7.2] (...)``: the sequence length recalled at that rate, 90 % interval;

@@ -70,6 +70,27 @@ class NBackTask:
     #: Its own words (instructions, practice) for a study that keeps the shipped dialogue.
     dialogue_file: ClassVar[Path] = Path(__file__).parent / "en.yaml"
 
+    #: BIDS: the task label, its description and its columns (``study export --bids``).
+    bids_name: ClassVar[str] = "nback"
+    description: ClassVar[str] = ("auditory n-back with a NAO robot: a block of 20 + n spoken letters, one every 3 s; "
+                                  "press the front head button when a letter matches the one n back (Jaeggi et al. "
+                                  "2008, PNAS 105, 6829)")
+    column_docs: ClassVar[Mapping[str, tuple[str, str | None]]] = {
+        "level": ("difficulty level 1-4: the load n of the n-back block", None),
+        "response": ("the buttons pressed during the block (A: the front head button, the match button)", None),
+        "success": ("True when the block had fewer than 3 errors (misses + false alarms; Jaeggi et al. 2008)", None),
+        "reaction_time": ("time from the beep before the block to the first press", "s"),
+        "completion_time": ("time from the beep before the block to the last press", "s"),
+        "n": ("the load n: a target is a letter equal to the one n before it", None),
+        "stimuli": ("the letters the robot said, in order", None),
+        "targets": ("per letter, 1 when it was a target (equal to the one n back), else 0", None),
+        "hits": ("targets pressed", None),
+        "misses": ("targets not pressed", None),
+        "false_alarms": ("non-targets pressed", None),
+        "correct_rejections": ("non-targets not pressed", None),
+        "d_prime": ("z(H) - z(F) with the log-linear correction (Hautus 1995)", None),
+    }
+
     def __init__(self, settings: NBackSettings | None = None) -> None:
         self.settings = settings or NBackSettings()
 

@@ -30,6 +30,10 @@ class SequenceTask:
     #: The published data (the paper's sessions), the user models fitted on them and their reproductions are of
     #: this task: ``evaluate``'s fitted user sets (clusters, level-only, sessions) describe its participants.
     published_data: ClassVar[bool] = True
+    #: BIDS: the task label and description (``study export --bids``).
+    bids_name: ClassVar[str] = "sequencelearning"
+    description: ClassVar[str] = ("sequence learning task with a NAO robot (Tsiakas, Abujelala and Makedon, "
+                                  "Technologies 2018, 6, 49)")
 
     def __init__(self, settings: Any = None) -> None:
         self.settings = settings
