@@ -402,7 +402,7 @@ class Session:
         self.rec.event("turn_end", turn=turn.number, success=turn.success, score=score, total=self.total)
         self.monitor.mark("turn_end", turn.number)
         self.observer.notify("row", {**row, "total": self.total, "elapsed_s": round(self.elapsed_s(), 2)})
-        self.log.say(progress_line(row, self.n_turns, self.total))
+        self.log.say(progress_line(row, self.n_turns, self.total, self.task))
         self.phases.note_signal(turn.number, turn.listening)
         self.log.policy_status(self.policy.status(), turn.number)
         return "finish_turns" if done else "next_turn"
