@@ -355,14 +355,18 @@ class Session:
         turn.answer = answer
         if listening is not None:
             turn.listening = listening
-        if self.phases.lost_eeg(turn.number, listening, turn.replay, turn.notes):  # eeg.turn_requires_eeg
-            self._abandon_turn(turn, "interrupted: EEG lost during the listening phase")
+        # The answer phase ends with the answer (judging it talks to nothing): a loss in it is known now.
+        turn.answering = self.phases.end(turn.number)
+        lost_in = self.phases.lost_eeg(turn.number, listening, turn.answering, turn.replay, turn.notes)
+        if lost_in:  # eeg.turn_requires_eeg, and the stream is back
+            self._abandon_turn(turn, f"interrupted: EEG lost during the {lost_in} phase")
             self.replay = turn
             return "repeat_turn"
         return "score_answer"
 
     def _do_judge(self, turn: Turn) -> str:
-        turn.answering = self.phases.end(turn.number)
+        if self.phases.phase is not None:  # a phase still open (collect ends the answer phase)
+            turn.answering = self.phases.end(turn.number)
         turn.judge(self.task)
         return "record_turn"
 

@@ -113,25 +113,32 @@ class PhaseClock:
             self.log.observer.notify("eeg", {"missing_turns": self.missing, "turn": turn, "reason": reason})
             self.log.say(f"warning: no EEG for the last {self.missing} turns ({reason}): check the headband and its stream")
 
-    def lost_eeg(self, turn: int, listening: PhaseEngagement | None, replayed: bool, notes: list[str]) -> bool:
-        """After the answer: did the listening phase lose EEG (the headband's stream stopped), and is the turn
-        to be played again?
+    def lost_eeg(self, turn: int, listening: PhaseEngagement | None, answering: PhaseEngagement | None,
+                 replayed: bool, notes: list[str]) -> str:
+        """After the answer: did the turn lose EEG (the headband's stream stopped) in its listening or its answer
+        phase, and is the turn to be played again? Returns the phase to name when it is ("listening" or
+        "answer"), else "".
 
-        A loss is flagged in the turn's notes and in events.jsonl. With ``eeg.turn_requires_eeg`` the turn
-        is played again once (not a replay), as after a lost robot link, when the stream is back: this waits
-        up to ``eeg.reconnect_wait_s`` for it (the monitor reconnects in the background). A stream that does
-        not return is not waited for again until it does; the turn is then recorded, flagged."""
-        lost = 0.0 if listening is None else listening.lost_s
+        A loss is flagged in the turn's notes and in events.jsonl, per phase. With ``eeg.turn_requires_eeg``
+        the turn is played again once (not a replay), as after a lost robot link, when the stream is back: this
+        waits up to ``eeg.reconnect_wait_s`` for it (the monitor reconnects in the background). A stream that
+        does not return is not waited for again until it does; the turn is then recorded, flagged."""
         tolerance = 0.1 if self.eeg is None else self.eeg.processing.gap_tolerance_s
-        if not self.monitor.records_eeg or lost <= tolerance:  # a stamp jump this small is no gap in the data
-            return False
-        notes.append(f"EEG lost {lost:.1f} s in the listening phase")
-        self.rec.event("eeg_lost_in_turn", turn=turn, lost_s=round(lost, 3), replay=replayed)
-        if self.eeg is None or not self.eeg.turn_requires_eeg or replayed:
-            return False
+        if not self.monitor.records_eeg:
+            return ""
+        hit = ""
+        for name, phase in (("listening", listening), ("answer", answering)):
+            lost = 0.0 if phase is None else phase.lost_s
+            if lost <= tolerance:  # a stamp jump this small is no gap in the data
+                continue
+            hit = hit or name
+            notes.append(f"EEG lost {lost:.1f} s in the {name} phase")
+            self.rec.event("eeg_lost_in_turn", turn=turn, lost_s=round(lost, 3), phase=name, replay=replayed)
+        if not hit or self.eeg is None or not self.eeg.turn_requires_eeg or replayed:
+            return ""
         wait = getattr(self.monitor, "wait_available", None)
         if wait is None:
-            return False
+            return ""
         back = getattr(self.monitor, "available", True)
         if not back and not self.waited_in_vain:
             self.log.say(f"turn {turn}: EEG lost; waiting up to {self.eeg.reconnect_wait_s:g} s for the headband's stream")
@@ -145,6 +152,6 @@ class PhaseClock:
             self.waited_in_vain = False
         if not back:
             notes.append(f"not replayed: the EEG stream was not back within {self.eeg.reconnect_wait_s:g} s")
-            return False
+            return ""
         self.monitor.mark("eeg_turn_replay", turn)
-        return True
+        return hit

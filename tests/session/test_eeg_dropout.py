@@ -129,3 +129,64 @@ def test_a_stream_gone_for_good_is_waited_for_once_then_turns_are_flagged(tmp_pa
     assert last["until_end"] and last["end"] is None and set(last["turns"]) >= {int(r["turn"]) for r in flagged}
     gaps = _rows(folder / "eeg" / "gaps.csv")
     assert gaps[-1]["kind"].endswith("(until the end)") and gaps[-1]["end"] == ""
+
+
+class _DropInAnswer:
+    """A session observer: once turn 1's answer window is open (state ``collect``), the headband goes silent
+    (after ``after_s``, past the listening phase's end) for ``drop_s`` wall seconds."""
+
+    def __init__(self, sim, after_s: float, drop_s: float) -> None:
+        self.sim, self.after_s, self.drop_s = sim, after_s, drop_s
+        self.fired = threading.Event()
+
+    def notify(self, kind, data):
+        if kind == "state" and data.get("state") == "collect" and data.get("turn") == 1 and not self.fired.is_set():
+            self.fired.set()
+            threading.Thread(target=self._drop, daemon=True).start()
+
+    def _drop(self):
+        time.sleep(self.after_s)
+        self.sim.pause()
+        time.sleep(self.drop_s)
+        self.sim.resume()
+
+
+def test_eeg_lost_in_the_answer_phase_flags_the_turn_and_plays_it_again(tmp_path):
+    """The stream stops after the listening phase ended, while the participant (nobody presses: the window
+    times out) would answer on the stand-in's head over real qi: the answer phase lost EEG, so the turn is
+    flagged and, with eeg.turn_requires_eeg, played again once the stream is back."""
+    from nao_trainer.robot.standin import StandIn
+
+    name, sid = _uid("MuseA"), _uid("MuseAsrc")
+    sim = SimulatedMuse.start(np.random.default_rng(2), name=name, source_id=sid)
+    standin = StandIn.start(speed=25)
+    try:
+        observer = _DropInAnswer(sim, after_s=0.15, drop_s=1.5)
+        cfg = load_config(None, {
+            "session.turns": 2, "timing.speed": 25.0, "session.output": str(tmp_path), "session.seed": 7,
+            "session.practice": False, "participant.pseudonym": "P1", "robot.url": standin.url,
+            "answers.input": "tactile", "eeg.allow_simulated": True, "timing.response_timeout_base_s": 25,
+            "timing.response_timeout_per_letter_s": 0, "eeg.mode": "lsl", "eeg.stream_name": name,
+            "eeg.source_id": sid, "eeg.processing": FAST, "eeg.xdf": False, "eeg.turn_requires_eeg": True})
+        out: dict = {}
+        runner = threading.Thread(target=lambda: out.update(
+            result=sess.run_session(cfg, sess.RunOptions(quiet=True, observer=observer))))
+        runner.start()
+        runner.join(HANG_S)
+        assert not runner.is_alive(), "the session hangs"
+    finally:
+        sim.stop()
+        standin.stop()
+    result = out["result"]
+    assert result.status == "completed", result.error
+    rows = read_turns(result.path)
+    first = rows[0]
+    assert first["turn"] == "1" and first["success"] == ""
+    assert "interrupted: EEG lost during the answer phase" in first["notes"]
+    assert "in the answer phase" in first["notes"] and "in the listening phase" not in first["notes"]
+    again = [r for r in rows if r["turn"] == "1" and r["replay"] == "True"]
+    assert again and again[-1]["success"] in ("True", "False")
+    lost = [e for e in read_events(result.path) if e["event"] == "eeg_lost_in_turn"]
+    assert lost[0]["turn"] == 1 and lost[0]["phase"] == "answer"
+    markers = [e["event"] for e in _rows(result.path / "eeg" / "events.csv")]
+    assert "turn_1_eeg_turn_replay" in markers

@@ -141,6 +141,26 @@ class NBackTask:
     def signed_score(self, level: int, success: bool) -> int:
         return levels.signed_score(level, success)
 
+    def row_problem(self, row: dict[str, str]) -> str | None:
+        """Why a recorded block's fields disagree (``run --resume`` checks turns.csv): n is the level, the stream
+        is 20 + n letters (the settings'), the counts add up to its targets and letters, and the success is
+        the criterion's."""
+        try:
+            n, hits, misses = int(row["n"]), int(row["hits"]), int(row["misses"])
+            fas, crs = int(row["false_alarms"]), int(row["correct_rejections"])
+        except (TypeError, ValueError, KeyError):
+            return "n, hits, misses, false_alarms and correct_rejections must be integers"
+        stimuli, targets = row.get("stimuli") or "", row.get("targets") or ""
+        if n != int(row["level"]) or len(stimuli) != rules.block_length(n, self.settings.fillers):
+            return f"n {n}, level {row['level']} and a stream of {len(stimuli)} letters do not agree"
+        if len(targets) != len(stimuli) or set(targets) - {"0", "1"} or hits + misses != targets.count("1") \
+                or hits + misses + fas + crs != len(stimuli):
+            return f"hits {hits}, misses {misses}, false alarms {fas} and correct rejections {crs} do not add up to " \
+                   f"the stream's targets {targets!r}"
+        if (row["success"] == "True") != rules.Outcome(hits, misses, fas, crs).success:
+            return f"success {row['success']} with {misses + fas} errors (fewer than 3 is a success)"
+        return None
+
     def describe(self, row: dict[str, Any]) -> str:
         """The progress line's middle: hits of the targets, false alarms."""
         return f"hits {row['hits']}/{row['targets'].count('1')} false alarms {row['false_alarms']}"

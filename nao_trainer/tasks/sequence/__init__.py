@@ -76,6 +76,19 @@ class SequenceTask:
     def signed_score(self, level: int, success: bool) -> int:
         return levels.signed_score(level, success)
 
+    def row_problem(self, row: dict[str, str]) -> str | None:
+        """Why a recorded row's own fields disagree (``run --resume`` checks turns.csv): the length is the
+        level's, the sequence that long, and a success repeats it."""
+        try:
+            level, length = int(row["level"]), int(row["length"])
+        except (TypeError, ValueError, KeyError):
+            return "length must be an integer"
+        if length != levels.length_of(level) or len(row.get("sequence") or "") != length:
+            return f"level {level}, length {length} and sequence {row.get('sequence')!r} do not agree"
+        if row["success"] == "True" and not is_correct(row["sequence"], row.get("response") or ""):
+            return f"success with a response {row.get('response')!r} that does not repeat the sequence {row['sequence']!r}"
+        return None
+
     def describe(self, row: dict[str, Any]) -> str:
         """The progress line's middle: what was said vs what was pressed."""
         return f"{row['sequence']:>9} vs {row['response']:<9}"
