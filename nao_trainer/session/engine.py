@@ -87,6 +87,7 @@ class Session:
         self.phases = PhaseClock(ports.monitor, self.stage, ports.answers, ports.robot, self.clock, config.timing,
                                  recorder, self.log, config.eeg.missing_alert_turns, config.eeg)
         self.desk = OperatorDesk(ports.commands, self.log, recorder, ports.monitor, ports.observer)
+        self.phases.commands = ports.commands  # a wait for a lost EEG stream ends on a pause or stop
         model = config.robot.robot_model()
         self.health = HealthDesk(ports.health, ports.upkeep, ports.commands, self.log, recorder, ports.monitor,
                                  ports.observer, model.cool_posture(),

@@ -190,3 +190,57 @@ def test_eeg_lost_in_the_answer_phase_flags_the_turn_and_plays_it_again(tmp_path
     assert lost[0]["turn"] == 1 and lost[0]["phase"] == "answer"
     markers = [e["event"] for e in _rows(result.path / "eeg" / "events.csv")]
     assert "turn_1_eeg_turn_replay" in markers
+
+
+class _StopWhileWaiting:
+    """A session observer: once the session says it waits for the lost EEG stream, the operator stops it."""
+
+    def __init__(self, commands) -> None:
+        self.commands = commands
+        self.waiting = threading.Event()
+
+    def notify(self, kind, data):
+        if kind == "eeg_wait" and data.get("waiting_s") and not self.waiting.is_set():
+            self.waiting.set()
+            self.commands.submit("stop", source="keys")
+
+
+def test_a_stop_while_the_session_waits_for_a_lost_stream_acts_at_once(tmp_path):
+    """The stream is gone for good and the study would wait 600 s for it: the operator's stop (a key) ends the
+    wait; the turn is recorded flagged, then the stop says goodbye (exit 5). Not honoured, the session would
+    sit out the 600 s and the hang limit fails the test."""
+    from nao_trainer.ports import CommandQueue
+    from nao_trainer.session.engine import EXIT_OPERATOR_STOP
+
+    name, sid = _uid("MuseW"), _uid("MuseWsrc")
+    sim = SimulatedMuse.start(np.random.default_rng(3), name=name, source_id=sid)
+    commands = CommandQueue()
+    observer = _StopWhileWaiting(commands)
+    cfg = load_config(None, {
+        "session.turns": 4, "timing.speed": 25.0, "session.output": str(tmp_path), "session.seed": 7,
+        "session.practice": False, "participant.pseudonym": "P1", "eeg.mode": "lsl", "eeg.stream_name": name,
+        "eeg.source_id": sid, "eeg.processing": FAST, "eeg.xdf": False, "eeg.turn_requires_eeg": True,
+        "eeg.reconnect_wait_s": 600})
+    out: dict = {}
+    runner = threading.Thread(target=lambda: out.update(
+        result=sess.run_session(cfg, sess.RunOptions(quiet=True, commands=commands, observer=observer))))
+    runner.start()
+    try:
+        folder = _wait_for(lambda: next(tmp_path.glob("*/turns.csv"), None), "the session folder").parent
+        _wait_for(lambda: len(read_turns(folder)) >= 1, "the first turn")
+        sim.stop()  # gone for good
+        runner.join(HANG_S)
+        assert not runner.is_alive(), "the session hangs: the stop was not honoured during the wait"
+    finally:
+        sim.stop()
+    result = out["result"]
+    assert result.status == "stopped" and result.exit_code == EXIT_OPERATOR_STOP, result.error
+    assert observer.waiting.is_set()
+    events = read_events(folder)
+    cut = [e for e in events if e["event"] == "eeg_wait_cut_short"]
+    assert len(cut) == 1 and cut[0]["by"] == "stop"
+    assert not any(e["event"] == "eeg_not_back" for e in events)  # it did not sit the wait out
+    stop = [e for e in events if e["event"] == "command" and e["kind"] == "stop"]
+    assert stop and stop[0]["accepted"]
+    flagged = [r for r in read_turns(folder) if "ended the wait for the EEG stream" in r["notes"]]
+    assert len(flagged) == 1 and "EEG lost" in flagged[0]["notes"]
