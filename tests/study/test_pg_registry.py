@@ -288,3 +288,23 @@ def test_command_line_two_sites_from_two_shells(pg_cluster, tmp_path, monkeypatc
     assert sorted(arms.values()) == [4, 4, 4]
     code, out = _cli(capsys, "status", study)
     assert "primary analysis" in out and roles["stats"] in out
+
+
+def test_connection_lost_mid_session_then_recorded_once(study):
+    """The server drops the site's connection while its session runs (pg_terminate_backend): the record
+    fails in one line, the laptop keeps the session, and records it once on a new connection."""
+    role = study.site("north")
+    op = pg.connect(study.url(role), autocommit=True)
+    pseud = pg.enrol(op, "2026-12-01", "v1")
+    pg.record_session(op, "key-1", pseud, 1, f"{pseud}_1", "started", None)
+    pid = op.info.backend_pid
+    study.admin.execute("SELECT pg_terminate_backend(%s)", (pid,))
+    with pytest.raises(DataError, match="lost the registry server") as e:
+        pg.record_session(op, "key-1", pseud, 1, f"{pseud}_1", "completed", {"turns.csv": "b" * 64})
+    assert "\n" not in str(e.value)
+    op.close()
+    with pg.connect(study.url(role), autocommit=True) as again:
+        pg.record_session(again, "key-1", pseud, 1, f"{pseud}_1", "completed", {"turns.csv": "b" * 64})
+        pg.record_session(again, "key-1", pseud, 1, f"{pseud}_1", "completed", {"turns.csv": "b" * 64})
+        assert pg.site_participants(again)[0]["sessions_done"] == 1
+    assert pg.call(study.admin, "n", "SELECT count(*), min(status) FROM sessions") == [(1, "completed")]
