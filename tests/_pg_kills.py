@@ -72,7 +72,7 @@ def check(cluster, db: str) -> list[str]:
 
 
 def run(cluster, work: Path, kills: int, seed: int) -> Result:
-    """``kills`` enrolments killed at a moment drawn between the start and 1.5 x a whole enrolment."""
+    """``kills`` enrolments killed at a moment drawn uniformly within a whole enrolment's time."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "QI_LOG_LEVEL": "silent", "PGUSER": "postgres",
            "PGPASSFILE": str(work / "pgpass")}
     (work / "pgpass").write_text(f"*:*:*:postgres:{cluster.password}\n")
@@ -101,7 +101,7 @@ def _kills(cluster, work: Path, kills: int, seed: int, env: dict[str, str]) -> R
                                  "2026-12-01", "--consent-version", "v1"], env={**env, "PGUSER": roles[site]},
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
-            proc.wait(timeout=float(rng.uniform(0, 1.5 * whole)))
+            proc.wait(timeout=float(rng.uniform(0, whole)))
         except subprocess.TimeoutExpired:
             proc.send_signal(signal.SIGKILL)
             proc.wait()
