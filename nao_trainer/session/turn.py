@@ -226,15 +226,15 @@ def _most_common(values: list[str]) -> str:
 
 def progress_line(row: dict[str, Any], n_turns: int, total: int) -> str:
     """One terminal line per recorded turn."""
-    fb = {0: "   ", 1: "enc", 2: "chl"}[row["feedback"]]
+    fb = {0: "", 1: "  (robot feedback: encouraging)", 2: "  (robot feedback: challenging)"}[row["feedback"]]
     eng = "-" if row["engagement"] is None else f"{row['engagement']:.2f}"
     mark = "ok " if row["success"] else "err"
     if "sequence" in row:  # the sequence task: what was said vs what was pressed
         what = f"{row['sequence']:>9} vs {row['response']:<9}"
     else:  # a task with hits and false alarms (n-back)
         what = f"hits {row.get('hits', '-')}/{row.get('targets', '').count('1')} false alarms {row.get('false_alarms', '-')}"
-    return (f"turn {row['turn']:3d}/{n_turns}  L{row['level']} {fb}  {what} {mark} {row['score']:+d}  total {total:4d}  E {eng}"
-            + (f"  ({row['notes']})" if row["notes"] else "")
+    return (f"turn {row['turn']:3d}/{n_turns}  L{row['level']}  {what} {mark} {row['score']:+d}  total {total:4d}  E {eng}"
+            + fb + (f"  ({row['notes']})" if row["notes"] else "")
             + ("  (marked invalid: not in the total)" if row.get("invalid") else "")
             + (f"  [{row['phase']}]" if row.get("phase") else ""))
 
