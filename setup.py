@@ -43,15 +43,17 @@ setup(
         # controlled studies: the mixed model (study analyse), BIDS export (study export --bids)
         # + the sealed allocation of the study registry (study.seal: Fernet)
         "study": ["statsmodels>=0.14", "pandas>=2", "mne>=1.6", "mne-bids>=0.15", "pybv>=0.7", "cryptography>=41"],
+        # the study registry on a PostgreSQL server (study.pg; several sites, blinding by the database's roles)
+        "study-pg": ["psycopg[binary]>=3.1"],
         # QUEST+ baseline beside the Bayes ceiling (experiments.adaptive)
         "psychophysics": ["questplus>=2023.1"],
         # the documentation site (make docs): MkDocs, the Material theme, the API pages from the docstrings
         "docs": ["mkdocs>=1.6", "mkdocs-material>=9.5", "mkdocstrings[python]>=0.26"],
         "test": ["mkdocs>=1.6", "mkdocs-material>=9.5", "mkdocstrings[python]>=0.26", "pytest>=7", "pytest-xdist>=3.6", "playwright>=1.40", "pyxdf>=1.16", "statsmodels>=0.14", "pandas>=2",
-                 "mne>=1.6", "mne-bids>=0.15", "pybv>=0.7", "questplus>=2023.1", "brainflow>=5.10", "cryptography>=41"],
+                 "mne>=1.6", "mne-bids>=0.15", "pybv>=0.7", "questplus>=2023.1", "brainflow>=5.10", "cryptography>=41", "psycopg[binary]>=3.1"],
         "all": ["matplotlib>=3.7", "gymnasium>=1.0", "starlette>=0.37", "uvicorn>=0.29", "numba>=0.60", "joblib>=1.3",
                 "dask[distributed]>=2024.1", "labrecorder>=1.0.0rc0", "pyxdf>=1.16", "statsmodels>=0.14", "pandas>=2",
-                "mne>=1.6", "mne-bids>=0.15", "pybv>=0.7", "questplus>=2023.1", "brainflow>=5.10", "cryptography>=41"],
+                "mne>=1.6", "mne-bids>=0.15", "pybv>=0.7", "questplus>=2023.1", "brainflow>=5.10", "cryptography>=41", "psycopg[binary]>=3.1"],
     },
     # The console's page and the vendored uPlot (MIT; version and licence in console/static/).
     package_data={"nao_trainer.console.static": ["*"]},

@@ -453,6 +453,11 @@ class CommandQueue:
                 self._cond.wait(timeout_s)
             return bool(self._items)
 
+    def kinds(self) -> list[str]:
+        """The kinds of the queued commands, oldest first (nothing is taken off the queue)."""
+        with self._cond:
+            return [c.kind for c in self._items]
+
     def __len__(self) -> int:
         with self._cond:
             return len(self._items)

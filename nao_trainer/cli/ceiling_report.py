@@ -86,7 +86,11 @@ def personalise_section(args, result: dict, turns: int = 25) -> dict[str, Any] |
     if args.no_ceiling:
         return None
     rates, train, clusters, priors = ceiling.personalise_inputs(result)
-    return _section(args, obj, result["rows"], rates, train, clusters, priors, turns)
+    section = _section(args, obj, result["rows"], rates, train, clusters, priors, turns)
+    counts = {n: f["counts"] for n, f in result["fits"].items() if "counts" in f}
+    if counts:  # the own-rates oracle beside the one the beta-binomial spread of true rates supports
+        section["noise_corrected_oracle"] = ceiling.noise_corrected_oracle(counts, obj, turns)
+    return section
 
 
 def _section(args, obj, rows, rates, train, clusters, priors, turns) -> dict[str, Any]:
@@ -144,6 +148,15 @@ def format_section(section: dict[str, Any] | None) -> str:
               f"; expects {c['predicted_value']:.{digits}f}, achieves {c['achieved_value']:.{digits}f}")
         lines.append(f"  prior check {c['prior']:<30} success by level predicted {_levels(c['prior_mean'], c['prior_sd'])}"
                      f" vs users {_levels(c['users_mean'], c['users_sd'])}{pv}")
+    nc = section.get("noise_corrected_oracle")
+    if nc:
+        own, pop = nc["own_rates"], nc["population"]
+        lines.append(f"  oracle gap over the best fixed level (by person, {nc['people']} people): own rates "
+                     f"{own['oracle_gap']:.{digits}f} {_ci(own['oracle_gap_ci'], digits)}, noise-corrected (true rates "
+                     f"spread as the beta-binomial fit supports, between-person SD by level "
+                     f"{' '.join(f'{x:.2f}' for x in nc['between_sd'])}) {pop['oracle_gap']:.{digits}f}"
+                     + ("" if nc["noise_share"] is None else f"; {100 * nc['noise_share']:.0f} % of the own-rates "
+                        "gap is the noise of a few turns per level"))
     if section.get("multi_session_note"):
         lines.append("  " + section["multi_session_note"])
     for m in section.get("multi_session", []):

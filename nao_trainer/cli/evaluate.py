@@ -24,8 +24,13 @@ def register(sub) -> None:
     p.add_argument("--policies", default=None,
                    help="comma-separated policies (default: all baselines, usp:METHOD and usp-learning:METHOD "
                         "for every method, oracle); see docs/evaluation.md")
-    p.add_argument("--users", default="clusters",
-                   help="clusters | level-only | sessions | DATASET_ROOT (per-session users, leave-one-session-out)")
+    p.add_argument("--users", default=None,
+                   help="clusters | level-only | sessions | DATASET_ROOT (per-session users, leave-one-session-out) | "
+                        "task (the --task's own simulated users); default clusters, with --task nback: task")
+    p.add_argument("--task", metavar="NAME", default=None,
+                   help="the task the users play (nao-trainer plugins lists them); default the sequence task, whose "
+                        "participants the fitted user sets are; nback: its signal-detection observers (docs/evaluation.md)")
+    p.add_argument("--turns", type=int, default=25, help="turns per session (default 25, the paper's)")
     p.add_argument("--data", type=Path, default=None, help="dataset root or turn table for --users sessions")
     p.add_argument("--models", type=Path, default=None,
                    help="folder of fitted user models (default: $NAO_TRAINER_MODELS or sim/models)")
@@ -68,7 +73,33 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def _task_users(args) -> tuple[object | None, str]:
+    """The ``--task`` (None without one) and the user set: ``--users``, else the task's own simulated users for a
+    task the published data are not of (``Task.published_data``), else the fitted clusters. One line when a user
+    set does not belong to the task."""
+    if args.task is None:
+        return None, args.users or "clusters"
+    from nao_trainer.tasks.base import task_named
+
+    task = task_named(args.task)
+    ours = bool(getattr(task, "published_data", False))  # the fitted users and the dataset are this task's
+    which = args.users or ("clusters" if ours else "task")
+    if which != "task" and not ours:
+        raise ConfigError(f"--users {which}: the fitted user sets and the dataset are people playing the sequence "
+                          f"task (the published data); task {task.name!r} is evaluated on its own simulated users "
+                          "(--users task, its default)")
+    if which == "task" and getattr(task, "simulated_users", None) is None:
+        raise ConfigError(f"--users task: task {task.name!r} declares no simulated users (Task.simulated_users)")
+    if not ours and (args.personalise or args.user_models or args.policy_files is not None):
+        flag = "--personalise" if args.personalise else "--user-models" if args.user_models else "--policy-files"
+        raise ConfigError(f"{flag} works on the published data, which are the sequence task's; task {task.name!r} "
+                          "has no sessions to hold out or fit (evaluate it on its simulated users)")
+    return task, which
+
+
 def run(args) -> int:
+    task, which = _task_users(args)
+    args.users = which
     if getattr(args, "user_models", False):
         return ceiling_report.run_user_models(args)
     if getattr(args, "personalise", False):
@@ -81,8 +112,8 @@ def run(args) -> int:
         comparison.DEFAULT_POLICIES
     if not policies:
         raise ConfigError("--policies: give at least one policy")
-    spec = comparison.EvalSpec(policies=policies, process=args.mdp, seeds=args.seeds, episodes=args.episodes,
-                               mc_episodes=args.mc_episodes, seed=args.seed)
+    spec = comparison.EvalSpec(policies=policies, process=args.mdp, turns=args.turns, seeds=args.seeds,
+                               episodes=args.episodes, mc_episodes=args.mc_episodes, seed=args.seed)
     ceiling_report.check(args)
     check_backend(args.backend)
     if args.workers < 1 or (args.limit is not None and args.limit < 1):
@@ -90,8 +121,17 @@ def run(args) -> int:
     require_matplotlib(not args.no_plots)
     make_output_dir(args.out)
     t0 = time.perf_counter()
-    kind, user_list = users.load_users(args.users, args.models, args.data, args.workers, args.backend, args.seed,
-                                       args.limit)
+    if which == "task":
+        from nao_trainer.session.config import load_config
+
+        engagement = load_config(None).participant_model.engagement_by_level  # the demo's (the task models none)
+        kind, user_list = f"task {task.name}", users.task_user_set(task, engagement)[:args.limit]
+        print(f"evaluate: task {task.name}, levels {', '.join(map(str, task.levels))}: its own simulated users "
+              f"({', '.join(u.name for u in user_list)}); not fitted to people (the published data are the sequence "
+              "task's)", file=sys.stderr)
+    else:
+        kind, user_list = users.load_users(args.users, args.models, args.data, args.workers, args.backend, args.seed,
+                                           args.limit)
     given = None
     if args.policy_files is not None:
         if kind != "clusters" and kind != "level-only":

@@ -257,6 +257,10 @@ def session_name(layout: str, path: Path) -> str:
 def import_own_session(session_dir: Path) -> tuple[list[dict[str, Any]], list[Any], list[str]]:
     """(rows, excluded turns, notes) of one session written by ``run``; DataError when unreadable."""
     sess = own.read_session(session_dir)
+    if not getattr(own.session_task(sess), "published_data", False):
+        raise DataError(f"task {sess.task!r}: not imported: the turn table, the user models fitted on it and their "
+                        "reproductions are the published data's (the sequence task: lengths 3-9, letters); its "
+                        f"turns would mix with those (a {sess.task} session is read by study analyse and export)")
     eng = own.own_session_engagement(session_dir)
     rows, excluded = own.table_rows(sess, {t.turn: t for t in eng.turns})
     notes = list(sess.notes)

@@ -44,7 +44,8 @@ from nao_trainer.core.montage import thresholds_from
 from nao_trainer.core.phase import EngagementNormaliser, summarise_phase
 from nao_trainer.data.engagement import SessionEngagement, TurnEngagement, TurnSeries
 from nao_trainer.data.raw_csv import MAX_RAW_BYTES, read_raw  # noqa: F401 - read_raw is part of this module's API
-from nao_trainer.errors import DataError
+from nao_trainer import registry
+from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import read_json, read_text
 
 FORMAT = "nao-trainer/session"
@@ -129,6 +130,15 @@ class OwnSession:
         return str(name)[:200] if name else ""
 
     @property
+    def task(self) -> str:
+        """``task.name`` of the configuration the session ran with (``sequence`` when not recorded: older folders)."""
+        cfg = self.info.get("config") if isinstance(self.info.get("config"), dict) else {}
+        values = cfg.get("values", cfg) if isinstance(cfg, dict) else {}
+        section = values.get("task") if isinstance(values, dict) else None
+        name = section.get("name") if isinstance(section, dict) else None
+        return str(name)[:100] if name else "sequence"
+
+    @property
     def input(self) -> str:
         """Who answered: ``simulated`` (a simulated participant), ``tactile`` or ``keyboard`` (a person)."""
         kind = self.info.get("input")
@@ -191,10 +201,21 @@ def read_session(path: Path) -> OwnSession:
     info = read_info(path)
     notes: list[str] = []
     turns = path / "turns.csv"
-    rows = _csv_rows(turns, TURN_FIELDS, notes) if turns.is_file() else []
+    session = OwnSession(path, info, [], notes)
+    columns = session_task(session).columns  # a task writes the common columns and its own (tasks.base)
+    required = tuple(f for f in TURN_FIELDS if f in columns)
+    session.rows = _csv_rows(turns, required, notes) if turns.is_file() else []
     if not turns.is_file():
         notes.append("no turns.csv")
-    return OwnSession(path, info, rows, notes)
+    return session
+
+
+def session_task(session: OwnSession) -> Any:
+    """The task class the session played (the registry's); one DataError line when it is not installed."""
+    try:
+        return registry.load("task", session.task)
+    except ConfigError as exc:
+        raise DataError(f"{session.path / 'session.json'}: the session's task cannot be read: {exc}") from None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -238,18 +259,18 @@ def _turn_row(r: dict[str, str]) -> dict[str, Any]:
     st = mdp.decode(state)
     parts = {"length": st.length, "level": st.level, "feedback": st.feedback, "previous_score": st.previous}
     for name, want in parts.items():
-        if _int(r[name], name) != want:
+        if name in r and _int(r[name], name) != want:  # length: a column of the sequence task only
             raise ValueError(f"invalid: {name} {r[name]} contradicts state {state} ({mdp.state_label(state)})")
     if r["action"] not in mdp.ACTION_NAMES:
         raise ValueError(f"invalid: unknown action {r['action']!r} (known: {', '.join(mdp.ACTION_NAMES)})")
-    if len(r["sequence"]) != st.length:
+    if "sequence" in r and len(r["sequence"]) != st.length:  # the sequence task's letters: L of them
         raise ValueError(f"invalid: sequence {r['sequence']!r} is not {st.length} letters long")
     score, signed = task.score(st.level, ok), task.signed_score(st.level, ok)
     if _int(r["score"], "score") != score or _int(r["signed_score"], "signed_score") != signed:
         raise ValueError(f"invalid: score {r['score']}/{r['signed_score']} contradicts level {st.level} and success {ok}")
     return {
         "turn": number, "state": state, **parts, "action": mdp.ACTION_NAMES.index(r["action"]),
-        "sequence": r["sequence"], "response": r["response"], "success": int(ok), "score": score,
+        "sequence": r.get("sequence", ""), "response": r["response"], "success": int(ok), "score": score,
         "signed_score": signed, "reaction_time": _float(r["reaction_time"]),
         "completion_time": _float(r["completion_time"]),
     }

@@ -110,7 +110,9 @@ def study_session(path: Path, prior: PooledModel | None = None) -> StudySession:
         "policy": policy if policy is not None else "",
         "status": sess.status,
         "duration_s": round((ended - started).total_seconds(), 1) if started and ended else None,
-        **_span(rows, prior, _span_rate(sess.info, Path(path))),
+        # the span is a sequence length under the prior fitted on the published data: that task's only
+        **_span(rows, prior if getattr(own.session_task(sess), "published_data", False) else None,
+                _span_rate(sess.info, Path(path))),
     }
     return StudySession(row, [r["level"] for r in rows], [r["success"] for r in rows],
                         [r["engagement"] for r in rows])

@@ -518,7 +518,8 @@ def noise_corrected_oracle(counts: dict[str, np.ndarray], obj: Objective, turns:
         rates = np.where(n > 0, wins / np.maximum(n, 1), m)
     kappa = np.array([beta_concentration(rates[:, lv], n[:, lv]) for lv in range(4)])
     own = (wins + shrink * m) / (n + shrink)
-    draw = rng.beta(m * kappa, (1 - m) * kappa, size=(draws, 4))
+    mc = np.clip(m, 1e-6, 1 - 1e-6)  # a level every person passed (or failed) has no spread to draw from
+    draw = rng.beta(mc * kappa, (1 - mc) * kappa, size=(draws, 4))
     out: dict[str, Any] = {"objective": str(obj), "people": len(c), "level_mean": m.tolist(),
                            "kappa": kappa.tolist(), "between_sd": np.sqrt(m * (1 - m) / (kappa + 1)).tolist()}
     for label, p in (("own_rates", own), ("population", draw)):

@@ -36,7 +36,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from nao_trainer.core import assessment, baselines, evaluation, mdp, posterior, psychometric
+from nao_trainer.core import assessment, baselines, evaluation, mdp, people, posterior, psychometric
 from nao_trainer.core.qlearning import METHODS, QConfig
 from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.core.assessment import Choice
@@ -264,13 +264,18 @@ def engagement_information(h: HeldOut, lengths: Sequence[int] = (6, 12, 25)) -> 
 
 def _one(turns: Any, session: str, k: int, n_init: int, seed: int, spec: PersonaliseSpec) -> dict[str, Any]:
     h = held_out(turns, session, k, n_init, seed, spec.session_prior)
-    rest = turns.session != session  # the pooled psychometric model of the other sessions (issue 21)
+    # the pooled psychometric model of the other PEOPLE (issue 21; a person's other session is left out too)
+    person = np.array([people.person_of(s) for s in turns.session])
+    rest = person != people.person_of(session)
     pooled = psychometric.fit(psychometric.session_counts(turns.session[rest], turns.level[rest], turns.success[rest]))
+    mine = turns.session == session  # the session's own (successes, failures) per level: the noise-corrected oracle
+    counts = psychometric.session_counts(turns.session[mine], turns.level[mine], turns.success[mine])[0]
     means = posterior.level_means(np.stack([s.p_success for s in h.sims]))
     return {"rows": score_held_out(h, spec), "engagement": engagement_information(h),
             "user": h.user.truth.to_dict(), "best_level": None, "cluster": h.user.cluster,
             "psychometric": dict(pooled.__dict__),
-            "prior": {"p": means.tolist(), "w": h.sizes.tolist()}, "train_rates": means[h.cluster_index].tolist()}
+            "prior": {"p": means.tolist(), "w": h.sizes.tolist()}, "train_rates": means[h.cluster_index].tolist(),
+            "counts": counts.tolist()}
 
 
 def run(source: Any, spec: PersonaliseSpec, compat: str | None = None, k: int = 3, n_init: int = 50,
@@ -281,7 +286,7 @@ def run(source: Any, spec: PersonaliseSpec, compat: str | None = None, k: int = 
     rows = [r for part in parts for r in part["rows"]]
     return {"rows": rows, "engagement": [r for part in parts for r in part["engagement"]],
             "users": [part["user"] for part in parts],
-            "fits": {part["user"]["name"]: {k: part[k] for k in ("cluster", "prior", "train_rates", "psychometric")}
+            "fits": {part["user"]["name"]: {k: part[k] for k in ("cluster", "prior", "train_rates", "psychometric", "counts")}
                      for part in parts}}
 
 

@@ -9,6 +9,9 @@ evaluation never lets a policy learn from the user it is scored on when the user
                 or outcome effects), from the cluster's data rates in the models' manifest;
                 policies are still trained on the cluster simulator as fitted (that is what a study
                 would ship), so this asks what the fitted effects buy when they are absent.
+``task``        a task's own simulated population (``Task.simulated_users``, e.g. n-back's signal-detection
+                observers): level-only users, truth = train; no data behind them (the published data are
+                the sequence task's), so they say what a policy does *if* people are like the task's model.
 ``sessions``    each real session is a user: its success per level is the posterior mean under a
                 Beta prior centred on its cluster's rate (``session_user``), its engagement per level
                 its own mean (its cluster's where it never played a level). Leave-one-session-out:
@@ -27,6 +30,7 @@ import numpy as np
 from nao_trainer.core import mdp
 from nao_trainer.core.people import people, person_of
 from nao_trainer.core.simulation import UserSimulator
+from nao_trainer.core.task import LEVELS as MDP_LEVELS
 from nao_trainer.core.usermodel import cluster_users, user_models
 from nao_trainer.data import dataset, turn_table
 from nao_trainer.errors import ConfigError, DataError
@@ -35,7 +39,7 @@ from nao_trainer.learn.fit_source import table_provenance
 from nao_trainer.learn.fitting import FitOptions, Turns, fit_cluster
 from nao_trainer.learn.parallel import fan_out
 
-USER_SETS: tuple[str, ...] = ("clusters", "level-only", "sessions")
+USER_SETS: tuple[str, ...] = ("clusters", "level-only", "sessions", "task")
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,6 +81,29 @@ def cluster_user_set(models_dir: Path | None = None, variant: str = "clusters") 
         users.append(User(f"cluster-{cid}" + ("-level-only" if variant == "level-only" else ""), truth, sim, cid))
     if not users:
         raise DataError("the user model folder lists no clusters; refit with `nao-trainer fit`")
+    return users
+
+
+def task_user_set(task: Any, engagement_by_level: Any = (0.5, 0.5, 0.5, 0.5)) -> list[User]:
+    """``task`` users: the task's ``simulated_users()``, each a level-only simulator over the task's ``levels``
+    (the MDP's four), with ``engagement_by_level`` (the task models no engagement); DataError when the task
+    declares none or its levels are not the MDP's."""
+    own = getattr(task, "simulated_users", None)
+    if own is None:
+        raise DataError(f"task {task.name!r} declares no simulated users of its own (Task.simulated_users); "
+                        "its users are the fitted ones: --users clusters|level-only|sessions")
+    if tuple(task.levels) != MDP_LEVELS:
+        raise DataError(f"task {task.name!r}: levels {tuple(task.levels)} are not the MDP's four (1..4)")
+    users = []
+    for name, rates in own():
+        if len(rates) != len(task.levels):
+            raise DataError(f"task {task.name!r}: simulated user {name!r} has {len(rates)} rates for "
+                            f"{len(task.levels)} levels")
+        sim = UserSimulator.from_level_rates(name, [float(r) for r in rates], list(engagement_by_level))
+        truth = level_only(sim, np.array(rates, dtype=float), np.asarray(engagement_by_level, dtype=float), name=name)
+        users.append(User(name, truth, truth, task.name))
+    if not users:
+        raise DataError(f"task {task.name!r}: simulated_users() is empty")
     return users
 
 

@@ -140,20 +140,35 @@ class DesktopRobot:
     def say(self, text: str, animated: bool = False, mode: str = "contextual") -> None:
         if not isinstance(text, str):
             raise TypeError(f"say() needs a str, got {type(text).__name__}")
+        self._stop.clear()  # a stop_all from now on (also during the synthesis) cuts this utterance short
         path = self._next_path("say")
         try:
-            done = subprocess.run([SPEECH_ENGINE, "-v", self.voice, "-s", str(WORDS_PER_MINUTE), "--stdin",
-                                   "-w", str(path)], input=text.encode("utf-8"), capture_output=True,
-                                  timeout=_SYNTH_TIMEOUT_S, check=False)
-        except (OSError, subprocess.TimeoutExpired) as exc:
+            with self._lock:
+                self._proc = synth = subprocess.Popen(
+                    [SPEECH_ENGINE, "-v", self.voice, "-s", str(WORDS_PER_MINUTE), "--stdin", "-w", str(path)],
+                    stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+            try:
+                _, err = synth.communicate(text.encode("utf-8"), timeout=_SYNTH_TIMEOUT_S)
+            except subprocess.TimeoutExpired as exc:
+                synth.kill()
+                synth.communicate()
+                raise RobotUnavailable(f"{SPEECH_ENGINE} failed to speak ({exc}); {INSTALL_HINT}") from None
+            finally:
+                with self._lock:
+                    self._proc = None
+        except OSError as exc:
             raise RobotUnavailable(f"{SPEECH_ENGINE} failed to speak ({exc}); {INSTALL_HINT}") from None
-        if done.returncode != 0:
-            why = done.stderr.decode("utf-8", "replace").strip().splitlines()
-            raise RobotCallFailed(f"{SPEECH_ENGINE} could not speak {text[:40]!r}: {why[0] if why else done.returncode}")
+        if self._stop.is_set():  # stopped while it was being synthesised: nothing to say
+            path.unlink(missing_ok=True)
+            return
+        if synth.returncode != 0:
+            why = err.decode("utf-8", "replace").strip().splitlines()
+            raise RobotCallFailed(f"{SPEECH_ENGINE} could not speak {text[:40]!r}: {why[0] if why else synth.returncode}")
         self._output(path)
 
     def beep(self, frequency_hz: int, duration_s: float, gain: float = 0.5) -> None:
         check_beep(frequency_hz, duration_s, gain)
+        self._stop.clear()
         path = self._next_path("beep")
         # The beep is short by design (its length is already divided by the speed): keep it as asked.
         write_wav(path, sine_beep(float(frequency_hz), float(duration_s), float(gain)))
@@ -207,8 +222,14 @@ class DesktopRobot:
             return folder / f"{self._count:04d}-{kind}.wav"
 
     def _output(self, path: Path, scaled: bool = True) -> None:
-        """Play ``path`` on the sound device, or wait as long as it lasts (files mode); interruptible."""
-        self._stop.clear()
+        """Play ``path`` on the sound device, or wait as long as it lasts (files mode); interruptible.
+
+        The stop flag is cleared by the caller before the sound is made, so a ``stop_all`` that comes while
+        it is being made (speech synthesis takes a while) is not lost.
+        """
+        if self._stop.is_set():
+            path.unlink(missing_ok=True)
+            return
         if self.player is None:
             seconds = wav_duration(path) / (self.speed if scaled else 1.0)
             if path.parent == self._tmp:

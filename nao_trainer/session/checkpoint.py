@@ -90,7 +90,8 @@ def _rng_problem(name: str, state: Any) -> str | None:
     return None
 
 
-def checkpoint_problem(cp: Any, turns: int, learns: bool, rows_on_disk: int) -> str | None:
+def checkpoint_problem(cp: Any, turns: int, learns: bool, rows_on_disk: int,
+                       columns: tuple[str, ...] = TURN_COLUMNS) -> str | None:
     """Why checkpoint ``cp`` cannot be resumed from (one line), or None.
 
     ``turns``: the session's length; ``learns``: the policy keeps a state (its snapshot must be there);
@@ -115,7 +116,7 @@ def checkpoint_problem(cp: Any, turns: int, learns: bool, rows_on_disk: int) -> 
     if not isinstance(elapsed, (int, float)) or isinstance(elapsed, bool) or not math.isfinite(elapsed) or elapsed < 0:
         return f"elapsed_s must be a number of seconds >= 0, got {elapsed!r}"
     row = cp["row"]
-    if not isinstance(row, dict) or row.get("turn") != completed or not set(row) <= set(TURN_COLUMNS):
+    if not isinstance(row, dict) or row.get("turn") != completed or not set(row) <= set(columns):  # the task's columns
         return "row is not the row of the checkpoint's turn"
     override = cp.get("override")
     if override is not None and (not _is_int(override) or not 0 <= override < mdp.N_ACTIONS):

@@ -87,6 +87,7 @@ class Session:
         self.phases = PhaseClock(ports.monitor, self.stage, ports.answers, ports.robot, self.clock, config.timing,
                                  recorder, self.log, config.eeg.missing_alert_turns, config.eeg)
         self.desk = OperatorDesk(ports.commands, self.log, recorder, ports.monitor, ports.observer)
+        self.phases.commands = ports.commands  # a wait for a lost EEG stream ends on a pause or stop
         model = config.robot.robot_model()
         self.health = HealthDesk(ports.health, ports.upkeep, ports.commands, self.log, recorder, ports.monitor,
                                  ports.observer, model.cool_posture(),
@@ -355,14 +356,18 @@ class Session:
         turn.answer = answer
         if listening is not None:
             turn.listening = listening
-        if self.phases.lost_eeg(turn.number, listening, turn.replay, turn.notes):  # eeg.turn_requires_eeg
-            self._abandon_turn(turn, "interrupted: EEG lost during the listening phase")
+        # The answer phase ends with the answer (judging it talks to nothing): a loss in it is known now.
+        turn.answering = self.phases.end(turn.number)
+        lost_in = self.phases.lost_eeg(turn.number, listening, turn.answering, turn.replay, turn.notes)
+        if lost_in:  # eeg.turn_requires_eeg, and the stream is back
+            self._abandon_turn(turn, f"interrupted: EEG lost during the {lost_in} phase")
             self.replay = turn
             return "repeat_turn"
         return "score_answer"
 
     def _do_judge(self, turn: Turn) -> str:
-        turn.answering = self.phases.end(turn.number)
+        if self.phases.phase is not None:  # a phase still open (collect ends the answer phase)
+            turn.answering = self.phases.end(turn.number)
         turn.judge(self.task)
         return "record_turn"
 
@@ -398,7 +403,7 @@ class Session:
         self.rec.event("turn_end", turn=turn.number, success=turn.success, score=score, total=self.total)
         self.monitor.mark("turn_end", turn.number)
         self.observer.notify("row", {**row, "total": self.total, "elapsed_s": round(self.elapsed_s(), 2)})
-        self.log.say(progress_line(row, self.n_turns, self.total))
+        self.log.say(progress_line(row, self.n_turns, self.total, self.task))
         self.phases.note_signal(turn.number, turn.listening)
         self.log.policy_status(self.policy.status(), turn.number)
         return "finish_turns" if done else "next_turn"

@@ -8,14 +8,19 @@ starts and ends with a marker in the EEG recording. ``PhaseClock`` is a part of
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
+from typing import Any, Callable
 
-from nao_trainer.ports import (Answer, AnswerSource, EngagementMonitor, PhaseEngagement, Robot, RobotConnectionLost,
+from nao_trainer.ports import (Answer, AnswerSource, CommandQueue, EngagementMonitor, PhaseEngagement, Robot, RobotConnectionLost,
                                watch_link)
 from nao_trainer.session.config import TimingSection
 from nao_trainer.session.record import SessionRecorder
 from nao_trainer.session.reporting import SessionLog
 from nao_trainer.session.stage import Clock, Stage
+
+#: While a turn waits for a lost EEG stream: how often (wall seconds) it looks at the operator's commands, and the
+#: commands that end the wait (they then act as soon as the turn is recorded).
+WAIT_POLL_S = 0.2
+ENDS_A_WAIT = ("pause", "stop")
 
 
 class PhaseClock:
@@ -38,6 +43,8 @@ class PhaseClock:
         self.missing = 0  # turns in a row without an engagement value while EEG is on
         self.eeg = eeg  # the study's EEGSettings (turn_requires_eeg, reconnect_wait_s), None in some tests
         self.waited_in_vain = False  # a lost stream did not return within reconnect_wait_s: no more waits until it does
+        self.commands: CommandQueue | None = None  # the operator's commands, looked at while waiting for a lost stream
+        self.cut_short = ""  # the command that ended the last wait for the stream
 
     def begin(self, phase: str, turn: int | None) -> None:
         """Start ``phase`` (ending the one in progress) with a marker in the recording."""
@@ -113,30 +120,42 @@ class PhaseClock:
             self.log.observer.notify("eeg", {"missing_turns": self.missing, "turn": turn, "reason": reason})
             self.log.say(f"warning: no EEG for the last {self.missing} turns ({reason}): check the headband and its stream")
 
-    def lost_eeg(self, turn: int, listening: PhaseEngagement | None, replayed: bool, notes: list[str]) -> bool:
-        """After the answer: did the listening phase lose EEG (the headband's stream stopped), and is the turn
-        to be played again?
+    def lost_eeg(self, turn: int, listening: PhaseEngagement | None, answering: PhaseEngagement | None,
+                 replayed: bool, notes: list[str]) -> str:
+        """After the answer: did the turn lose EEG (the headband's stream stopped) in its listening or its answer
+        phase, and is the turn to be played again? Returns the phase to name when it is ("listening" or
+        "answer"), else "".
 
-        A loss is flagged in the turn's notes and in events.jsonl. With ``eeg.turn_requires_eeg`` the turn
-        is played again once (not a replay), as after a lost robot link, when the stream is back: this waits
-        up to ``eeg.reconnect_wait_s`` for it (the monitor reconnects in the background). A stream that does
-        not return is not waited for again until it does; the turn is then recorded, flagged."""
-        lost = 0.0 if listening is None else listening.lost_s
+        A loss is flagged in the turn's notes and in events.jsonl, per phase. With ``eeg.turn_requires_eeg``
+        the turn is played again once (not a replay), as after a lost robot link, when the stream is back: this
+        waits up to ``eeg.reconnect_wait_s`` for it (the monitor reconnects in the background). A stream that
+        does not return is not waited for again until it does; the turn is then recorded, flagged."""
         tolerance = 0.1 if self.eeg is None else self.eeg.processing.gap_tolerance_s
-        if not self.monitor.records_eeg or lost <= tolerance:  # a stamp jump this small is no gap in the data
-            return False
-        notes.append(f"EEG lost {lost:.1f} s in the listening phase")
-        self.rec.event("eeg_lost_in_turn", turn=turn, lost_s=round(lost, 3), replay=replayed)
-        if self.eeg is None or not self.eeg.turn_requires_eeg or replayed:
-            return False
+        if not self.monitor.records_eeg:
+            return ""
+        hit = ""
+        for name, phase in (("listening", listening), ("answer", answering)):
+            lost = 0.0 if phase is None else phase.lost_s
+            if lost <= tolerance:  # a stamp jump this small is no gap in the data
+                continue
+            hit = hit or name
+            notes.append(f"EEG lost {lost:.1f} s in the {name} phase")
+            self.rec.event("eeg_lost_in_turn", turn=turn, lost_s=round(lost, 3), phase=name, replay=replayed)
+        if not hit or self.eeg is None or not self.eeg.turn_requires_eeg or replayed:
+            return ""
         wait = getattr(self.monitor, "wait_available", None)
         if wait is None:
-            return False
+            return ""
         back = getattr(self.monitor, "available", True)
         if not back and not self.waited_in_vain:
             self.log.say(f"turn {turn}: EEG lost; waiting up to {self.eeg.reconnect_wait_s:g} s for the headband's stream")
-            back = wait(self.eeg.reconnect_wait_s)
-            self.waited_in_vain = not back
+            back = self._wait_for_stream(wait, turn)
+            self.waited_in_vain = not back and not self.cut_short
+            if self.cut_short:
+                self.rec.event("eeg_wait_cut_short", turn=turn, by=self.cut_short)
+                notes.append(f"not replayed: the operator's {self.cut_short} ended the wait for the EEG stream")
+                self.cut_short = ""
+                return ""
             if not back:
                 self.rec.event("eeg_not_back", turn=turn, waited_s=self.eeg.reconnect_wait_s)
                 self.log.say(f"warning: the EEG stream is not back after {self.eeg.reconnect_wait_s:g} s; going on "
@@ -145,6 +164,22 @@ class PhaseClock:
             self.waited_in_vain = False
         if not back:
             notes.append(f"not replayed: the EEG stream was not back within {self.eeg.reconnect_wait_s:g} s")
-            return False
+            return ""
         self.monitor.mark("eeg_turn_replay", turn)
-        return True
+        return hit
+
+    def _wait_for_stream(self, wait: Callable[[float], bool], turn: int) -> bool:
+        """Wait up to ``eeg.reconnect_wait_s`` for the lost stream, looking at the operator's commands every
+        ``WAIT_POLL_S``: a pause or stop ends the wait at once (``cut_short`` names it; the turn is then recorded,
+        flagged, and the command acts as soon as it is)."""
+        assert self.eeg is not None
+        self.log.observer.notify("eeg_wait", {"waiting_s": self.eeg.reconnect_wait_s, "turn": turn})
+        deadline = self.clock.now() + self.eeg.reconnect_wait_s
+        while (remaining := deadline - self.clock.now()) > 0:
+            if wait(min(WAIT_POLL_S, remaining)):
+                return True
+            asked = [k for k in (self.commands.kinds() if self.commands is not None else []) if k in ENDS_A_WAIT]
+            if asked:
+                self.cut_short = asked[0]
+                return False
+        return False

@@ -32,8 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from nao_trainer.core import task
-from nao_trainer.tasks.sequence import COLUMNS as SEQUENCE_COLUMNS
-from nao_trainer.tasks.sequence.rules import is_correct
+from nao_trainer.tasks.sequence import COLUMNS as SEQUENCE_COLUMNS, SequenceTask
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import WRITE_CAUSES, write_text_atomic
 
@@ -42,25 +41,24 @@ from nao_trainer.files import WRITE_CAUSES, write_text_atomic
 TURN_COLUMNS: tuple[str, ...] = SEQUENCE_COLUMNS
 
 
-def row_problem(row: dict[str, str]) -> str | None:
-    """Why a completed row of turns.csv (as read: strings) is not one a session writes, or None: its
-    level, length and sequence agree, its scores are equation (1)'s and the published signed score for
-    its level and outcome, and a success repeats the sequence. An edited score is refused."""
+def row_problem(row: dict[str, str], task_: Any = None) -> str | None:
+    """Why a completed row of turns.csv (as read: strings) is not one a session of ``task_`` (the sequence task
+    by default) writes, or None: its level is one of the task's, its scores are the task's for its level and
+    outcome (an edited score is refused), and the task's own fields agree (``Task.row_problem``, optional)."""
+    task_ = task_ if task_ is not None else SequenceTask()
     try:
-        level, length = int(row["level"]), int(row["length"])
-        score, signed = int(row["score"]), int(row["signed_score"])
+        level, score, signed = int(row["level"]), int(row["score"]), int(row["signed_score"])
     except (TypeError, ValueError, KeyError):
-        return "level, length, score and signed_score must be integers"
-    if level not in task.LEVELS or length != task.length_of(level) or len(row.get("sequence") or "") != length:
-        return f"level {level}, length {length} and sequence {row.get('sequence')!r} do not agree"
+        return "level, score and signed_score must be integers"
+    if level not in task_.levels:
+        return f"level {level} is not one of the task's levels {', '.join(map(str, task_.levels))}"
     success = row["success"] == "True"
-    if score != task.score(level, success) or signed != task.signed_score(level, success):
+    if score != task_.score(level, success) or signed != task_.signed_score(level, success):
         outcome = "a success" if success else "a failure"
         return (f"score {score} / signed_score {signed} are not those of {outcome} at level {level} "
-                f"({task.score(level, success)} / {task.signed_score(level, success)})")
-    if success and not is_correct(row["sequence"], row.get("response") or ""):
-        return f"success with a response {row.get('response')!r} that does not repeat the sequence {row['sequence']!r}"
-    return None
+                f"({task_.score(level, success)} / {task_.signed_score(level, success)})")
+    own = getattr(task_, "row_problem", None)
+    return own(row) if own is not None else None
 
 
 def open_no_follow(path: Path, mode: str) -> Any:

@@ -80,10 +80,11 @@ def prepare_resume(folder: Path) -> tuple[StudyConfig, Resumption]:
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
         raise DataError(f"{folder}/session.json: seed must be an integer >= 0, got {seed!r}; {fix}")
     config = _config_of(folder, info, fix)
-    rows = _rows_on_disk(folder, fix)
+    task = config.task.build_task()
+    rows = _rows_on_disk(folder, fix, task)
     last = max((int(r["turn"]) for r in rows), default=0)
     learns = config.policy.persists  # a policy that keeps a participant state (its declaration says so)
-    problem = checkpoint_problem(checkpoint, config.session.turns, learns, last)
+    problem = checkpoint_problem(checkpoint, config.session.turns, learns, last, task.columns)
     if problem:
         raise DataError(f"{folder / CHECKPOINT}: {problem}; {fix}")
     _check_against_checkpoint(folder, rows, checkpoint, last, fix)
@@ -146,7 +147,7 @@ def _config_of(folder: Path, info: dict[str, Any], fix: str) -> StudyConfig:
     return config
 
 
-def _rows_on_disk(folder: Path, fix: str) -> list[dict[str, Any]]:
+def _rows_on_disk(folder: Path, fix: str, task: Any = None) -> list[dict[str, Any]]:
     """The completed rows of turns.csv (a torn last line left out), typed; ``DataError`` when unreadable."""
     if not (folder / "turns.csv").is_file():
         raise DataError(f"{folder}: turns.csv is missing, the rows the checkpoint continues; {fix}")
@@ -158,7 +159,7 @@ def _rows_on_disk(folder: Path, fix: str) -> list[dict[str, Any]]:
                 raise ValueError(f"line {n} is not a turn row")
         done = [(n, r) for n, r in enumerate(raw, start=2) if r["success"] in ("True", "False")]
         for n, r in done:  # every completed row as a session writes it (an edited score is refused)
-            problem = row_problem(r)
+            problem = row_problem(r, task)
             if problem:
                 raise DataError(f"{where}: line {n} (turn {r['turn']}): {problem}; restore the file or {fix}")
         rows = [dict(_typed_row(r), _raw=r, _line=n) for n, r in done]

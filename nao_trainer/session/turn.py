@@ -181,8 +181,9 @@ class SessionResult:
         return None if span is None else span_dict(span)
 
     def _own_span(self) -> bool:
-        """The task has a capacity line of its own (the span in letters is the sequence task's)."""
-        return self.task is not None and "sequence" not in self.task.columns
+        """The task has a capacity line of its own (the span in letters, under the prior fitted on the published
+        data, is the sequence task's: ``Task.published_data``)."""
+        return self.task is not None and not getattr(self.task, "published_data", False)
 
     def span_line(self) -> str:
         """``span at 75 %: 6.1 letters [4.9, 7.2] (...)``: the sequence length recalled at that rate, 90 % interval;
@@ -224,15 +225,14 @@ def _most_common(values: list[str]) -> str:
     return max(sorted(set(values)), key=values.count)
 
 
-def progress_line(row: dict[str, Any], n_turns: int, total: int) -> str:
-    """One terminal line per recorded turn."""
+def progress_line(row: dict[str, Any], n_turns: int, total: int, task: Task | None = None) -> str:
+    """One terminal line per recorded turn; what was presented and answered is the task's to say
+    (``Task.describe``, optional: else the response pressed)."""
     fb = {0: "", 1: "  (robot feedback: encouraging)", 2: "  (robot feedback: challenging)"}[row["feedback"]]
     eng = "-" if row["engagement"] is None else f"{row['engagement']:.2f}"
     mark = "ok " if row["success"] else "err"
-    if "sequence" in row:  # the sequence task: what was said vs what was pressed
-        what = f"{row['sequence']:>9} vs {row['response']:<9}"
-    else:  # a task with hits and false alarms (n-back)
-        what = f"hits {row.get('hits', '-')}/{row.get('targets', '').count('1')} false alarms {row.get('false_alarms', '-')}"
+    describe = getattr(task, "describe", None)
+    what = describe(row) if describe is not None else f"pressed {row['response'] or '-':<9}"
     return (f"turn {row['turn']:3d}/{n_turns}  L{row['level']}  {what} {mark} {row['score']:+d}  total {total:4d}  E {eng}"
             + fb + (f"  ({row['notes']})" if row["notes"] else "")
             + ("  (marked invalid: not in the total)" if row.get("invalid") else "")

@@ -17,19 +17,22 @@ from __future__ import annotations
 import csv
 import datetime as dt
 import json
+import re
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from nao_trainer import __version__
+from nao_trainer.data import own
 from nao_trainer.errors import DataError
 from nao_trainer.files import read_json, write_json_atomic, write_text_atomic
 from nao_trainer.study.registry import PROTOCOL_FILE, Study
 from nao_trainer.study.runner import DONE
 
-TASK = "sequencelearning"
+#: The label of a task without ``bids_name`` is its name's letters and digits (BIDS labels are alphanumeric).
 #: turns.csv column -> (BIDS sidecar description, unit or None).
 BEH_COLUMNS: dict[str, tuple[str, str | None]] = {
     "turn": ("turn number within the session, 1..N", None),
@@ -57,6 +60,23 @@ BEH_COLUMNS: dict[str, tuple[str, str | None]] = {
     "replay": ("True when the turn replays one interrupted before", None),
     "phase": ("what the policy said the turn was for (e.g. assessment)", None),
 }
+
+
+@dataclass(frozen=True)
+class TaskInfo:
+    """What BIDS says of a session's task: its label, description and column descriptions."""
+
+    label: str
+    description: str
+    columns: dict[str, tuple[str, str | None]]
+
+
+def task_info(folder: Path) -> TaskInfo:
+    """The BIDS view of the task a session played (``Task.bids_name``, ``description``, ``column_docs``)."""
+    task = own.session_task(own.read_session(folder))
+    label = getattr(task, "bids_name", None) or re.sub(r"[^A-Za-z0-9]", "", task.name)
+    docs = {**BEH_COLUMNS, **dict(getattr(task, "column_docs", {}) or {})}
+    return TaskInfo(label, str(getattr(task, "description", "") or f"the {task.name} task with a NAO robot"), docs)
 
 
 def _mne() -> tuple[Any, Any]:
@@ -90,6 +110,7 @@ def export_bids(study: Study, out: Path) -> str:
         shutil.rmtree(out)
     out.mkdir(parents=True)
     eeg_n = beh_n = 0
+    tasks: dict[str, str] = {}
     kept = [p for p in study.participants if not (p["withdrawn"] and p["withdrawn"]["data"] == "delete")]
     for p in kept:
         for s in p["sessions"]:
@@ -97,12 +118,14 @@ def export_bids(study: Study, out: Path) -> str:
                 continue
             folder = study.sessions_dir / s["folder"]
             sub, ses = p["pseudonym"], f"{int(s['number']):02d}"
+            task = task_info(folder)
+            tasks[task.label] = task.description
             if (folder / "eeg" / "raw.csv").is_file():
-                _write_eeg(mne, mne_bids, folder, out, sub, ses)
+                _write_eeg(mne, mne_bids, folder, out, sub, ses, task)
                 eeg_n += 1
-            _write_beh(folder, out, sub, ses)
+            _write_beh(folder, out, sub, ses, task)
             beh_n += 1
-    _write_root(study, out, kept)
+    _write_root(study, out, kept, tasks)
     return f"{out}: BIDS dataset: {len(kept)} participants, {beh_n} sessions of behaviour, {eeg_n} with EEG"
 
 
@@ -146,7 +169,7 @@ def _annotations(folder: Path, t0: float) -> list[tuple[float, float, str]]:
     return sorted(out)
 
 
-def _write_eeg(mne: Any, mne_bids: Any, folder: Path, out: Path, sub: str, ses: str) -> None:
+def _write_eeg(mne: Any, mne_bids: Any, folder: Path, out: Path, sub: str, ses: str, task: TaskInfo) -> None:
     times, data, names, rate = read_raw_csv(folder)
     info = mne.create_info(names, rate, ch_types=["eeg" if n.upper() != "RIGHT AUX" and "AUX" not in n.upper()
                                                   else "misc" for n in names])
@@ -160,12 +183,12 @@ def _write_eeg(mne: Any, mne_bids: Any, folder: Path, out: Path, sub: str, ses: 
              if o < length - 1.0 / rate]
     if notes:
         raw.set_annotations(mne.Annotations([n[0] for n in notes], [n[1] for n in notes], [n[2] for n in notes]))
-    path = mne_bids.BIDSPath(subject=sub, session=ses, task=TASK, datatype="eeg", root=out)
+    path = mne_bids.BIDSPath(subject=sub, session=ses, task=task.label, datatype="eeg", root=out)
     mne_bids.write_raw_bids(raw, path, format="BrainVision", allow_preload=True, overwrite=True, verbose="ERROR")
     sidecar = path.copy().update(suffix="eeg", extension=".json")
     meta = json.loads(Path(sidecar.fpath).read_text(encoding="utf-8"))
     meta.update(EEGReference="Fpz (Muse reference electrode)", EEGGround="Fpz region (Muse)",
-                Manufacturer="InteraXon (Muse)", TaskDescription="sequence learning task with a NAO robot",
+                Manufacturer="InteraXon (Muse)", TaskDescription=task.description,
                 SoftwareFilters="n/a", PowerLineFrequency=50)
     write_json_atomic(sidecar.fpath, meta)
 
@@ -179,30 +202,31 @@ def _started(folder: Path) -> dt.datetime | None:
     return when.astimezone(dt.timezone.utc)
 
 
-def _write_beh(folder: Path, out: Path, sub: str, ses: str) -> None:
+def _write_beh(folder: Path, out: Path, sub: str, ses: str, task: TaskInfo) -> None:
     path = folder / "turns.csv"
     if not path.is_file():
         raise DataError(f"{path}: missing; the session cannot be exported (withdraw its data or restore it)")
     with open(path, newline="", encoding="utf-8") as fh:
         rows = list(csv.DictReader(fh))
-    columns = [c for c in BEH_COLUMNS if rows and c in rows[0]] or list(BEH_COLUMNS)
+    docs = task.columns
+    columns = [c for c in (rows[0] if rows else docs) if c in docs]
     target = out / f"sub-{sub}" / f"ses-{ses}" / "beh"
     target.mkdir(parents=True, exist_ok=True)
-    stem = f"sub-{sub}_ses-{ses}_task-{TASK}_beh"
+    stem = f"sub-{sub}_ses-{ses}_task-{task.label}_beh"
 
     def cell(v: str | None) -> str:
         v = (v or "").replace("\t", " ").replace("\n", " ")
         return v if v != "" else "n/a"
     lines = ["\t".join(columns)] + ["\t".join(cell(r.get(c)) for c in columns) for r in rows]
     write_text_atomic(target / f"{stem}.tsv", "\n".join(lines) + "\n")
-    sidecar: dict[str, Any] = {"TaskName": TASK}
+    sidecar: dict[str, Any] = {"TaskName": task.label, "TaskDescription": task.description}
     for c in columns:
-        desc, unit = BEH_COLUMNS[c]
+        desc, unit = docs[c]
         sidecar[c] = {"Description": desc, **({"Units": unit} if unit else {})}
     write_json_atomic(target / f"{stem}.json", sidecar)
 
 
-def _write_root(study: Study, out: Path, kept: list[dict[str, Any]]) -> None:
+def _write_root(study: Study, out: Path, kept: list[dict[str, Any]], tasks: dict[str, str]) -> None:
     protocol = study.protocol
     rows = ["participant_id\tarm\tstratum\tconsent_version"]
     rows += [f"sub-{p['pseudonym']}\t{p['arm']}\t{p['stratum'] or 'n/a'}\t{p['consent_version']}" for p in kept]
@@ -224,8 +248,8 @@ def _write_root(study: Study, out: Path, kept: list[dict[str, Any]]) -> None:
     (out / "code").mkdir(exist_ok=True)
     shutil.copyfile(study.root / PROTOCOL_FILE, out / "code" / PROTOCOL_FILE)
     readme = [f"# {protocol.name}", "", protocol.description, "",
-              f"Exported by nao-trainer {__version__} (`nao-trainer study export --bids`). Task: the sequence "
-              "learning task with a NAO robot (Tsiakas, Abujelala and Makedon, Technologies 2018, 6, 49).",
+              f"Exported by nao-trainer {__version__} (`nao-trainer study export --bids`). Task: "
+              + ("; ".join(f"{label}: {text}" for label, text in sorted(tasks.items())) or "none exported") + ".",
               f"Protocol sha256 {protocol.sha256}; arms: {arms}.",
               "Sessions without EEG hold their behaviour (beh/) only."]
     write_text_atomic(out / "README", "\n".join(readme) + "\n")

@@ -6,7 +6,10 @@ how an answer is judged and scored, the columns it adds to a turn row, its dialo
 The session's states call it in order: ``present`` (``Task.present``), ``open_window`` (the beep), ``collect``
 (``Trial.presses`` presses within ``Task.response_timeout_s``), ``judge`` (``Task.judge``, ``Task.score``).
 A task that takes its answers while it presents (n-back) sets ``presents_in_window``: the window opens first.
-Optional hooks: ``Settings`` (its ``task.settings`` class), ``level_success()`` and ``simulated_answer(trial, rng,
+Optional hooks: ``Settings`` (its ``task.settings`` class), ``describe(row)`` (the middle of the terminal's
+progress line: what was presented and answered), ``dialogue_file`` (its own words), ``published_data`` (True: the fitted user models and the dataset are of this task; only the sequence task's are),
+``simulated_users()`` (the population ``evaluate --task`` compares policies
+on: (name, P(success) per level)), ``level_success()`` and ``simulated_answer(trial, rng,
 reaction_s)`` (its own simulated participant; without them the user model's plan is used).
 
 Levels: the MDP of the paper (``core.mdp``) has four difficulty levels and six actions; a task's ``levels`` are

@@ -82,3 +82,21 @@ def test_the_median_is_where_the_posterior_curve_crosses_the_rate():
     with pytest.raises(ValueError, match="level 5"):
         ps.level_counts([5], [True])
     assert list(ps.level_counts([1, 1, 4], [True, False, False])) == [1, 1, 0, 0, 0, 0, 0, 1]
+
+
+def test_the_marginal_as_a_matrix_product_equals_the_log_sum_exp_also_where_terms_underflow():
+    rng = np.random.default_rng(2)
+    counts = simulate(rng, 30, 6.0, 1.5, 1.0, 0.05, per_level=8)
+    lp = -0.5 * ((ps.THETA[None, None, :] - ps._MU[:, None, None]) / ps._TAU[None, :, None]) ** 2
+    lp = lp - ps._logsumexp(lp, 2)[..., None]
+    ll = ps._log_lik(counts, 1.2, 0.05)
+    # A likelihood peaked at theta 14: under the prior (mu 3, tau 0.25) every term of its integral is below
+    # exp(-745), where a float underflows to 0 (no counts on this grid go that far: the fallback is a guard).
+    ll[0] = -1000.0 * (ps.THETA - 14.0) ** 2
+    exact = ps._logsumexp(ll[:, None, None, :] + lp[None], 3)
+    fast = ps._marginal(ll, lp)
+    top = ll.max(axis=1, keepdims=True)
+    with np.errstate(divide="ignore"):
+        assert not np.all(np.isfinite(np.log(np.exp(ll - top) @ np.exp(lp).reshape(-1, lp.shape[-1]).T)))
+    assert np.all(np.isfinite(fast))
+    np.testing.assert_allclose(fast, exact, rtol=1e-10, atol=1e-9)

@@ -117,3 +117,29 @@ def test_noise_corrected_oracle_sees_no_gap_when_everyone_is_the_same():
     assert out["population"]["oracle_gap"] < 0.25 * out["own_rates"]["oracle_gap"]
     spread = {f"session:user_{i}/session_1": counts(np.r_[p[:3], rng.uniform(0.2, 0.95)]) for i in range(50)}
     assert ceiling.noise_corrected_oracle(spread, obj)["population"]["oracle_gap"] > out["population"]["oracle_gap"]
+
+
+def test_the_ceiling_section_prints_the_noise_corrected_oracle_beside_the_own_rates_one():
+    """evaluate --personalise puts both oracle gaps in its ceiling section; a level every person passed
+    (no spread to draw from) still gives a finite population gap."""
+    from nao_trainer.cli.ceiling_report import format_section
+
+    rng = np.random.default_rng(2)
+    counts = {f"session:user_{i}/session_1": np.array([6, 0, *np.ravel([(s, 6 - s) for s in
+                                                      rng.binomial(6, [0.85, 0.6, 0.3])])]) for i in range(12)}
+    nc = ceiling.noise_corrected_oracle(counts, objective.parse("target-p:0.75"))
+    assert np.isfinite(nc["population"]["oracle_gap"]) and nc["level_mean"][0] == 1.0
+    text = format_section({"objective": "target-p:0.75", "turns": 25, "summary": [], "noise_corrected_oracle": nc})
+    line = next(ln for ln in text.splitlines() if "noise-corrected" in ln)
+    assert f"own rates {nc['own_rates']['oracle_gap']:.3f}" in line and f"{nc['population']['oracle_gap']:.3f}" in line
+
+
+def test_a_prior_predictive_check_compares_what_a_prior_predicts_with_the_users():
+    """The ceiling's prior (uniform over the users) predicts exactly the users' per-level mean; a prior
+    that puts all its weight on one model predicts no spread, and its mean is that model's rates."""
+    p = np.array([[0.99, 0.9, 0.6, 0.3], [0.98, 0.8, 0.4, 0.1], [1.0, 0.95, 0.7, 0.5]])
+    own = ceiling.prior_check(p, np.ones(3), p)
+    assert own["prior_mean"] == pytest.approx(p.mean(axis=0).round(4).tolist())
+    assert own["users_sd"] == pytest.approx(p.std(axis=0, ddof=1).round(4).tolist())
+    one = ceiling.prior_check(p, np.array([0.0, 1.0, 0.0]), p)
+    assert one["prior_mean"] == pytest.approx(p[1].tolist()) and not any(one["prior_sd"])

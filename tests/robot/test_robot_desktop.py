@@ -66,13 +66,46 @@ def test_beep_has_the_asked_frequency_length_and_gain(robot, tmp_path):
 
 
 def test_stop_all_cuts_a_long_utterance_short(tmp_path):
+    """Minutes of speech: only stop_all ends it within the wait, whether it comes while espeak-ng is still
+    synthesising (the first stop) or while the sound lasts (a second, later one)."""
     r = DesktopRobot(speed=1, player=None)
+    done = threading.Event()
+
+    def stopper():
+        for delay in (0.3, 3.0):
+            if done.wait(delay):
+                return
+            r.stop_all()
+
+    th = threading.Thread(target=stopper)
     try:
-        stopper = threading.Timer(0.3, r.stop_all)
-        stopper.start()
+        th.start()
         returns(lambda: r.say("This is a long sentence that would take several seconds to say at a normal pace, "
-                              "really." * 20))  # minutes of speech: only stop_all ends it within the wait
-        stopper.join()
+                              "really." * 20))
+    finally:
+        done.set()
+        th.join()
+        r.close()
+
+
+def test_a_stop_during_the_synthesis_is_not_lost(monkeypatch):
+    """stop_all while espeak-ng is still making the sound: say returns at once, nothing waits for it."""
+    r = DesktopRobot(speed=1, player=None)
+    real_popen = subprocess.Popen
+
+    class StoppedSynth(real_popen):  # the stop arrives while espeak-ng runs
+        def communicate(self, *args, **kwargs):
+            r.stop_all()
+            return super().communicate(*args, **kwargs)
+
+    slow_synth = StoppedSynth
+
+    try:
+        monkeypatch.setattr(desktop.subprocess, "Popen", slow_synth)
+        waited = []
+        monkeypatch.setattr(r._stop, "wait", lambda s: waited.append(s))
+        r.say("A sentence that lasts a few seconds when it is said out loud.")
+        assert waited == []  # the files mode waits as long as the sound lasts: here not at all
     finally:
         r.close()
 

@@ -129,3 +129,118 @@ def test_a_stream_gone_for_good_is_waited_for_once_then_turns_are_flagged(tmp_pa
     assert last["until_end"] and last["end"] is None and set(last["turns"]) >= {int(r["turn"]) for r in flagged}
     gaps = _rows(folder / "eeg" / "gaps.csv")
     assert gaps[-1]["kind"].endswith("(until the end)") and gaps[-1]["end"] == ""
+
+
+class _DropInAnswer:
+    """A session observer: once turn 1's answer window is open (state ``collect``), the headband goes silent
+    (after ``after_s``, past the listening phase's end) for ``drop_s`` wall seconds."""
+
+    def __init__(self, sim, after_s: float, drop_s: float) -> None:
+        self.sim, self.after_s, self.drop_s = sim, after_s, drop_s
+        self.fired = threading.Event()
+
+    def notify(self, kind, data):
+        if kind == "state" and data.get("state") == "collect" and data.get("turn") == 1 and not self.fired.is_set():
+            self.fired.set()
+            threading.Thread(target=self._drop, daemon=True).start()
+
+    def _drop(self):
+        time.sleep(self.after_s)
+        self.sim.pause()
+        time.sleep(self.drop_s)
+        self.sim.resume()
+
+
+def test_eeg_lost_in_the_answer_phase_flags_the_turn_and_plays_it_again(tmp_path):
+    """The stream stops after the listening phase ended, while the participant (nobody presses: the window
+    times out) would answer on the stand-in's head over real qi: the answer phase lost EEG, so the turn is
+    flagged and, with eeg.turn_requires_eeg, played again once the stream is back."""
+    from nao_trainer.robot.standin import StandIn
+
+    name, sid = _uid("MuseA"), _uid("MuseAsrc")
+    sim = SimulatedMuse.start(np.random.default_rng(2), name=name, source_id=sid)
+    standin = StandIn.start(speed=25)
+    try:
+        observer = _DropInAnswer(sim, after_s=0.15, drop_s=1.5)
+        cfg = load_config(None, {
+            "session.turns": 2, "timing.speed": 25.0, "session.output": str(tmp_path), "session.seed": 7,
+            "session.practice": False, "participant.pseudonym": "P1", "robot.url": standin.url,
+            "answers.input": "tactile", "eeg.allow_simulated": True, "timing.response_timeout_base_s": 25,
+            "timing.response_timeout_per_letter_s": 0, "eeg.mode": "lsl", "eeg.stream_name": name,
+            "eeg.source_id": sid, "eeg.processing": FAST, "eeg.xdf": False, "eeg.turn_requires_eeg": True})
+        out: dict = {}
+        runner = threading.Thread(target=lambda: out.update(
+            result=sess.run_session(cfg, sess.RunOptions(quiet=True, observer=observer))))
+        runner.start()
+        runner.join(HANG_S)
+        assert not runner.is_alive(), "the session hangs"
+    finally:
+        sim.stop()
+        standin.stop()
+    result = out["result"]
+    assert result.status == "completed", result.error
+    rows = read_turns(result.path)
+    first = rows[0]
+    assert first["turn"] == "1" and first["success"] == ""
+    assert "interrupted: EEG lost during the answer phase" in first["notes"]
+    assert "in the answer phase" in first["notes"] and "in the listening phase" not in first["notes"]
+    again = [r for r in rows if r["turn"] == "1" and r["replay"] == "True"]
+    assert again and again[-1]["success"] in ("True", "False")
+    lost = [e for e in read_events(result.path) if e["event"] == "eeg_lost_in_turn"]
+    assert lost[0]["turn"] == 1 and lost[0]["phase"] == "answer"
+    markers = [e["event"] for e in _rows(result.path / "eeg" / "events.csv")]
+    assert "turn_1_eeg_turn_replay" in markers
+
+
+class _StopWhileWaiting:
+    """A session observer: once the session says it waits for the lost EEG stream, the operator stops it."""
+
+    def __init__(self, commands) -> None:
+        self.commands = commands
+        self.waiting = threading.Event()
+
+    def notify(self, kind, data):
+        if kind == "eeg_wait" and data.get("waiting_s") and not self.waiting.is_set():
+            self.waiting.set()
+            self.commands.submit("stop", source="keys")
+
+
+def test_a_stop_while_the_session_waits_for_a_lost_stream_acts_at_once(tmp_path):
+    """The stream is gone for good and the study would wait 600 s for it: the operator's stop (a key) ends the
+    wait; the turn is recorded flagged, then the stop says goodbye (exit 5). Not honoured, the session would
+    sit out the 600 s and the hang limit fails the test."""
+    from nao_trainer.ports import CommandQueue
+    from nao_trainer.session.engine import EXIT_OPERATOR_STOP
+
+    name, sid = _uid("MuseW"), _uid("MuseWsrc")
+    sim = SimulatedMuse.start(np.random.default_rng(3), name=name, source_id=sid)
+    commands = CommandQueue()
+    observer = _StopWhileWaiting(commands)
+    cfg = load_config(None, {
+        "session.turns": 4, "timing.speed": 25.0, "session.output": str(tmp_path), "session.seed": 7,
+        "session.practice": False, "participant.pseudonym": "P1", "eeg.mode": "lsl", "eeg.stream_name": name,
+        "eeg.source_id": sid, "eeg.processing": FAST, "eeg.xdf": False, "eeg.turn_requires_eeg": True,
+        "eeg.reconnect_wait_s": 600})
+    out: dict = {}
+    runner = threading.Thread(target=lambda: out.update(
+        result=sess.run_session(cfg, sess.RunOptions(quiet=True, commands=commands, observer=observer))))
+    runner.start()
+    try:
+        folder = _wait_for(lambda: next(tmp_path.glob("*/turns.csv"), None), "the session folder").parent
+        _wait_for(lambda: len(read_turns(folder)) >= 1, "the first turn")
+        sim.stop()  # gone for good
+        runner.join(HANG_S)
+        assert not runner.is_alive(), "the session hangs: the stop was not honoured during the wait"
+    finally:
+        sim.stop()
+    result = out["result"]
+    assert result.status == "stopped" and result.exit_code == EXIT_OPERATOR_STOP, result.error
+    assert observer.waiting.is_set()
+    events = read_events(folder)
+    cut = [e for e in events if e["event"] == "eeg_wait_cut_short"]
+    assert len(cut) == 1 and cut[0]["by"] == "stop"
+    assert not any(e["event"] == "eeg_not_back" for e in events)  # it did not sit the wait out
+    stop = [e for e in events if e["event"] == "command" and e["kind"] == "stop"]
+    assert stop and stop[0]["accepted"]
+    flagged = [r for r in read_turns(folder) if "ended the wait for the EEG stream" in r["notes"]]
+    assert len(flagged) == 1 and "EEG lost" in flagged[0]["notes"]

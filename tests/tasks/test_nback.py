@@ -66,6 +66,20 @@ def test_nback_is_a_registered_task_with_its_settings():
     assert isinstance(task, Task) and len(task.make_trial(3, np.random.default_rng(0)).stimuli) == 11
 
 
+def test_resume_checks_a_recorded_block_by_the_tasks_rules():
+    from nao_trainer.session.record import row_problem
+
+    task = NBackTask(NBackSettings(fillers=8))
+    row = {"turn": "1", "level": "2", "n": "2", "stimuli": "GGTGWCWCCP", "targets": "0001001100", "hits": "2",
+           "misses": "1", "false_alarms": "1", "correct_rejections": "6", "success": "True", "score": "2",
+           "signed_score": "2"}
+    assert row_problem(row, task) is None
+    assert "not those of a success" in row_problem({**row, "score": "3"}, task)  # an edited score
+    assert "do not add up" in row_problem({**row, "hits": "3"}, task)
+    assert "3 errors" in row_problem({**row, "false_alarms": "2", "correct_rejections": "5"}, task)
+    assert "do not agree" in row_problem(row, NBackTask())  # a stream of 10 letters is not a default 2-back block
+
+
 STUDY = """\
 study: {name: nback-test}
 task:
@@ -100,3 +114,20 @@ def test_run_task_nback_plays_the_chain_and_writes_its_own_fields(tmp_path):
     stimuli = [e for e in events if e["event"] == "say" and e["what"] == "stimulus"]
     assert len(stimuli) == sum(len(r["stimuli"]) for r in rows)
     assert "d′ by level" in res.stdout and "letters" not in res.stdout
+    # every stimulus is a marker in session.xdf (the Markers stream), at the time the monitor stamped it
+    from nao_trainer.eeg import xdf
+
+    if not xdf.available():
+        pytest.skip("labrecorder not installed: session.xdf not written")
+    pyxdf = pytest.importorskip("pyxdf")
+    streams, _ = pyxdf.load_xdf(str(folder / "session.xdf"), synchronize_clocks=False, dejitter_timestamps=False)
+    (markers,) = [s for s in streams if s["info"]["name"][0] == "Markers"]
+    names = [v[0] for v in markers["time_series"]]
+    for row in rows:
+        said = [f"turn_{row['turn']}_stimulus_{i}" for i in range(1, len(row["stimuli"]) + 1)]
+        assert [n for n in names if n.startswith(f"turn_{row['turn']}_stimulus_")] == said
+    with open(folder / "eeg" / "events.csv", newline="") as fh:
+        stamped = {r["event"]: float(r["lsl_time"]) for r in csv.DictReader(fh)}
+    for name, t in zip(names, markers["time_stamps"]):
+        if "_stimulus_" in name:
+            assert abs(t - stamped[name]) < 2e-6, name

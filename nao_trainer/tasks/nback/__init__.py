@@ -51,6 +51,11 @@ class NBackSettings:
                               doc="simulated participant: criterion c at n = 1..4 (c > 0: conservative)")
 
 
+#: ``evaluate --task nback``'s population: the default observer's d′ at every level scaled by these abilities
+#: (criteria kept). An assumption of ours, not a fitted spread: the published data are the sequence task's.
+ABILITIES: tuple[float, ...] = (0.6, 0.8, 1.0, 1.2, 1.4, 1.6)
+
+
 class NBackTask:
     """Auditory n-back, levels n = 1..4 (see the module docstring)."""
 
@@ -64,6 +69,27 @@ class NBackTask:
     Settings: ClassVar[type] = NBackSettings
     #: Its own words (instructions, practice) for a study that keeps the shipped dialogue.
     dialogue_file: ClassVar[Path] = Path(__file__).parent / "en.yaml"
+
+    #: BIDS: the task label, its description and its columns (``study export --bids``).
+    bids_name: ClassVar[str] = "nback"
+    description: ClassVar[str] = ("auditory n-back with a NAO robot: a block of 20 + n spoken letters, one every 3 s; "
+                                  "press the front head button when a letter matches the one n back (Jaeggi et al. "
+                                  "2008, PNAS 105, 6829)")
+    column_docs: ClassVar[Mapping[str, tuple[str, str | None]]] = {
+        "level": ("difficulty level 1-4: the load n of the n-back block", None),
+        "response": ("the buttons pressed during the block (A: the front head button, the match button)", None),
+        "success": ("True when the block had fewer than 3 errors (misses + false alarms; Jaeggi et al. 2008)", None),
+        "reaction_time": ("time from the beep before the block to the first press", "s"),
+        "completion_time": ("time from the beep before the block to the last press", "s"),
+        "n": ("the load n: a target is a letter equal to the one n before it", None),
+        "stimuli": ("the letters the robot said, in order", None),
+        "targets": ("per letter, 1 when it was a target (equal to the one n back), else 0", None),
+        "hits": ("targets pressed", None),
+        "misses": ("targets not pressed", None),
+        "false_alarms": ("non-targets pressed", None),
+        "correct_rejections": ("non-targets not pressed", None),
+        "d_prime": ("z(H) - z(F) with the log-linear correction (Hautus 1995)", None),
+    }
 
     def __init__(self, settings: NBackSettings | None = None) -> None:
         self.settings = settings or NBackSettings()
@@ -115,6 +141,30 @@ class NBackTask:
     def signed_score(self, level: int, success: bool) -> int:
         return levels.signed_score(level, success)
 
+    def row_problem(self, row: dict[str, str]) -> str | None:
+        """Why a recorded block's fields disagree (``run --resume`` checks turns.csv): n is the level, the stream
+        is 20 + n letters (the settings'), the counts add up to its targets and letters, and the success is
+        the criterion's."""
+        try:
+            n, hits, misses = int(row["n"]), int(row["hits"]), int(row["misses"])
+            fas, crs = int(row["false_alarms"]), int(row["correct_rejections"])
+        except (TypeError, ValueError, KeyError):
+            return "n, hits, misses, false_alarms and correct_rejections must be integers"
+        stimuli, targets = row.get("stimuli") or "", row.get("targets") or ""
+        if n != int(row["level"]) or len(stimuli) != rules.block_length(n, self.settings.fillers):
+            return f"n {n}, level {row['level']} and a stream of {len(stimuli)} letters do not agree"
+        if len(targets) != len(stimuli) or set(targets) - {"0", "1"} or hits + misses != targets.count("1") \
+                or hits + misses + fas + crs != len(stimuli):
+            return f"hits {hits}, misses {misses}, false alarms {fas} and correct rejections {crs} do not add up to " \
+                   f"the stream's targets {targets!r}"
+        if (row["success"] == "True") != rules.Outcome(hits, misses, fas, crs).success:
+            return f"success {row['success']} with {misses + fas} errors (fewer than 3 is a success)"
+        return None
+
+    def describe(self, row: dict[str, Any]) -> str:
+        """The progress line's middle: hits of the targets, false alarms."""
+        return f"hits {row['hits']}/{row['targets'].count('1')} false alarms {row['false_alarms']}"
+
     def span(self, rows: list[dict[str, Any]]) -> str | None:
         """Mean d′ per level played (the n-back's capacity line)."""
         by: dict[int, list[float]] = {}
@@ -132,6 +182,13 @@ class NBackTask:
         s = self.settings
         return tuple(rules.success_probability(d, c, n, s.targets, s.fillers)
                      for n, d, c in zip(self.levels, s.d_prime, s.criterion))
+
+    def simulated_users(self) -> tuple[tuple[str, tuple[float, ...]], ...]:
+        """(name, P(block succeeds) at each of ``levels``) of the evaluation's observers (``ABILITIES``)."""
+        s = self.settings
+        return tuple((f"nback-d{a:g}x", tuple(rules.success_probability(a * d, c, n, s.targets, s.fillers)
+                                               for n, d, c in zip(self.levels, s.d_prime, s.criterion)))
+                     for a in ABILITIES)
 
     def simulated_answer(self, trial: Trial, rng: np.random.Generator,
                          reaction_s: float) -> tuple[bool, tuple[str, ...], tuple[float, ...], str]:

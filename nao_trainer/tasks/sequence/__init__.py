@@ -27,6 +27,13 @@ class SequenceTask:
     columns: ClassVar[tuple[str, ...]] = COLUMNS
     dialogue_events: ClassVar[Mapping[str, frozenset[str]]] = {}  # the letters are spoken as they are
     answer_letters: ClassVar[tuple[str, ...]] = LETTERS
+    #: The published data (the paper's sessions), the user models fitted on them and their reproductions are of
+    #: this task: ``evaluate``'s fitted user sets (clusters, level-only, sessions) describe its participants.
+    published_data: ClassVar[bool] = True
+    #: BIDS: the task label and description (``study export --bids``).
+    bids_name: ClassVar[str] = "sequencelearning"
+    description: ClassVar[str] = ("sequence learning task with a NAO robot (Tsiakas, Abujelala and Makedon, "
+                                  "Technologies 2018, 6, 49)")
 
     def __init__(self, settings: Any = None) -> None:
         self.settings = settings
@@ -68,6 +75,23 @@ class SequenceTask:
 
     def signed_score(self, level: int, success: bool) -> int:
         return levels.signed_score(level, success)
+
+    def row_problem(self, row: dict[str, str]) -> str | None:
+        """Why a recorded row's own fields disagree (``run --resume`` checks turns.csv): the length is the
+        level's, the sequence that long, and a success repeats it."""
+        try:
+            level, length = int(row["level"]), int(row["length"])
+        except (TypeError, ValueError, KeyError):
+            return "length must be an integer"
+        if length != levels.length_of(level) or len(row.get("sequence") or "") != length:
+            return f"level {level}, length {length} and sequence {row.get('sequence')!r} do not agree"
+        if row["success"] == "True" and not is_correct(row["sequence"], row.get("response") or ""):
+            return f"success with a response {row.get('response')!r} that does not repeat the sequence {row['sequence']!r}"
+        return None
+
+    def describe(self, row: dict[str, Any]) -> str:
+        """The progress line's middle: what was said vs what was pressed."""
+        return f"{row['sequence']:>9} vs {row['response']:<9}"
 
     def span(self, rows: list[dict[str, Any]]) -> str | None:
         return None  # the session summary's span line (core.psychometric) is the sequence task's already
