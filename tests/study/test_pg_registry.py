@@ -308,3 +308,42 @@ def test_connection_lost_mid_session_then_recorded_once(study):
         pg.record_session(again, "key-1", pseud, 1, f"{pseud}_1", "completed", {"turns.csv": "b" * 64})
         assert pg.site_participants(again)[0]["sessions_done"] == 1
     assert pg.call(study.admin, "n", "SELECT count(*), min(status) FROM sessions") == [(1, "completed")]
+
+
+def test_command_line_stratified_by_site(pg_cluster, tmp_path, monkeypatch, capsys):
+    """--stratify-by-site: each site's sequence drawn when the site is added, taken in order by that site."""
+    db = "t_" + uuid.uuid4().hex[:10]
+    passfile = tmp_path / "pgpass"
+    lines = [f"*:*:*:postgres:{pg_cluster.password}"]
+    passfile.write_text(lines[0] + "\n")
+    passfile.chmod(0o600)
+    monkeypatch.setenv("PGPASSFILE", str(passfile))
+    monkeypatch.setenv("PGUSER", "postgres")
+    with pg.connect(pg_cluster.url(), autocommit=True) as c:
+        c.execute(f"CREATE DATABASE {db}")
+    study = tmp_path / "study"
+    assert _cli(capsys, "init", PROTOCOL, "--out", study, "--registry", pg_cluster.url(db),
+                "--stratify-by-site")[0] == 0
+    roles = {}
+    for site in ("north", "south"):
+        code, out = _cli(capsys, "site", "add", study, site)
+        assert code == 0, out
+        roles[site] = out.split("role ")[1].split(";")[0]
+        lines.append(f"*:*:*:{roles[site]}:{out.strip().rsplit(' ', 1)[1]}")
+    passfile.write_text("\n".join(lines) + "\n")
+    for site in ("north", "south"):
+        monkeypatch.setenv("PGUSER", roles[site])
+        for _ in range(6):
+            assert _cli(capsys, "enrol", study, "--consent-date", "2026-12-01", "--consent-version", "v1")[0] == 0
+    with pg.connect(pg_cluster.url(db), autocommit=True) as c:
+        per = c.execute("SELECT p.site, a.arm FROM participants p JOIN allocation a ON a.stratum = p.stratum "
+                        "AND a.position = p.allocation_index ORDER BY p.site, p.allocation_index").fetchall()
+        seqs = {site: [r[0] for r in c.execute("SELECT arm FROM allocation WHERE stratum = %s ORDER BY position",
+                                               (site,))] for site in ("north", "south")}
+        strata = {r[0] for r in c.execute("SELECT DISTINCT stratum FROM participants")}
+    assert strata == {"north", "south"}
+    arms = sorted(a.name for a in load_protocol(PROTOCOL).arms)
+    for site in ("north", "south"):  # each site takes its own sequence in order; each sequence balanced
+        assert [arm for s, arm in per if s == site] == seqs[site][:6]
+        assert sorted(seqs[site]) == sorted(arms * (len(seqs[site]) // len(arms)))
+    assert _cli(capsys, "init", PROTOCOL, "--out", tmp_path / "x", "--stratify-by-site")[0] == 2
