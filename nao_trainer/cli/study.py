@@ -304,7 +304,7 @@ def _amend(args: argparse.Namespace) -> int:
     entry = amend(args.root, args.protocol, args.reason, args.change_arms)
     changes = f"; CHANGES ARMS: {'; '.join(entry['changes'])}" if entry["changes"] else ""
     print(f"{args.root}: amendment recorded {entry['time']}: {entry['old_sha256'][:12]} -> {entry['new_sha256'][:12]} "
-          f"({entry['reason']}){changes}")
+          f"({entry['reason']}){changes}; study configuration {entry['study_config']}")
     return 0
 
 
