@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The Bayes ceiling beside every policy (docs/results.md, "What can be won"), under the score and both target
 # objectives (target-p: each turn's success probability near R; target-rate: the session's success rate near R).
-# Then `python analysis/results_page.py` writes the page's generated tables and prose from these outputs.
+# Then `PYTHONPATH=. python analysis/results_page.py` writes the page's generated tables and prose from these outputs.
 # DATASET_ROOT: the published sessions, extracted from ../shared/data/sequence-learning/clean_data_bands.tar.xz
 # OBJECTIVES: which objectives to run (default all three); they can run in parallel.
 set -euo pipefail
@@ -21,3 +21,4 @@ for OBJ in ${OBJECTIVES:-score target-p:0.75 target-rate:0.75}; do
 done
 # which user model predicts held-out turns best (per level, clusters, pooled psychometric)
 $NT evaluate --user-models --users sessions --data "$ROOT" --out docs/results/user-models
+PYTHONPATH=. "${PYTHON:-.venv/bin/python}" analysis/results_page.py   # the generated blocks of docs/results.md

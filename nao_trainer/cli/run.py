@@ -21,7 +21,8 @@ def register(sub) -> None:
     )
     p.add_argument("--config", metavar="FILE", help="study configuration (default: config/studies/demo.yaml)")
     p.add_argument("--robot", metavar="mock|desktop|URL",
-                   help="'mock' (the stand-in, in-process), 'desktop' (the laptop speaks through espeak-ng; answer "
+                   help="'mock' (the stand-in, in-process), 'desktop' (the laptop plays the robot; needs espeak-ng, an "
+                        "OS package, and a sound device, else each sound is written as a WAV file; answer "
                         "with --input keyboard), tcp://IP:9559 (NAOqi <= 2.8) or tcps://IP:9503 "
                         "(NAOqi 2.9; login from NAO_USER/NAO_PASSWORD)")
     p.add_argument("--input", choices=INPUTS, help="where answers come from")

@@ -14,8 +14,8 @@ from nao_trainer.session.config import INPUTS
 from nao_trainer.study.protocol import load_protocol
 from nao_trainer.study.seal import key_path
 
-ACTIONS = ("init", "enrol", "withdraw", "amend", "status", "next", "repair", "unblind", "analyse", "power", "export",
-           "table")
+ACTIONS = ("init", "site", "statistician", "enrol", "withdraw", "amend", "status", "next", "repair", "unblind",
+           "analyse", "power", "export", "table")
 DESCRIPTION = """\
 A controlled study (docs/study.md), in order:
   study init PROTOCOL --out STUDY_DIR        freeze the protocol, draw the concealed allocation
@@ -60,6 +60,18 @@ def actions_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", "-o", type=Path, required=True, metavar="STUDY_DIR")
     p.add_argument("--allocation-seed-file", type=Path, metavar="FILE",
                    help="a seed supplied by a third party (default: drawn from the operating system's entropy)")
+    p.add_argument("--registry", default=None, metavar="postgresql://HOST/DB",
+                   help="the registry on a PostgreSQL server (several sites; docs/how-to/multi-site-study.md); "
+                        "no password in the URL")
+    p.add_argument("--stratify-by-site", action="store_true", help="with --registry: one sequence per site")
+    p = sub.add_parser("site", help="PostgreSQL registry: add a site (its own role, password and pseudonym range)")
+    p.add_argument("what", choices=("add",))
+    p.add_argument("root", type=Path, metavar="STUDY_DIR")
+    p.add_argument("name", metavar="NAME")
+    p = sub.add_parser("statistician", help="PostgreSQL registry: a login role that may unblind (logged)")
+    p.add_argument("what", choices=("add",))
+    p.add_argument("root", type=Path, metavar="STUDY_DIR")
+    p.add_argument("name", metavar="LOGIN")
     p = sub.add_parser("enrol", help="enrol the next participant: pseudonym and arm")
     p.add_argument("root", type=Path, metavar="STUDY_DIR")
     p.add_argument("--consent-date", required=True, metavar="YYYY-MM-DD")
@@ -139,7 +151,37 @@ def run(args: argparse.Namespace) -> int:
         words = ["table", *words] + (["--out", str(args.out)] if args.out else []) \
             + (["--no-figure"] if args.no_figure else [])
     sub = actions_parser().parse_args(words)
+    root = getattr(sub, "root", None)
+    remote_ok = ("init", "site", "statistician", "enrol", "status", "unblind", "power", "table")
+    if sub.action not in remote_ok and root is not None:
+        from nao_trainer.study.remote import is_remote
+
+        if is_remote(root):
+            raise ConfigError(f"study {sub.action}: not available yet for a study whose registry is on PostgreSQL "
+                              f"({root}); enrol, status, site add and unblind are")
     return int(globals()[f"_{sub.action}"](sub) or 0)
+
+
+def _statistician(args: argparse.Namespace) -> int:
+    from nao_trainer.study import remote
+
+    if not remote.is_remote(args.root):
+        raise ConfigError(f"{args.root}: roles need a registry on PostgreSQL (study init --registry postgresql://...)")
+    with remote.connect(args.root) as conn:
+        role, password = remote.pg.statistician_add(conn, args.name)
+    print(f"statistician: role {role}; password (shown once, stored nowhere by nao-trainer): {password}")
+    return 0
+
+
+def _site(args: argparse.Namespace) -> int:
+    from nao_trainer.study import remote
+
+    if not remote.is_remote(args.root):
+        raise ConfigError(f"{args.root}: sites need a registry on PostgreSQL (study init --registry postgresql://...)")
+    role, password = remote.site_add(args.root, args.name)
+    print(f"site {args.name}: role {role}; password (shown once, stored nowhere by nao-trainer; give it to the "
+          f"site for its PGPASSFILE): {password}")
+    return 0
 
 
 def _table(args: argparse.Namespace) -> int:
@@ -173,6 +215,19 @@ def _table(args: argparse.Namespace) -> int:
 
 def _init(args: argparse.Namespace) -> int:
     from nao_trainer.study.registry import init_study
+
+    if args.registry is not None:
+        from nao_trainer.study import remote
+
+        if args.allocation_seed_file is not None:
+            raise ConfigError("--allocation-seed-file: not supported with --registry yet")
+        made = remote.init(args.protocol, args.out, args.registry, args.stratify_by_site)
+        print(f"{args.out}: study {made['protocol'].name} initialised on {remote.pg.redact(args.registry)} (roles "
+              f"{made['prefix']}_operator, {made['prefix']}_statistician; add sites with `nao-trainer study site add "
+              f"{args.out} NAME`); the allocation is readable by no operator role")
+        return 0
+    if args.stratify_by_site:
+        raise ConfigError("--stratify-by-site: only with --registry postgresql://...")
 
     from nao_trainer.study.registry import BACKUP, REGISTRY_FILE, block_sizes
 
@@ -210,6 +265,15 @@ def _enrol(args: argparse.Namespace) -> int:
         if not sep:
             raise ConfigError(f"--stratum {item!r}: write NAME=LEVEL")
         strata[name] = level
+    from nao_trainer.study import remote
+
+    if remote.is_remote(args.root):
+        if strata:
+            raise ConfigError("--stratum: not supported on a PostgreSQL registry yet (--stratify-by-site is)")
+        pseudonym = remote.enrol(args.root, args.consent_date, args.consent_version)
+        print(f"{pseudonym}: enrolled (arm concealed: this role cannot read it; consent {args.consent_date} version "
+              f"{args.consent_version})")
+        return 0
     entry = enrol(args.root, args.consent_date, args.consent_version, strata)
     study = open_study(args.root)
     blinded = study.protocol.blinding and not study.unblinded
@@ -240,14 +304,18 @@ def _amend(args: argparse.Namespace) -> int:
     entry = amend(args.root, args.protocol, args.reason, args.change_arms)
     changes = f"; CHANGES ARMS: {'; '.join(entry['changes'])}" if entry["changes"] else ""
     print(f"{args.root}: amendment recorded {entry['time']}: {entry['old_sha256'][:12]} -> {entry['new_sha256'][:12]} "
-          f"({entry['reason']}){changes}")
+          f"({entry['reason']}){changes}; study configuration {entry['study_config']}")
     return 0
 
 
 def _status(args: argparse.Namespace) -> int:
     from nao_trainer.study.progress import study_status
+    from nao_trainer.study import remote
     from nao_trainer.study.registry import open_study
 
+    if remote.is_remote(args.root):
+        print("\n".join(remote.status_lines(args.root)))
+        return 0
     print("\n".join(study_status(open_study(args.root)).lines))
     return 0
 
@@ -353,9 +421,11 @@ def _repair(args: argparse.Namespace) -> int:
 
 
 def _unblind(args: argparse.Namespace) -> int:
+    from nao_trainer.study import remote
     from nao_trainer.study.registry import unblind
 
-    pairs = unblind(args.root, args.reason, args.who)
+    pairs = remote.unblind(args.root, args.reason) if remote.is_remote(args.root) else \
+        unblind(args.root, args.reason, args.who)
     print(f"{args.root}: unblinding recorded ({args.reason}); {len(pairs)} participant(s)")
     for pseudonym, arm in pairs:
         print(f"{pseudonym}\t{arm}")

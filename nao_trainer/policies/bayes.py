@@ -170,8 +170,31 @@ class BayesPolicy:
             "progress": f"           posterior: {post} -> next level {self.decide()}",
             "summary": (f"Bayes planner ({self.objective}, prior {self.prior}): most likely user model {self.names[best]} "
                         f"(posterior {w[best]:.2f}; {post}); estimated success by level "
-                        + " ".join(f"L{i + 1} {x:.2f}" for i, x in enumerate(est))),
+                        + " ".join(f"L{i + 1} {x:.2f}" for i, x in enumerate(est)) + self.why_one_level(w)),
         }
+
+    def why_one_level(self, w: np.ndarray) -> str:
+        """Why a session stayed at one level (the demo's strong participant at level 2 under ``--policy bayes``):
+        each level's expected value per turn now, and where the two likeliest user models differ. Empty when
+        several levels were played."""
+        played = self.counts.reshape(-1, 2).sum(axis=1)
+        if int(played.sum()) < 2 or int(np.count_nonzero(played)) != 1:
+            return ""
+        at = int(np.flatnonzero(played)[0])
+        value = w @ self.objective.utility(self.p)
+        text = (f". It played level {at + 1} in all {int(played.sum())} turns, the highest expected value per turn "
+                "under the posterior (now " + " ".join(f"L{i + 1} {v:.2f}" for i, v in enumerate(value)) + ")")
+        if len(self.names) >= 2:
+            a, b = np.argsort(-w, kind="stable")[:2]
+            gap = np.abs(self.p[a] - self.p[b])
+            apart = int(np.argmax(gap))
+            if apart != at:
+                text += (f"; the two likeliest user models succeed at level {at + 1} alike ({self.names[a]} "
+                         f"{self.p[a, at]:.2f}, {self.names[b]} {self.p[b, at]:.2f}) and differ most at level "
+                         f"{apart + 1} ({self.p[a, apart]:.2f}, {self.p[b, apart]:.2f}): only turns there would tell "
+                         "them apart, and the planner expected them to cost more than they could gain over the turns "
+                         "left")
+        return text + " (the prior decides: policy.prior; docs/personalisation.md#why-it-can-stay-at-one-level)"
 
     # -- the participant's file ----------------------------------------------------------------------
 

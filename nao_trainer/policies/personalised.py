@@ -60,14 +60,14 @@ def models_fingerprint(models: ModelSet, fingerprints: Sequence[str], policy_dig
     return h.hexdigest()
 
 
-def plain_name(candidate: str) -> str:
-    """A candidate's name in words: ``usp:3`` is the policy trained for user model 3, ``fixed:4`` level 4 always."""
+def plain_name(candidate: str, why: str = "") -> str:
+    """A candidate's name in words: ``usp:3`` is the policy trained for user model 3 (cluster-3), ``fixed:4``
+    level 4 always; ``why`` (e.g. "by expected value") joins the parenthesis."""
     kind, _, arg = candidate.partition(":")
     if kind == "usp":
-        return f"personalised (trained for user model {arg})"
-    if kind == "fixed":
-        return f"fixed level {arg}"
-    return candidate
+        return f"personalised (user model {arg}{', ' + why if why else ''})"
+    name = f"fixed level {arg}" if kind == "fixed" else candidate
+    return f"{name} ({why})" if why else name
 
 
 class PersonalisedPolicy:
@@ -203,7 +203,7 @@ class PersonalisedPolicy:
             "switches": int(self.pers.switches[0]),
             "level_success": [round(float(x), 4) for x in levels],
             "progress": f"           user models, posterior: {post}" + (
-                f" -> policy: {plain_name(following)} (by expected value)" if following
+                f" -> policy: {plain_name(following, 'by expected value')}" if following
                 else " (assessment: levels set in advance)"),
             "summary": (f"matched user model: {self.models.names[best]} (posterior {w[best]:.2f}; {post}); "
                         + (f"policy: {plain_name(following)}, chosen by its expected score under the posterior over "

@@ -207,7 +207,9 @@ class SessionResult:
         invalid = len(self.invalid_rows)
         lines += [
             f"turns completed: {len(self.completed_rows)}" + (f" (+{invalid} marked invalid, not counted)" if invalid else "")
-            + f"   total score: {self.total_score}" + (" (valid turns only)" if invalid else "") + "   "
+            + f"   total score: {self.total_score}" + (
+                f" (valid turns only: the {invalid} marked invalid scored "
+                f"{sum(int(r['score']) for r in self.invalid_rows):+d}, left out)" if invalid else "") + "   "
             f"mean engagement: {self._no_engagement() if eng is None else f'{eng:.2f}'}"
             + (f" (EEG in {self.eeg_turns} of {len(self.completed_rows)} turns)" if self.eeg_on and eng is not None else ""),
             *([span] if (span := (self.task.span(self.completed_rows) or "") if self._own_span()
@@ -228,13 +230,13 @@ def _most_common(values: list[str]) -> str:
 def progress_line(row: dict[str, Any], n_turns: int, total: int, task: Task | None = None) -> str:
     """One terminal line per recorded turn; what was presented and answered is the task's to say
     (``Task.describe``, optional: else the response pressed)."""
-    fb = {0: "   ", 1: "enc", 2: "chl"}[row["feedback"]]
+    fb = {0: "", 1: "  (robot feedback: encouraging)", 2: "  (robot feedback: challenging)"}[row["feedback"]]
     eng = "-" if row["engagement"] is None else f"{row['engagement']:.2f}"
     mark = "ok " if row["success"] else "err"
     describe = getattr(task, "describe", None)
     what = describe(row) if describe is not None else f"pressed {row['response'] or '-':<9}"
-    return (f"turn {row['turn']:3d}/{n_turns}  L{row['level']} {fb}  {what} {mark} {row['score']:+d}  total {total:4d}  E {eng}"
-            + (f"  ({row['notes']})" if row["notes"] else "")
+    return (f"turn {row['turn']:3d}/{n_turns}  L{row['level']}  {what} {mark} {row['score']:+d}  total {total:4d}  E {eng}"
+            + fb + (f"  ({row['notes']})" if row["notes"] else "")
             + ("  (marked invalid: not in the total)" if row.get("invalid") else "")
             + (f"  [{row['phase']}]" if row.get("phase") else ""))
 

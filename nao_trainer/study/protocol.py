@@ -116,6 +116,7 @@ class Protocol:
     pseudonym_prefix: str
     source: str
     text: str
+    base: str = ""  # the folder a relative study_config resolved against (the registry records it)
 
     @property
     def sha256(self) -> str:
@@ -164,11 +165,13 @@ def _get(d: Any, key: str, where: _Where, dotted: str, kind: type | tuple[type, 
     return value
 
 
-def load_protocol(path: str | os.PathLike, base: Path | None = None) -> Protocol:
+def load_protocol(path: str | os.PathLike, base: Path | None = None, fallback: Path | None = None) -> Protocol:
     """Read and validate a protocol file; ``ConfigError`` (one line, file:line) for the first problem.
 
     ``base``: the folder a relative ``study_config`` resolves against (default: the protocol's own folder;
-    a study folder's frozen copy passes the folder of the file it was copied from).
+    a study folder's frozen copy passes the folder of the file it was copied from). ``fallback``: a second
+    folder tried when the first holds no such file (``study amend``: the study's own, so that an edited copy
+    of ``protocol.yaml`` resolves as the frozen copy does, wherever the copy lives).
     """
     path = Path(os.path.abspath(os.path.expanduser(path)))
     data, lines, text = read_yaml(path, fix="give a protocol file (see config/protocols/example-3arm.yaml)")
@@ -183,11 +186,18 @@ def load_protocol(path: str | os.PathLike, base: Path | None = None) -> Protocol
     if name_problem(name, "name"):
         raise where.error("protocol.name", f"{name!r} must be {name_problem(name, 'name')}")
     description = _get(head, "description", where, "protocol.description", str, "")
-    config_path = Path(_get(data, "study_config", where, "study_config", str)).expanduser()
-    config_path = config_path if config_path.is_absolute() else ((base or path.parent) / config_path).resolve()
-    if not config_path.is_file():
-        raise where.error("study_config", f"{config_path} is not a file (relative paths resolve against the "
-                                          "protocol's folder); fix the path")
+    given = Path(_get(data, "study_config", where, "study_config", str)).expanduser()
+    folders = [Path(base or path.parent)] + ([Path(fallback)] if fallback is not None and not given.is_absolute()
+                                            and Path(fallback).resolve() != Path(base or path.parent).resolve()
+                                            else [])
+    tried = [given if given.is_absolute() else (folder / given).resolve() for folder in folders]
+    found = next((i for i, c in enumerate(tried) if c.is_file()), None)
+    if found is None:
+        where_ = (f"relative paths resolve against the protocol's folder, then the study's {folders[1]}"
+                  if len(folders) > 1 else "relative paths resolve against the protocol's folder")
+        raise where.error("study_config", f"{' nor '.join(str(c) for c in tried)} is not a file ({where_}); "
+                                          "fix the path")
+    config_path, resolved_in = tried[found], folders[found]
     arms = _arms(_get(data, "arms", where, "arms", list), where)
     s = _get(data, "sessions", where, "sessions", dict)
     per = _get(s, "per_participant", where, "sessions.per_participant", int)
@@ -218,7 +228,7 @@ def load_protocol(path: str | os.PathLike, base: Path | None = None) -> Protocol
     if name_problem(prefix):
         raise where.error("pseudonym_prefix", f"{prefix!r} must be {name_problem(prefix)}")
     protocol = Protocol(name, description, config_path, arms, Sessions(per, lo, hi), target, allocation, blinding,
-                        primary, secondary, analysis, prefix, str(path), text)
+                        primary, secondary, analysis, prefix, str(path), text, str(resolved_in))
     for i, arm in enumerate(arms):  # every arm's configuration must load (overrides, policy, files)
         try:
             protocol.arm_config(arm)

@@ -154,7 +154,7 @@ class Study:
 
 def _protocol_entry(protocol: Protocol) -> dict[str, Any]:
     return {"name": protocol.name, "sha256": protocol.sha256, "source": protocol.source,
-            "base": str(Path(protocol.source).parent), "study_config": str(protocol.study_config),
+            "base": protocol.base or str(Path(protocol.source).parent), "study_config": str(protocol.study_config),
             "study_config_sha256": file_sha256(protocol.study_config)}
 
 
@@ -492,8 +492,10 @@ def amend(root: Path, protocol_path: Path, reason: str, change_arms: bool = Fals
     reported by the analysis)."""
     if not reason.strip() or "\n" in reason.strip():
         raise ConfigError("--reason: an amendment needs its reason (one line)")
-    new = load_protocol(protocol_path)
     study = open_study(root)
+    # a relative study_config resolves against the new file's folder, else against the study's (that of the
+    # protocol given to init, or of the last amendment): an edited copy of STUDY_DIR/protocol.yaml works anywhere
+    new = load_protocol(protocol_path, fallback=Path(study.registry["protocol"]["base"]))
     old = study.protocol
     if new.sha256 == old.sha256 and file_sha256(new.study_config) == study.registry["protocol"]["study_config_sha256"]:
         raise ConfigError(f"{protocol_path}: identical to the frozen protocol; nothing to amend")
@@ -518,7 +520,8 @@ def amend(root: Path, protocol_path: Path, reason: str, change_arms: bool = Fals
             raise ConfigError(f"{protocol_path}: target_n {new.target_n} exceeds the allocation sequence drawn "
                               "at init; start a new study")
         entry = {"time": now_iso(), "reason": reason.strip(), "old_sha256": old.sha256, "new_sha256": new.sha256,
-                 "enrolled_at_amendment": len(reg["participants"]), "changes": changes}
+                 "enrolled_at_amendment": len(reg["participants"]), "changes": changes,
+                 "study_config": str(new.study_config)}
         tx.add_amendment(entry)
         tx.set_meta("protocol", _protocol_entry(new))
         tx.set_meta("protocol_text", new.text)

@@ -54,7 +54,7 @@ def test_weak_and_strong_participants_get_different_levels_and_the_state_carries
         assert "matched user model: cluster-" in res.stdout and "posterior" in res.stdout
         assert "posterior: cluster-" in res.stderr  # the operator sees the posterior move
         # in words (issue 29): which policy, and that it was chosen by expected value, not by the match alone
-        assert "-> policy: " in res.stderr and "(by expected value)" in res.stderr and "usp:" not in res.stderr
+        assert "-> policy: " in res.stderr and "by expected value)" in res.stderr and "usp:" not in res.stderr
         assert "chosen by its expected score" in res.stdout
         info = json.loads((folder / "session.json").read_text())
         assert info["policy_summary"].startswith("matched user model")

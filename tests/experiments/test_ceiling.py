@@ -132,3 +132,14 @@ def test_the_ceiling_section_prints_the_noise_corrected_oracle_beside_the_own_ra
     text = format_section({"objective": "target-p:0.75", "turns": 25, "summary": [], "noise_corrected_oracle": nc})
     line = next(ln for ln in text.splitlines() if "noise-corrected" in ln)
     assert f"own rates {nc['own_rates']['oracle_gap']:.3f}" in line and f"{nc['population']['oracle_gap']:.3f}" in line
+
+
+def test_a_prior_predictive_check_compares_what_a_prior_predicts_with_the_users():
+    """The ceiling's prior (uniform over the users) predicts exactly the users' per-level mean; a prior
+    that puts all its weight on one model predicts no spread, and its mean is that model's rates."""
+    p = np.array([[0.99, 0.9, 0.6, 0.3], [0.98, 0.8, 0.4, 0.1], [1.0, 0.95, 0.7, 0.5]])
+    own = ceiling.prior_check(p, np.ones(3), p)
+    assert own["prior_mean"] == pytest.approx(p.mean(axis=0).round(4).tolist())
+    assert own["users_sd"] == pytest.approx(p.std(axis=0, ddof=1).round(4).tolist())
+    one = ceiling.prior_check(p, np.array([0.0, 1.0, 0.0]), p)
+    assert one["prior_mean"] == pytest.approx(p[1].tolist()) and not any(one["prior_sd"])

@@ -112,3 +112,21 @@ def test_restore_from_a_checkpoint_does_not_count_the_session_twice(tmp_path):
     again.restore(snap)
     assert again.carried.sum() == 0 and again.counts.tolist() == [0, 0, 0, 0, 3, 0, 0, 0]
     assert again.decide() == pol.decide()
+
+
+def test_a_session_at_one_level_says_why_in_its_summary(tmp_path):
+    """Issue 29: `run --policy bayes` on the demo's strong participant plays level 2 throughout; the summary says
+    why (each level's expected value now, and that the likeliest user models differ only where it did not play)."""
+    from nao_trainer.core import objective
+    from nao_trainer.policies.bayes import BayesPolicy
+
+    p = np.array([[0.99, 0.95, 0.2, 0.05], [0.99, 0.93, 0.9, 0.85]])
+    pol = BayesPolicy(("weak", "strong"), p, np.array([3.0, 1.0]), objective.SCORE, 6, None, cache=tmp_path)
+    level2 = 1 * 27 + 4  # (level 2, no feedback, previous result 0): index of core.mdp
+    for t in range(5):
+        pol.observe(Transition(mdp.START if t == 0 else level2, 1, 2, None, level2, False))
+    summary = pol.status()["summary"]
+    assert "It played level 2 in all 5 turns, the highest expected value per turn under the posterior (now L1 " in summary
+    assert "succeed at level 2 alike (weak 0.95, strong 0.93) and differ most at level 4 (0.05, 0.85)" in summary
+    pol.observe(Transition(level2, 3, -1, None, 3 * 27 + 4, False))
+    assert "It played" not in pol.status()["summary"]  # several levels: nothing to explain

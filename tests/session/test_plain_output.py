@@ -27,6 +27,15 @@ def test_a_turn_marked_invalid_says_it_is_not_in_the_total():
     assert "not in the total" not in progress_line({**row, "invalid": False}, 25, 6)
 
 
+def test_robot_feedback_is_spelled_out_on_the_turn_line():
+    row = {"turn": 8, "level": 2, "feedback": 1, "sequence": "ABABC", "response": "ABABC", "success": True,
+           "score": 2, "engagement": 0.5, "notes": "", "phase": "personalised"}
+    assert progress_line(row, 25, 4, SequenceTask()).startswith("turn   8/25  L2      ABABC vs ABABC     ok  +2  total    4  E 0.50  "
+                                                "(robot feedback: encouraging)  [personalised]")
+    assert "(robot feedback: challenging)" in progress_line({**row, "feedback": 2}, 25, 4, SequenceTask())
+    assert "feedback" not in progress_line({**row, "feedback": 0}, 25, 4, SequenceTask())
+
+
 def test_the_progress_line_says_what_the_task_describes():
     row = {"turn": 3, "level": 2, "feedback": 0, "sequence": "ABABC", "response": "ABABA", "success": False,
            "score": -1, "engagement": None, "notes": "", "phase": ""}
@@ -37,5 +46,7 @@ def test_the_progress_line_says_what_the_task_describes():
 
 
 def test_candidate_policies_are_named_in_words():
-    assert plain_name("usp:3") == "personalised (trained for user model 3)"
+    assert plain_name("usp:3") == "personalised (user model 3)"
+    assert plain_name("usp:3", "by expected value") == "personalised (user model 3, by expected value)"
     assert plain_name("fixed:4") == "fixed level 4"
+    assert plain_name("fixed:4", "by expected value") == "fixed level 4 (by expected value)"

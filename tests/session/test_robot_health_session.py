@@ -131,6 +131,21 @@ def test_a_critically_hot_knee_makes_the_nao_sit_before_the_next_turn(tmp_path, 
     assert len(read_turns(folder)) == 3
 
 
+def test_a_warm_knee_at_warning_is_named_for_the_operator_and_the_session_goes_on_standing(tmp_path, standin):
+    standin.control.act_after("ALAudioPlayer.playSine", "heat", ["LKneePitch", 1])  # hot (status 1) during turn 1
+    result = _play(_config(tmp_path, standin.url), RunOptions(quiet=True))
+    assert result.status == "completed"
+    events = read_events(folder := next(tmp_path.glob("*_*")))
+    hot = [e for e in events if e["event"] == "robot_health" and e["kind"] == "hot"]
+    assert [(e["severity"], e["part"]) for e in hot] == [("warning", "LKneePitch")]
+    assert "LKneePitch" in hot[0]["detail"] and "let it sit between turns" in hot[0]["decision"]
+    assert not [e for e in events if e["event"] in ("cooling_posture", "wake_up_failed")]  # suggested, not forced
+    assert not [e for e in events if e["event"] == "command" and e.get("source") == "robot"]  # no pause, no replay
+    postures = [c["args"] for c in standin.transcript() if (c["service"], c["method"]) == ("ALRobotPosture", "goToPosture")]
+    assert all(args[0] != "Sit" for args in postures)
+    assert len(read_turns(folder)) == 3
+
+
 def test_a_session_in_french_sets_the_robots_voice_and_speaks_the_french_dialogue(tmp_path, standin):
     from nao_trainer.files import PROJECT_ROOT
 

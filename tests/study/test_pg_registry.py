@@ -112,7 +112,8 @@ def test_two_sites_enrol_at_once_balanced_and_concealed(study):
                     pseud = pg.enrol(op, "2026-12-01", "v1")
                     out[role].append(pseud)
                     for n in (1, 2):  # two sessions each: 24 in all
-                        pg.record_session(op, f"{pseud}-{n}", pseud, n, f"{pseud}_{n}", "completed", {"turns.csv": "0" * 64})
+                        pg.record_session(op, f"{pseud}-{n}", pseud, n, f"{pseud}_{n}", "completed",
+                                          {"turns.csv": "0" * 64})
         except BaseException as exc:  # noqa: BLE001
             errors.append(exc)
 
@@ -223,3 +224,126 @@ def test_sigkill_while_enrolling_leaves_a_whole_state(study):
         assert [r[2] for r in rows] == list(range(1, len(rows) + 1))
         if len(rows) >= study.protocol.target_n - 2:
             break
+
+
+def _cli(capsys, *args) -> tuple[int, str]:
+    from nao_trainer.cli import main
+
+    code = main(["study", *map(str, args)])
+    out = capsys.readouterr()
+    return code, out.out + out.err
+
+
+def test_command_line_two_sites_from_two_shells(pg_cluster, tmp_path, monkeypatch, capsys):
+    """study init --registry, site add x2, statistician add, 12 enrolled from two shells at once as two
+    sites, status per role (no arm), the operator refused the unblinding in one line, the statistician's
+    unblinding balanced and logged."""
+    db = "c_" + uuid.uuid4().hex[:10]
+    passfile = tmp_path / "pgpass"
+    lines = [f"*:*:*:postgres:{pg_cluster.password}"]
+    passfile.write_text(lines[0] + "\n")
+    passfile.chmod(0o600)
+    monkeypatch.setenv("PGPASSFILE", str(passfile))
+    monkeypatch.setenv("PGUSER", "postgres")
+    with pg.connect(pg_cluster.url(), autocommit=True) as c:
+        c.execute(f"CREATE DATABASE {db}")
+    study = tmp_path / "study"
+    code, out = _cli(capsys, "init", PROTOCOL, "--out", study, "--registry", pg_cluster.url(db))
+    assert code == 0, out
+    assert "postgres" not in (study / "registry.url").read_text().split("?")[0].split("//")[1]
+    roles = {}
+    for who in ("site", "site", "statistician"):
+        name = {0: "north", 1: "south"}.get(len(roles), "stats")
+        code, out = _cli(capsys, who, "add", study, name)
+        assert code == 0, out
+        role, password = out.split("role ")[1].split(";")[0], out.strip().rsplit(" ", 1)[1]
+        roles[name] = role
+        lines.append(f"*:*:*:{role}:{password}")
+    passfile.write_text("\n".join(lines) + "\n")
+    assert not any(pw.split(":")[-1] in p.read_text(errors="replace") for pw in lines for p in study.rglob("*")
+                   if p.is_file())
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "QI_LOG_LEVEL": "silent"}
+    loop = ("import sys\nfrom nao_trainer.cli import main\nfor _ in range(6):\n"
+            "    assert main(['study', 'enrol', sys.argv[1], '--consent-date', '2026-12-01', "
+            "'--consent-version', 'v1']) == 0\n")
+    shells = [subprocess.Popen([sys.executable, "-c", loop, str(study)], env={**env, "PGUSER": roles[s]},
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for s in ("north", "south")]
+    outs = [p.communicate(timeout=120) for p in shells]
+    assert [p.returncode for p in shells] == [0, 0], outs
+    assert sum(o.count("enrolled (arm concealed") for o, _ in outs) == 12
+    monkeypatch.setenv("PGUSER", roles["north"])
+    code, out = _cli(capsys, "status", study)
+    assert code == 0 and "6 participant(s)" in out and "arms: not readable" in out
+    assert not any(a.name in out.split("\n", 2)[2] for a in load_protocol(PROTOCOL).arms)
+    code, out = _cli(capsys, "unblind", study, "--reason", "curious")
+    assert code == 2 and out.count("\n") == 1 and "permission denied" in out
+    code, out = _cli(capsys, "next", study, "P001")
+    assert code == 2 and "not available yet" in out
+    monkeypatch.setenv("PGUSER", roles["stats"])
+    code, out = _cli(capsys, "status", study)
+    assert code == 0 and "north: 6 participant(s)" in out and "south: 6 participant(s)" in out
+    code, out = _cli(capsys, "unblind", study, "--reason", "primary analysis")
+    assert code == 0
+    arms = Counter(line.split("\t")[1] for line in out.splitlines() if "\t" in line)
+    assert sorted(arms.values()) == [4, 4, 4]
+    code, out = _cli(capsys, "status", study)
+    assert "primary analysis" in out and roles["stats"] in out
+
+
+def test_connection_lost_mid_session_then_recorded_once(study):
+    """The server drops the site's connection while its session runs (pg_terminate_backend): the record
+    fails in one line, the laptop keeps the session, and records it once on a new connection."""
+    role = study.site("north")
+    op = pg.connect(study.url(role), autocommit=True)
+    pseud = pg.enrol(op, "2026-12-01", "v1")
+    pg.record_session(op, "key-1", pseud, 1, f"{pseud}_1", "started", None)
+    pid = op.info.backend_pid
+    study.admin.execute("SELECT pg_terminate_backend(%s)", (pid,))
+    with pytest.raises(DataError, match="lost the registry server") as e:
+        pg.record_session(op, "key-1", pseud, 1, f"{pseud}_1", "completed", {"turns.csv": "b" * 64})
+    assert "\n" not in str(e.value)
+    op.close()
+    with pg.connect(study.url(role), autocommit=True) as again:
+        pg.record_session(again, "key-1", pseud, 1, f"{pseud}_1", "completed", {"turns.csv": "b" * 64})
+        pg.record_session(again, "key-1", pseud, 1, f"{pseud}_1", "completed", {"turns.csv": "b" * 64})
+        assert pg.site_participants(again)[0]["sessions_done"] == 1
+    assert pg.call(study.admin, "n", "SELECT count(*), min(status) FROM sessions") == [(1, "completed")]
+
+
+def test_command_line_stratified_by_site(pg_cluster, tmp_path, monkeypatch, capsys):
+    """--stratify-by-site: each site's sequence drawn when the site is added, taken in order by that site."""
+    db = "t_" + uuid.uuid4().hex[:10]
+    passfile = tmp_path / "pgpass"
+    lines = [f"*:*:*:postgres:{pg_cluster.password}"]
+    passfile.write_text(lines[0] + "\n")
+    passfile.chmod(0o600)
+    monkeypatch.setenv("PGPASSFILE", str(passfile))
+    monkeypatch.setenv("PGUSER", "postgres")
+    with pg.connect(pg_cluster.url(), autocommit=True) as c:
+        c.execute(f"CREATE DATABASE {db}")
+    study = tmp_path / "study"
+    assert _cli(capsys, "init", PROTOCOL, "--out", study, "--registry", pg_cluster.url(db),
+                "--stratify-by-site")[0] == 0
+    roles = {}
+    for site in ("north", "south"):
+        code, out = _cli(capsys, "site", "add", study, site)
+        assert code == 0, out
+        roles[site] = out.split("role ")[1].split(";")[0]
+        lines.append(f"*:*:*:{roles[site]}:{out.strip().rsplit(' ', 1)[1]}")
+    passfile.write_text("\n".join(lines) + "\n")
+    for site in ("north", "south"):
+        monkeypatch.setenv("PGUSER", roles[site])
+        for _ in range(6):
+            assert _cli(capsys, "enrol", study, "--consent-date", "2026-12-01", "--consent-version", "v1")[0] == 0
+    with pg.connect(pg_cluster.url(db), autocommit=True) as c:
+        per = c.execute("SELECT p.site, a.arm FROM participants p JOIN allocation a ON a.stratum = p.stratum "
+                        "AND a.position = p.allocation_index ORDER BY p.site, p.allocation_index").fetchall()
+        seqs = {site: [r[0] for r in c.execute("SELECT arm FROM allocation WHERE stratum = %s ORDER BY position",
+                                               (site,))] for site in ("north", "south")}
+        strata = {r[0] for r in c.execute("SELECT DISTINCT stratum FROM participants")}
+    assert strata == {"north", "south"}
+    arms = sorted(a.name for a in load_protocol(PROTOCOL).arms)
+    for site in ("north", "south"):  # each site takes its own sequence in order; each sequence balanced
+        assert [arm for s, arm in per if s == site] == seqs[site][:6]
+        assert sorted(seqs[site]) == sorted(arms * (len(seqs[site]) // len(arms)))
+    assert _cli(capsys, "init", PROTOCOL, "--out", tmp_path / "x", "--stratify-by-site")[0] == 2

@@ -156,6 +156,32 @@ def test_the_frozen_protocol_changes_only_by_a_recorded_amendment(tmp_path, caps
     assert code == 2 and "after enrolment began" in err and len(open_study(study).registry["amendments"]) == 1
 
 
+def test_an_amended_copy_resolves_its_paths_wherever_it_lives(tmp_path, capsys):
+    """Issue 29: an edited copy of STUDY_DIR/protocol.yaml, saved anywhere, resolves its relative study_config
+    against its own folder when the file is there, else against the study's (docs/study.md, "Amending")."""
+    study = _init(tmp_path, capsys)
+    elsewhere = tmp_path / "drafts"
+    elsewhere.mkdir()
+    v2 = elsewhere / "protocol-v2.yaml"  # no base.yaml beside it: the study's folder's is meant
+    v2.write_text((study / "protocol.yaml").read_text().replace("max: 7", "max: 10"))
+    code, out, err = cli(capsys, "study", "amend", study, v2, "--reason", "holidays")
+    assert code == 0, err
+    assert f"study configuration {tmp_path / 'base.yaml'}" in out
+    assert open_study(study).protocol.study_config == tmp_path / "base.yaml"
+    own = tmp_path / "own"
+    own.mkdir()
+    (own / "base.yaml").write_text((tmp_path / "base.yaml").read_text() + "\n# the site's own\n")
+    (own / "v3.yaml").write_text(v2.read_text().replace("max: 10", "max: 9"))
+    code, out, err = cli(capsys, "study", "amend", study, own / "v3.yaml", "--reason", "own configuration")
+    assert code == 0 and f"study configuration {own / 'base.yaml'}" in out, err
+    reopened = open_study(study)  # the frozen copy resolves against the folder recorded with the amendment
+    assert reopened.protocol.study_config == own / "base.yaml" and reopened.protocol.sessions.max_days == 9
+    (elsewhere / "v4.yaml").write_text(v2.read_text().replace("study_config: base.yaml", "study_config: gone.yaml"))
+    code, _, err = cli(capsys, "study", "amend", study, elsewhere / "v4.yaml", "--reason", "x")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert f"{elsewhere / 'gone.yaml'} nor {own / 'gone.yaml'} is not a file" in err and "then the study's" in err
+
+
 def test_withdrawal_is_recorded_with_what_happens_to_the_data(tmp_path, capsys):
     study = _init(tmp_path, capsys)
     for _ in range(2):

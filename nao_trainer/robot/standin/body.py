@@ -90,11 +90,18 @@ class AutonomousLife:
 
     @qi.bind(qi.String, [])
     def getState(self) -> str:
+        """The life state (http://doc.aldebaran.com/2-8/naoqi/interaction/autonomouslife-api.html)."""
         with self._body.lock:
             return self._body.life
 
     @qi.bind(qi.Void, [qi.String])
     def setState(self, state: str) -> None:
+        """Set the life state; a manual change from interactive to solitary fails
+        (http://doc.aldebaran.com/2-8/naoqi/interaction/autonomouslife-api.html).
+
+        Guesses to confirm with the conformance kit: leaving ``disabled`` sets the motors on and stands, and the refusal
+        "not currently allowed" (``Control.refuse_life``; seen on robots whose getting-started wizard was not finished,
+        not documented)."""
         self._rec.record("ALAutonomousLife", "setState", [state])
         with self._body.lock:
             refused = self._body.life_refused
@@ -120,11 +127,13 @@ class AudioDevice:
 
     @qi.bind(qi.Int32, [])
     def getOutputVolume(self) -> int:
+        """The system's output volume 0-100 (http://doc.aldebaran.com/2-8/naoqi/audio/alaudiodevice-api.html)."""
         with self._body.lock:
             return self._body.volume
 
     @qi.bind(qi.Void, [qi.Int32])
     def setOutputVolume(self, volume: int) -> None:
+        """Set the system's output volume 0-100 (http://doc.aldebaran.com/2-8/naoqi/audio/alaudiodevice-api.html)."""
         self._rec.record("ALAudioDevice", "setOutputVolume", [volume])
         if not 0 <= volume <= 100:
             raise RuntimeError(f"ALAudioDevice::setOutputVolume: volume must be 0..100, got {volume}")
@@ -133,11 +142,13 @@ class AudioDevice:
 
     @qi.bind(qi.Bool, [])
     def isAudioOutMuted(self) -> bool:
+        """Whether the audio output is muted (http://doc.aldebaran.com/2-8/naoqi/audio/alaudiodevice-api.html)."""
         with self._body.lock:
             return self._body.muted
 
     @qi.bind(qi.Void, [qi.Bool])
     def muteAudioOut(self, muted: bool) -> None:
+        """Mute or unmute the audio output (http://doc.aldebaran.com/2-8/naoqi/audio/alaudiodevice-api.html)."""
         self._rec.record("ALAudioDevice", "muteAudioOut", [muted])
         with self._body.lock:
             self._body.muted = bool(muted)
@@ -152,6 +163,8 @@ class Battery:
 
     @qi.bind(qi.Int32, [])
     def getBatteryCharge(self) -> int:
+        """The charge in percent (http://doc.aldebaran.com/2-8/naoqi/sensors/albattery-api.html); a battery that never
+        drains by itself is a guess to confirm with the conformance kit."""
         with self._body.lock:
             return self._body.battery
 
@@ -165,10 +178,12 @@ class System:
 
     @qi.bind(qi.String, [])
     def robotName(self) -> str:
+        """The robot's name (http://doc.aldebaran.com/2-8/naoqi/core/alsystem-api.html)."""
         return self._body.name
 
     @qi.bind(qi.String, [])
     def systemVersion(self) -> str:
+        """The NAOqi version (http://doc.aldebaran.com/2-8/naoqi/core/alsystem-api.html)."""
         return self._body.version
 
 
@@ -183,9 +198,14 @@ class BodyTemperature:
 
     @qi.bind(qi.Dynamic, [])
     def getTemperatureDiagnosis(self) -> list:
+        """The hot joints (http://doc.aldebaran.com/2-8/naoqi/sensors/albodytemperature.html); the return shape ``[[joint,
+        status], ...]`` is a guess to confirm with the conformance kit."""
         with self._body.lock:
             return [[joint, status] for joint, status in sorted(self._body.hot.items())]
 
     @qi.bind(qi.Void, [qi.Bool])
     def setEnableNotifications(self, enabled: bool) -> None:
+        """Switch the temperature notifications on or off
+        (http://doc.aldebaran.com/2-8/naoqi/sensors/albodytemperature.html); the stand-in always notifies (a guess to
+        confirm with the conformance kit)."""
         pass

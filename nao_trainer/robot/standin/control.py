@@ -48,7 +48,9 @@ class Control:
 
     @qi.bind(qi.String, [qi.String])
     def press(self, button: str) -> str:
-        """Touch then release a head button; returns the ALMemory key pressed."""
+        """Touch then release a head button; returns the ALMemory key pressed. The key is 1.0 then 0.0
+        (http://doc.aldebaran.com/2-8/naoqi/sensors/altouch.html); the ``PRESS_HOLD_S`` between them is a guess to
+        confirm with the conformance kit."""
         key = self._key(button)
         self._rec.record("NaoTrainerStandIn", "press", [key])
         if self._touch(key):
@@ -59,8 +61,10 @@ class Control:
 
     @qi.bind(qi.String, [qi.String, qi.Float])
     def hold(self, button: str, seconds: float) -> str:
-        """A hand on the head for ``seconds`` (robot time). With Autonomous Life on, 1 s stops the
-        activity and 3 s puts NAO to sleep (it then refuses speech and sound); returns the state after."""
+        """A hand on the head for ``seconds`` (robot time). With Autonomous Life on, 1 s stops the activity
+        (http://doc.aldebaran.com/2-8/family/nao_user_guide/activity_nao.html) and 3 s puts NAO to sleep
+        (http://doc.aldebaran.com/2-8/family/nao_user_guide/sleep_nao.html); that it then refuses speech and sound is a
+        guess to confirm with the conformance kit. Returns the state after."""
         key = self._key(button)
         self._rec.record("NaoTrainerStandIn", "hold", [key, seconds])
         if self._touch(key):
@@ -78,7 +82,8 @@ class Control:
 
     @qi.bind(qi.Void, [qi.String, qi.Int32])
     def bounce(self, button: str, contacts: int) -> None:
-        """A worn sensor: ``contacts`` touches 5 ms apart (robot time), as one press may give."""
+        """A worn sensor: ``contacts`` touches 5 ms apart (robot time), as one press may give; a guess (no page documents
+        it) to confirm with the conformance kit."""
         key = self._key(button)
         self._rec.record("NaoTrainerStandIn", "bounce", [key, contacts])
         for _ in range(max(1, contacts)):
@@ -132,9 +137,12 @@ class Control:
 
     @qi.bind(qi.String, [qi.Int32])
     def chest(self, clicks: int) -> str:
-        """Clicks of the chest button (NAOqi 2.8 ``ALChestButton``: a simple click makes the robot say its
-        name and address, a double click removes the stiffness); returns what it did. Modelled: the
-        double click sets the motors off (posture unchanged); the simple click says nothing here."""
+        """Clicks of the chest button (http://doc.aldebaran.com/2-8/naoqi/sensors/alchestbutton.html: a simple click makes
+        the robot say its name and address, a double click removes the stiffness); returns what it did.
+        ``ALChestButton/SimpleClickOccurred`` is raised on a simple click. Guesses to confirm with the conformance kit:
+        the double click sets the motors off with the posture unchanged
+        (``family/nao_user_guide/chest_button_usages.html`` says life off and on instead), and the simple click says
+        nothing here."""
         self._rec.record("NaoTrainerStandIn", "chest", [clicks])
         if clicks == 1:
             self._memory.emit("ALChestButton/SimpleClickOccurred", True)  # naoqi/sensors/alchestbutton-api.html
@@ -156,7 +164,8 @@ class Control:
     @qi.bind(qi.Void, [])
     def fall(self) -> None:
         """The fall manager: ``ALMotion/RobotIsFalling``, stiffness off, ``robotHasFallen``
-        (naoqi/motion/reflexes-fall-manager.html); the stand-in then lies on its belly."""
+        (http://doc.aldebaran.com/2-8/naoqi/motion/reflexes-fall-manager.html); lying on its belly afterwards is a guess
+        to confirm with the conformance kit."""
         self._rec.record("NaoTrainerStandIn", "fall", [])
         self._memory.emit("ALMotion/RobotIsFalling", True)
         with self._body.lock:
@@ -165,15 +174,19 @@ class Control:
 
     @qi.bind(qi.Void, [])
     def stand_up(self) -> None:
-        """Someone stood the robot up (motors still off: ``wakeUp`` is the session's to call)."""
+        """Someone stood the robot up (motors still off: ``wakeUp`` is the session's to call); crouching with the motors
+        off is a guess to confirm with the conformance kit."""
         self._rec.record("NaoTrainerStandIn", "stand_up", [])
         with self._body.lock:
             self._body.posture, self._body.fallen = "Crouch", False
 
     @qi.bind(qi.Void, [qi.String, qi.Int32])
     def heat(self, joint: str, status: int) -> None:
-        """``joint``'s temperature status (0 normal .. 3 critical): ``HotDeviceDetected`` with ``[[joint, status]]``
-        (the value's shape is a guess); at 3 the motors go off and ``wakeUp`` answers False until it cools."""
+        """``joint``'s temperature status (0 normal .. 3 critical) in
+        ``Device/SubDeviceList/<joint>/Temperature/Sensor/Status`` and ``HotDeviceDetected``
+        (http://doc.aldebaran.com/2-8/naoqi/sensors/albodytemperature.html); at 3 the motors go off and ``wakeUp``
+        answers False until it cools (http://doc.aldebaran.com/2-8/naoqi/motion/reflexes-diagnosis.html). The value's
+        shape ``[[joint, status]]`` is a guess to confirm with the conformance kit."""
         self._rec.record("NaoTrainerStandIn", "heat", [joint, status])
         status = max(0, min(3, int(status)))
         with self._body.lock:
@@ -189,7 +202,9 @@ class Control:
 
     @qi.bind(qi.Void, [])
     def battery_low(self) -> None:
-        """The battery runs low: charge 10 % and ``ALBattery/BatteryLow`` (True)."""
+        """The battery runs low: charge 10 % and ``ALBattery/BatteryLow`` (True). ALBattery's events are on
+        http://doc.aldebaran.com/2-8/naoqi/sensors/albattery-api.html; the key's exact name and value are a guess to
+        confirm with the conformance kit."""
         self._rec.record("NaoTrainerStandIn", "battery_low", [])
         with self._body.lock:
             self._body.battery = min(self._body.battery, 10)
@@ -197,7 +212,9 @@ class Control:
 
     @qi.bind(qi.Void, [])
     def safeguard(self) -> None:
-        """Pepper's Autonomous Life goes to ``safeguard`` (``AutonomousLife/State``)."""
+        """Pepper's Autonomous Life goes to ``safeguard``, a state of
+        http://doc.aldebaran.com/2-8/naoqi/interaction/autonomouslife-api.html; raising ``AutonomousLife/State`` with it
+        is a guess to confirm with the conformance kit."""
         self._rec.record("NaoTrainerStandIn", "safeguard", [])
         with self._body.lock:
             self._body.life = "safeguard"
@@ -205,13 +222,16 @@ class Control:
 
     @qi.bind(qi.Void, [qi.Bool])
     def refuse_life(self, refused: bool) -> None:
-        """``ALAutonomousLife.setState`` refused ("not currently allowed") while True."""
+        """``ALAutonomousLife.setState`` refused ("not currently allowed") while True: seen on robots whose getting-started
+        wizard was not finished, undocumented, a guess to confirm with the conformance kit."""
         with self._body.lock:
             self._body.life_refused = bool(refused)
 
     @qi.bind(qi.Void, [qi.List(qi.String)])
     def set_languages(self, languages: list[str]) -> None:
-        """The speech languages installed (``ALTextToSpeech.getAvailableLanguages``)."""
+        """The speech languages installed (what ``ALTextToSpeech.getAvailableLanguages`` answers,
+        http://doc.aldebaran.com/2-8/naoqi/audio/altexttospeech-api.html); a lab's robot's list is a guess until the
+        conformance kit records it."""
         with self._body.lock:
             self._body.languages = [str(x) for x in languages]
 

@@ -53,7 +53,11 @@ class TextToSpeech:
 
     @qi.bind(qi.Void, qi.AnyArguments)
     def say(self, *args: Any) -> None:
-        """``say(text)`` or ``say(text, language)`` (both NAOqi overloads)."""
+        """``say(text)`` or ``say(text, language)``, both overloads
+        (http://doc.aldebaran.com/2-8/naoqi/audio/altexttospeech-api.html).
+
+        Guesses to confirm with the conformance kit: the call blocks for ``seconds_per_character`` per character
+        (``hardware-check --record`` measures a robot's), and it is refused while NAO sleeps."""
         if len(args) not in (1, 2) or not all(isinstance(a, str) for a in args):
             raise RuntimeError("ALTextToSpeech::say expects (text) or (text, language)")
         self._rec.record("ALTextToSpeech", "say", list(args))
@@ -64,6 +68,8 @@ class TextToSpeech:
 
     @qi.bind(qi.Void, [qi.String])
     def setLanguage(self, language: str) -> None:
+        """Set the speech language (http://doc.aldebaran.com/2-8/naoqi/audio/altexttospeech-api.html); refusing a language
+        that is not installed is a guess to confirm with the conformance kit."""
         self._rec.record("ALTextToSpeech", "setLanguage", [language])
         with self._body.lock:
             installed = list(self._body.languages)
@@ -75,22 +81,30 @@ class TextToSpeech:
 
     @qi.bind(qi.String, [])
     def getLanguage(self) -> str:
+        """The current speech language (http://doc.aldebaran.com/2-8/naoqi/audio/altexttospeech-api.html)."""
         with self._lock:
             return self._language
 
     @qi.bind(qi.List(qi.String), [])
     def getAvailableLanguages(self) -> list[str]:
+        """The installed speech languages (http://doc.aldebaran.com/2-8/naoqi/audio/altexttospeech-api.html); which ones a
+        robot has is a guess (``Body.languages``) to confirm with the conformance kit."""
         with self._body.lock:
             return list(self._body.languages)
 
     @qi.bind(qi.Void, [qi.String, qi.Float])
     def setParameter(self, name: str, value: float) -> None:
+        """Set a speech parameter such as ``speed`` or ``pitchShift``
+        (http://doc.aldebaran.com/2-8/naoqi/audio/altexttospeech-api.html); accepting any name is a guess to confirm
+        with the conformance kit."""
         self._rec.record("ALTextToSpeech", "setParameter", [name, value])
         with self._lock:
             self._params[name] = float(value)
 
     @qi.bind(qi.Float, [qi.String])
     def getParameter(self, name: str) -> float:
+        """A speech parameter (http://doc.aldebaran.com/2-8/naoqi/audio/altexttospeech-api.html); refusing an unknown name
+        is a guess to confirm with the conformance kit."""
         with self._lock:
             if name not in self._params:
                 raise RuntimeError(f"ALTextToSpeech::getParameter: unknown parameter {name!r}")
@@ -98,18 +112,21 @@ class TextToSpeech:
 
     @qi.bind(qi.Void, [qi.Float])
     def setVolume(self, volume: float) -> None:
+        """The speech engine's volume 0..1 (http://doc.aldebaran.com/2-8/naoqi/audio/altexttospeech-api.html)."""
         self._rec.record("ALTextToSpeech", "setVolume", [volume])
         with self._lock:
             self._volume = float(volume)
 
     @qi.bind(qi.Float, [])
     def getVolume(self) -> float:
+        """The speech engine's volume 0..1 (http://doc.aldebaran.com/2-8/naoqi/audio/altexttospeech-api.html)."""
         with self._lock:
             return self._volume
 
     @qi.bind(qi.Void, [])
     def stopAll(self) -> None:
-        """Interrupt the speech in progress (animated speech too, as on a NAO)."""
+        """Interrupt the speech in progress (http://doc.aldebaran.com/2-8/naoqi/audio/altexttospeech-api.html); that it
+        stops animated speech too is a guess to confirm with the conformance kit."""
         self._rec.record("ALTextToSpeech", "stopAll", [])
         self._speech.interrupt()
 
@@ -126,6 +143,11 @@ class AnimatedSpeech:
 
     @qi.bind(qi.Void, qi.AnyArguments)
     def say(self, *args: Any) -> None:
+        """``say(text)`` or ``say(text, configuration)`` with ``bodyLanguageMode``
+        (http://doc.aldebaran.com/2-8/naoqi/audio/alanimatedspeech-api.html).
+
+        Guesses to confirm with the conformance kit: the time per character spoken (annotations are not spoken), and the
+        refusal while NAO sleeps."""
         if len(args) not in (1, 2) or not isinstance(args[0], str):
             raise RuntimeError("ALAnimatedSpeech::say expects (text) or (text, configuration)")
         if len(args) == 2:
@@ -165,6 +187,11 @@ class AudioPlayer:
 
     @qi.bind(qi.Void, [qi.Int32, qi.Int32, qi.Int32, qi.Float])
     def playSine(self, frequency: int, gain: int, pan: int, duration: float) -> None:
+        """``playSine(frequency, gain, pan, duration)`` (http://doc.aldebaran.com/2-8/naoqi/audio/alaudioplayer-api.html);
+        gain in percent, pan -1/0/1 as the page gives them.
+
+        Guesses to confirm with the conformance kit: the call blocks for ``latency_s`` then the tone's duration
+        (``hardware-check --record`` measures both), and it is refused while NAO sleeps."""
         if not 0 <= gain <= 100:
             raise RuntimeError(f"ALAudioPlayer::playSine: gain must be 0..100 percent, got {gain}")
         if not -1 <= pan <= 1:
@@ -177,6 +204,7 @@ class AudioPlayer:
 
     @qi.bind(qi.Void, [])
     def stopAll(self) -> None:
+        """Stop every sound playing (http://doc.aldebaran.com/2-8/naoqi/audio/alaudioplayer-api.html)."""
         self._rec.record("ALAudioPlayer", "stopAll", [])
         self._sound.interrupt()
 
@@ -190,6 +218,9 @@ class Leds:
 
     @qi.bind(qi.Void, qi.AnyArguments)
     def fadeRGB(self, *args: Any) -> None:
+        """``fadeRGB(name, rgb, duration)`` and ``fadeRGB(name, r, g, b, duration)``
+        (http://doc.aldebaran.com/2-8/naoqi/sensors/alleds-api.html); blocking for ``duration`` is a guess to confirm
+        with the conformance kit."""
         if len(args) == 3:
             name, rgb, secs = args
             if not isinstance(rgb, int) or not 0 <= rgb <= 0xFFFFFF:
@@ -207,14 +238,20 @@ class Leds:
 
     @qi.bind(qi.Void, [qi.String])
     def reset(self, name: str) -> None:
+        """Reset an LED group to its default (http://doc.aldebaran.com/2-8/naoqi/sensors/alleds-api.html); the stand-in
+        only records it."""
         self._rec.record("ALLeds", "reset", [name])
 
     @qi.bind(qi.Void, [qi.String])
     def on(self, name: str) -> None:
+        """Switch an LED group on (http://doc.aldebaran.com/2-8/naoqi/sensors/alleds-api.html); the stand-in only records
+        it."""
         self._rec.record("ALLeds", "on", [name])
 
     @qi.bind(qi.Void, [qi.String])
     def off(self, name: str) -> None:
+        """Switch an LED group off (http://doc.aldebaran.com/2-8/naoqi/sensors/alleds-api.html); the stand-in only records
+        it."""
         self._rec.record("ALLeds", "off", [name])
 
 
@@ -228,6 +265,11 @@ class RobotPosture:
 
     @qi.bind(qi.Bool, [qi.String, qi.Float])
     def goToPosture(self, name: str, speed: float) -> bool:
+        """Go to a predefined posture; True when it is reached
+        (http://doc.aldebaran.com/2-8/naoqi/motion/alrobotposture-api.html).
+
+        Guesses to confirm with the conformance kit: it takes ``POSTURE_SECONDS / speed``, and with the motors off it
+        answers False and the posture does not change."""
         self._rec.record("ALRobotPosture", "goToPosture", [name, speed])
         known = MODEL_POSTURES.get(self._body.model, POSTURES)
         if name not in known:
@@ -245,11 +287,14 @@ class RobotPosture:
 
     @qi.bind(qi.String, [])
     def getPosture(self) -> str:
+        """The current posture's name (http://doc.aldebaran.com/2-8/naoqi/motion/alrobotposture-api.html)."""
         with self._body.lock:
             return self._body.posture
 
     @qi.bind(qi.List(qi.String), [])
     def getPostureList(self) -> list[str]:
+        """The predefined postures (http://doc.aldebaran.com/2-8/naoqi/motion/alrobotposture-api.html); Pepper's list is a
+        guess to confirm with the conformance kit."""
         return list(MODEL_POSTURES.get(self._body.model, POSTURES))
 
 
@@ -263,8 +308,9 @@ class Motion:
 
     @qi.bind(qi.Bool, [])
     def wakeUp(self) -> bool:
-        """True if the call succeeded (naoqi/motion/control-stiffness-api.html); False while a joint is
-        critically hot (the robot rests: naoqi/motion/reflexes-diagnosis.html)."""
+        """True if the call succeeded (http://doc.aldebaran.com/2-8/naoqi/motion/control-stiffness-api.html); False while a
+        joint is critically hot, as the robot rests (http://doc.aldebaran.com/2-8/naoqi/motion/reflexes-diagnosis.html).
+        Taking ``POSTURE_SECONDS`` is a guess to confirm with the conformance kit."""
         self._rec.record("ALMotion", "wakeUp", [])
         with self._body.lock:
             if any(status >= 3 for status in self._body.hot.values()):
@@ -282,6 +328,9 @@ class Motion:
 
     @qi.bind(qi.Void, [])
     def rest(self) -> None:
+        """Go to a safe crouch and set the motors off
+        (http://doc.aldebaran.com/2-8/naoqi/motion/control-stiffness-api.html); taking ``POSTURE_SECONDS`` is a guess to
+        confirm with the conformance kit."""
         self._rec.record("ALMotion", "rest", [])
         self._rec.wait(POSTURE_SECONDS)
         with self._body.lock:
@@ -289,6 +338,7 @@ class Motion:
 
     @qi.bind(qi.Bool, [])
     def robotIsWakeUp(self) -> bool:
+        """Whether the motors are on (http://doc.aldebaran.com/2-8/naoqi/motion/control-stiffness-api.html)."""
         with self._body.lock:
             return self._body.motors_on
 
@@ -314,6 +364,8 @@ class Memory:
 
     @qi.bind(qi.Object, [qi.String])
     def subscriber(self, key: str) -> _MemorySubscriber:
+        """A subscriber whose ``signal`` fires on each value raised for ``key``
+        (http://doc.aldebaran.com/2-8/naoqi/core/almemory-api.html)."""
         self._rec.record("ALMemory", "subscriber", [key])
         sub = _MemorySubscriber()
         with self._lock:
@@ -322,16 +374,22 @@ class Memory:
 
     @qi.bind(qi.Void, [qi.String, qi.Dynamic])
     def raiseEvent(self, key: str, value: Any) -> None:
+        """Raise an event: the value is stored and subscribers are notified
+        (http://doc.aldebaran.com/2-8/naoqi/core/almemory-api.html)."""
         self._rec.record("ALMemory", "raiseEvent", [key, value])
         self.emit(key, value)
 
     @qi.bind(qi.Void, [qi.String, qi.Dynamic])
     def insertData(self, key: str, value: Any) -> None:
+        """Store a value (http://doc.aldebaran.com/2-8/naoqi/core/almemory-api.html); that it notifies the key's
+        subscribers too is a guess to confirm with the conformance kit."""
         self._rec.record("ALMemory", "insertData", [key, value])
         self.emit(key, value)
 
     @qi.bind(qi.Dynamic, [qi.String])
     def getData(self, key: str) -> Any:
+        """The value stored for ``key`` (http://doc.aldebaran.com/2-8/naoqi/core/almemory-api.html); the wording of the
+        error for a missing key is a guess."""
         with self._lock:
             if key not in self._data:
                 raise RuntimeError(f"ALMemory::getData: there is no data for key {key!r}")
@@ -339,6 +397,7 @@ class Memory:
 
     @qi.bind(qi.List(qi.String), [])
     def getDataListName(self) -> list[str]:
+        """The names of the stored keys (http://doc.aldebaran.com/2-8/naoqi/core/almemory-api.html)."""
         with self._lock:
             return sorted(self._data)
 
