@@ -90,4 +90,4 @@ def test_the_policy_choice_is_spelled_out_and_said_to_be_by_expected_value():
     assert status["summary"].startswith("matched user model: ")
     assert ("policy: fixed level 4, chosen by its expected score under the posterior over all the user models "
             "(so not always the matched model's own policy)") in status["summary"]
-    assert personalised.plain_name("usp:3") == "personalised (trained for user model 3)"
+    assert personalised.plain_name("usp:3", "by expected value") == "personalised (user model 3, by expected value)"
