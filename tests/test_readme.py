@@ -146,3 +146,12 @@ def test_pilot_says_espeak_is_needed_before_the_desktop_robot():
 def test_readme_says_why_the_bayes_policy_stays_low_and_how_the_choice_is_made():
     assert "--policy bayes" in README and "by expected value" in _legend()
     assert "not always the most likely model's own policy" in README
+
+
+def test_tutorials_index_links_every_tutorial():
+    """Each tutorial page (first-own-task.md too, once it lands) is linked from tutorials/index.md."""
+    folder = ROOT / "docs" / "tutorials"
+    index = (folder / "index.md").read_text()
+    for page in folder.glob("*.md"):
+        if page.name != "index.md":
+            assert f"]({page.name})" in index, page.name
