@@ -249,3 +249,38 @@ def test_mock_robot_plays_the_study_model(tmp_path):
     assert info["config"]["values"]["robot"]["model"] == "pepper"
     degraded = [e["detail"] for e in info["robot_setup"] if e["event"] == "robot_degraded"]
     assert degraded == ["Pepper offers no ALTracker: nothing: the task does not track faces (Pepper 2.9 has no ALTracker)"]
+
+
+def test_a_stop_while_the_robot_is_away_ends_the_session_at_once(tmp_path):
+    """The robot's link is gone (the stand-in stopped) and the study would try for 600 s: the operator's stop
+    ends the attempts; the session ends stopped (exit 5), the interrupted turn recorded. Not honoured, the
+    session sits out the 600 s and the hang limit fails the test."""
+    from nao_trainer.session.engine import EXIT_OPERATOR_STOP
+
+    robot = StandIn.start(speed=50)
+    commands, watcher = CommandQueue(), _Watcher()
+    lost = watcher.when("robot", lambda d: d.get("robot") == "lost")
+    first = watcher.when("row", lambda d: d.get("success") in (True, False))
+
+    def robot_goes():
+        if first.wait(HANG_S):
+            robot.stop()
+
+    def operator():
+        if lost.wait(HANG_S):
+            commands.submit("stop", source="keys")
+
+    threading.Thread(target=robot_goes, daemon=True).start()
+    threading.Thread(target=operator, daemon=True).start()
+    try:
+        config = _config(tmp_path, robot.url, **{"session.turns": 6, "robot.max_reconnect_s": 600,
+                                                 "robot.backoff_initial_s": 0.2, "robot.backoff_max_s": 1})
+        result = _play(config, RunOptions(quiet=True, commands=commands, observer=watcher))
+    finally:
+        robot.stop()
+    assert result.status == "stopped" and result.exit_code == EXIT_OPERATOR_STOP
+    events = read_events(result.path)
+    assert not any(e["event"] == "give_up" for e in events)
+    stop = [e for e in events if e["event"] == "command" and e["kind"] == "stop"]
+    assert len(stop) == 1 and stop[0]["accepted"] and stop[0]["state"] == "paused"
+    assert any(e["event"] == "robot_lost" for e in events)
