@@ -43,16 +43,14 @@ def _tokens(output: str) -> set[str]:
         text = line.strip()
         if not text:
             continue
-        turn = re.match(r"turn\s+\d+/\d+\s+(L\d)\s*(\w{3})?\s+[A-C]+ vs [A-C]*\s+(ok|err)\s+[+-]\d+\s+(total)\s+\d+\s+"
+        turn = re.match(r"turn\s+\d+/\d+\s+(L\d)\s+[A-C]+ vs [A-C]*\s+(ok|err)\s+[+-]\d+\s+(total)\s+\d+\s+"
                         r"(E) (-|[\d.]+)(.*)$", text)
         if turn:
-            level, feedback, verdict, total, e, value, rest = turn.groups()
+            level, verdict, total, e, value, rest = turn.groups()
             found |= {"L1", verdict, total, "turn 3/25", "E -" if value == "-" else "E 0.77"}
-            if feedback:
-                found.add(feedback)
             found |= {f"[{tag}]" for tag in re.findall(r"\[(\w+)\]", rest)}
-            if "timeout:" in rest:
-                found.add("(timeout:")
+            for note in re.findall(r"\(([^)]*)\)", rest):  # (timeout: ...), (robot feedback: ...), (marked invalid: ...)
+                found.add(f"({note.split(':', 1)[0]}:" if ":" in note else f"({note})")
             continue
         if text.startswith("user models, posterior:"):
             found |= {"user models, posterior:", *re.findall(r"cluster-\d", text)}
@@ -101,10 +99,11 @@ def test_readme_legend_explains_every_token_the_demo_prints(tmp_path):
 
 
 def test_legend_reader_sees_a_token_missing_from_the_legend():
-    tokens = _tokens("turn   1/8  L2 enc       ABABC vs ABABC     ok  +2  total    2  E 0.50  [newtag]\n"
+    tokens = _tokens("turn   1/8  L2  ABABC vs ABABC ok  +2  total    2  E 0.50  (robot feedback: encouraging)  (frob: x)  [newtag]\n"
                      "frobnicate: 3\n")
-    assert {"enc", "[newtag]", "frobnicate:"} <= tokens
-    assert "[newtag]" not in _legend() and "frobnicate:" not in _legend()
+    assert {"(robot feedback:", "(frob:", "[newtag]", "frobnicate:"} <= tokens
+    assert "(robot feedback:" in _legend()
+    assert not {"(frob:", "[newtag]", "frobnicate:"} & set(_legend().split())
 
 
 def _pages() -> list[Path]:
