@@ -43,16 +43,14 @@ def _tokens(output: str) -> set[str]:
         text = line.strip()
         if not text:
             continue
-        turn = re.match(r"turn\s+\d+/\d+\s+(L\d)\s*(\w{3})?\s+[A-C]+ vs [A-C]*\s+(ok|err)\s+[+-]\d+\s+(total)\s+\d+\s+"
+        turn = re.match(r"turn\s+\d+/\d+\s+(L\d)\s+[A-C]+ vs [A-C]*\s+(ok|err)\s+[+-]\d+\s+(total)\s+\d+\s+"
                         r"(E) (-|[\d.]+)(.*)$", text)
         if turn:
-            level, feedback, verdict, total, e, value, rest = turn.groups()
+            level, verdict, total, e, value, rest = turn.groups()
             found |= {"L1", verdict, total, "turn 3/25", "E -" if value == "-" else "E 0.77"}
-            if feedback:
-                found.add(feedback)
             found |= {f"[{tag}]" for tag in re.findall(r"\[(\w+)\]", rest)}
-            if "timeout:" in rest:
-                found.add("(timeout:")
+            for note in re.findall(r"\(([^)]*)\)", rest):  # (timeout: ...), (robot feedback: ...), (marked invalid: ...)
+                found.add(f"({note.split(':', 1)[0]}:" if ":" in note else f"({note})")
             continue
         if text.startswith("user models, posterior:"):
             found |= {"user models, posterior:", *re.findall(r"cluster-\d", text)}
@@ -101,10 +99,11 @@ def test_readme_legend_explains_every_token_the_demo_prints(tmp_path):
 
 
 def test_legend_reader_sees_a_token_missing_from_the_legend():
-    tokens = _tokens("turn   1/8  L2 enc       ABABC vs ABABC     ok  +2  total    2  E 0.50  [newtag]\n"
+    tokens = _tokens("turn   1/8  L2  ABABC vs ABABC ok  +2  total    2  E 0.50  (robot feedback: encouraging)  (frob: x)  [newtag]\n"
                      "frobnicate: 3\n")
-    assert {"enc", "[newtag]", "frobnicate:"} <= tokens
-    assert "[newtag]" not in _legend() and "frobnicate:" not in _legend()
+    assert {"(robot feedback:", "(frob:", "[newtag]", "frobnicate:"} <= tokens
+    assert "(robot feedback:" in _legend()
+    assert not {"(frob:", "[newtag]", "frobnicate:"} & set(_legend().split())
 
 
 def _pages() -> list[Path]:
@@ -146,3 +145,12 @@ def test_pilot_says_espeak_is_needed_before_the_desktop_robot():
 def test_readme_says_why_the_bayes_policy_stays_low_and_how_the_choice_is_made():
     assert "--policy bayes" in README and "by expected value" in _legend()
     assert "not always the most likely model's own policy" in README
+
+
+def test_tutorials_index_links_every_tutorial():
+    """Each tutorial page (first-own-task.md too, once it lands) is linked from tutorials/index.md."""
+    folder = ROOT / "docs" / "tutorials"
+    index = (folder / "index.md").read_text()
+    for page in folder.glob("*.md"):
+        if page.name != "index.md":
+            assert f"]({page.name})" in index, page.name

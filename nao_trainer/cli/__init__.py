@@ -55,17 +55,17 @@ def main(argv: list[str] | None = None) -> int:
     except (KeyboardInterrupt, Interrupted):
         print(f"nao-trainer {args.command}: interrupted", file=sys.stderr)
         return Interrupted.exit_code
+    except BrokenPipeError:  # the reader went away (`nao-trainer study status DIR | head`): nothing to say to it
+        _quiet_stdout()
+        return 0
     except OSError as exc:  # a write the command did not catch itself failed: a full disk or a file size limit
-        if exc.errno not in DISK_ERRNOS or isinstance(exc, BrokenPipeError):
+        if exc.errno not in DISK_ERRNOS:
             raise
         out = getattr(args, "out", None)
         message = cannot_write(out or "an output file", "an output file" if out and exc.filename is None else "", exc,
                                f"choose another output folder (--out) for {args.command}")
         print(f"nao-trainer {args.command}: error: {message}", file=sys.stderr)
         return DataError.exit_code
-    except BrokenPipeError:  # the reader went away (`nao-trainer study status DIR | head`): nothing to say to it
-        _quiet_stdout()
-        return 0
 
 
 def _command_parser(parser: argparse.ArgumentParser, command: str | None) -> argparse.ArgumentParser:

@@ -282,7 +282,8 @@ def run(source: Any, spec: PersonaliseSpec, compat: str | None = None, k: int = 
         workers: int = 2, backend: str | None = None, limit: int | None = None) -> dict[str, Any]:
     """Rows, engagement measurements and user tables of every held-out session of a dataset."""
     turns = Turns.from_columns(read_turns(Path(source), compat).columns)
-    parts = leave_one_person_out(turns, _one, (k, n_init, spec.seed, spec), k, source, workers, backend, limit)
+    parts = leave_one_person_out(turns, _one, (k, n_init, spec.seed, spec), k, source, workers, backend, limit,
+                                 progress="evaluate --personalise: held-out sessions")
     rows = [r for part in parts for r in part["rows"]]
     return {"rows": rows, "engagement": [r for part in parts for r in part["engagement"]],
             "users": [part["user"] for part in parts],

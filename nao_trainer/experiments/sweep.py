@@ -142,4 +142,4 @@ def run_point(spec: SweepSpec, point: dict[str, float], user: User) -> dict[str,
 def run(spec: SweepSpec, users: Sequence[User], workers: int = 2, backend: str | None = None) -> list[dict[str, Any]]:
     """Every (point, user) result, in grid order (points outer, users inner)."""
     tasks = [(spec, point, user) for point in spec.points() for user in users]
-    return fan_out(run_point, tasks, workers, backend)
+    return fan_out(run_point, tasks, workers, backend, progress="sweep: (point, user) runs")

@@ -58,24 +58,47 @@ def connect(address: str, timeout_s: float | None = None):
 
 
 def fan_out(func: Callable[..., Any], tasks: Sequence[tuple], workers: int = 2, backend: str | None = None,
-            client: Any = None) -> list[Any]:
-    """``[func(*t) for t in tasks]``, computed in parallel (see the module docstring)."""
+            client: Any = None, progress: str | None = None) -> list[Any]:
+    """``[func(*t) for t in tasks]``, computed in parallel (see the module docstring). ``progress``: a label;
+    each finished task is then said on stderr ("LABEL: 3/50 done, 41 s, about 640 s left")."""
     tasks = list(tasks)
     address = check_backend(backend)
+    said = _Progress(progress, len(tasks))
     if address is None and client is None and (workers <= 1 or len(tasks) <= 1):
-        return [func(*t) for t in tasks]
+        return [said(func(*t)) for t in tasks]
     try:
         from joblib import Parallel, delayed, parallel_config
     except ImportError:
         raise ConfigError("parallel runs need joblib: pip install 'nao-trainer[all]'") from None
     jobs = [delayed(func)(*t) for t in tasks]
     if address is None and client is None:
-        return list(Parallel(n_jobs=workers, backend="loky")(jobs))
+        return [said(r) for r in Parallel(n_jobs=workers, backend="loky", return_as="generator")(jobs)]
     own = client is None
     client = client or connect(address)
     try:
         with parallel_config(backend="dask", client=client):
-            return list(Parallel(n_jobs=-1)(jobs))
+            return [said(r) for r in Parallel(n_jobs=-1, return_as="generator")(jobs)]
     finally:
         if own:
             client.close()
+
+
+class _Progress:
+    """Says on stderr how many of ``total`` tasks are done (nothing without a label)."""
+
+    def __init__(self, label: str | None, total: int) -> None:
+        import time
+
+        self.label, self.total, self.done, self.clock = label, total, 0, time.monotonic
+        self.t0 = self.clock()
+
+    def __call__(self, result: Any) -> Any:
+        self.done += 1
+        if self.label:
+            import sys
+
+            spent = self.clock() - self.t0
+            left = spent / self.done * (self.total - self.done)
+            print(f"{self.label}: {self.done}/{self.total} done, {spent:.0f} s"
+                  + (f", about {left:.0f} s left" if self.done < self.total else ""), file=sys.stderr, flush=True)
+        return result

@@ -212,7 +212,8 @@ def session_user_set(source: Path, compat: str | None = None, k: int = 3, n_init
 
 
 def leave_one_person_out(turns: Any, one: Any, extra: tuple, k: int, source: Any = "", workers: int = 2,
-                         backend: str | None = None, limit: int | None = None) -> list[Any]:
+                         backend: str | None = None, limit: int | None = None,
+                         progress: str | None = None) -> list[Any]:
     """``one(turns, session, *extra)`` for every session, in parallel, each fitted without the
     session's person (``hold_out``): the one leave-out loop of the project (user models, per-session
     users, personalisation, the ceiling's users). DataError when the people left to cluster are too
@@ -224,7 +225,7 @@ def leave_one_person_out(turns: Any, one: Any, extra: tuple, k: int, source: Any
                         f"with K={k} clusters; give at least {2 * k + 1} people or fewer clusters")
     if limit is not None:
         sessions = sessions[:limit]
-    return fan_out(one, [(turns, s, *extra) for s in sessions], workers, backend)
+    return fan_out(one, [(turns, s, *extra) for s in sessions], workers, backend, progress=progress)
 
 
 def read_turns(source: Path, compat: str | None):

@@ -94,6 +94,7 @@ class Session:
                                  bool(getattr(model.settings, "pause_on_safeguard", True)))
         self.checkpoints = Checkpointer(recorder, ports.policy, random.by_name())
         self.reconnector = Reconnector(ports.robot, config.robot, self.clock, recorder, self.log, self.stage)
+        self.reconnector.commands = ports.commands  # a stop ends the reconnection attempts
         self.task = ports.task
         self.in_window = bool(getattr(ports.task, "presents_in_window", False))  # answers come during present
         self.stage.mark = ports.monitor.mark
@@ -172,6 +173,8 @@ class Session:
             if self.status not in ("time limit", "battery low"):
                 self.status = "completed"
             return EXIT_OK
+        if self.status == "stopped":  # stopped while the robot was away (session.reconnect)
+            return EXIT_OPERATOR_STOP
         return EXIT_INTERRUPTED if self.status == "interrupted" else EXIT_ROBOT_LOST
 
     def interrupted_by_operator(self, by: str = "operator (Ctrl-C)") -> None:
@@ -449,8 +452,10 @@ class Session:
 
         Returns the trigger of a command that changes the state (stop wins over pause), else None.
         """
-        if self.state == "operator_pause":
-            return None  # its handler says the pause line first, then takes the commands
+        if self.state in ("operator_pause", "paused"):
+            # operator_pause: its handler says the pause line first, then takes the commands; paused (the robot
+            # is away): the reconnection looks for a stop meanwhile, the rest act once the robot is back
+            return None
         self.health.take(self.state, self.turn)  # the robot's falls, heat, battery, chest button (session.health)
         trigger = self._apply_pending(hold=self.state in HOLD_STATES)
         if trigger is None and self.state == "select_action" and self._time_up():
@@ -542,6 +547,15 @@ class Session:
             self.replay = self.turn
         self.log.say(f"robot lost during {lost_in}: paused, reconnecting...")
         if not self.reconnector.reconnect():
+            if self.reconnector.stopped:  # the operator stopped while the robot was away: no goodbye to say
+                self.status = "stopped"
+                for cmd in self.desk.due(False):
+                    accepted = cmd.kind == "stop"
+                    self.desk.record(cmd, accepted, "stop while the robot is away: the session ends without a "
+                                     "goodbye" if accepted else "not possible while the robot is away", self.state,
+                                     self._turn_number())
+                self.log.say("stopped by the operator while the robot was away: the session ends")
+                return "abort"
             self.status = "robot lost"
             self.rec.event("give_up", after_s=self.cfg.robot.max_reconnect_s)
             self.log.say(f"robot not back within {self.cfg.robot.max_reconnect_s:g} s: ending the session")

@@ -6,7 +6,7 @@ the clock, the record and the stage (which says the robot is back).
 from __future__ import annotations
 
 from nao_trainer.errors import RobotUnavailable
-from nao_trainer.ports import Robot, RobotCallFailed, RobotConnectionLost
+from nao_trainer.ports import CommandQueue, Robot, RobotCallFailed, RobotConnectionLost
 from nao_trainer.session.config import RobotSection
 from nao_trainer.session.record import SessionRecorder
 from nao_trainer.session.reporting import SessionLog
@@ -24,6 +24,20 @@ class Reconnector:
         self.rec = recorder
         self.log = log
         self.stage = stage
+        self.commands: CommandQueue | None = None  # the operator's: a stop ends the attempts
+        self.stopped = False  # the operator stopped the session while the robot was away
+
+    def _stop_asked(self, wait_s: float) -> bool:
+        """Wait ``wait_s`` before the next attempt (at most ``robot.backoff_max_s``) and look at the operator's
+        commands before and after: True (and ``stopped`` set) once a stop is queued: the robot is away, so
+        nothing else can act."""
+        for waited in (False, True):
+            if self.commands is not None and "stop" in self.commands.kinds():
+                self.stopped = True
+                return True
+            if not waited:
+                self.clock.sleep(wait_s)
+        return False
 
     def reconnect(self) -> bool:
         """True once the robot answers again (and says so), False when the time is up."""
@@ -31,7 +45,8 @@ class Reconnector:
         deadline = self.clock.now() + r.max_reconnect_s
         backoff, attempt = r.backoff_initial_s, 0
         while (remaining := deadline - self.clock.now()) > 0:
-            self.clock.sleep(min(backoff, remaining))
+            if self._stop_asked(min(backoff, remaining)):
+                return False
             attempt += 1
             try:
                 self.robot.reconnect(max(0.5, min(r.connect_deadline_s, deadline - self.clock.now())))

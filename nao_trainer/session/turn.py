@@ -207,7 +207,9 @@ class SessionResult:
         invalid = len(self.invalid_rows)
         lines += [
             f"turns completed: {len(self.completed_rows)}" + (f" (+{invalid} marked invalid, not counted)" if invalid else "")
-            + f"   total score: {self.total_score}" + (" (valid turns only)" if invalid else "") + "   "
+            + f"   total score: {self.total_score}" + (
+                f" (valid turns only: the {invalid} marked invalid scored "
+                f"{sum(int(r['score']) for r in self.invalid_rows):+d}, left out)" if invalid else "") + "   "
             f"mean engagement: {self._no_engagement() if eng is None else f'{eng:.2f}'}"
             + (f" (EEG in {self.eeg_turns} of {len(self.completed_rows)} turns)" if self.eeg_on and eng is not None else ""),
             *([span] if (span := (self.task.span(self.completed_rows) or "") if self._own_span()

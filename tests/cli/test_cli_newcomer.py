@@ -52,3 +52,42 @@ def test_desktop_robot_says_at_start_that_there_is_no_sound_device(monkeypatch):
         assert "espeak-ng" in progress.getvalue() and "no sound device" in progress.getvalue()
     finally:
         robot.close()
+
+
+def test_the_summary_says_its_total_leaves_the_invalid_turns_out():
+    """`total 41` on the last turn line, `total score: 42` in the summary: the summary says what it left out."""
+    from nao_trainer.session.turn import SessionResult
+
+    def row(turn, score, invalid=False):
+        return {"turn": turn, "level": 2, "success": score > 0, "score": score, "engagement": None,
+                "engagement_note": "EEG off", "invalid": invalid}
+
+    rows = [row(1, 2), row(2, -1, invalid=True), row(3, 2)]
+    line = next(ln for ln in SessionResult(Path("x"), "completed", 0, rows, 1).summary().splitlines()
+                if ln.startswith("turns completed"))
+    assert "total score: 4 (valid turns only: the 1 marked invalid scored -1, left out)" in line
+    plain = next(ln for ln in SessionResult(Path("x"), "completed", 0, rows[:1], 1).summary().splitlines()
+                 if ln.startswith("turns completed"))
+    assert "total score: 2   " in plain and "valid turns only" not in plain
+
+
+def test_the_policy_choice_is_spelled_out_and_said_to_be_by_expected_value():
+    """`following usp:3` / `following fixed:4` were jargon, and `matched user model: cluster-3 ...; following usp:1`
+    looked like a contradiction: the lines name the policy in words and say it is chosen by expected value."""
+    import numpy as np
+
+    from nao_trainer.core import mdp
+    from nao_trainer.policies import personalised
+    policy = personalised.load_personalised(None, "g", 25, (), 10.0, 0.5, True, False, guidance=1.0)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        policy.guide(mdp.START, 3)  # the supervisor started with level 4: the fixed level-4 candidate is followed
+    policy.act(mdp.START, rng)
+    status = policy.status()
+    assert status["following"] == "fixed:4"
+    assert status["progress"].endswith("-> policy: fixed level 4 (by expected value)")
+    assert "fixed:" not in status["progress"] and "fixed:" not in status["summary"]
+    assert status["summary"].startswith("matched user model: ")
+    assert ("policy: fixed level 4, chosen by its expected score under the posterior over all the user models "
+            "(so not always the matched model's own policy)") in status["summary"]
+    assert personalised.plain_name("usp:3", "by expected value") == "personalised (user model 3, by expected value)"

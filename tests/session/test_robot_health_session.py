@@ -131,6 +131,21 @@ def test_a_critically_hot_knee_makes_the_nao_sit_before_the_next_turn(tmp_path, 
     assert len(read_turns(folder)) == 3
 
 
+def test_a_warm_knee_at_warning_is_named_for_the_operator_and_the_session_goes_on_standing(tmp_path, standin):
+    standin.control.act_after("ALAudioPlayer.playSine", "heat", ["LKneePitch", 1])  # hot (status 1) during turn 1
+    result = _play(_config(tmp_path, standin.url), RunOptions(quiet=True))
+    assert result.status == "completed"
+    events = read_events(folder := next(tmp_path.glob("*_*")))
+    hot = [e for e in events if e["event"] == "robot_health" and e["kind"] == "hot"]
+    assert [(e["severity"], e["part"]) for e in hot] == [("warning", "LKneePitch")]
+    assert "LKneePitch" in hot[0]["detail"] and "let it sit between turns" in hot[0]["decision"]
+    assert not [e for e in events if e["event"] in ("cooling_posture", "wake_up_failed")]  # suggested, not forced
+    assert not [e for e in events if e["event"] == "command" and e.get("source") == "robot"]  # no pause, no replay
+    postures = [c["args"] for c in standin.transcript() if (c["service"], c["method"]) == ("ALRobotPosture", "goToPosture")]
+    assert all(args[0] != "Sit" for args in postures)
+    assert len(read_turns(folder)) == 3
+
+
 def test_a_session_in_french_sets_the_robots_voice_and_speaks_the_french_dialogue(tmp_path, standin):
     from nao_trainer.files import PROJECT_ROOT
 
@@ -234,3 +249,38 @@ def test_mock_robot_plays_the_study_model(tmp_path):
     assert info["config"]["values"]["robot"]["model"] == "pepper"
     degraded = [e["detail"] for e in info["robot_setup"] if e["event"] == "robot_degraded"]
     assert degraded == ["Pepper offers no ALTracker: nothing: the task does not track faces (Pepper 2.9 has no ALTracker)"]
+
+
+def test_a_stop_while_the_robot_is_away_ends_the_session_at_once(tmp_path):
+    """The robot's link is gone (the stand-in stopped) and the study would try for 600 s: the operator's stop
+    ends the attempts; the session ends stopped (exit 5), the interrupted turn recorded. Not honoured, the
+    session sits out the 600 s and the hang limit fails the test."""
+    from nao_trainer.session.engine import EXIT_OPERATOR_STOP
+
+    robot = StandIn.start(speed=50)
+    commands, watcher = CommandQueue(), _Watcher()
+    lost = watcher.when("robot", lambda d: d.get("robot") == "lost")
+    first = watcher.when("row", lambda d: d.get("success") in (True, False))
+
+    def robot_goes():
+        if first.wait(HANG_S):
+            robot.stop()
+
+    def operator():
+        if lost.wait(HANG_S):
+            commands.submit("stop", source="keys")
+
+    threading.Thread(target=robot_goes, daemon=True).start()
+    threading.Thread(target=operator, daemon=True).start()
+    try:
+        config = _config(tmp_path, robot.url, **{"session.turns": 6, "robot.max_reconnect_s": 600,
+                                                 "robot.backoff_initial_s": 0.2, "robot.backoff_max_s": 1})
+        result = _play(config, RunOptions(quiet=True, commands=commands, observer=watcher))
+    finally:
+        robot.stop()
+    assert result.status == "stopped" and result.exit_code == EXIT_OPERATOR_STOP
+    events = read_events(result.path)
+    assert not any(e["event"] == "give_up" for e in events)
+    stop = [e for e in events if e["event"] == "command" and e["kind"] == "stop"]
+    assert len(stop) == 1 and stop[0]["accepted"] and stop[0]["state"] == "paused"
+    assert any(e["event"] == "robot_lost" for e in events)
