@@ -280,6 +280,9 @@ class JsonFormat:
         except json.JSONDecodeError as exc:
             raise error(f"{path}:{exc.lineno}: {self.noun} file is not valid JSON ({exc.msg}): torn or corrupt"
                         f"{self._tail()}") from None
+        except RecursionError:  # e.g. 100,000 nested '[' (issue 30, finding 5)
+            raise error(f"{path}: {self.noun} file is nested too deeply to be one: crafted or corrupt"
+                        f"{self._tail()}") from None
         self.check(doc, path, error)
         payload = doc.get("payload")
         if not isinstance(payload, dict) or not isinstance(doc.get("sha256"), str):
@@ -288,6 +291,8 @@ class JsonFormat:
             digest = canonical_sha256(payload)
         except ValueError as exc:
             raise error(f"{path}: {self.noun} payload holds invalid numbers ({exc}){self._tail()}") from None
+        except RecursionError:
+            raise error(f"{path}: {self.noun} payload is nested too deeply: crafted or corrupt{self._tail()}") from None
         if digest != doc["sha256"]:
             raise error(f"{path}: checksum mismatch (file altered, torn or corrupt){self._tail()}")
         return payload

@@ -56,3 +56,14 @@ def test_a_json_study_is_migrated_once_with_a_backup(tmp_path, capsys):
     assert capsys.readouterr().out.startswith("P004: enrolled (arm random;")  # the old sequence continues
     assert main(["study", "init", str(protocol_path), "--out", str(root)]) == 2  # once
     assert "already holds a study" in capsys.readouterr().err
+
+
+def test_a_json_registry_of_100000_nested_brackets_is_one_line(tmp_path, capsys):
+    """Issue 30, finding 5: a registry of 100,000 nested '[' raised RecursionError (a traceback); the JSON study
+    is now read only by the migration (`study init` on the folder), and every checksummed JSON file by JsonFormat."""
+    folder = tmp_path / "old"
+    folder.mkdir()
+    (folder / "registry.json").write_text("[" * 100_000)
+    code = main(["study", "init", str(write_protocol(tmp_path)), "--out", str(folder)])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "nested too deeply" in err, err
