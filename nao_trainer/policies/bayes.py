@@ -38,7 +38,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from nao_trainer.core import bayes, mdp, objective
-from nao_trainer.core.posterior import level_means
+from nao_trainer.core.posterior import level_means, model_label
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import JsonFormat
 from nao_trainer.learn import artifacts
@@ -160,15 +160,16 @@ class BayesPolicy:
         w = self.posterior()
         est = w @ self.p
         ranked = sorted(zip(self.names, w), key=lambda x: -x[1])
-        post = " | ".join(f"{n} {x:.2f}" for n, x in ranked[:4])
+        post = " | ".join(f"{model_label(n)} {x:.2f}" for n, x in ranked[:4])
         best = int(np.argmax(w))
         return {
             "phase": "bayes", "prior": self.prior,
             "posterior": {n: round(float(x), 4) for n, x in ranked[:SHOWN]},
             "matched": self.names[best], "match_probability": round(float(w[best]), 4),
             "following": f"bayes ({self.objective})", "level_success": [round(float(x), 4) for x in est],
+            "posterior_text": post,
             "progress": f"           posterior: {post} -> next level {self.decide()}",
-            "summary": (f"Bayes planner ({self.objective}, prior {self.prior}): most likely user model {self.names[best]} "
+            "summary": (f"Bayes planner ({self.objective}, prior {self.prior}): most likely {model_label(self.names[best])} "
                         f"(posterior {w[best]:.2f}; {post}); estimated success by level "
                         + " ".join(f"L{i + 1} {x:.2f}" for i, x in enumerate(est)) + self.why_one_level(w)),
         }
@@ -189,8 +190,8 @@ class BayesPolicy:
             gap = np.abs(self.p[a] - self.p[b])
             apart = int(np.argmax(gap))
             if apart != at:
-                text += (f"; the two likeliest user models succeed at level {at + 1} alike ({self.names[a]} "
-                         f"{self.p[a, at]:.2f}, {self.names[b]} {self.p[b, at]:.2f}) and differ most at level "
+                text += (f"; the two likeliest user models succeed at level {at + 1} alike ({model_label(self.names[a])} "
+                         f"{self.p[a, at]:.2f}, {model_label(self.names[b])} {self.p[b, at]:.2f}) and differ most at level "
                          f"{apart + 1} ({self.p[a, apart]:.2f}, {self.p[b, apart]:.2f}): only turns there would tell "
                          "them apart, and the planner expected them to cost more than they could gain over the turns "
                          "left")

@@ -28,7 +28,7 @@ import numpy as np
 
 from nao_trainer.core import assessment, baselines, evaluation, mdp
 from nao_trainer.core.assessment import Choice
-from nao_trainer.core.posterior import ModelSet
+from nao_trainer.core.posterior import ModelSet, model_label
 from nao_trainer.core.qlearning import QLearner
 from nao_trainer.errors import DataError
 from nao_trainer.files import JsonFormat
@@ -61,7 +61,8 @@ def models_fingerprint(models: ModelSet, fingerprints: Sequence[str], policy_dig
 
 
 def plain_name(candidate: str, why: str = "") -> str:
-    """A candidate's name in words: ``usp:3`` is the policy trained for user model 3 (cluster-3), ``fixed:4``
+    """A candidate's name in words: ``usp:3`` is the policy trained for user model 3 (``cluster-3``, which
+    ``core.posterior.model_label`` prints as "user model 3" too), ``fixed:4``
     level 4 always; ``why`` (e.g. "by expected value") joins the parenthesis."""
     kind, _, arg = candidate.partition(":")
     if kind == "usp":
@@ -193,7 +194,7 @@ class PersonalisedPolicy:
         following = self.pers.candidates[current].name if current >= 0 else None
         phase = self.last_action_phase
         ranked = sorted(zip(self.models.names, w), key=lambda x: -x[1])
-        post = " | ".join(f"{n} {p:.2f}" for n, p in ranked)
+        post = " | ".join(f"{model_label(n)} {p:.2f}" for n, p in ranked)
         levels = self.pers.level_estimates()[0]
         return {
             "phase": phase,
@@ -202,10 +203,11 @@ class PersonalisedPolicy:
             "following": following, "policy": plain_name(following) if following else None,
             "switches": int(self.pers.switches[0]),
             "level_success": [round(float(x), 4) for x in levels],
-            "progress": f"           user models, posterior: {post}" + (
+            "posterior_text": post,
+            "progress": f"           posterior: {post}" + (
                 f" -> policy: {plain_name(following, 'by expected value')}" if following
                 else " (assessment: levels set in advance)"),
-            "summary": (f"matched user model: {self.models.names[best]} (posterior {w[best]:.2f}; {post}); "
+            "summary": (f"matched {model_label(self.models.names[best])} (posterior {w[best]:.2f}; {post}); "
                         + (f"policy: {plain_name(following)}, chosen by its expected score under the posterior over "
                            "all the user models (so not always the matched model's own policy)" if following
                            else "policy: the assessment (levels set in advance)")
