@@ -1,0 +1,222 @@
+"""Sessions on a PostgreSQL registry (issue 31): `study next` on a site's laptop (the configuration from the
+registry, not the arm), the session recorded once under its key, a network that goes mid-session (the
+session finishes locally, `study record` or the next `study next` records it once), a killed `study next`,
+withdrawals, and the statistician's `study analyse` and `study export --bids`. A real server (conftest
+``pg_cluster``); a site's network path is a relay the test can cut (tests/_pg_cluster.py ``Relay``)."""
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+
+import pytest
+
+from nao_trainer.cli import main
+from nao_trainer.study import pg
+
+ROOT = Path(__file__).resolve().parents[2]
+BASE = """\
+study: {name: pgs}
+robot: {url: mock}
+session: {turns: 3, practice: false}
+timing: {speed: 50}
+answers: {input: simulated}
+eeg: {mode: "off", xdf: false}
+"""
+PROTOCOL = """\
+protocol: {name: pg-3arm, description: personalised vs level 2 vs random difficulty}
+study_config: base.yaml
+arms:
+  - {name: personalised, policy: personalised}
+  - {name: level2, policy: schedule, overrides: {policy.schedule: [L2]}}
+  - {name: random, policy: random}
+sessions: {per_participant: 2, interval_days: {min: 0, max: 7}}
+target_n: 12
+allocation: {method: blocked, block_size: 6}
+blinding: true
+outcomes: {primary: score, secondary: [success_rate]}
+analysis: {model: "outcome ~ arm + session + (1|participant)", reference_arm: level2}
+"""
+ARMS = ("personalised", "level2", "random", "schedule")
+
+
+def cli(capsys, *args) -> tuple[int, str, str]:
+    code = main(["study", *map(str, args)])
+    out = capsys.readouterr()
+    assert "Traceback" not in out.err, out.err
+    return code, out.out, out.err
+
+
+class Trial:
+    """A study on the server: the administrator's folder, a folder per site (a copy: protocol.yaml and
+    registry.url) and the statistician's; the roles' passwords in a PGPASSFILE outside every folder."""
+
+    def __init__(self, cluster, tmp_path: Path, monkeypatch, capsys):
+        self.tmp, self.cluster, self.db = tmp_path, cluster, "p_" + uuid.uuid4().hex[:10]
+        self.passfile = tmp_path / "secrets" / "pgpass"
+        self.passfile.parent.mkdir()
+        self.lines = [f"*:*:*:postgres:{cluster.password}"]
+        self._write()
+        monkeypatch.setenv("PGPASSFILE", str(self.passfile))
+        monkeypatch.delenv("PGPASSWORD", raising=False)
+        monkeypatch.setenv("PGUSER", "postgres")
+        self.monkeypatch = monkeypatch
+        with pg.connect(cluster.url(), autocommit=True) as c:
+            c.execute(f"CREATE DATABASE {self.db}")
+        (tmp_path / "base.yaml").write_text(BASE)
+        (tmp_path / "protocol.yaml").write_text(PROTOCOL)
+        self.admin = tmp_path / "admin"
+        code, out, err = cli(capsys, "init", tmp_path / "protocol.yaml", "--out", self.admin, "--registry",
+                             cluster.url(self.db))
+        assert code == 0, err
+        self.roles = {}
+        for what, name in (("site", "north"), ("site", "south"), ("statistician", "stats")):
+            code, out, err = cli(capsys, what, "add", self.admin, name)
+            assert code == 0, err
+            self.roles[name] = out.split("role ")[1].split(";")[0]
+            self.lines.append(f"*:*:*:{self.roles[name]}:{out.strip().rsplit(' ', 1)[1]}")
+        self._write()
+        self.folders = {name: self.copy(name) for name in self.roles}
+
+    def _write(self):
+        self.passfile.write_text("\n".join(self.lines) + "\n")
+        self.passfile.chmod(0o600)
+
+    def copy(self, name: str) -> Path:
+        folder = self.tmp / name
+        folder.mkdir()
+        for f in ("protocol.yaml", "registry.url"):
+            shutil.copy(self.admin / f, folder / f)
+        return folder
+
+    def as_(self, name: str) -> Path:
+        self.monkeypatch.setenv("PGUSER", self.roles[name])
+        return self.folders[name]
+
+    def sql(self, query: str, params: tuple = ()) -> list[tuple]:
+        with pg.connect(self.cluster.url(self.db), autocommit=True) as c:
+            return c.execute(query, params).fetchall()
+
+
+@pytest.fixture
+def trial(pg_cluster, tmp_path, monkeypatch, capsys):
+    return Trial(pg_cluster, tmp_path, monkeypatch, capsys)
+
+
+def _env(role: str) -> dict[str, str]:
+    return {**os.environ, "PYTHONPATH": str(ROOT), "QI_LOG_LEVEL": "silent", "PGUSER": role}
+
+
+def _next_proc(folder: Path, pseudonym: str, role: str, model: str = "1") -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "nao_trainer", "study", "next", str(folder), pseudonym,
+                             "--no-keys", "--user-model", model], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=_env(role))
+
+
+def test_study_next_on_a_site_laptop_gets_the_configuration_not_the_arm(trial, capsys):
+    north = trial.as_("north")
+    assert cli(capsys, "enrol", north, "--consent-date", "2026-12-01", "--consent-version", "v1")[0] == 0
+    proc = _next_proc(north, "P001", trial.roles["north"])
+    out, err = proc.communicate(timeout=240)
+    assert proc.returncode == 0, err
+    assert "P001, session 1 of 2, arm (blinded)" in err
+    assert not any(w in (out + err).lower() for w in ARMS)
+    rows = trial.sql("SELECT key, number, folder, status, files, entry FROM sessions")
+    assert len(rows) == 1
+    key, number, folder, status, files, entry = rows[0]
+    assert (number, status) == (1, "completed") and (north / "sessions" / folder / "session.json").is_file()
+    from nao_trainer.study.registry import file_sha256
+
+    assert files and all(file_sha256(north / "sessions" / folder / f) == h for f, h in files.items())
+    assert entry["host"] and entry["ended"] and entry["key"] == key
+    assert not list((north / "outbox").glob("*.json"))  # taken by the registry: nothing kept
+    # a site cannot run another site's participant; the statistician cannot run sessions
+    south = trial.as_("south")
+    shutil.copytree(north / "sessions", south / "sessions")
+    code, _, err = cli(capsys, "next", south, "P001", "--no-keys")
+    assert code == 2 and "not a participant of your site" in err and len(err.strip().splitlines()) == 1
+    stats = trial.as_("stats")
+    code, _, err = cli(capsys, "next", stats, "P001", "--no-keys")
+    assert code == 2 and "a site's role" in err and len(err.strip().splitlines()) == 1
+
+
+def test_network_lost_mid_session_finishes_locally_and_is_recorded_once(trial, capsys, tmp_path):
+    """The relay is cut while the session plays its first turn: the session finishes, its entry stays in the
+    outbox (one line says so); with the network back `study record` records it once, a second time nothing;
+    the next `study next` of the participant is session 2."""
+    from tests._pg_cluster import Relay
+
+    from nao_trainer.session.wiring import RunOptions
+    from nao_trainer.study import remote
+
+    north = trial.as_("north")
+    assert cli(capsys, "enrol", north, "--consent-date", "2026-12-01", "--consent-version", "v1")[0] == 0
+    relay = Relay(trial.cluster, Path(f"/tmp/nt-relay-{uuid.uuid4().hex[:8]}")).start()
+    try:
+        (north / "registry.url").write_text(relay.url(trial.db) + "\n")
+
+        class CutOnFirstTurn(io.StringIO):
+            def write(self, text):
+                if text.lstrip().startswith("turn ") and relay._server is not None:
+                    relay.cut()
+                return super().write(text)
+
+        progress = CutOnFirstTurn()
+        plan, result = remote.run_next(north, "P001", {"participant_model.user_model": "1"},
+                                       RunOptions(keys=False, quiet=False), progress=progress)
+        shown = progress.getvalue()
+        assert result.status == "completed" and "the registry cannot be reached" in shown
+        assert f"`nao-trainer study record {north}`" in shown
+        kept = json.loads((north / "outbox" / f"{plan.key}.json").read_text())
+        assert kept["status"] == "completed" and kept["folder"] == result.path.name
+        assert trial.sql("SELECT status FROM sessions") == [("running",)]  # what the server got before the cut
+        code, _, err = cli(capsys, "record", north)
+        assert code == 2 and "cannot reach the registry server" in err and len(err.strip().splitlines()) == 1
+        relay.restore()
+        code, out, _ = cli(capsys, "record", north)
+        assert code == 0 and "1 session(s) recorded" in out and "recorded as completed" in out
+        code, out, _ = cli(capsys, "record", north)  # again: nothing left, nothing recorded twice
+        assert code == 0 and "0 session(s) recorded" in out
+        assert trial.sql("SELECT key, number, status, folder FROM sessions") == \
+            [(plan.key, 1, "completed", result.path.name)]
+        assert not list((north / "outbox").glob("*.json"))
+    finally:
+        relay.cut()
+        shutil.rmtree(relay.folder, ignore_errors=True)
+
+
+def test_a_killed_study_next_is_recorded_by_the_next_one_never_twice(trial, capsys):
+    """SIGKILL of `study next` while its session runs (the server has it as running): the next `study next`
+    of the participant records the killed one from the outbox (as its folder says) and runs the next session;
+    `study record` afterwards finds nothing; no session number counts twice."""
+    north = trial.as_("north")
+    assert cli(capsys, "enrol", north, "--consent-date", "2026-12-01", "--consent-version", "v1")[0] == 0
+    proc = _next_proc(north, "P001", trial.roles["north"])
+    while not trial.sql("SELECT 1 FROM sessions WHERE status = 'running'") and proc.poll() is None:
+        threading_wait(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.communicate()
+    killed = json.loads(next((north / "outbox").glob("*.json")).read_text())
+    assert killed["status"] == "running"
+    again = _next_proc(north, "P001", trial.roles["north"])
+    out, err = again.communicate(timeout=240)
+    assert again.returncode == 0, err
+    assert "P001's session 1 (" in err and "from outbox/" in err  # the killed one, recorded first
+    code, out, _ = cli(capsys, "record", north)
+    assert code == 0 and "0 session(s) recorded" in out
+    rows = trial.sql("SELECT key, number, status FROM sessions ORDER BY recorded")
+    assert rows[0][0] == killed["key"] and rows[0][2] in ("completed", "interrupted")
+    assert len(rows) == 2 and rows[1][2] == "completed" and rows[1][1] == (2 if rows[0][2] == "completed" else 1)
+    assert not list((north / "outbox").glob("*.json"))
+
+
+def threading_wait(seconds: float) -> None:
+    import threading
+
+    threading.Event().wait(seconds)
