@@ -13,6 +13,7 @@ import signal
 import subprocess
 import sys
 import uuid
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -220,3 +221,94 @@ def threading_wait(seconds: float) -> None:
     import threading
 
     threading.Event().wait(seconds)
+
+
+ABILITIES = ("sim/participants/level2.json", "sim/participants/level4.json", "1", "3")
+
+
+@pytest.mark.slow
+def test_two_sites_on_postgresql_from_enrolment_to_a_validated_bids_export(trial, capsys, tmp_path):
+    """Issue 31's Done-when on PostgreSQL: two sites, 12 participants enrolled from two processes at once as
+    the two sites (one concealed sequence: balanced), 24 sessions through `study next` on the sites' laptops,
+    `study status` per role, `study analyse` (the statistician; refused to a site) and a BIDS export of the
+    sites' session folders that the official validator accepts."""
+    from tests.study.test_study_end_to_end import validator
+
+    loop = ("import sys\nfrom nao_trainer.cli import main\nfor _ in range(6):\n"
+            "    assert main(['study', 'enrol', sys.argv[1], '--consent-date', '2026-11-20', "
+            "'--consent-version', '2.1']) == 0\n")
+    shells = {s: subprocess.Popen([sys.executable, "-c", loop, str(trial.folders[s])], env=_env(trial.roles[s]),
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for s in ("north", "south")}
+    people: dict[str, list[str]] = {}
+    for site, proc in shells.items():
+        out, err = proc.communicate(timeout=240)
+        assert proc.returncode == 0, err
+        people[site] = [line.split(":")[0] for line in out.splitlines() if "enrolled (arm concealed" in line]
+    assert sorted(len(v) for v in people.values()) == [6, 6]
+    everyone = sorted(people["north"] + people["south"])
+    assert len(set(everyone)) == 12  # each site's pseudonyms from its own range
+    assert sorted(people["north"]) == [f"P{i:03d}" for i in range(1, 7)]
+    assert sorted(people["south"]) == [f"P{i:03d}" for i in range(101, 107)]
+    site_of = {p: s for s, ps in people.items() for p in ps}
+    outputs = []
+    for session in (1, 2):
+        for batch in range(0, 12, 6):  # six sessions side by side (three per site)
+            procs = [(p, _next_proc(trial.folders[site_of[p]], p, trial.roles[site_of[p]],
+                                    ABILITIES[everyone.index(p) % len(ABILITIES)]))
+                     for p in (people["north"][batch // 2:batch // 2 + 3] + people["south"][batch // 2:batch // 2 + 3])]
+            for p, proc in procs:
+                out, err = proc.communicate(timeout=240)
+                assert proc.returncode == 0, f"study next {p} session {session}: {err[-3000:]}"
+                assert f"{p}, session {session} of 2, arm (blinded)" in err
+                outputs.append(out + err)
+    assert not any(w in text.lower() for text in outputs for w in ARMS + ("assessment", "posterior"))
+    code, _, err = cli(capsys, "next", trial.as_("north"), people["north"][0], "--no-keys")
+    assert code == 2 and "completed all 2 sessions" in err
+
+    code, out, _ = cli(capsys, "status", trial.as_("south"))  # a site: its own participants, no arm
+    assert code == 0 and "6 participant(s)" in out and out.count("sessions 2") == 6
+    assert not any(a in out.split("\n", 2)[2] for a in ARMS)
+    code, _, err = cli(capsys, "analyse", trial.folders["south"])
+    assert code == 2 and "the statistician's role only" in err and len(err.strip().splitlines()) == 1
+    stats = trial.as_("stats")
+    code, out, _ = cli(capsys, "status", stats)
+    assert code == 0 and "north: 6 participant(s), 12 session(s)" in out and "south: 6 participant(s), 12 session(s)" in out
+    for site in ("north", "south"):  # the statistician gathers the sites' session folders
+        shutil.copytree(trial.folders[site] / "sessions", stats / "sessions", dirs_exist_ok=True)
+    code, _, err = cli(capsys, "analyse", stats)
+    assert code == 2 and "study unblind" in err  # blinded: unblind first, as on one laptop
+    code, out, _ = cli(capsys, "unblind", stats, "--reason", "final analysis")
+    assert code == 0
+    arms = dict(line.split("\t") for line in out.splitlines() if "\t" in line)
+    assert sorted(Counter(arms.values()).values()) == [4, 4, 4]
+    code, out, err = cli(capsys, "analyse", stats)
+    assert code == 0, err
+    assert "PRIMARY" in out and load_sha(trial) in out
+    import csv
+
+    with open(stats / "analysis" / "estimates.csv", newline="") as fh:
+        primary = {r["term"]: r for r in csv.DictReader(fh) if r["role"] == "primary"}
+    assert {"arm[personalised]", "arm[random]", "session"} <= set(primary)
+    assert all(r["n_sessions"] == "24" for r in primary.values())
+    bids = tmp_path / "bids"
+    code, out, err = cli(capsys, "export", stats, "--bids", bids)
+    assert code == 0, err
+    assert "12 participants, 24 sessions of behaviour, 0 with EEG" in out
+    with open(bids / "participants.tsv", newline="") as fh:
+        table = {r["participant_id"]: r["arm"] for r in csv.DictReader(fh, delimiter="\t")}
+    assert table == {f"sub-{p}": a for p, a in arms.items()}
+    log = trial.sql("SELECT reason FROM unblindings ORDER BY id")  # every reading of the arms is logged
+    assert [r[0] for r in log] == ["final analysis", "study analyse: the arms read for it",
+                                   "study export: the arms read for it"]
+    tool = validator()
+    if tool is None:
+        pytest.skip("the BIDS validator is not installed (.ci/run installs it with npm into .tools/)")
+    res = subprocess.run([str(tool), str(bids), "--json"], capture_output=True, text=True, timeout=300)
+    errors = json.loads(res.stdout)["issues"]["errors"]
+    assert not errors, [(e["key"], e.get("reason")) for e in errors]
+
+
+def load_sha(trial) -> str:
+    from nao_trainer.study.protocol import protocol_hash
+
+    return protocol_hash((trial.admin / "protocol.yaml").read_text())
