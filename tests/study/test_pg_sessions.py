@@ -312,3 +312,55 @@ def load_sha(trial) -> str:
     from nao_trainer.study.protocol import protocol_hash
 
     return protocol_hash((trial.admin / "protocol.yaml").read_text())
+
+
+def test_withdraw_refusals_and_the_statisticians_checks_on_postgresql(trial, capsys):
+    """`study withdraw` at the participant's site (recorded in the registry; --data delete removes the
+    laptop's folders; no further session); the statistician's export refuses a session folder not copied
+    or altered, in one line; a site's role is refused the export; amend and next --resume are refused in
+    one line that says why."""
+    north = trial.as_("north")
+    for _ in range(2):
+        assert cli(capsys, "enrol", north, "--consent-date", "2026-12-01", "--consent-version", "v1")[0] == 0
+    proc = _next_proc(north, "P001", trial.roles["north"])
+    assert proc.communicate(timeout=240) and proc.returncode == 0
+    folder = trial.sql("SELECT folder FROM sessions")[0][0]
+
+    def one_line(code, err, text):
+        assert code == 2 and text in err and len(err.strip().splitlines()) == 1, err
+
+    code, _, err = cli(capsys, "export", north, "--bids", trial.tmp / "x")
+    one_line(code, err, "the statistician's role only")
+    code, _, err = cli(capsys, "amend", north, trial.tmp / "protocol.yaml", "--reason", "r")
+    one_line(code, err, "study amend: not available on a PostgreSQL registry")
+    code, _, err = cli(capsys, "next", north, "P002", "--resume", "--no-keys")
+    one_line(code, err, "not available on a PostgreSQL registry")
+    code, _, err = cli(capsys, "withdraw", trial.as_("south"), "P001", "--data", "keep")
+    one_line(code, err, "not a participant of your site")
+
+    stats = trial.as_("stats")
+    assert cli(capsys, "unblind", stats, "--reason", "data check")[0] == 0
+    code, _, err = cli(capsys, "export", stats, "--bids", trial.tmp / "bids")
+    one_line(code, err, "copy every site's sessions/ folder into it")
+    shutil.copytree(north / "sessions", stats / "sessions")
+    turns = stats / "sessions" / folder / "turns.csv"
+    turns.write_text(turns.read_text() + "\n")
+    code, _, err = cli(capsys, "export", stats, "--bids", trial.tmp / "bids")
+    one_line(code, err, "differs from the checksum its site recorded")
+
+    north = trial.as_("north")
+    code, out, err = cli(capsys, "withdraw", north, "P001", "--data", "delete", "--reason", "moved away")
+    assert code == 0 and "withdrawal recorded in the registry" in out, err
+    assert not (north / "sessions" / folder).exists() and (stats / "sessions" / folder).exists()
+    withdrawn = trial.sql("SELECT withdrawn FROM participants WHERE pseudonym = 'P001'")[0][0]
+    assert withdrawn["data"] == "delete" and withdrawn["reason"] == "moved away"
+    code, _, err = cli(capsys, "next", north, "P001", "--no-keys")
+    one_line(code, err, "P001: withdrew on")
+    assert cli(capsys, "withdraw", north, "P002", "--data", "keep")[0] == 0
+    code, _, err = cli(capsys, "withdraw", north, "P002", "--data", "keep")
+    one_line(code, err, "P002: already withdrawn")
+    code, out, _ = cli(capsys, "status", north)
+    assert out.count("WITHDRAWN") == 2
+    stats = trial.as_("stats")  # P001's data deleted: left out (its altered copy is not read)
+    code, out, err = cli(capsys, "export", stats, "--bids", trial.tmp / "bids")
+    assert code == 0 and "1 participants, 0 sessions" in out, err
