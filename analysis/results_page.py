@@ -1,4 +1,4 @@
-"""Write the generated part of docs/results.md from the stored outputs of analysis/make_ceiling_results.sh.
+"""Write the generated part of docs/explanation/results.md from the stored outputs of analysis/make_ceiling_results.sh.
 
     PYTHONPATH=. python analysis/results_page.py            # rewrite the blocks between the markers
     PYTHONPATH=. python analysis/results_page.py --check    # exit 1 when the page is not what this writes
@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PAGE = ROOT / "docs" / "results.md"
+PAGE = ROOT / "docs" / "explanation" / "results.md"
 RESULTS = ROOT / "docs" / "results"
 OBJECTIVES = ("target-p:0.75", "target-rate:0.75")
 USERS = (("own-rates", "own rates (each session's own success per level, shrunk by 2 pseudo-turns)"),

@@ -1,4 +1,4 @@
-"""docs/results.md's generated blocks are what analysis/results_page.py writes from the stored outputs, and
+"""docs/explanation/results.md's generated blocks are what analysis/results_page.py writes from the stored outputs, and
 the stored outputs are what the current code computes (a fresh exact recomputation on a few people)."""
 from __future__ import annotations
 
@@ -20,11 +20,11 @@ def _script():
 
 
 def test_the_results_page_is_what_the_script_writes_from_the_stored_outputs():
-    page = (ROOT / "docs" / "results.md").read_text()
+    page = (ROOT / "docs" / "explanation" / "results.md").read_text()
     mod = _script()
     names = [m.group("name") for m in mod.MARK.finditer(page)]
     assert {f"{u}.{o}" for u, _ in mod.USERS for o in mod.OBJECTIVES} <= set(names)
-    assert mod.render(page) == page, "docs/results.md is stale: run PYTHONPATH=. python analysis/results_page.py"
+    assert mod.render(page) == page, "docs/explanation/results.md is stale: run PYTHONPATH=. python analysis/results_page.py"
 
 
 def _stored() -> list[Path]:

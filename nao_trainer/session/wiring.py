@@ -501,7 +501,7 @@ def _close_record(recorder: SessionRecorder, out: _Outcome, policy: Policy, stan
     recorder.close(out.status, out.code, total_score=out.session.total if out.session else 0, error=out.error,
                    policy_summary=out.summary or None,
                    eeg_turns=result.eeg_turns if result.eeg_on else None,  # how many counted turns had EEG
-                   span=result.span_record(),  # the span at the study's rate (docs/session.md), None without turns
+                   span=result.span_record(),  # the span at the study's rate (docs/how-to/session.md), None without turns
                    eeg_stream=getattr(out.monitor, "stream_identity", None),  # which stream; simulated or not
                    eeg_gaps=_eeg_gaps(out.monitor))  # each dropout of the headband's stream, and the turns it hit
 
