@@ -7,12 +7,12 @@ Every number and every "holds / does not hold" sentence between ``<!-- generated
 ``<!-- generated:NAME end -->`` comes from a stored output (tests/test_results_page.py checks that each page
 equals this script's output), so the prose cannot drift from the numbers:
 
-- ``USERS.OBJECTIVE`` (docs/results.md): the ceiling table of ``docs/results/ceiling-<users>-<objective>/
+- ``USERS.OBJECTIVE`` (docs/explanation/results.md): the ceiling table of ``docs/results/ceiling-<users>-<objective>/
   personalise.json`` (``analysis/make_ceiling_results.sh``);
 - ``multi.USERS.OBJECTIVE``: the several-sessions table of the same output;
-- ``holds`` (docs/results.md, docs/explanation/results-summary.md) and ``holds-short`` (README.md): what holds
+- ``holds`` (docs/explanation/results.md, docs/explanation/results-summary.md) and ``holds-short`` (README.md): what holds
   under each objective, in words;
-- ``power.USERS`` and ``power-n`` (docs/study.md, docs/explanation/results-summary.md): the tables of
+- ``power.USERS`` and ``power-n`` (docs/how-to/study.md, docs/explanation/results-summary.md): the tables of
   ``docs/study/<users>/power.json`` (``analysis/make_power.sh``) and the sample size a gain needs, computed
   by ``PowerReport.n_needed`` from the stored SDs.
 
@@ -28,8 +28,8 @@ import textwrap
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PAGE = ROOT / "docs" / "results.md"
-PAGES = (PAGE, ROOT / "docs" / "explanation" / "results-summary.md", ROOT / "docs" / "study.md", ROOT / "README.md")
+PAGE = ROOT / "docs" / "explanation" / "results.md"
+PAGES = (PAGE, ROOT / "docs" / "explanation" / "results-summary.md", ROOT / "docs" / "how-to" / "study.md", ROOT / "README.md")
 RESULTS = ROOT / "docs" / "results"
 STUDY = ROOT / "docs" / "study"
 OBJECTIVES = ("target-p:0.75", "target-rate:0.75")
@@ -260,7 +260,7 @@ def holds_block(short: bool = False) -> str:
         people = f"the {_by(c)['fixed:2']['people']} people" if c else "the people"
         lines.append(f"Intervals: paired 95 % over {people} of the published data (own rates: each session's "
                      "own success per level); every table, the data-prior users and the score: "
-                     "[docs/results.md](docs/results.md).")
+                     "[docs/explanation/results.md](docs/explanation/results.md).")
         return "\n".join(textwrap.fill(line, 110, initial_indent="- ", subsequent_indent="  ",
                                        break_on_hyphens=False, break_long_words=False) for line in lines) + "\n"
     out = ["Written by `analysis/results_page.py` from the stored outputs (each d = policy − always level 2, "
@@ -343,7 +343,7 @@ def power_n_block() -> str:
     return textwrap.fill(text, 110, break_on_hyphens=False, break_long_words=False) + "\n"
 
 
-def render_block(name: str, where: str = "docs/results.md") -> str:
+def render_block(name: str, where: str = "docs/explanation/results.md") -> str:
     if name == "holds":
         return holds_block()
     if name == "holds-short":
@@ -360,7 +360,7 @@ def render_block(name: str, where: str = "docs/results.md") -> str:
     return (multi_block if multi else block)(objective, users, text)
 
 
-def render(page: str, where: str = "docs/results.md") -> str:
+def render(page: str, where: str = "docs/explanation/results.md") -> str:
     return MARK.sub(lambda m: m.group(1) + render_block(m.group("name"), where) + m.group(4), page)
 
 

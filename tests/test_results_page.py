@@ -1,4 +1,4 @@
-"""The results pages' generated blocks (docs/results.md, docs/explanation/results-summary.md, docs/study.md,
+"""The results pages' generated blocks (docs/explanation/results.md, docs/explanation/results-summary.md, docs/how-to/study.md,
 README.md) are what analysis/results_page.py writes from the stored outputs, and the stored outputs are what the
 current code computes (a fresh exact recomputation on a few people)."""
 from __future__ import annotations
@@ -21,12 +21,12 @@ def _script():
 
 
 def test_the_results_page_is_what_the_script_writes_from_the_stored_outputs():
-    page = (ROOT / "docs" / "results.md").read_text()
+    page = (ROOT / "docs" / "explanation" / "results.md").read_text()
     mod = _script()
     names = [m.group("name") for m in mod.MARK.finditer(page)]
     assert {f"{u}.{o}" for u, _ in mod.USERS for o in mod.OBJECTIVES} <= set(names)
     assert "holds" in names
-    assert mod.render(page) == page, "docs/results.md is stale: run PYTHONPATH=. python analysis/results_page.py"
+    assert mod.render(page) == page, "docs/explanation/results.md is stale: run PYTHONPATH=. python analysis/results_page.py"
 
 
 def test_every_objective_and_user_set_is_computed_with_the_current_code():
@@ -35,11 +35,11 @@ def test_every_objective_and_user_set_is_computed_with_the_current_code():
     for users, _ in mod.USERS:
         for objective in mod.OBJECTIVES:
             assert mod._ceiling(users, objective) is not None, (users, objective)
-    assert "Not computed yet" not in (ROOT / "docs" / "results.md").read_text()
+    assert "Not computed yet" not in (ROOT / "docs" / "explanation" / "results.md").read_text()
 
 
 @pytest.mark.parametrize("name,blocks", [("docs/explanation/results-summary.md", {"holds", "power-n"}),
-                                         ("docs/study.md", {"power.sessions", "power.clusters", "power-n"}),
+                                         ("docs/how-to/study.md", {"power.sessions", "power.clusters", "power-n"}),
                                          ("README.md", {"holds-short"})])
 def test_the_other_pages_are_what_the_script_writes(name, blocks):
     mod = _script()
@@ -50,7 +50,7 @@ def test_the_other_pages_are_what_the_script_writes(name, blocks):
 
 @pytest.mark.parametrize("users", ["sessions", "clusters"])
 def test_the_power_tables_are_what_study_power_printed(users):
-    """docs/study.md's power table (rebuilt from power.json) has power.txt's rows, as `study power` printed them."""
+    """docs/how-to/study.md's power table (rebuilt from power.json) has power.txt's rows, as `study power` printed them."""
     mod = _script()
     printed = {}
     for line in (ROOT / "docs" / "study" / users / "power.txt").read_text().splitlines()[2:]:
