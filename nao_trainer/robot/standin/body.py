@@ -1,6 +1,6 @@
 """What a real NAO does around the task's calls: Autonomous Life, motors, system volume, battery, identity.
 
-NAOqi 2.8.5 SDK documentation (``doc/`` of the SDK; pages named in docs/robot.md):
+NAOqi 2.8.5 SDK documentation (``doc/`` of the SDK; pages named in docs/how-to/robot.md):
 
 * ``ALAutonomousLife`` (``naoqi/interaction/autonomouslife-api.html``): states ``solitary``,
   ``interactive``, ``safeguard``, ``disabled``; a NAO boots ``solitary``; a manual change from
