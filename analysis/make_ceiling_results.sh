@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The Bayes ceiling beside every policy (docs/results.md, "What can be won"), under the score and both target
+# The Bayes ceiling beside every policy (docs/explanation/results.md, "What can be won"), under the score and both target
 # objectives (target-p: each turn's success probability near R; target-rate: the session's success rate near R).
 # Then `PYTHONPATH=. python analysis/results_page.py` writes the page's generated tables and prose from these outputs.
 # DATASET_ROOT: the published sessions, extracted from ../shared/data/sequence-learning/clean_data_bands.tar.xz
@@ -21,4 +21,4 @@ for OBJ in ${OBJECTIVES:-score target-p:0.75 target-rate:0.75}; do
 done
 # which user model predicts held-out turns best (per level, clusters, pooled psychometric)
 $NT evaluate --user-models --users sessions --data "$ROOT" --out docs/results/user-models
-PYTHONPATH=. "${PYTHON:-.venv/bin/python}" analysis/results_page.py   # the generated blocks of docs/results.md
+PYTHONPATH=. "${PYTHON:-.venv/bin/python}" analysis/results_page.py   # the generated blocks of docs/explanation/results.md

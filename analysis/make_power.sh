@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The power figures of docs/study.md and the README ("Running a study"). Needs the published dataset
+# The power figures of docs/how-to/study.md and the README ("Running a study"). Needs the published dataset
 # extracted (DATA=.../clean_data); about 2-4 minutes on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."

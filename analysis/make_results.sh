@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Regenerates every number and figure of docs/results.md (about 6 minutes on a 2-core machine).
+# Regenerates every number and figure of docs/explanation/results.md (about 6 minutes on a 2-core machine).
 # DATASET_ROOT: the published sessions, extracted from ../shared/data/sequence-learning/clean_data_bands.tar.xz
 set -euo pipefail
 ROOT=${DATASET_ROOT:?set DATASET_ROOT to the extracted clean_data folder}
@@ -15,7 +15,7 @@ $NT evaluate --users sessions --data "$ROOT" --mdp informed --out docs/results/s
 $NT evaluate --users clusters --policy-files sim/policies \
     --policies fixed:2,best-fixed,usp:performance,usp:shaping,usp:qaug,usp-learning:qaug,oracle \
     --out docs/results/clusters-shipped
-# Personalising for a new participant (docs/personalisation.md): held-out sessions, assessment lengths 0-12
+# Personalising for a new participant (docs/explanation/personalisation.md): held-out sessions, assessment lengths 0-12
 $NT evaluate --personalise --users sessions --data "$ROOT" --out docs/results/personalise
 USERS=$(mktemp -d)
 $NT evaluate --personalise --users sessions --data "$ROOT" --session-prior 2 --out docs/results/personalise-own-rates \

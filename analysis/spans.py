@@ -1,4 +1,4 @@
-"""Each published session's span at 75 % under the shipped psychometric prior (docs/session.md, "Span").
+"""Each published session's span at 75 % under the shipped psychometric prior (docs/how-to/session.md, "Span").
 
     PYTHONPATH=. python analysis/spans.py DATASET_ROOT   # the 50 sessions of the published layout
 

@@ -1,4 +1,4 @@
-"""The measurements behind the engagement scale's rule (``core.phase.MIN_REL_SPAN``, docs/engagement.md).
+"""The measurements behind the engagement scale's rule (``core.phase.MIN_REL_SPAN``, docs/explanation/engagement.md).
 
 Prints (1) the 5th-95th percentile span of the smoothed index at one constant engagement of the
 simulated Muse, relative to its median, with the default 2 s windows and the demo's 0.5 s windows;

@@ -53,7 +53,7 @@ class BeepTiming:
     """When a beep sounded, as a robot that can tell returns it from ``beep`` (monotonic seconds).
 
     ``onset`` is the estimate reaction times are measured from: ``returned - duration - rtt/2``
-    (assumes the call returns when the tone ends and the network is symmetric; see docs/robot.md).
+    (assumes the call returns when the tone ends and the network is symmetric; see docs/how-to/robot.md).
     """
 
     start: float  # the call was sent
@@ -149,7 +149,8 @@ class NullUpkeep:
 
 
 #: What a robot's health watch reports (``HealthEvent.kind``).
-HEALTH_KINDS: tuple[str, ...] = ("falling", "fallen", "hot", "battery_low", "chest", "diagnosis", "safeguard")
+HEALTH_KINDS: tuple[str, ...] = ("falling", "fallen", "hot", "battery_low", "chest", "chest_double", "diagnosis",
+                                 "safeguard")
 
 
 @dataclass(frozen=True)
@@ -467,7 +468,7 @@ class SessionObserver(Protocol):
     """Told what happens in a session as it happens (the console). ``notify`` must return at once."""
 
     def notify(self, kind: str, data: dict) -> None:
-        """``kind``: session, state, turn_start, press, row, command, pause, summary (see docs/console.md)."""
+        """``kind``: session, state, turn_start, press, row, command, pause, summary (see docs/reference/console.md)."""
 
 
 class NullObserver:

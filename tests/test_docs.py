@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -83,3 +84,27 @@ def test_install_is_quiet(tmp_path):
     assert done.returncode == 0, done.stderr
     assert "Warning" not in done.stdout + done.stderr, done.stderr[-2000:]
     assert (tmp_path / "out" / "nao_trainer" / "console" / "static" / "console.html").is_file()
+
+
+DOCS_PAGE = re.compile(r"\bdocs/[\w./-]+?\.md\b")
+
+
+def _named_pages(text: str) -> set[str]:
+    return set(DOCS_PAGE.findall(text))
+
+
+def test_named_pages_reader_finds_a_page_name():
+    assert _named_pages("see docs/explanation/personalisation.md#why, or docs/how-to/study.md.") == {
+        "docs/explanation/personalisation.md", "docs/how-to/study.md"}
+
+
+def test_every_docs_page_named_in_code_config_and_tests_exists():
+    """A help text, an error, a config comment or a test that names a page of docs/ names one that exists (the pages
+    moved into the folders tutorials, how-to, reference, explanation; MkDocs --strict checks the pages' own links, not the code's)."""
+    suffixes = {".py", ".md", ".yaml", ".yml", ".sh", ".txt", ".toml", ".cfg", ".js", ".html", ".css"}
+    files = [ROOT / "README.md", ROOT / "Makefile", ROOT / "mkdocs.yml", ROOT / "setup.py"]
+    for folder in ("nao_trainer", "tests", "config", "analysis", "benchmarks", "tools", "docs"):
+        files += [p for p in (ROOT / folder).rglob("*") if p.suffix in suffixes and "__pycache__" not in p.parts]
+    missing = sorted({(str(f.relative_to(ROOT)), page) for f in files if f.is_file()
+                      for page in _named_pages(f.read_text(errors="replace")) if not (ROOT / page).is_file()})
+    assert missing == [], missing

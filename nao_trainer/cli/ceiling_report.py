@@ -13,7 +13,7 @@ from nao_trainer.files import write_json_atomic
 
 
 def add_arguments(p) -> None:
-    g = p.add_argument_group("ceiling and objective (docs/evaluation.md, 'What can be won')")
+    g = p.add_argument_group("ceiling and objective (docs/explanation/evaluation.md, 'What can be won')")
     g.add_argument("--objective", default="score", metavar="score|target-p:R|target-rate:R",
                    help="what the policies are judged by: score (equation (1), default), target-p:R (each turn's "
                         "success probability near R, -(p - R)^2 per turn; target:R is its old name) or "

@@ -20,16 +20,16 @@ def register(sub) -> None:
         description="Evaluate baselines (fixed levels, staircases, random, best fixed level), the optimum and "
                     "Q-learners (trained on each user's training simulator, frozen and still learning) on a "
                     "user set. Writes DIR/evaluation.json, DIR/evaluation.csv and DIR/evaluation.png. "
-                    "See docs/evaluation.md.")
+                    "See docs/explanation/evaluation.md.")
     p.add_argument("--policies", default=None,
                    help="comma-separated policies (default: all baselines, usp:METHOD and usp-learning:METHOD "
-                        "for every method, oracle); see docs/evaluation.md")
+                        "for every method, oracle); see docs/explanation/evaluation.md")
     p.add_argument("--users", default=None,
                    help="clusters | level-only | sessions | DATASET_ROOT (per-session users, leave-one-session-out) | "
                         "task (the --task's own simulated users); default clusters, with --task nback: task")
     p.add_argument("--task", metavar="NAME", default=None,
                    help="the task the users play (nao-trainer plugins lists them); default the sequence task, whose "
-                        "participants the fitted user sets are; nback: its signal-detection observers (docs/evaluation.md)")
+                        "participants the fitted user sets are; nback: its signal-detection observers (docs/explanation/evaluation.md)")
     p.add_argument("--turns", type=int, default=25, help="turns per session (default 25, the paper's)")
     p.add_argument("--data", type=Path, default=None, help="dataset root or turn table for --users sessions")
     p.add_argument("--models", type=Path, default=None,
@@ -52,7 +52,7 @@ def register(sub) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--per-user", action="store_true",
                    help="also print each user's mean score per policy (mean over seeds)")
-    g = p.add_argument_group("personalisation (docs/personalisation.md)")
+    g = p.add_argument_group("personalisation (docs/explanation/personalisation.md)")
     g.add_argument("--personalise", action="store_true",
                    help="evaluate the personalisation pipeline (assess, match, choose, keep learning) on held-out "
                         "sessions against always level 2, the best fixed level, a generic policy, the paper's "

@@ -27,12 +27,12 @@ def register(sub) -> None:
     p.add_argument("--compat", choices=["authors2018"], default=None,
                    help="per-turn engagement as the authors computed it and the authors' simulators (full state "
                    "regression; reproduces the paper's user models). Default: the project's engagement and "
-                   "simulators that keep an effect only where a test supports it (docs/evaluation.md). For a "
+                   "simulators that keep an effect only where a test supports it (docs/explanation/evaluation.md). For a "
                    "turn-table CSV the mode recorded in its CSV.json applies")
     p.add_argument("--k", type=int, default=3, help="number of clusters (default 3)")
     p.add_argument("--seed", type=int, default=0, help="seed of K-means, MDS and cross-validation folds")
     p.add_argument("--psychometric", type=Path, default=None, metavar="FILE",
-                   help="also fit the pooled psychometric user model (span against sequence length, docs/session.md) "
+                   help="also fit the pooled psychometric user model (span against sequence length, docs/how-to/session.md) "
                         "on the same turns and write it to FILE; the shipped prior sim/psychometric/pooled.json is "
                         "written this way")
     p.add_argument("--json", action="store_true", help="print the cluster table as JSON on stdout")

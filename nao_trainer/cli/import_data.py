@@ -7,7 +7,7 @@ from pathlib import Path
 
 from nao_trainer.cli._filters import add_filter_args, filter_from_args
 
-#: Exit code of an import that wrote its table but skipped sessions (a script can tell; docs/data.md).
+#: Exit code of an import that wrote its table but skipped sessions (a script can tell; docs/reference/data.md).
 EXIT_SKIPPED = 6
 from nao_trainer.errors import ConfigError
 
@@ -21,7 +21,7 @@ def register(sub) -> None:
         "user_<id>/session_<k>/ folders of the published layout. Sessions that cannot be read are reported one "
         "line each and skipped; interrupted or invalid turns are left out of the table with the reason. "
         "Exit 0 when every session imported; 6 when the table was written but some sessions were skipped "
-        "(--allow-skipped: 0); 2 when none imported. Schema: docs/data.md.",
+        "(--allow-skipped: 0); 2 when none imported. Schema: docs/reference/data.md.",
     )
     p.add_argument("root", metavar="ROOT", type=Path, help="study folder, dataset root, or one session folder")
     p.add_argument("--out", "-o", type=Path, required=True, metavar="FILE", help="CSV file to write")

@@ -48,7 +48,7 @@ def register(sub) -> None:
                    help="simulated participant from a fitted user model (cluster id or simulator JSON)")
     p.add_argument("--policy", metavar="SPEC",
                    help="schedule | random | usp:CLUSTER[:METHOD] | personalised (assess, match the user models, "
-                        "choose by posterior expected value, keep learning; docs/personalisation.md) | bayes (the "
+                        "choose by posterior expected value, keep learning; docs/explanation/personalisation.md) | bayes (the "
                         "exact Bayes-adaptive planner, policy.objective)")
     p.add_argument("--prior", metavar="clusters|psychometric|PATH",
                    help="the bayes policy's prior (policy.prior): the fitted clusters, the pooled psychometric model, "

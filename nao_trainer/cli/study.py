@@ -17,7 +17,7 @@ from nao_trainer.study.seal import key_path
 ACTIONS = ("init", "site", "statistician", "enrol", "withdraw", "amend", "status", "next", "record", "repair",
            "unblind", "analyse", "power", "export", "table")
 DESCRIPTION = """\
-A controlled study (docs/study.md), in order:
+A controlled study (docs/how-to/study.md), in order:
   study init PROTOCOL --out STUDY_DIR        freeze the protocol, draw the concealed allocation
   study power PROTOCOL [--n 10,20,40]        simulated power of the pre-registered test per N
   study enrol STUDY_DIR --consent-date D --consent-version V    the next pseudonym and its arm

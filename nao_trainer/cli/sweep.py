@@ -18,7 +18,7 @@ def register(sub) -> None:
         "sweep", help="sweep Q-learning hyper-parameters; score each point's final policies exactly",
         description="Train learners at every point of a hyper-parameter grid on each user model and evaluate "
                     "their final (frozen) policies exactly. Writes DIR/sweep.json, DIR/sweep.csv and "
-                    "DIR/sweep.png. Example: nao-trainer sweep --param beta1=0:10:41. See docs/evaluation.md.")
+                    "DIR/sweep.png. Example: nao-trainer sweep --param beta1=0:10:41. See docs/explanation/evaluation.md.")
     p.add_argument("--param", action="append", default=[], metavar="NAME=START:STOP:COUNT",
                    help="a swept hyper-parameter (repeat for a grid); NAME=V1,V2,... for a list")
     p.add_argument("--method", default=None,

@@ -18,7 +18,7 @@ def register(sub) -> None:
     p = sub.add_parser(
         "train", help="train user-specific policies (Q-learning with engagement feedback) on simulated users",
         description="Train one Q-learner per (user model, method, seed) and write learning curves, policies at "
-                    "S0, the policy files and a summary. See docs/policies.md.")
+                    "S0, the policy files and a summary. See docs/explanation/policies.md.")
     p.add_argument("--models", type=Path, default=None,
                    help="folder of fitted user models (default: $NAO_TRAINER_MODELS or sim/models)")
     p.add_argument("--methods", default=",".join(METHODS),

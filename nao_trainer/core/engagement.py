@@ -4,7 +4,7 @@ Pure: numpy only, no I/O, no clocks. The live monitor (``nao_trainer.eeg``) and 
 the published data (``nao_trainer.data.engagement``) both build on these functions, so a session and a
 re-analysis compute engagement the same way.
 
-Definitions (see ``docs/engagement.md``)
+Definitions (see ``docs/explanation/engagement.md``)
     * Bands: theta 4-8 Hz, alpha 8-13 Hz, beta 13-30 Hz, each as a fraction of the 1-40 Hz power
       (half-open intervals ``[lo, hi)`` on the frequency bins).
     * Engagement index (Pope et al. 1995; Tsiakas et al. 2018): ``E = beta / (alpha + theta)``.

@@ -24,7 +24,7 @@ Probabilities in the likelihood are clipped to [``FLOOR``, 1 - ``FLOOR``]: one s
 Engagement, when ``engagement_sigma`` is given, multiplies in a Gaussian likelihood
 N(e; Phi_k(s, o), sigma_k^2) of the turn's engagement ``e``. Whether that adds information on the
 published data is measured by ``nao-trainer evaluate --personalise`` (``engagement_information``)
-and reported in docs/results.md; the live policy leaves it off unless asked.
+and reported in docs/explanation/results.md; the live policy leaves it off unless asked.
 """
 from __future__ import annotations
 

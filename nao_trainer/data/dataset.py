@@ -1,6 +1,6 @@
 """Import recorded sessions into one tidy turn table (one row per turn).
 
-Two layouts import into the same columns and encodings (the schema: ``docs/data.md``):
+Two layouts import into the same columns and encodings (the schema: ``docs/reference/data.md``):
 
 * the published layout: every ``user_<id>/session_<k>/`` under a root, read with
   ``nao_trainer.data.published`` (logfile, state_EEG, recordings) and

@@ -9,7 +9,7 @@ Two definitions:
     ``E = S_beta / (S_alpha + S_theta)``; ``engagement_index`` = the turn's mean E; ``engagement`` = the
     turn's mean of E min-max scaled over all samples of the session.
 
-``compat=None`` (the project's definitions, ``docs/engagement.md``)
+``compat=None`` (the project's definitions, ``docs/explanation/engagement.md``)
     *bands source*: per 10 Hz sample, theta/alpha/beta averaged over the channels whose headband
     contact ``h`` is good or ok (1 or 2), at least ``min_channels`` of them, ``E = beta / (alpha + theta)``,
     the correct EWMA ``s_t = a s_(t-1) + (1-a) E_t`` restarted per turn over the usable samples.

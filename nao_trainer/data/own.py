@@ -55,7 +55,7 @@ TURN_FIELDS = ("turn", "state", "length", "level", "feedback", "previous_score",
                "success", "score", "signed_score", "reaction_time", "completion_time", "engagement",
                "engagement_index", "eeg_quality", "engagement_note", "notes")
 PHASE_FIELDS = ("turn", "phase", "t_begin", "t_end", "engagement", "engagement_index")
-#: Largest files read (bytes; docs/data.md). session.json / stream.json are a few kB; turns.csv holds ~300 bytes a
+#: Largest files read (bytes; docs/reference/data.md). session.json / stream.json are a few kB; turns.csv holds ~300 bytes a
 #: turn, phases.csv ~200 a phase; raw.csv: ``data.raw_csv.MAX_RAW_BYTES``.
 MAX_JSON_BYTES = 16_000_000
 MAX_CSV_BYTES = 64_000_000

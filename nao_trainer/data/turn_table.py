@@ -1,6 +1,6 @@
 """The tidy turn table: its columns, the CSV it is stored as, and which sessions a table keeps.
 
-One row per turn, the columns of :data:`COLUMNS` in that order (the schema: ``docs/data.md``).
+One row per turn, the columns of :data:`COLUMNS` in that order (the schema: ``docs/reference/data.md``).
 ``nao_trainer.data.dataset`` fills it from recorded sessions; ``write_table`` / ``read_table``
 store it as CSV (floats as ``repr``, exact on reading back; NaN as empty) with a JSON sidecar of
 provenance; :class:`SessionFilter` keeps the sessions of some studies and inputs.

@@ -61,7 +61,7 @@ class EEGSettings:
                                        doc="tell the operator after this many turns in a row without EEG (0 = never)")
     turn_requires_eeg: bool = setting(False, kind=bool,
                                       doc="a turn whose listening phase lost EEG is played again (once), as after "
-                                          "a lost robot link, once the stream is back (docs/headbands.md)")
+                                          "a lost robot link, once the stream is back (docs/how-to/headbands.md)")
     reconnect_wait_s: float = setting(30.0, kind=(int, float), min=0.0, max=600.0,
                                       doc="with turn_requires_eeg: how long a turn waits for a lost stream to return, s")
     allow_simulated: bool = setting(False, kind=bool,

@@ -3,7 +3,7 @@
 This is the default fit (``nao-trainer fit`` without ``--compat``); ``--compat authors2018`` keeps
 the full state regression of ``learn.fitting`` (how the shipped ``sim/models`` were made).
 
-Criterion (documented in docs/evaluation.md). Within one cluster's turns:
+Criterion (documented in docs/explanation/evaluation.md). Within one cluster's turns:
 
 * **success** is modelled by a logistic regression on the level (4 one-hot columns) plus the
   candidate effects that pass a likelihood-ratio test against the level-only model: ``feedback``

@@ -53,7 +53,7 @@ def connect(address: str, timeout_s: float | None = None):
     except (OSError, TimeoutError) as exc:
         raise ClusterUnavailable(
             f"{address}: no dask scheduler answered within {timeout_s:g} s ({type(exc).__name__}); start one with "
-            "`dask scheduler` and workers with `dask worker HOST:8786` (see docs/evaluation.md), or drop --backend"
+            "`dask scheduler` and workers with `dask worker HOST:8786` (see docs/explanation/evaluation.md), or drop --backend"
         ) from None
 
 

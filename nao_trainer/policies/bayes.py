@@ -13,7 +13,7 @@ a folder          user simulator files (e.g. the training users), equal weights.
 
 Unset, it follows the objective: ``psychometric`` for ``target:R`` (it pools a participant's turns
 across lengths and wins most under a target rate), ``clusters`` for ``score`` (the smooth curve
-sends some participants to levels 3-4 too often and loses score; docs/results.md).
+sends some participants to levels 3-4 too often and loses score; docs/explanation/results.md).
 
 What the policy knows about the participant is the per-level counts of successes and failures;
 they are a sufficient statistic, so the plan solved once for the session covers every turn (also
@@ -194,7 +194,7 @@ class BayesPolicy:
                          f"{apart + 1} ({self.p[a, apart]:.2f}, {self.p[b, apart]:.2f}): only turns there would tell "
                          "them apart, and the planner expected them to cost more than they could gain over the turns "
                          "left")
-        return text + " (the prior decides: policy.prior; docs/personalisation.md#why-it-can-stay-at-one-level)"
+        return text + " (the prior decides: policy.prior; docs/explanation/personalisation.md#why-it-can-stay-at-one-level)"
 
     # -- the participant's file ----------------------------------------------------------------------
 

@@ -61,7 +61,7 @@ class ScheduleSettings:
 
 @settings
 class PersonalisedSettings:
-    """``personalised`` (policies.personalised, docs/personalisation.md)."""
+    """``personalised`` (policies.personalised, docs/explanation/personalisation.md)."""
 
     assessment: tuple[int, ...] = setting((2, 2, 3, 3, 4, 4), kind=list, item=int, check=check_assessment,
                                           doc="levels of the first turns (a returning participant skips them)")
@@ -90,10 +90,10 @@ USP = PolicyKind("usp", "a trained user-specific Q-learning policy (sim/policies
                  live="nao_trainer.policies.learned:live", offline="nao_trainer.policies.learned:offline",
                  persists=True, argument="CLUSTER[:METHOD]", check_argument=check_usp)
 PERSONALISED = PolicyKind("personalised", "assess, match the user models, choose by posterior expected value, "
-                          "keep learning (docs/personalisation.md)",
+                          "keep learning (docs/explanation/personalisation.md)",
                           live="nao_trainer.policies.personalised:live",
                           offline="nao_trainer.policies.personalised:offline",
                           settings=PersonalisedSettings, persists=True, state_filename="personalised.json")
-BAYES = PolicyKind("bayes", "the exact Bayes-adaptive planner over per-level counts (docs/personalisation.md)",
+BAYES = PolicyKind("bayes", "the exact Bayes-adaptive planner over per-level counts (docs/explanation/personalisation.md)",
                    live="nao_trainer.policies.bayes:live", offline="nao_trainer.policies.bayes:offline",
                    settings=BayesSettings, persists=True, state_filename="bayes.json")

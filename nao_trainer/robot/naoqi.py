@@ -210,7 +210,7 @@ class NaoqiRobot:
         """Play a sine beep and return once played (gain 0..1, centred), with when it sounded.
 
         A cheap call first measures the round trip; the onset is estimated as the reply's arrival
-        minus the duration minus half that round trip (docs/robot.md says what is assumed).
+        minus the duration minus half that round trip (docs/how-to/robot.md says what is assumed).
         """
         check_beep(frequency_hz, duration_s, gain)
         self._service("ALAudioPlayer")  # looked up before timing: the lookup is not part of the beep
@@ -512,7 +512,7 @@ class NaoqiRobot:
 
 
 #: Robots not yet closed; closed at interpreter exit as a safety net (live signal subscriptions
-#: at exit abort the process now and then, see docs/robot.md).
+#: at exit abort the process now and then, see docs/how-to/robot.md).
 _LIVE: "weakref.WeakSet[NaoqiRobot]" = weakref.WeakSet()
 
 

@@ -1,7 +1,7 @@
 """The session's state table (``STATES``, ``TRANSITIONS``) and its diagram, in one place.
 
 The engine (``session.engine``) drives a ``transitions`` machine built from these tables; the
-diagram in ``docs/session-states.md`` is generated from them (a test fails when it is stale).
+diagram in ``docs/reference/session-states.md`` is generated from them (a test fails when it is stale).
 """
 from __future__ import annotations
 
@@ -56,7 +56,7 @@ TRANSITIONS: list[dict[str, Any]] = [
     {"trigger": "resume_goodbye", "source": "paused", "dest": "goodbye"},
     {"trigger": "give_up", "source": "paused", "dest": "aborted"},
     {"trigger": "abort", "source": [*ACTIVE_STATES, "paused", "operator_pause"], "dest": "aborted"},
-    # Operator commands (session.engine drains them between states; see docs/session.md).
+    # Operator commands (session.engine drains them between states; see docs/how-to/session.md).
     {"trigger": "pause", "source": list(INTERRUPTIBLE), "dest": "operator_pause"},
     {"trigger": "operator_stop", "source": [*INTERRUPTIBLE, "operator_pause"], "dest": "goodbye"},
     {"trigger": "time_up", "source": ["select_action", "operator_pause"], "dest": "goodbye"},
@@ -75,7 +75,7 @@ COMMAND_TRIGGERS: dict[str, tuple[str, ...]] = {
     "note": ("add_note",),
 }
 FINAL_STATES = ("done", "aborted")
-DIAGRAM_PATH = PROJECT_ROOT / "docs" / "session-states.md"
+DIAGRAM_PATH = PROJECT_ROOT / "docs" / "reference" / "session-states.md"
 
 def diagram_markdown() -> str:
     """The state diagram as a Markdown page with a Mermaid block (no graphviz needed)."""
@@ -95,12 +95,12 @@ def diagram_markdown() -> str:
     return (
         "# Session states\n\n"
         "Generated from `nao_trainer.session.machine.STATES` / `TRANSITIONS` by `nao_trainer.session.machine.export_diagram()`;\n"
-        "a test fails when this file is out of date. See docs/session.md for what each state does.\n\n"
+        "a test fails when this file is out of date. See docs/how-to/session.md for what each state does.\n\n"
         f"```mermaid\n{source}\n```\n"
     )
 
 
 def export_diagram(path: Path = DIAGRAM_PATH) -> Path:
-    """Write the state diagram (``docs/session-states.md``)."""
+    """Write the state diagram (``docs/reference/session-states.md``)."""
     path.write_text(diagram_markdown(), encoding="utf-8")
     return path

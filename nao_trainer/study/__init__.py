@@ -1,2 +1,2 @@
 """A controlled study around the sessions: protocol, registry and allocation, running, progress, analysis,
-power and export (``nao-trainer study``; docs/study.md)."""
+power and export (``nao-trainer study``; docs/how-to/study.md)."""

@@ -27,7 +27,7 @@ def margin(values, action, state):
 
 
 def test_a_learner_guided_n_times_toward_an_action_prefers_it_by_the_stated_margin(tmp_path):
-    # The stated rule (docs/console.md): with guidance g >= 1, an action the supervisor always chose in a
+    # The stated rule (docs/reference/console.md): with guidance g >= 1, an action the supervisor always chose in a
     # state is preferred there by at least g value points, whatever the learned values say.
     for state in (mdp.START, mdp.encode(5, 0, -2)):
         plain = load_policy("usp:2", True, tmp_path / "plain.json", guidance=0.0)

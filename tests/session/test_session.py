@@ -183,7 +183,7 @@ def test_fixed_schedule_and_uniform_random_policies():
 
 def test_state_diagram_in_docs_is_up_to_date():
     assert machine.DIAGRAM_PATH.read_text() == machine.diagram_markdown(), \
-        "docs/session-states.md is stale: run python -c 'from nao_trainer.session.machine import export_diagram; export_diagram()'"
+        "docs/reference/session-states.md is stale: run python -c 'from nao_trainer.session.machine import export_diagram; export_diagram()'"
     text = machine.diagram_markdown()
     for state in machine.STATES:
         assert f'state "{state}"' in text

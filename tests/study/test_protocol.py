@@ -158,7 +158,7 @@ def test_the_frozen_protocol_changes_only_by_a_recorded_amendment(tmp_path, caps
 
 def test_an_amended_copy_resolves_its_paths_wherever_it_lives(tmp_path, capsys):
     """Issue 29: an edited copy of STUDY_DIR/protocol.yaml, saved anywhere, resolves its relative study_config
-    against its own folder when the file is there, else against the study's (docs/study.md, "Amending")."""
+    against its own folder when the file is there, else against the study's (docs/how-to/study.md, "Amending")."""
     study = _init(tmp_path, capsys)
     elsewhere = tmp_path / "drafts"
     elsewhere.mkdir()

@@ -1,6 +1,6 @@
 """What a real NAO does around the task's calls: Autonomous Life, motors, system volume, battery, identity.
 
-NAOqi 2.8.5 SDK documentation (``doc/`` of the SDK; pages named in docs/robot.md):
+NAOqi 2.8.5 SDK documentation (``doc/`` of the SDK; pages named in docs/how-to/robot.md):
 
 * ``ALAutonomousLife`` (``naoqi/interaction/autonomouslife-api.html``): states ``solitary``,
   ``interactive``, ``safeguard``, ``disabled``; a NAO boots ``solitary``; a manual change from
@@ -63,6 +63,7 @@ class Body:
     fallen: bool = False
     hot: dict = field(default_factory=dict)  # joint -> temperature status 1..3
     life_refused: bool = False
+    chest_double: str = "stiffness"  # what a double click of the chest button does (Control.chest)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def check_awake(self, what: str) -> None:

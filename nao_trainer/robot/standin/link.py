@@ -5,7 +5,7 @@ The stand-in's qi server listens on a private loopback port; clients reach it th
 
 * delay every chunk by half the configured round trip in each direction (``latency_s``);
 * **freeze**: stop moving bytes both ways for a while, with every connection left open, as a
-  dropped Wi-Fi does (libqi notices such a link only after ~60 s; see docs/robot.md). Bytes sent
+  dropped Wi-Fi does (libqi notices such a link only after ~60 s; see docs/how-to/robot.md). Bytes sent
   meanwhile are delivered when the link comes back, as TCP would retransmit them;
 * serve ``tcps://`` with a self-signed certificate and check the login of libqi's first message
   (``login.check_first_message``), refusing a wrong one as libqi's own server does.

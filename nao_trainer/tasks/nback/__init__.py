@@ -4,7 +4,7 @@ The robot says "Level N", beeps (the answer window opens), then speaks a block o
 3 s (session seconds); the participant presses the front head button when the letter is the one ``n`` back. A
 block is one turn: its outcome is hits, misses, false alarms and correct rejections, d′ with the log-linear
 correction, and success = fewer than 3 errors (Jaeggi et al. 2008's level-up rule). Levels 1..4 are n = 1..4.
-Sources of every parameter: ``tasks.nback.rules`` and docs/tasks.md.
+Sources of every parameter: ``tasks.nback.rules`` and docs/explanation/tasks.md.
 
 The simulated participant is an equal-variance signal-detection observer per level (``Settings.d_prime``,
 ``Settings.criterion``); it presses the stand-in's front button over qi like the sequence task's participant.
@@ -44,7 +44,7 @@ class NBackSettings:
     soa_s: float = setting(rules.SOA_S, kind=float, min=0.5, max=10.0,
                            doc="seconds from one stimulus to the next (Jaeggi et al. 2008: 3)")
     # The simulated participant (signal detection per level). Assumed values: d′ falling with load inside the range
-    # n-back studies report (docs/tasks.md says where they come from and that they are not one study's table).
+    # n-back studies report (docs/explanation/tasks.md says where they come from and that they are not one study's table).
     d_prime: list = setting(factory=lambda: [3.2, 2.6, 1.9, 1.3], kind=list, check=_four_numbers,
                             doc="simulated participant: d′ at n = 1..4")
     criterion: list = setting(factory=lambda: [0.4, 0.4, 0.3, 0.2], kind=list, check=_four_numbers,
@@ -70,6 +70,9 @@ class NBackTask:
     #: Its own words (instructions, practice) for a study that keeps the shipped dialogue.
     dialogue_file: ClassVar[Path] = Path(__file__).parent / "en.yaml"
 
+    #: The console's turn table: the block's load and its signal-detection outcome.
+    table_fields: ClassVar[Mapping[str, str]] = {"n": "n", "hits": "hits", "misses": "misses",
+                                                 "false_alarms": "false alarms", "d_prime": "d′"}
     #: BIDS: the task label, its description and its columns (``study export --bids``).
     bids_name: ClassVar[str] = "nback"
     description: ClassVar[str] = ("auditory n-back with a NAO robot: a block of 20 + n spoken letters, one every 3 s; "

@@ -2,7 +2,7 @@
 
 Pure: no I/O; randomness comes in as a ``numpy.random.Generator``.
 
-Sources of the parameters (named again in docs/tasks.md):
+Sources of the parameters (named again in docs/explanation/tasks.md):
 
 * Block and timing: Jaeggi, Buschkuehl, Jonides & Perrig (2008), "Improving fluid intelligence with training on
   working memory", PNAS 105(19), 6829-6833: a block is 20 + n stimuli, 6 of them targets; a stimulus every 3 s
