@@ -50,6 +50,7 @@ from nao_trainer.session.record import SessionRecorder, now_iso
 from nao_trainer.session.reporting import SessionLog
 from nao_trainer.session.stage import Clock, Stage
 from nao_trainer.session.turn import Turn, progress_line
+from nao_trainer.tasks.base import table_fields
 
 EXIT_OK, EXIT_ROBOT_LOST, EXIT_INTERRUPTED = 0, RobotUnavailable.exit_code, Interrupted.exit_code
 #: The operator stopped the session (a key or the console): goodbye and safe posture, then this code.
@@ -134,7 +135,8 @@ class Session:
         self.monitor.mark("session_start")
         self.observer.notify("session", {"turns": self.n_turns, "policy": self.policy.name, "speed": self.clock.speed,
                                          "max_duration_s": self.max_duration_s, "eeg": self.monitor.records_eeg,
-                                         "robot": "connected", "completed": self.completed, "state": self.state})
+                                         "robot": "connected", "completed": self.completed, "state": self.state,
+                                         "task": self.task.name, "fields": [list(f) for f in table_fields(self.task)]})
         while self.state not in FINAL_STATES:
             try:
                 if self._resume is not None:
@@ -327,6 +329,7 @@ class Session:
         self.observer.notify("turn_start", {
             "turn": turn.number, "level": st.level, "feedback": st.feedback, "length": st.length,
             "action": mdp.ACTION_NAMES[turn.action], "sequence": "".join(turn.sequence), "state": mdp.state_label(turn.state),
+            "expected": "".join(turn.trial.expected),
             "chosen_in": mdp.state_label(turn.previous_state), "notes": "; ".join(turn.notes),
             "probabilities": None if probs is None else dict(zip(mdp.ACTION_NAMES, (round(float(p), 4) for p in probs)))})
         self.phases.begin("listening", turn.number)

@@ -31,7 +31,7 @@ from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, Nu
                                NullUpkeep, Policy, Robot, RobotConnectionLost, RobotHealthWatch, RobotUpkeep,
                                SessionObserver)
 from nao_trainer.robot.address import redact_url
-from nao_trainer.tasks.base import Task
+from nao_trainer.tasks.base import Task, table_fields
 from nao_trainer.session.behaviors import Behaviors, load_behaviors
 from nao_trainer.session.check import check_disk, check_eeg, check_robot, plan_from_config
 from nao_trainer.session.config import DESKTOP, MOCK, StudyConfig, is_robot_address
@@ -265,6 +265,10 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
     whatever happens (the record is closed last but the stand-in, so every close is logged in it)."""
     out = _Outcome(seed, span_rate=span_rate(config.policy.objective))
     task = config.task.build_task()
+    try:
+        table_fields(task)  # a plug-in's console fields must be among its columns: said before anything starts
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
     out.task = task
     recorder = SessionRecorder(config.output_dir(), config.participant.pseudonym, columns=task.columns)
     stack = ExitStack()

@@ -10,7 +10,8 @@ Optional hooks: ``Settings`` (its ``task.settings`` class), ``describe(row)`` (t
 progress line: what was presented and answered), ``dialogue_file`` (its own words), ``published_data`` (True: the fitted user models and the dataset are of this task; only the sequence task's are),
 ``simulated_users()`` (the population ``evaluate --task`` compares policies
 on: (name, P(success) per level)), ``level_success()`` and ``simulated_answer(trial, rng,
-reaction_s)`` (its own simulated participant; without them the user model's plan is used).
+reaction_s)`` (its own simulated participant; without them the user model's plan is used), ``table_fields``
+(the row fields the supervisor console's turn table shows for it, with their headers: ``table_fields(task)``).
 
 Levels: the MDP of the paper (``core.mdp``) has four difficulty levels and six actions; a task's ``levels`` are
 those four (``core.task.LEVELS``) so every learner, planner, objective and the evaluation apply unchanged. The
@@ -132,6 +133,25 @@ def check_columns(task: type | Task) -> tuple[str, ...]:
     if missing or len(set(columns)) != len(columns):
         raise ValueError(f"task {task.name!r}: columns must hold every common column once (missing {missing})")
     return tuple(c for c in columns if c not in COMMON_COLUMNS)
+
+
+#: The console's turn table shows these row fields for every task, around the task's own ``table_fields``.
+TABLE_BEFORE: tuple[tuple[str, str], ...] = (("turn", "turn"), ("level", "level"), ("feedback", "fb"),
+                                             ("action", "action"))
+TABLE_AFTER: tuple[tuple[str, str], ...] = (("success", "ok"), ("score", "score"), ("engagement", "engagement"),
+                                            ("notes", "notes"))
+
+
+def table_fields(task: type | Task) -> tuple[tuple[str, str], ...]:
+    """The turn-row fields the console's turn table shows for ``task``, as (row key, column header), in order:
+    the common ``TABLE_BEFORE``, the task's own (its ``table_fields`` mapping, else each column it adds to
+    ``COMMON_COLUMNS`` under its own name), the common ``TABLE_AFTER``. ValueError for a field not in its columns."""
+    own = getattr(task, "table_fields", None)
+    middle = tuple(own.items()) if own is not None else tuple((c, c.replace("_", " ")) for c in check_columns(task))
+    unknown = [k for k, _ in middle if k not in task.columns]
+    if unknown:
+        raise ValueError(f"task {task.name!r}: table_fields {unknown} are not among its columns")
+    return TABLE_BEFORE + middle + TABLE_AFTER
 
 
 def task_named(name: str) -> Task:

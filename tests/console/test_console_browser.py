@@ -36,11 +36,11 @@ def _browser_or_skip():
 class Run:
     """`nao-trainer run --console` in a subprocess; its stderr lines are collected as they come."""
 
-    def __init__(self, out: Path, *extra: str) -> None:
+    def __init__(self, out: Path, *extra: str, policy: str = "usp:2") -> None:
         env = dict(os.environ, QI_LOG_LEVEL="silent")
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "nao_trainer", "run", "--console", "--turns", "80", "--speed", "4", "--eeg", "off",
-             "--no-practice", "--policy", "usp:2", "--out", str(out), "--pseudonym", "C1", *extra],
+             "--no-practice", "--policy", policy, "--out", str(out), "--pseudonym", "C1", *extra],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, stdin=subprocess.DEVNULL)
         self.lines: list[str] = []
         threading.Thread(target=self._read, daemon=True).start()
@@ -234,6 +234,59 @@ def test_two_consoles_in_one_browser_keep_their_own_cookie_and_a_completed_one_s
             if run.proc.poll() is None:
                 run.proc.terminate()
                 run.proc.wait(30)
+
+
+NBACK_STUDY = """\
+study: {name: nback-console}
+task:
+  name: nback
+  settings: {fillers: 8, targets: 3}
+participant: {pseudonym: C1}
+robot: {url: mock}
+answers: {input: simulated}
+policy: {kind: schedule, schedule: [L1, L2, L3]}
+"""
+#: What the turn table shows, by task: its headers, and the task's own row keys among them (issue 26).
+TABLES = {
+    "sequence": (["turn", "level", "fb", "action", "sequence", "response", "ok", "score", "engagement", "notes"],
+                 ["sequence", "response"]),
+    "nback": (["turn", "level", "fb", "action", "n", "hits", "misses", "false alarms", "d′", "ok", "score",
+               "engagement", "notes"], ["n", "hits", "misses", "false_alarms", "d_prime"]),
+}
+
+
+@pytest.mark.parametrize("task", sorted(TABLES))
+def test_the_turn_table_shows_the_tasks_own_fields(browser, tmp_path, task):
+    """Issue 26: the table's columns come from the task (``tasks.base.table_fields`` in the session event): an
+    n-back block shows its n, hits, misses, false alarms and d′ as turns.csv has them; the sequence task its
+    sequence and response, as before."""
+    extra = ["--speed", "40"]
+    if task == "nback":
+        (tmp_path / "nback.yaml").write_text(NBACK_STUDY)
+        extra += ["--config", str(tmp_path / "nback.yaml")]
+    run = Run(tmp_path / "out", *extra, policy="schedule" if task == "nback" else "usp:2")
+    headers, own = TABLES[task]
+    context = browser.new_context(bypass_csp=True)
+    try:
+        page = context.new_page()
+        assert page.goto(run.link).status == 200
+        page.wait_for_function("document.querySelectorAll('#turns tbody tr').length >= 2", timeout=60000)
+        assert page.locator("#turns thead th").all_inner_texts() == headers
+        shown = page.evaluate("[...document.querySelectorAll('#turns tbody tr')].map(tr => Object.fromEntries("
+                              "[...tr.children].map(td => [td.dataset.field, td.textContent])))")
+    finally:
+        context.close()
+        run.proc.terminate()
+        run.proc.wait(30)
+    recorded = {r["turn"]: r for r in run.rows()}
+    assert len(shown) >= 2
+    for cells in shown:
+        row = recorded[cells["turn"]]
+        assert row["level"] == cells["level"] and row["action"] == cells["action"]
+        for key in own:  # each of the task's own fields, as recorded (d′ compared as a number)
+            assert cells[key] != "" and (float(cells[key]) == float(row[key]) if key == "d_prime"
+                                         else cells[key] == row[key]), (key, cells, row)
+        assert cells["success"] == {"True": "✓", "False": "✗"}[row["success"]]
 
 
 @pytest.mark.skipif(shutil.which("openssl") is None, reason="no openssl command: the console's TLS was not tested")

@@ -10,7 +10,7 @@ from nao_trainer.ports import Answer, Press
 from nao_trainer.session import machine
 from nao_trainer.session.config import load_config
 from nao_trainer.session.record import TURN_COLUMNS
-from nao_trainer.tasks.base import COMMON_COLUMNS, Task, check_columns, task_named
+from nao_trainer.tasks.base import COMMON_COLUMNS, TABLE_AFTER, TABLE_BEFORE, Task, check_columns, table_fields, task_named
 from nao_trainer.tasks.sequence import SequenceTask, rules
 
 
@@ -64,3 +64,22 @@ def test_common_columns_are_in_every_builtin_task():
     for name in registry.names("task"):
         cls = registry.load("task", name)
         assert set(COMMON_COLUMNS) <= set(cls.columns), name
+
+
+def test_the_consoles_turn_table_takes_its_fields_from_the_task():
+    """Issue 26: the console shows a task's own row fields (``table_fields``), else the columns it adds."""
+    assert table_fields(SequenceTask) == TABLE_BEFORE + (("sequence", "sequence"), ("response", "response")) + TABLE_AFTER
+    nback = dict(table_fields(registry.load("task", "nback")))
+    assert nback["false_alarms"] == "false alarms" and nback["d_prime"] == "d′" and "sequence" not in nback
+
+    class Plain:  # a plug-in task that declares no table fields: its own columns, under their names
+        name, columns = "plain", COMMON_COLUMNS + ("letters", "correct_positions")
+
+    assert table_fields(Plain)[len(TABLE_BEFORE):-len(TABLE_AFTER)] == (("letters", "letters"),
+                                                                       ("correct_positions", "correct positions"))
+
+    class Wrong(Plain):
+        name, table_fields = "wrong", {"letters": "letters", "sequence": "sequence"}
+
+    with pytest.raises(ValueError, match=r"task 'wrong': table_fields \['sequence'\] are not among its columns"):
+        table_fields(Wrong)

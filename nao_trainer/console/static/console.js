@@ -41,7 +41,7 @@ function renderTurn() {
   $("turn-feedback").textContent = FEEDBACK[t.feedback] ? "· " + FEEDBACK[t.feedback] + " feedback" : "";
   $("turn-action").textContent = "action " + t.action + " chosen in " + t.chosen_in;
   letters($("sequence"), t.sequence);
-  letters($("presses"), S.presses.map((p) => p.letter || "?").join(""), t.sequence);
+  letters($("presses"), S.presses.map((p) => p.letter || "?").join(""), t.expected === undefined ? t.sequence : t.expected);
   $("turn-notes").textContent = t.notes || "";
   renderProbs();
 }
@@ -75,15 +75,40 @@ function rowClass(r) {
   return r.success ? "pass" : "fail";
 }
 
+// The turn table's columns are the task's: [row key, header] pairs sent in the session event (tasks.base.table_fields).
+const SHOW = {
+  feedback: (v) => FEEDBACK[v] || "",
+  success: (v) => (v === null || v === undefined || v === "" ? "–" : (v === true || v === "True" ? "✓" : "✗")),
+  score: (v) => (v === null || v === undefined || v === "" ? "–" : v),
+  engagement: (v) => fmt(v),
+};
+let shownFields = null;  // the header drawn (JSON of the fields), redrawn when the task's fields change
+
+function tableFields() { return (S.session || {}).fields || []; }
+
+function renderHead() {
+  const fields = tableFields(), key = JSON.stringify(fields);
+  if (key === shownFields) return;
+  shownFields = key;
+  const tr = $("turns").querySelector("thead tr");
+  tr.innerHTML = "";
+  fields.forEach(([name, header]) => {
+    const th = document.createElement("th"); th.textContent = header; th.dataset.field = name; tr.appendChild(th);
+  });
+}
+
 function renderRows() {
-  const body = $("turns").querySelector("tbody");
+  renderHead();
+  const body = $("turns").querySelector("tbody"), fields = tableFields();
   body.innerHTML = "";
   S.rows.slice().reverse().forEach((r) => {
     const tr = document.createElement("tr"); tr.className = rowClass(r);
-    const ok = r.success === null ? "–" : (r.success ? "✓" : "✗");
-    [r.turn, r.level, FEEDBACK[r.feedback] || "", r.action, r.sequence, r.response, ok,
-     r.score === null ? "–" : r.score, fmt(r.engagement), r.notes || ""].forEach((v, i) => {
-      const td = document.createElement("td"); td.textContent = v; if (i === 6) td.className = "ok"; tr.appendChild(td);
+    fields.forEach(([name]) => {
+      const v = r[name], td = document.createElement("td");
+      td.textContent = SHOW[name] ? SHOW[name](v) : (v === null || v === undefined ? "" : v);
+      td.dataset.field = name;
+      if (name === "success") td.className = "ok";
+      tr.appendChild(td);
     });
     body.appendChild(tr);
   });
@@ -181,7 +206,7 @@ function connect() {
   es.addEventListener("error", () => { if (!ended) pill("link", "stream: reconnecting…", "warn"); });
   es.addEventListener("snapshot", (e) => { S = JSON.parse(e.data); renderAll(); if (S.summary) endSession(); });
   const on = (kind, fn) => es.addEventListener(kind, (e) => { if (S) { fn(JSON.parse(e.data)); } });
-  on("session", (d) => { S.session = d; S.robot = d.robot; renderHeader(); });
+  on("session", (d) => { S.session = d; S.robot = d.robot; renderHeader(); renderRows(); });
   on("state", (d) => { S.machine = d; renderHeader(); });
   on("turn_start", (d) => { S.turn = d; S.presses = []; renderTurn(); });
   on("press", (d) => { S.presses.push(d); renderTurn(); });

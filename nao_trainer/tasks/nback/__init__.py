@@ -70,6 +70,9 @@ class NBackTask:
     #: Its own words (instructions, practice) for a study that keeps the shipped dialogue.
     dialogue_file: ClassVar[Path] = Path(__file__).parent / "en.yaml"
 
+    #: The console's turn table: the block's load and its signal-detection outcome.
+    table_fields: ClassVar[Mapping[str, str]] = {"n": "n", "hits": "hits", "misses": "misses",
+                                                 "false_alarms": "false alarms", "d_prime": "d′"}
     #: BIDS: the task label, its description and its columns (``study export --bids``).
     bids_name: ClassVar[str] = "nback"
     description: ClassVar[str] = ("auditory n-back with a NAO robot: a block of 20 + n spoken letters, one every 3 s; "

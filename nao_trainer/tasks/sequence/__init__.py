@@ -30,6 +30,8 @@ class SequenceTask:
     #: The published data (the paper's sessions), the user models fitted on them and their reproductions are of
     #: this task: ``evaluate``'s fitted user sets (clusters, level-only, sessions) describe its participants.
     published_data: ClassVar[bool] = True
+    #: The console's turn table: what was said and what was pressed.
+    table_fields: ClassVar[Mapping[str, str]] = {"sequence": "sequence", "response": "response"}
     #: BIDS: the task label and description (``study export --bids``).
     bids_name: ClassVar[str] = "sequencelearning"
     description: ClassVar[str] = ("sequence learning task with a NAO robot (Tsiakas, Abujelala and Makedon, "
