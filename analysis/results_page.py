@@ -1,27 +1,45 @@
-"""Write the generated part of docs/explanation/results.md from the stored outputs of analysis/make_ceiling_results.sh.
+"""Write the generated parts of the results pages from the stored outputs of the repo's commands.
 
     PYTHONPATH=. python analysis/results_page.py            # rewrite the blocks between the markers
-    PYTHONPATH=. python analysis/results_page.py --check    # exit 1 when the page is not what this writes
+    PYTHONPATH=. python analysis/results_page.py --check    # exit 1 when a page is not what this writes
 
 Every number and every "holds / does not hold" sentence between ``<!-- generated:NAME begin -->`` and
-``<!-- generated:NAME end -->`` comes from ``docs/results/ceiling-<users>-<objective>/personalise.json``
-(tests/test_results_page.py checks that the page equals this script's output), so the prose cannot
-drift from the numbers. A claim "holds" only when its paired 95 % interval over people excludes 0.
+``<!-- generated:NAME end -->`` comes from a stored output (tests/test_results_page.py checks that each page
+equals this script's output), so the prose cannot drift from the numbers:
+
+- ``USERS.OBJECTIVE`` (docs/explanation/results.md): the ceiling table of ``docs/results/ceiling-<users>-<objective>/
+  personalise.json`` (``analysis/make_ceiling_results.sh``);
+- ``multi.USERS.OBJECTIVE``: the several-sessions table of the same output;
+- ``holds`` (docs/explanation/results.md, docs/explanation/results-summary.md) and ``holds-short`` (README.md): what holds
+  under each objective, in words;
+- ``power.USERS`` and ``power-n`` (docs/how-to/study.md, docs/explanation/results-summary.md): the tables of
+  ``docs/study/<users>/power.json`` (``analysis/make_power.sh``) and the sample size a gain needs, computed
+  by ``PowerReport.n_needed`` from the stored SDs.
+
+A claim "holds" only when its paired 95 % interval over people excludes 0.
 """
 from __future__ import annotations
 
 import json
 import re
+import shlex
 import sys
+import textwrap
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "explanation" / "results.md"
+PAGES = (PAGE, ROOT / "docs" / "explanation" / "results-summary.md", ROOT / "docs" / "how-to" / "study.md", ROOT / "README.md")
 RESULTS = ROOT / "docs" / "results"
+STUDY = ROOT / "docs" / "study"
 OBJECTIVES = ("target-p:0.75", "target-rate:0.75")
+ALL_OBJECTIVES = ("score",) + OBJECTIVES
 USERS = (("own-rates", "own rates (each session's own success per level, shrunk by 2 pseudo-turns)"),
          ("data-prior", "data prior (the default per-session users)"))
-LABELS = {"fixed:2": "always level 2", "best-fixed-objective": "best fixed level, chosen on training data",
+WHAT = {"score": "the paper's score, equation (1)",
+        "target-p:0.75": "each turn's true success probability near 75 %",
+        "target-rate:0.75": "the session's success rate near 75 %"}
+LABELS = {"fixed:2": "always level 2", "best-fixed-objective": "best fixed level of the nearest cluster (see below)",
           "pooled-fixed": "level best for the population", "personalised": "personalised pipeline (A = 0)",
           "bayes": "`bayes`, prior: 3 fitted clusters",
           "bayes-psychometric": "`bayes-psychometric` (= live `bayes` under a target)",
@@ -30,7 +48,18 @@ LABELS = {"fixed:2": "always level 2", "best-fixed-objective": "best fixed level
           "staircase-tuned": "staircase tuned on the other people", "questplus": "QUEST+ (entropy, uniform prior)",
           "questplus-fitted": "QUEST+ (entropy, prior fitted on the other people)",
           "questplus-mean": "QUEST+ placing by its posterior mean", "oracle-objective": "per-user oracle"}
+SHORT = {"ceiling": "the ceiling", "bayes-psychometric": "`bayes-psychometric`", "bayes": "`bayes` (clusters)",
+         "bayes-loo": "leave-one-out Bayes", "personalised": "the personalised pipeline",
+         "best-fixed-objective": "the best fixed level of the nearest cluster",
+         "staircase-2d1u@2": "2-down/1-up", "staircase-3d1u@2": "3-down/1-up",
+         "staircase-tuned": "the tuned staircase", "questplus": "QUEST+ (uniform prior)",
+         "questplus-fitted": "QUEST+ (fitted prior)"}
+MULTI = {"pooled-fixed": "level best for the population (level 2)",
+         "explore-commit": "explore in session 1, then commit (prior: all the users)",
+         "explore-commit-loo": "the same, prior: the other people",
+         "bound": "bound: best first session, then the truth for free", "oracle": "per-user oracle"}
 MARK = re.compile(r"(<!-- generated:(?P<name>[\w.:-]+) begin -->\n)(?P<body>.*?)(<!-- generated:(?P=name) end -->)", re.S)
+GAIN_POINTS = 1  # decimals the score gain of the power paragraph is rounded to (a design input, stated as such)
 
 
 def _ci(v, d=3) -> str:
@@ -49,30 +78,60 @@ def _share(s) -> str:
                                           else "[unbounded]")
 
 
-def _verdict(s, key, what) -> str:
+def _verdict(s, key, what, sign=0) -> str:
+    """A claim about the paired difference ``key``: ``sign`` +1 claims it above 0, -1 below, 0 either way."""
     d, ci = s.get(key), s.get(key + "_ci")
     if d is None or not ci:
         return f"{what}: not computed"
-    held = ci[0] > 0 or ci[1] < 0
-    sign = "above" if d > 0 else "below"
-    return (f"{what}: {d:+.3f} {_ci(ci)}, " + (f"**holds** ({sign}, the interval excludes 0)" if held
-                                                else "**does not hold** (the interval contains 0)"))
+    side = 1 if ci[0] > 0 else -1 if ci[1] < 0 else 0
+    head = f"{what}: {d:+.3f} {_ci(ci)}, "
+    if side == 0:
+        return head + "**does not hold** (the interval contains 0)"
+    where = "above" if side > 0 else "below"
+    if sign in (0, side):
+        return head + f"**holds** ({where} 0, the interval excludes 0)"
+    return head + f"**does not hold: the opposite holds** ({where} 0, the interval excludes 0)"
+
+
+def _path(users: str, objective: str) -> Path:
+    return RESULTS / f"ceiling-{users}-{objective.replace(':', '-')}" / "personalise.json"
+
+
+def _ceiling(users: str, objective: str) -> dict | None:
+    """The ceiling section of a stored output made by the current code (people counted), else None."""
+    path = _path(users, objective)
+    if not path.exists():
+        return None
+    c = json.loads(path.read_text())["ceiling"]
+    return c if any("people" in s and "d_level2" in s for s in c["summary"]) else None
+
+
+def _by(c: dict) -> dict:
+    return {s["policy"]: s for s in c["summary"] if s.get("assessment") in (None, 0)}
+
+
+def _missing(users: str, objective: str, text: str) -> str:
+    path = _path(users, objective)
+    return (f"*Not computed yet for {text}, {objective} with the current code: run "
+            f"`analysis/make_ceiling_results.sh` (`{path.relative_to(ROOT)}` is missing or older).*\n")
 
 
 def block(objective: str, users: str, text: str) -> str:
-    path = RESULTS / f"ceiling-{users}-{objective.replace(':', '-')}" / "personalise.json"
-    if not path.exists():
-        return (f"*Not computed yet for {text}, {objective}: run `analysis/make_ceiling_results.sh` "
-                f"(`{path.relative_to(ROOT)}` is missing); the numbers elsewhere on this page are older.*\n")
-    c = json.loads(path.read_text())["ceiling"]
-    by = {s["policy"]: s for s in c["summary"] if s.get("assessment") in (None, 0)}
+    c = _ceiling(users, objective)
+    path = _path(users, objective)
+    if c is None:
+        return _missing(users, objective, text)
+    by = _by(c)
     first = next(iter(by.values()))
     out = [f"{text}, objective `{c['objective']}`, {c['turns']}-turn sessions, {first['users']} sessions of "
            f"{first['people']} people (`{path.parent.relative_to(ROOT)}`). Mean over people [95 % t-interval]; "
            "d = policy − reference, paired over people; the ceiling is solved on these users, so intervals "
-           "against it are conditional on them; a share of the ceiling's gain over the best fixed level is "
-           "given only when that gain's interval excludes 0 (Fieller's interval).", "",
-           "| policy | value | d level 2 | d best fixed (train) | d ceiling | d leave-one-out Bayes | share |",
+           "against it are conditional on them. *Best fixed (cluster)*: the level best under the objective on the "
+           "participant's nearest cluster, fitted without the participant, but the held-out session itself picks "
+           "the cluster, so this reference is partly told who the participant is (most on the data-prior users, "
+           "whose rates are shrunk toward that cluster). *Share*: of the ceiling's gain over that level, given "
+           "only when the gain's interval excludes 0 (Fieller's interval).", "",
+           "| policy | value | d level 2 | d best fixed (cluster) | d ceiling | d leave-one-out Bayes | share |",
            "|---|---|---|---|---|---|---|"]
     for pol, label in LABELS.items():
         if pol in by:
@@ -102,39 +161,222 @@ def block(objective: str, users: str, text: str) -> str:
         out.append(f"- Per-user oracle {by['oracle-objective']['value']:.3f}, ceiling {by['ceiling']['value']:.3f}.")
     out += ["", "What holds and what does not (each a paired 95 % interval over people):", ""]
     planner = by.get("bayes-psychometric", {})
-    checks = [(planner, "d_level2", "`bayes-psychometric` beats always level 2"),
-              (planner, "d_reference", "`bayes-psychometric` beats the best fixed level chosen on training data"),
-              (planner, "d_bayes_loo", "`bayes-psychometric` differs from leave-one-out Bayes"),
-              (planner, "d_ceiling", "`bayes-psychometric` falls short of the ceiling"),
-              (by.get("ceiling", {}), "d_level2", "the ceiling is above always level 2 (something to win)")]
+    checks = [(planner, "d_level2", "`bayes-psychometric` beats always level 2", 1),
+              (planner, "d_reference", "`bayes-psychometric` beats the best fixed level of the nearest cluster", 1),
+              (planner, "d_bayes_loo", "`bayes-psychometric` differs from leave-one-out Bayes", 0),
+              (planner, "d_ceiling", "`bayes-psychometric` falls short of the ceiling", -1),
+              (by.get("ceiling", {}), "d_level2", "the ceiling is above always level 2 (something to win)", 1)]
     for pol in ("staircase-2d1u@2", "staircase-3d1u@2", "staircase-tuned", "questplus", "questplus-fitted"):
         if pol in by:
-            checks.append((by[pol], "d_ceiling", f"{LABELS[pol]} falls short of the ceiling"))
-    out += [f"- {_verdict(s, k, w)}" for s, k, w in checks if s]
+            checks.append((by[pol], "d_ceiling", f"{LABELS[pol]} falls short of the ceiling", -1))
+    out += [f"- {_verdict(s, k, w, sign)}" for s, k, w, sign in checks if s]
     return "\n".join(out) + "\n"
 
 
-def render(page: str) -> str:
-    def one(m: re.Match) -> str:
-        name = m.group("name")
-        users, objective = name.split(".", 1)
-        text = dict(USERS).get(users)
-        if text is None or objective not in OBJECTIVES:
-            raise SystemExit(f"results_page: unknown block {name!r} in {PAGE.name}")
-        return m.group(1) + block(objective, users, text) + m.group(4)
-    return MARK.sub(one, page)
+def multi_block(objective: str, users: str, text: str) -> str:
+    c = _ceiling(users, objective)
+    if c is None:
+        return _missing(users, objective, text)
+    rows = c.get("multi_session")
+    if not rows:
+        return (f"*Several sessions: {c.get('multi_session_note') or 'not computed'} "
+                f"(`{_path(users, objective).parent.relative_to(ROOT)}`).*\n")
+    sessions = sorted({r["sessions"] for r in rows})
+    at = {(r["sessions"], r["policy"]): r for r in rows}
+    out = [f"Several sessions of one participant, {text}, objective `{c['objective']}` "
+           f"(`{_path(users, objective).parent.relative_to(ROOT)}`, {rows[0]['people']} people): value per session "
+           "[95 % t-interval]; d = minus the level best for the population, paired over people; share of the "
+           "oracle's gap over that level (its interval excludes 0), bootstrap 95 % interval over people.", "",
+           "| policy | " + " | ".join(f"{n} session{'s' * (n > 1)}" for n in sessions) + " |",
+           "|---|" + "---|" * len(sessions)]
+    for pol, label in MULTI.items():
+        cells = []
+        for n in sessions:
+            r = at.get((n, pol))
+            if r is None:
+                cells.append("")
+                continue
+            cell = f"{r['value_per_session']:.3f} {_ci(r['value_ci'])}"
+            if pol not in ("pooled-fixed",):
+                cell += f"; d {r['d_best_fixed']:+.3f} {_ci(r.get('d_best_fixed_ci'))}"
+            if pol not in ("pooled-fixed", "oracle") and r.get("oracle_share") is not None:
+                cell += f"; {100 * r['oracle_share']:.0f} % {_ci([100 * x for x in r['oracle_share_ci']], 0)}" \
+                    if r.get("oracle_share_ci") else f"; {100 * r['oracle_share']:.0f} %"
+            cells.append(cell)
+        out.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(out) + "\n"
+
+
+def _holds(s: dict, key: str) -> int:
+    """+1 / -1 when the paired interval of ``key`` lies above / below 0, else 0."""
+    ci = s.get(key + "_ci")
+    return 0 if not ci else (1 if ci[0] > 0 else -1 if ci[1] < 0 else 0)
+
+
+def _list(items: list[str]) -> str:
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def holds_sentences(objective: str, users: str, short: bool = False) -> str:
+    """What holds under one objective on one user set, in words, from its stored output."""
+    c = _ceiling(users, objective)
+    if c is None:
+        return f"**`{objective}`, {users}**: not computed yet with the current code."
+    by = _by(c)
+    ref = "always level 2"
+    pols = [p for p in SHORT if p in by]
+    if short:
+        pols = [p for p in ("ceiling", "bayes-psychometric", "staircase-2d1u@2", "staircase-tuned") if p in by]
+    d = {p: f"{by[p]['d_level2']:+.3f} {_ci(by[p].get('d_level2_ci'))}" for p in pols}
+    up = [p for p in pols if _holds(by[p], "d_level2") > 0]
+    tie = [p for p in pols if _holds(by[p], "d_level2") == 0]
+    down = [p for p in pols if _holds(by[p], "d_level2") < 0]
+    head = f"**`{objective}`** ({WHAT.get(c['objective'], c['objective'])}), {users.replace('-', ' ')}"
+    if "ceiling" in tie and not up:
+        parts = [f"{head}: **nothing beats {ref}, not even the ceiling** ({d['ceiling']})"]
+        others = [p for p in tie if p != "ceiling"]
+        if others:
+            parts[0] += "; " + ", ".join(f"{SHORT[p]} {d[p]}" for p in others)
+    else:
+        parts = [f"{head}: **beats {ref}**: " + (", ".join(f"{SHORT[p]} {d[p]}" for p in up) or "nothing")]
+        if tie:
+            parts.append(f"cannot be told from {ref}: " + ", ".join(f"{SHORT[p]} {d[p]}" for p in tie))
+    if down:
+        parts.append(f"below {ref}: " + ", ".join(f"{SHORT[p]} {d[p]}" for p in down))
+    text = "; ".join(parts) + "."
+    planner, ceiling = by.get("bayes-psychometric"), by.get("ceiling")
+    if planner and ceiling and planner.get("d_ceiling_ci"):
+        gap = f"{planner['d_ceiling']:+.3f} {_ci(planner['d_ceiling_ci'])}"
+        text += (f" `bayes-psychometric` − ceiling = {gap}: "
+                 + ("it falls short of the ceiling." if _holds(planner, "d_ceiling") < 0 else
+                    "it cannot be told from the ceiling."))
+    return text
+
+
+def holds_block(short: bool = False) -> str:
+    if short:
+        lines = [holds_sentences(o, "own-rates", short=True) for o in OBJECTIVES]
+        c = _ceiling("own-rates", OBJECTIVES[0])
+        people = f"the {_by(c)['fixed:2']['people']} people" if c else "the people"
+        lines.append(f"Intervals: paired 95 % over {people} of the published data (own rates: each session's "
+                     "own success per level); every table, the data-prior users and the score: "
+                     "[docs/explanation/results.md](docs/explanation/results.md).")
+        return "\n".join(textwrap.fill(line, 110, initial_indent="- ", subsequent_indent="  ",
+                                       break_on_hyphens=False, break_long_words=False) for line in lines) + "\n"
+    out = ["Written by `analysis/results_page.py` from the stored outputs (each d = policy − always level 2, "
+           "a paired 95 % interval over people; a claim holds only when the interval excludes 0):", ""]
+    for users, _ in USERS:
+        for o in ALL_OBJECTIVES:
+            if o == "score" and _ceiling(users, o) is None:
+                continue
+            out.append(f"- {holds_sentences(o, users)}")
+    return "\n".join(out) + "\n"
+
+
+def _power_command(users: str) -> str:
+    """The line of analysis/make_power.sh that writes docs/study/<users>."""
+    script = (ROOT / "analysis" / "make_power.sh").read_text().replace("\\\n", " ")
+    for line in script.splitlines():
+        if line.strip().startswith("nao-trainer study power") and f"--out docs/study/{users}" in line:
+            return " ".join(shlex.split(line.replace('"$DATA"', "DATA")))
+    raise SystemExit(f"results_page: analysis/make_power.sh has no study power command for docs/study/{users}")
+
+
+def _power_report(users: str):
+    from nao_trainer.study.power import PowerReport
+
+    j = json.loads((STUDY / users / "power.json").read_text())
+    arms = {a for key in j["power"] for a in key.split(": ", 1)[1].split(" vs ")}
+    return PowerReport(arms=len(arms), name=j["protocol"], protocol_sha256=j["protocol_sha256"], ns=j["ns"],
+                       reps=j["reps"], alpha=j["alpha"], users=j["users"], drift=j["drift"], power=j["power"], effect=j["effect"],
+                       sd=j["sd"], sd_ref=j.get("sd_ref", {})), j
+
+
+def power_block(users: str) -> str:
+    rep, j = _power_report(users)
+    out = [f"`{_power_command(users)}` (in `analysis/make_power.sh`; output `docs/study/{users}/power.txt`, "
+           f"protocol sha256 {j['protocol_sha256'][:12]}, {j['reps']} simulated studies per N, test: "
+           f"{j.get('test', 'one variance pooled over the arms (older run)')}). Power per total N (all arms); the "
+           "effect is the mean estimated arm − reference at the largest N; SDs of participant means in the arm / "
+           "the reference arm:", "",
+           "| outcome: comparison | " + " | ".join(f"N={n}" for n in rep.ns) + " | N for 80 % | effect | SDs |",
+           "|---|" + "---|" * (len(rep.ns) + 3)]
+    for key in sorted(rep.power):
+        sds = f"{rep.sd[key]:.2f} / {rep.sd_ref.get(key, rep.sd[key]):.2f}"
+        out.append(f"| {key} | " + " | ".join(f"{p:.2f}" for p in rep.power[key])
+                   + f" | {rep.n_for_80(key)} | {rep.effect[key][-1]:+.3f} | {sds} |")
+    return "\n".join(out) + "\n"
+
+
+def _score_gain() -> tuple[float, str] | None:
+    """The ceiling's gain over always level 2 on the score, own rates, from its stored output."""
+    path = _path("own-rates", "score")
+    if not path.exists():
+        return None
+    c = json.loads(path.read_text())["ceiling"]
+    by = _by(c)
+    if "ceiling" not in by or "fixed:2" not in by:
+        return None
+    s = by["fixed:2"]
+    gain = -s["d_ceiling"]
+    ci = s.get("d_ceiling_ci")
+    return gain, (f"{gain:+.2f}" + ("" if not ci else f" [{-ci[1]:.2f}, {-ci[0]:.2f}]")
+                  + f", `{path.parent.relative_to(ROOT)}`")
+
+
+def power_n_block() -> str:
+    rep, _ = _power_report("sessions")
+    key = "score: personalised vs level2"
+    sd, sd_ref = rep.sd[key], rep.sd_ref.get(key, rep.sd[key])
+    found = _score_gain()
+    if found is None:
+        return "*The score's ceiling output (own rates) is missing: run `analysis/make_ceiling_results.sh`.*\n"
+    gain, where = found
+    delta = round(gain, GAIN_POINTS)
+    both = rep.n_needed(delta, sd, arms=1, sd_ref=sd_ref)
+    same = rep.n_needed(delta, sd_ref, arms=1, sd_ref=sd_ref)
+    text = (f"A gain of {delta:g} points per session (the ceiling's gain over always level 2 on the score, own "
+            f"rates: {where}, rounded) needs about **{both:,} participants per arm** for 80 % power with the two "
+            f"arms' own SDs of participant means in `docs/study/sessions/power.json` ({sd:.2f} personalised, "
+            f"{sd_ref:.2f} level 2), or {same:,} if the personalised arm spread like level 2 "
+            "(n per arm = (z_0.975 + z_0.8)² (sd² + sd_ref²) / δ², `PowerReport.n_needed`).")
+    return textwrap.fill(text, 110, break_on_hyphens=False, break_long_words=False) + "\n"
+
+
+def render_block(name: str, where: str = "docs/explanation/results.md") -> str:
+    if name == "holds":
+        return holds_block()
+    if name == "holds-short":
+        return holds_block(short=True)
+    if name == "power-n":
+        return power_n_block()
+    if name.startswith("power."):
+        return power_block(name.split(".", 1)[1])
+    multi = name.startswith("multi.")
+    users, _, objective = (name[6:] if multi else name).partition(".")
+    text = dict(USERS).get(users)
+    if text is None or objective not in ALL_OBJECTIVES:
+        raise SystemExit(f"results_page: unknown block {name!r} in {where}")
+    return (multi_block if multi else block)(objective, users, text)
+
+
+def render(page: str, where: str = "docs/explanation/results.md") -> str:
+    return MARK.sub(lambda m: m.group(1) + render_block(m.group("name"), where) + m.group(4), page)
 
 
 def main(argv: list[str]) -> int:
-    page = PAGE.read_text()
-    new = render(page)
-    if "--check" in argv:
+    stale = []
+    for path in PAGES:
+        page = path.read_text()
+        new = render(page, str(path.relative_to(ROOT)))
         if new != page:
-            print(f"results_page: {PAGE.relative_to(ROOT)} is not what analysis/results_page.py writes; run it",
-                  file=sys.stderr)
-            return 1
-        return 0
-    PAGE.write_text(new)
+            stale.append(path)
+            if "--check" not in argv:
+                path.write_text(new)
+    if "--check" in argv and stale:
+        print("results_page: " + ", ".join(str(p.relative_to(ROOT)) for p in stale)
+              + " not what analysis/results_page.py writes; run it", file=sys.stderr)
+        return 1
     return 0
 
 

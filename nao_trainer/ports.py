@@ -149,7 +149,8 @@ class NullUpkeep:
 
 
 #: What a robot's health watch reports (``HealthEvent.kind``).
-HEALTH_KINDS: tuple[str, ...] = ("falling", "fallen", "hot", "battery_low", "chest", "diagnosis", "safeguard")
+HEALTH_KINDS: tuple[str, ...] = ("falling", "fallen", "hot", "battery_low", "chest", "chest_double", "diagnosis",
+                                 "safeguard")
 
 
 @dataclass(frozen=True)

@@ -15,8 +15,8 @@ from nao_trainer.session.config import INPUTS
 from nao_trainer.study.protocol import load_protocol
 from nao_trainer.study.seal import key_path
 
-ACTIONS = ("init", "site", "statistician", "enrol", "withdraw", "amend", "status", "next", "repair", "unblind",
-           "analyse", "power", "export", "table")
+ACTIONS = ("init", "site", "statistician", "enrol", "withdraw", "amend", "status", "next", "record", "repair",
+           "unblind", "analyse", "power", "export", "table")
 DESCRIPTION = """\
 A controlled study (docs/how-to/study.md), in order:
   study init PROTOCOL --out STUDY_DIR        freeze the protocol, draw the concealed allocation
@@ -27,6 +27,7 @@ A controlled study (docs/how-to/study.md), in order:
   study withdraw STUDY_DIR PSEUDONYM --data keep|delete
   study amend STUDY_DIR PROTOCOL --reason R [--change-arms]   a recorded change of the frozen protocol
   study repair STUDY_DIR                     record killed sessions and session folders the registry lacks
+  study record STUDY_DIR                     PostgreSQL: this laptop's sessions the server did not take yet
   study unblind STUDY_DIR --reason R         the statistician: the arms, the unblinding recorded
   study analyse STUDY_DIR                    the protocol's mixed model, estimates, figures
   study export STUDY_DIR --bids OUT | --published OUT
@@ -92,6 +93,9 @@ def actions_parser() -> argparse.ArgumentParser:
                    help="allow a change of what an enrolled arm does, or blinding turned off (recorded, reported)")
     p = sub.add_parser("repair", help="record sessions on disk the registry does not know, and killed ones")
     p.add_argument("root", type=Path, metavar="STUDY_DIR")
+    p = sub.add_parser("record", help="a site's laptop (PostgreSQL registry): record the sessions kept in "
+                                      "STUDY_DIR/outbox (the network went during them, or they were killed)")
+    p.add_argument("root", type=Path, metavar="STUDY_DIR")
     p = sub.add_parser("unblind", help="the statistician: reveal the arms (recorded with time, who and reason)")
     p.add_argument("root", type=Path, metavar="STUDY_DIR")
     p.add_argument("--reason", required=True)
@@ -155,13 +159,13 @@ def run(args: argparse.Namespace) -> int:
             + (["--no-figure"] if args.no_figure else [])
     sub = actions_parser().parse_args(words)
     root = getattr(sub, "root", None)
-    remote_ok = ("init", "site", "statistician", "enrol", "status", "unblind", "power", "table")
-    if sub.action not in remote_ok and root is not None:
+    if sub.action == "amend" and root is not None:
         from nao_trainer.study.remote import is_remote
 
         if is_remote(root):
-            raise ConfigError(f"study {sub.action}: not available yet for a study whose registry is on PostgreSQL "
-                              f"({root}); enrol, status, site add and unblind are")
+            raise ConfigError(f"study amend: not available on a PostgreSQL registry ({root}): every site's laptop "
+                              "runs the frozen protocol and its study configuration; for a new version create a new "
+                              "study database with `study init --registry` (docs/how-to/multi-site-study.md)")
     return int(globals()[f"_{sub.action}"](sub) or 0)
 
 
@@ -287,9 +291,16 @@ def _enrol(args: argparse.Namespace) -> int:
 
 
 def _withdraw(args: argparse.Namespace) -> int:
+    from nao_trainer.study import remote
     from nao_trainer.study.registry import open_study, withdraw
     from nao_trainer.study.runner import repair
 
+    if remote.is_remote(args.root):
+        _entry, deleted = remote.withdraw(args.root, args.pseudonym, args.data, args.reason)
+        print(f"{args.pseudonym}: withdrawal recorded in the registry (data {args.data}"
+              + (f"; {len(deleted)} folder(s) deleted on this laptop: delete the statistician's copies too)"
+                 if args.data == "delete" else ")"))
+        return 0
     if not open_study(args.root).participant(args.pseudonym)["withdrawn"]:
         repair(args.root, args.pseudonym)  # a killed session of this participant is on record first
     _entry, deleted = withdraw(args.root, args.pseudonym, args.data, args.reason)
@@ -335,16 +346,21 @@ def _next(args: argparse.Namespace) -> int:
              "session.max_duration_s": args.max_duration}
     options = RunOptions(quiet=args.quiet, keys=not args.no_keys, console=args.console or args.console_port is not None,
                          console_port=args.console_port, console_bind=args.console_bind)
-    _plan, result = run_next(args.root, args.pseudonym, flags, options, resume=args.resume)
+    from nao_trainer.study import remote
+
+    go = remote.run_next if remote.is_remote(args.root) else run_next
+    _plan, result = go(args.root, args.pseudonym, flags, options, resume=args.resume)
     print(result.summary())
     return result.exit_code
 
 
 def _analyse(args: argparse.Namespace) -> int:
+    from nao_trainer.study import remote
     from nao_trainer.study.analysis import analyse
     from nao_trainer.study.registry import open_study
 
-    study = open_study(args.root, reveal=True)
+    study = remote.statistician_study(args.root, "study analyse") if remote.is_remote(args.root) else \
+        open_study(args.root, reveal=True)
     out = args.out or args.root / "analysis"
     report = analyse(study, out)
     print(report.text)
@@ -426,7 +442,10 @@ def _export(args: argparse.Namespace) -> int:
 
     if (args.bids is None) == (args.published is None):
         raise ConfigError("study export: give --bids OUT or --published OUT")
-    study = open_study(args.root, reveal=True)
+    from nao_trainer.study import remote
+
+    study = remote.statistician_study(args.root, "study export") if remote.is_remote(args.root) else \
+        open_study(args.root, reveal=True)
     if args.bids is not None:
         from nao_trainer.study.bids import export_bids
 
@@ -439,9 +458,22 @@ def _export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _record(args: argparse.Namespace) -> int:
+    from nao_trainer.study import remote
+
+    if not remote.is_remote(args.root):
+        return _repair(args)  # one laptop: what repair records
+    found = remote.record(args.root, sys.stdout)
+    print(f"{args.root}: {len(found)} session(s) recorded from {args.root / remote.OUTBOX}")
+    return 0
+
+
 def _repair(args: argparse.Namespace) -> int:
+    from nao_trainer.study import remote
     from nao_trainer.study.runner import repair
 
+    if remote.is_remote(args.root):  # a site's laptop: its outbox (killed sessions, and those the network lost)
+        return _record(args)
     found = repair(args.root)
     for e in found:
         print(f"{e['pseudonym']} session {e['number']}: {e['folder'] or 'no folder'} recorded as {e['status']}")

@@ -42,6 +42,7 @@ class HealthKeys:
     hot: str = ""  # a device is hot (``HotDeviceDetected``)
     battery_low: str = ""  # ``ALBattery/BatteryLow``
     chest: str = ""  # one click of the chest button (``ALChestButton/SimpleClickOccurred``)
+    chest_double: str = ""  # a double click of the chest button (``ALChestButton/DoubleClickOccurred``)
     diagnosis: str = ""  # the passive diagnosis: False = a failure ALMotion reacts to (``ALDiagnosis/RobotIsReady``)
     safeguard: str = ""  # Autonomous Life's state changed (``AutonomousLife/State``): "safeguard" pauses
 

@@ -118,6 +118,44 @@ def test_a_chest_press_during_a_trial_replays_that_turn(tmp_path, standin):
     assert [(c["kind"], c["accepted"]) for c in commands] == [("repeat", True)]
 
 
+def _calls(standin):
+    return [(c["service"], c["method"]) for c in standin.transcript()]
+
+
+@pytest.mark.parametrize("does", ["stiffness", "life"])
+def test_a_double_press_of_the_chest_button_mid_trial_replays_the_turn_on_a_robot_set_back(tmp_path, standin, does):
+    """Pressed twice at turn 1's beep, the stand-in raises ALChestButton/DoubleClickOccurred and removes its
+    stiffness (alchestbutton.html) or switches Autonomous Life off and on (chest_button_usages.html): the turn is
+    marked invalid and replayed, and before the replay's beep the session has set the robot back (motors woken,
+    or life disabled again). Without the event the turn would be scored; without the upkeep, the replay would play
+    on a limp (or autonomous) robot."""
+    standin.control.set_chest_double(does)
+    standin.control.act_after("ALAudioPlayer.playSine", "chest", [2])
+    result = _play(_config(tmp_path, standin.url), RunOptions(quiet=True))
+    assert result.status == "completed"
+    folder = result.path
+    rows = read_turns(folder)
+    first = rows[0]
+    assert first["invalid"] == "True" and "chest button double-clicked during the trial" in first["notes"]
+    again = rows[1]
+    assert again["action"] == first["action"] and again["success"] in ("True", "False") and not again.get("invalid")
+    events = read_events(folder)
+    health = [e for e in events if e["event"] == "robot_health"]
+    assert [(e["kind"], e["turn"]) for e in health] == [("chest_double", 1)]
+    assert "set back before the next turn" in health[0]["decision"]
+    robot_commands = [e for e in events if e["event"] == "command" and e["source"] == "robot"]
+    assert [(c["kind"], c["accepted"]) for c in robot_commands] == [("repeat", True)]
+    calls = _calls(standin)
+    pressed = calls.index(("NaoTrainerStandIn", "chest"))
+    next_beep = calls.index(("ALAudioPlayer", "playSine"), pressed)
+    set_back = ("ALMotion", "wakeUp") if does == "stiffness" else ("ALAutonomousLife", "setState")
+    assert set_back in calls[pressed:next_beep]  # restored before the replayed turn's beep
+    found = "motors_found_off" if does == "stiffness" else "autonomous_life_changed"
+    replay_start = [e["mono"] for e in events if e["event"] == "turn_start"][1]
+    assert [e["mono"] <= replay_start for e in events if e["event"] == found] == [True]
+    assert sum(r["success"] in ("True", "False") for r in rows) == 3
+
+
 def test_a_critically_hot_knee_makes_the_nao_sit_before_the_next_turn(tmp_path, standin):
     standin.control.act_after("ALAudioPlayer.playSine", "heat", ["LKneePitch", 3])
     result = _play(_config(tmp_path, standin.url), RunOptions(quiet=True))

@@ -14,7 +14,10 @@ Each value names the NAOqi 2.8.5 SDK page it follows (``doc/`` of the SDK):
 * battery: ``ALBattery/BatteryLow``, "raised when the battery level is low and will soon need charging",
   status always True (``naoqi/sensors/albattery-api.html``);
 * chest button: one click makes NAO say its name and IP (``naoqi/sensors/alchestbutton.html``);
-  ``ALChestButton/SimpleClickOccurred`` (``naoqi/sensors/alchestbutton-api.html``).
+  ``ALChestButton/SimpleClickOccurred`` and, for a double click, ``ALChestButton/DoubleClickOccurred``
+  (``naoqi/sensors/alchestbutton-api.html``). What a double click does, the 2.8 pages disagree on: the stiffness
+  is removed (``alchestbutton.html``) or Autonomous Life is set off and on
+  (``family/nao_user_guide/chest_button_usages.html``); the session sets back either before the next turn.
 """
 from __future__ import annotations
 
@@ -52,6 +55,7 @@ class NaoModel(RobotModel):
     buttons = dict(BUTTON_LETTERS)
     health = HealthKeys(falling="ALMotion/RobotIsFalling", fallen="robotHasFallen", hot="HotDeviceDetected",
                         battery_low="ALBattery/BatteryLow", chest="ALChestButton/SimpleClickOccurred",
+                        chest_double="ALChestButton/DoubleClickOccurred",
                         diagnosis="ALDiagnosis/RobotIsReady")
     services = tuple(Service(name) for name in TASK_SERVICES) + (
         Service("ALAutonomousLife", False, "Autonomous Life is left as found"),

@@ -63,6 +63,7 @@ class Body:
     fallen: bool = False
     hot: dict = field(default_factory=dict)  # joint -> temperature status 1..3
     life_refused: bool = False
+    chest_double: str = "stiffness"  # what a double click of the chest button does (Control.chest)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def check_awake(self, what: str) -> None:
