@@ -45,6 +45,7 @@ from nao_trainer.learn import artifacts
 from nao_trainer.learn.artifacts import load_simulator_file
 from nao_trainer.learn.bayes_cache import solve_cached
 from nao_trainer.learn.psychometric_prior import load_prior
+from nao_trainer.learn.users import policy_users
 from nao_trainer.policies.participant_state import FRESH, ParticipantState, open_saved
 from nao_trainer.policies.plugin import LiveContext, OfflineContext
 from nao_trainer.ports import Transition
@@ -276,18 +277,44 @@ def model_prior(prior: str, models_dir: Path | None = None) -> tuple[tuple[str, 
                       "user simulators; fix policy.prior (or --prior)")
 
 
+def task_prior(prior: str | None, task: Any, models_dir: Path | None = None
+               ) -> tuple[str, tuple[tuple[str, ...], np.ndarray, np.ndarray]] | None:
+    """(the prior in words, the mixture) for a task the shipped priors are not of: its own simulated users
+    (``learn.users.policy_users``), equal weights, when ``policy.prior`` is unset; a folder or file the study
+    names as it is. None for the sequence task. A shipped prior (``PRIORS``: fitted on the published data,
+    the sequence task's) under another task is one ``ConfigError`` line naming the task."""
+    users = policy_users(task, "bayes")
+    if users is None:
+        return None
+    if prior in PRIORS:
+        raise ConfigError(f"policy 'bayes' under task {task.name!r}: prior {prior!r} is fitted on the sequence task's "
+                          "data; leave policy.prior unset (the task's own simulated users) or give a folder of user "
+                          "simulators (--prior)")
+    if prior is not None:
+        return prior, model_prior(prior, models_dir)
+    sims = [u.truth for u in users]
+    return (f"task {task.name}'s simulated users",
+            (tuple(s.name for s in sims), level_means(np.stack([s.p_success for s in sims])), np.ones(len(sims))))
+
+
 def load_bayes(path: Path | None, pseudonym: str, turns: int, objective_text: str, fresh: bool,
-               prior: str | None = None, models_dir: Path | None = None, cache: Path | None = None) -> BayesPolicy:
+               prior: str | None = None, models_dir: Path | None = None, cache: Path | None = None,
+               task: Any = None) -> BayesPolicy:
     """The Bayes policy for ``pseudonym`` with the participant's saved counts at ``path`` (None: kept
-    in the session folder, nothing carried over); ``prior``: ``policy.prior`` (None: by the objective)."""
+    in the session folder, nothing carried over); ``prior``: ``policy.prior`` (None: by the objective);
+    ``task``: the session's (None: the sequence task; another task's prior: ``task_prior``)."""
     if not bayes.available():
         raise ConfigError("policy 'bayes' needs numba: pip install 'nao-trainer[all]'")
     try:
         obj = objective.parse(objective_text)
     except ValueError as exc:
         raise ConfigError(f"policy.objective: {exc}") from None
-    prior = prior or default_prior(obj)
-    names, p, w = model_prior(prior, models_dir)
+    own = task_prior(prior, task, models_dir)
+    if own is not None:
+        prior, (names, p, w) = own
+    else:
+        prior = prior or default_prior(obj)
+        names, p, w = model_prior(prior, models_dir)
     fp = prior_fingerprint(names, p, w, obj)
     saved = open_saved(path, fresh, lambda f: read_state(f, fp, pseudonym), "bayes", log)  # + the counts' checks
     if saved is not None:
@@ -301,7 +328,8 @@ def load_bayes(path: Path | None, pseudonym: str, turns: int, objective_text: st
 
 
 def live(ctx: LiveContext) -> BayesPolicy:
-    return load_bayes(ctx.state_file, ctx.participant, ctx.turns, ctx.settings.objective, ctx.fresh, ctx.settings.prior)
+    return load_bayes(ctx.state_file, ctx.participant, ctx.turns, ctx.settings.objective, ctx.fresh, ctx.settings.prior,
+                      task=ctx.task)
 
 
 class BayesSessions:
@@ -318,8 +346,12 @@ class BayesSessions:
         if not bayes.available():
             raise ConfigError("policy 'bayes' needs numba: pip install 'nao-trainer[all]'")
         self.objective = objective.parse(ctx.settings.objective)
-        self.prior = ctx.settings.prior or default_prior(self.objective)
-        self.names, self.p, weights = model_prior(self.prior, models_dir)
+        own = task_prior(ctx.settings.prior, ctx.task, models_dir)
+        if own is not None:
+            self.prior, (self.names, self.p, weights) = own
+        else:
+            self.prior = ctx.settings.prior or default_prior(self.objective)
+            self.names, self.p, weights = model_prior(self.prior, models_dir)
         self.weights = np.asarray(weights, dtype=float) / np.sum(weights)
         self.turns = int(ctx.turns)
         self.plan = solve_plan(self.p, self.weights, self.objective, self.turns, cache)

@@ -33,6 +33,7 @@ from nao_trainer.core.qlearning import QLearner
 from nao_trainer.errors import DataError
 from nao_trainer.files import JsonFormat
 from nao_trainer.learn import artifacts, policy_files
+from nao_trainer.learn.users import policy_users
 from nao_trainer.policies.base import Guidance, log
 from nao_trainer.policies.participant_state import FRESH, ParticipantState, open_saved, session_state_file, state_file
 from nao_trainer.policies.plugin import LiveContext, OfflineContext
@@ -265,11 +266,18 @@ def restore_learners(learners: list[tuple[str, QLearner]], tables: dict[str, Any
 def load_personalised(path: Path | None, pseudonym: str, turns: int, schedule: Sequence[int], kappa: float,
                       margin: float, learning: bool, fresh: bool, guidance: float = 0.0,
                       models_dir: Path | None = None, policies_dir: Path | None = None,
-                      use_engagement: bool = False) -> PersonalisedPolicy:
+                      use_engagement: bool = False, task: Any = None) -> PersonalisedPolicy:
     """The personalised policy for ``pseudonym`` from the shipped models and policies and the
     participant's saved state at ``path`` (None: kept in the session folder, nothing carried over);
     see the module docstring. ``guidance``: how much the supervisor's overrides weigh in the choice
-    (``PersonalisedPolicy.guidance_bonus``)."""
+    (``PersonalisedPolicy.guidance_bonus``). ``task``: the session's (None: the sequence task); under a task
+    the published data are not of, the user models are its own simulated users (``task_models``)."""
+    own = task_models(task)
+    if own is not None:
+        models, fingerprint = own
+        saved = open_saved(path, fresh, lambda f: read_state(f, fingerprint, pseudonym), "personalised", log)
+        return PersonalisedPolicy(models, [], fingerprint, path, turns, tuple(int(x) for x in schedule), kappa,
+                                  margin, learning, saved, False, guidance, pseudonym)
     manifest = artifacts.load_manifest(models_dir)
     rows = manifest.get("clusters", [])
     if not rows:
@@ -302,13 +310,28 @@ def load_personalised(path: Path | None, pseudonym: str, turns: int, schedule: S
                               margin, learning, saved, use_engagement, guidance, pseudonym)
 
 
+def task_models(task: Any) -> tuple[ModelSet, str] | None:
+    """(user models, fingerprint) of a task the shipped models are not of: its own simulated users
+    (``learn.users.policy_users``), equal prior weights. Their success depends on the level only, so each one's
+    best policy is a fixed level: the candidates are the four fixed levels (no trained per-model policy).
+    None for the sequence task (the shipped models); one ``ConfigError`` line for a task without users."""
+    users = policy_users(task, "personalised")
+    if users is None:
+        return None
+    sims = [u.truth for u in users]
+    models = ModelSet(tuple(s.name for s in sims), np.stack([s.p_success for s in sims]),
+                      np.stack([s.engagement for s in sims]), np.ones(len(sims)), None)
+    return models, models_fingerprint(models, [f"task:{task.name}"] + [s.fingerprint() for s in sims], [])
+
+
 # -- the plug-in's entry points (policies.kinds.PERSONALISED) ----------------------------------------
 
 
 def live(ctx: LiveContext) -> PersonalisedPolicy:
     own = ctx.settings
     return load_personalised(ctx.state_file, ctx.participant, ctx.turns, own.assessment, float(own.kappa),
-                             float(own.margin), ctx.common.learning, ctx.fresh, guidance=ctx.common.guidance)
+                             float(own.margin), ctx.common.learning, ctx.fresh, guidance=ctx.common.guidance,
+                             task=ctx.task)
 
 
 class PersonalisedSessions:
@@ -319,7 +342,7 @@ class PersonalisedSessions:
     def __init__(self, ctx: OfflineContext) -> None:
         own = ctx.settings
         live_policy = load_personalised(None, "offline", ctx.turns, own.assessment, float(own.kappa),
-                                        float(own.margin), False, False)
+                                        float(own.margin), False, False, task=ctx.task)
         self.pers = live_policy.pers
         self.assessment = tuple(live_policy.pers.schedule)
         self.turns = ctx.turns
