@@ -84,7 +84,7 @@ def test_operator_cannot_read_an_arm(study):
         config = pg.session_config(op, pseud)
         assert config["next_session"] == 1 and "policy.kind" in config["config"]
         arm_names = {a.name for a in study.protocol.arms}
-        assert set(config) == {"pseudonym", "next_session", "config"}  # no arm name, no slot
+        assert set(config) == {"pseudonym", "next_session", "last_ended", "config"}  # no arm name, no slot
         for sql in ("SELECT arm FROM allocation", "SELECT * FROM allocation", "SELECT * FROM participants",
                     "SELECT stratum, allocation_index FROM participants", "SELECT * FROM arms",
                     "SELECT * FROM unblindings", "SELECT * FROM unblind('curious')"):
@@ -277,8 +277,8 @@ def test_command_line_two_sites_from_two_shells(pg_cluster, tmp_path, monkeypatc
     assert not any(a.name in out.split("\n", 2)[2] for a in load_protocol(PROTOCOL).arms)
     code, out = _cli(capsys, "unblind", study, "--reason", "curious")
     assert code == 2 and out.count("\n") == 1 and "permission denied" in out
-    code, out = _cli(capsys, "next", study, "P001")
-    assert code == 2 and "not available yet" in out
+    code, out = _cli(capsys, "analyse", study)
+    assert code == 2 and out.count("\n") == 1 and "the statistician's role only" in out
     monkeypatch.setenv("PGUSER", roles["stats"])
     code, out = _cli(capsys, "status", study)
     assert code == 0 and "north: 6 participant(s)" in out and "south: 6 participant(s)" in out
