@@ -151,4 +151,4 @@ def test_run_task_nback_with_the_personalised_policy_matches_the_tasks_own_users
     events = [json.loads(line) for line in (folder / "events.jsonl").read_text().splitlines()]
     (first, *_) = [e for e in events if e["event"] == "policy_status"]
     assert set(first["posterior"]) == set(names)
-    assert "matched user model: nback-" in res.stdout
+    assert "matched user model nback-" in res.stdout
