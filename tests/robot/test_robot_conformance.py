@@ -45,13 +45,16 @@ def test_the_standin_defaults_follow_the_documentation_except_where_it_says_why(
 
 def test_a_recorded_profile_is_served_back_by_the_standin(tmp_path):
     lab = Profile(source="a lab's NAO", naoqi_version="2.8.6.23", body_type="nao", languages=["English", "German"],
-                  wake_up_result=True, say_s_per_char=0.09, play_sine_extra_s=0.2,
+                  wake_up_result=True, say_s_per_char=0.3, play_sine_extra_s=1.5,
                   memory={"RobotConfig/Body/Type": "nao"})
     path = tmp_path / "lab.json"
     path.write_text(lab.to_json())
     served = standin_profile(speed=10.0, profile=load_profile(path))
     assert (served.naoqi_version, served.languages) == ("2.8.6.23", ["English", "German"])
-    assert abs(served.say_s_per_char - 0.09) < 0.03 and abs(served.play_sine_extra_s - 0.2) < 0.1
+    # Measured durations only overshoot on a loaded machine (a wait never ends early; the round trip is taken
+    # off), so the check is one-sided, with the lab's values far above the stand-in's own (0.06 s a character,
+    # no beep latency) for the defaults never to pass it
+    assert served.say_s_per_char >= 0.3 - 0.02 and served.play_sine_extra_s >= 1.5 - 0.05, served
 
 
 def test_hardware_check_record_writes_the_profile_and_lists_the_differences(tmp_path):
