@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from nao_trainer.cli._filters import add_filter_args, filter_from_args
 from nao_trainer.eeg.settings import MODES as EEG_MODES
@@ -115,8 +116,10 @@ def actions_parser() -> argparse.ArgumentParser:
     p.add_argument("--n", default="12,24,48,96", metavar="N1,N2,...", help="numbers of participants")
     p.add_argument("--reps", type=int, default=200, metavar="R", help="simulated studies per N")
     p.add_argument("--seed", type=int, default=1, metavar="S")
-    p.add_argument("--users", default="sessions", choices=("sessions", "clusters", "level-only"),
-                   help="simulated participants: one per real session (held out, needs --data), or the clusters")
+    p.add_argument("--users", default=None, choices=("sessions", "clusters", "level-only", "task"),
+                   help="simulated participants: one per real session (held out, needs --data; the default), the "
+                        "clusters, or the protocol's task's own (task: the default for a task the published data "
+                        "are not of, e.g. nback)")
     p.add_argument("--data", type=Path, metavar="ROOT", help="the published dataset root (for --users sessions)")
     p.add_argument("--drift", type=float, default=0.3, metavar="SD",
                    help="session-to-session change of ability (logit SD; default 0.3)")
@@ -375,6 +378,7 @@ def _analyse(args: argparse.Namespace) -> int:
 
 def _power(args: argparse.Namespace) -> int:
     from nao_trainer.study.power import power_study
+    from nao_trainer.tasks.base import published
 
     try:
         ns = sorted({int(x) for x in args.n.split(",") if x.strip()})
@@ -385,6 +389,13 @@ def _power(args: argparse.Namespace) -> int:
     if not 0 <= args.drift <= 3:
         raise ConfigError(f"--drift {args.drift}: give a logit SD between 0 and 3")
     protocol = load_protocol(args.protocol)
+    task, engagement = _protocol_task(protocol)
+    ours = published(task)  # the fitted user sets and the dataset are people playing this task
+    args.users = args.users or ("sessions" if ours else "task")
+    if args.users != "task" and not ours:
+        raise ConfigError(f"study power --users {args.users}: the fitted user sets and the dataset are people playing "
+                          f"the sequence task; protocol {protocol.name!r} trains task {task.name!r}, simulated on its "
+                          "own simulated users (--users task, its default)")
     if args.users == "sessions" and args.data is None:
         raise ConfigError("study power --users sessions needs the published dataset: add --data ROOT (its extracted "
                           "clean_data folder), or give --users clusters")
@@ -395,18 +406,36 @@ def _power(args: argparse.Namespace) -> int:
     from nao_trainer.learn.users import load_users
 
     print(f"study power: loading the {args.users} users ...", file=sys.stderr, flush=True)
-    name, users = load_users(args.users, data=args.data, seed=args.seed)
+    if args.users == "task":
+        from nao_trainer.learn.users import task_user_set
+
+        name, users = f"task {task.name}", task_user_set(task, engagement)  # DataError in one line: none declared
+    else:
+        name, users = load_users(args.users, data=args.data, seed=args.seed)
     try:
         args.out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"{args.out}: cannot create ({exc.strerror}); give another --out") from None
     report = power_study(protocol, ns, args.reps, args.seed, users, name, args.drift, progress=sys.stderr)
+    if args.users == "task":
+        report.notes.append(f"users: task {task.name}'s own simulated users (Task.simulated_users), not fitted to "
+                            "people; their engagement is the study's participant_model.engagement_by_level")
     report.write(args.out)
     print(report.text())
     from nao_trainer.plots.trial import plot_power
 
     print(f"{plot_power(report, args.out / 'power.png')}: figure saved", file=sys.stderr)
     return 0
+
+
+def _protocol_task(protocol: Any) -> tuple[Any, Any]:
+    """(the task the protocol's arms train, the study's engagement by level); one line when the arms' tasks differ."""
+    configs = [protocol.arm_config(arm) for arm in protocol.arms]
+    names = sorted({c.task.name for c in configs})
+    if len(names) > 1:
+        raise ConfigError(f"study power: protocol {protocol.name!r}: its arms train different tasks ({', '.join(names)}); "
+                          "a power analysis simulates one task")
+    return configs[0].task.build_task(), configs[0].participant_model.engagement_by_level
 
 
 def _export(args: argparse.Namespace) -> int:

@@ -322,3 +322,71 @@ def test_a_stop_while_the_robot_is_away_ends_the_session_at_once(tmp_path):
     stop = [e for e in events if e["event"] == "command" and e["kind"] == "stop"]
     assert len(stop) == 1 and stop[0]["accepted"] and stop[0]["state"] == "paused"
     assert any(e["event"] == "robot_lost" for e in events)
+
+
+@pytest.mark.parametrize("go_on_while_away", [False, True])
+def test_a_pause_while_the_robot_is_away_acts_at_once_and_holds_once_it_is_back(tmp_path, go_on_while_away):
+    """The robot's link is gone (the stand-in stopped after turn 1) and the operator pauses: the pause is taken at
+    once (recorded while the session is still reconnecting, before the robot is back). The robot comes back (a new
+    stand-in on the same address): the session stays paused, no turn plays, until the operator goes on; then it
+    replays the interrupted turn and completes. A go-on given while the robot is still away cancels the pause:
+    the session plays on as soon as the robot is back. Not honoured, the pause would only be recorded once the
+    robot is back, and the robot is brought back only after it is recorded: the hang limit fails the test."""
+    first = StandIn.start(speed=50)
+    url = first.url
+    commands, watcher = CommandQueue(), _Watcher()
+    lost = watcher.when("robot", lambda d: d.get("robot") == "lost")
+    one_row = watcher.when("row", lambda d: d.get("success") in (True, False))
+    paused_away = watcher.when("command", lambda d: d["kind"] == "pause" and d["accepted"] and d["state"] == "paused")
+    went_on_away = watcher.when("command", lambda d: d["kind"] == "resume" and d["accepted"] and d["state"] == "paused")
+    held = watcher.when("state", lambda d: d.get("state") == "operator_pause")
+    back: list[StandIn] = []
+
+    def robot_and_operator():
+        if not one_row.wait(HANG_S):
+            return
+        first.stop()
+        if not lost.wait(HANG_S):
+            return
+        commands.submit("pause", source="keys")
+        if not paused_away.wait(HANG_S):
+            return
+        if go_on_while_away:
+            commands.submit("resume", source="keys")
+            if not went_on_away.wait(HANG_S):
+                return
+        back.append(StandIn.start(url, speed=50))  # the robot is back, on the same address
+        if not go_on_while_away and held.wait(HANG_S):
+            commands.submit("resume", source="keys")
+
+    helper = threading.Thread(target=robot_and_operator, daemon=True)
+    helper.start()
+    try:
+        config = _config(tmp_path, url, **{"session.turns": 3, "robot.max_reconnect_s": 120,
+                                           "robot.backoff_initial_s": 0.1, "robot.backoff_max_s": 0.3})
+        result = _play(config, RunOptions(quiet=True, commands=commands, observer=watcher))
+        helper.join(HANG_S)
+    finally:
+        first.stop()
+        for robot in back:
+            robot.stop()
+    assert back, "the pause was not taken while the robot was away"
+    assert result.status == "completed" and result.exit_code == 0
+    events = read_events(result.path)
+    names = [e["event"] for e in events]
+    ops = [(e["kind"], e["state"], e["accepted"]) for e in events if e["event"] == "command"]
+    reconnected = names.index("reconnected")
+    pause_at = next(i for i, e in enumerate(events) if e["event"] == "command" and e["kind"] == "pause")
+    assert pause_at < reconnected  # taken while the robot was away
+    holds = [e for e in events if e["event"] == "transition" and e["source"] == "paused" and e["trigger"] == "pause"]
+    after_back = [e for e in events[reconnected:] if e["event"] == "turn_start"]
+    if go_on_while_away:
+        assert ops == [("pause", "paused", True), ("resume", "paused", True)] and not holds
+        assert after_back  # played on once back
+    else:
+        assert ops == [("pause", "paused", True), ("resume", "operator_pause", True)] and len(holds) == 1
+        resume_at = max(i for i, e in enumerate(events) if e["event"] == "command" and e["kind"] == "resume")
+        assert [i for i, e in enumerate(events) if e["event"] == "turn_start" and i > reconnected][0] > resume_at
+    rows = read_turns(result.path)
+    interrupted = [r for r in rows if r["notes"].startswith("interrupted: robot lost")]
+    assert len(interrupted) <= 1 and sum(r["success"] in ("True", "False") for r in rows) == 3

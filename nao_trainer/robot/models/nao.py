@@ -43,6 +43,12 @@ class NaoSettings:
     full_battery_minutes: float = setting(60.0, kind=(int, float), min=5, max=1440,
                                           doc="minutes a full charge lasts in a session (check's estimate; "
                                               "about an hour of activity; measure yours)")
+    heat_c_per_min: float = setting(1.0, kind=(int, float), min=0.01, max=20,
+                                    doc="how fast (°C a minute) a standing NAO's leg joints warm (check's heat "
+                                        "projection; a guess: measure yours)")
+    hot_joint_c: float = setting(70.0, kind=(int, float), min=30, max=150,
+                                 doc="the leg joint temperature (°C) where NAO starts limiting stiffness (check's heat "
+                                     "projection; a guess: read Temperature/Sensor/Value when the status turns 1)")
 
 
 class NaoModel(RobotModel):

@@ -238,6 +238,15 @@ class Control:
         if status:
             self._memory.emit("HotDeviceDetected", [[joint, status]])
 
+    @qi.bind(qi.Void, [qi.String, qi.Float])
+    def warm(self, joint: str, celsius: float) -> None:
+        """``joint``'s temperature in °C (``Device/SubDeviceList/<joint>/Temperature/Sensor/Value``,
+        http://doc.aldebaran.com/2-8/family/nao_technical/lola/actuator_sensor_names.html), its status unchanged (set
+        that with ``heat``); that the two move independently is a guess to confirm with the conformance kit."""
+        self._rec.record("NaoTrainerStandIn", "warm", [joint, celsius])
+        with self._body.lock:
+            self._body.temperatures[str(joint)] = float(celsius)
+
     @qi.bind(qi.Void, [])
     def battery_low(self) -> None:
         """The battery runs low: charge 10 % and ``ALBattery/BatteryLow`` (True). ALBattery's events are on
