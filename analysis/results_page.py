@@ -50,7 +50,7 @@ LABELS = {"fixed:2": "always level 2", "best-fixed-objective": "best fixed level
           "questplus-mean": "QUEST+ placing by its posterior mean", "oracle-objective": "per-user oracle"}
 SHORT = {"ceiling": "the ceiling", "bayes-psychometric": "`bayes-psychometric`", "bayes": "`bayes` (clusters)",
          "bayes-loo": "leave-one-out Bayes", "personalised": "the personalised pipeline",
-         "best-fixed-objective": "the best fixed level of the nearest cluster",
+         "best-fixed-objective": "the best fixed level of the nearest cluster (which the held-out session picks)",
          "staircase-2d1u@2": "2-down/1-up", "staircase-3d1u@2": "3-down/1-up",
          "staircase-tuned": "the tuned staircase", "questplus": "QUEST+ (uniform prior)",
          "questplus-fitted": "QUEST+ (fitted prior)"}
@@ -261,7 +261,7 @@ def holds_block(short: bool = False) -> str:
         lines.append(f"Intervals: paired 95 % over {people} of the published data (own rates: each session's "
                      "own success per level); every table, the data-prior users and the score: "
                      "[docs/explanation/results.md](docs/explanation/results.md).")
-        return "\n".join(textwrap.fill(line, 110, initial_indent="- ", subsequent_indent="  ",
+        return "\n".join(textwrap.fill(line, 150, initial_indent="- ", subsequent_indent="  ",
                                        break_on_hyphens=False, break_long_words=False) for line in lines) + "\n"
     out = ["Written by `analysis/results_page.py` from the stored outputs (each d = policy − always level 2, "
            "a paired 95 % interval over people; a claim holds only when the interval excludes 0):", ""]
