@@ -149,7 +149,8 @@ class NullUpkeep:
 
 
 #: What a robot's health watch reports (``HealthEvent.kind``).
-HEALTH_KINDS: tuple[str, ...] = ("falling", "fallen", "hot", "battery_low", "chest", "diagnosis", "safeguard")
+HEALTH_KINDS: tuple[str, ...] = ("falling", "fallen", "hot", "battery_low", "chest", "chest_double", "diagnosis",
+                                 "safeguard")
 
 
 @dataclass(frozen=True)
@@ -452,6 +453,13 @@ class CommandQueue:
             if not self._items:
                 self._cond.wait(timeout_s)
             return bool(self._items)
+
+    def take(self, kinds: tuple[str, ...]) -> list[Command]:
+        """The queued commands of ``kinds``, oldest first, taken off the queue (the others stay queued)."""
+        with self._cond:
+            taken = [c for c in self._items if c.kind in kinds]
+            self._items = [c for c in self._items if c.kind not in kinds]
+        return taken
 
     def kinds(self) -> list[str]:
         """The kinds of the queued commands, oldest first (nothing is taken off the queue)."""

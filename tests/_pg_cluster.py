@@ -57,3 +57,87 @@ class Cluster:
 
     def url(self, db: str = "postgres", user: str = "postgres") -> str:
         return f"postgresql://{user}@/{db}?host={self.socket_dir}"
+
+
+class Relay:
+    """A Unix-socket relay in front of a cluster (a site's network path to the server): ``cut()`` drops every
+    connection through it and refuses new ones (the network gone), ``restore()`` brings it back. The
+    server itself keeps running: other connections (the administrator's) are not affected."""
+
+    def __init__(self, cluster: Cluster, folder: Path, port: int = 5432):
+        import threading
+
+        self.folder = folder
+        self.path = folder / f".s.PGSQL.{port}"
+        self.target = str(cluster.socket_dir / f".s.PGSQL.{port}")
+        self._lock = threading.Lock()
+        self._open: list = []
+        self._server = None
+
+    def url(self, db: str, user: str | None = None) -> str:
+        return f"postgresql://{user + '@' if user else ''}/{db}?host={self.folder}"
+
+    def start(self) -> "Relay":
+        import socket
+        import threading
+
+        self.folder.mkdir(parents=True, exist_ok=True)
+        server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        server.bind(str(self.path))
+        server.listen(16)
+        self._server = server
+        threading.Thread(target=self._accept, args=(server,), daemon=True).start()
+        return self
+
+    def _accept(self, server) -> None:
+        import socket
+        import threading
+
+        while True:
+            try:
+                client, _ = server.accept()
+            except OSError:
+                return
+            upstream = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            upstream.connect(self.target)
+            with self._lock:
+                self._open += [client, upstream]
+            for a, b in ((client, upstream), (upstream, client)):
+                threading.Thread(target=self._pump, args=(a, b), daemon=True).start()
+
+    @staticmethod
+    def _pump(src, dst) -> None:
+        import socket
+
+        try:
+            while True:
+                data = src.recv(65536)
+                if not data:
+                    break
+                dst.sendall(data)
+        except OSError:
+            pass
+        for s in (src, dst):
+            try:
+                s.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+
+    def cut(self) -> None:
+        import socket
+
+        if self._server is not None:
+            self._server.close()
+            self._server = None
+        self.path.unlink(missing_ok=True)
+        with self._lock:
+            for s in self._open:
+                try:
+                    s.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
+                s.close()
+            self._open.clear()
+
+    def restore(self) -> None:
+        self.start()

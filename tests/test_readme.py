@@ -52,8 +52,8 @@ def _tokens(output: str) -> set[str]:
             for note in re.findall(r"\(([^)]*)\)", rest):  # (timeout: ...), (robot feedback: ...), (marked invalid: ...)
                 found.add(f"({note.split(':', 1)[0]}:" if ":" in note else f"({note})")
             continue
-        if text.startswith("user models, posterior:"):
-            found |= {"user models, posterior:", *re.findall(r"cluster-\d", text)}
+        if text.startswith("posterior:"):
+            found |= {"posterior:", *re.findall(r"user model \d", text), *re.findall(r"cluster-\d", text)}
             policy = re.search(r"-> policy: (\w+)", text)
             if policy:
                 found.add(f"-> policy: {policy.group(1)}")
@@ -67,6 +67,9 @@ def _tokens(output: str) -> set[str]:
             continue  # a row of that table
         if text.startswith("connecting to the robot at "):
             found.add("connecting to the robot at")
+            continue
+        if text.startswith("matched user model ") and "estimated success by level" in text:
+            found |= {"matched user model", "estimated success by level", *re.findall(r"cluster-\d", text)}
             continue
         label = re.match(r"([A-Za-z][A-Za-z0-9 %()]*?):", text)
         assert label, f"a line the legend test does not know (teach it, and the README's legend): {text}"
@@ -92,7 +95,7 @@ def test_readme_legend_explains_every_token_the_demo_prints(tmp_path):
     assert done.returncode == 0, done.stdout + done.stderr
     output = done.stdout + done.stderr
     tokens = _tokens(output)
-    assert {"L1", "ok", "total", "[assessment]", "user models, posterior:", "status:"} <= tokens, tokens
+    assert {"L1", "ok", "total", "[assessment]", "posterior:", "user model 1", "status:"} <= tokens, tokens
     legend = _legend()
     missing = sorted(t for t in tokens if t not in legend and t.rstrip(":") not in legend)
     assert not missing, f"printed by the demo, not in the README's legend: {missing}"
@@ -154,3 +157,13 @@ def test_tutorials_index_links_every_tutorial():
     for page in folder.glob("*.md"):
         if page.name != "index.md":
             assert f"]({page.name})" in index, page.name
+
+
+def test_readme_names_each_user_model_as_the_policy_line_does():
+    """Issue 29: the posterior said `cluster-3` where the policy line said `user model 3`: one name for one model."""
+    shown = README.split("## What the demo prints", 1)[1].split("```", 2)[1]
+    posterior = [line for line in shown.splitlines() if line.strip().startswith("posterior:")]
+    assert posterior and all(re.findall(r"user model \d \d\.\d\d", line) for line in posterior), posterior
+    assert not re.search(r"cluster-\d", shown), "the demo's output names user models 'user model N'"
+    assert "matched user model 3 (posterior" in shown
+    assert "`user model 1`" in _legend() and "cluster-" not in _legend()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from nao_trainer.cli._filters import add_filter_args, filter_from_args
 from nao_trainer.eeg.settings import MODES as EEG_MODES
@@ -14,8 +15,8 @@ from nao_trainer.session.config import INPUTS
 from nao_trainer.study.protocol import load_protocol
 from nao_trainer.study.seal import key_path
 
-ACTIONS = ("init", "site", "statistician", "enrol", "withdraw", "amend", "status", "next", "repair", "unblind",
-           "analyse", "power", "export", "table")
+ACTIONS = ("init", "site", "statistician", "enrol", "withdraw", "amend", "status", "next", "record", "repair",
+           "unblind", "analyse", "power", "export", "table")
 DESCRIPTION = """\
 A controlled study (docs/how-to/study.md), in order:
   study init PROTOCOL --out STUDY_DIR        freeze the protocol, draw the concealed allocation
@@ -26,6 +27,7 @@ A controlled study (docs/how-to/study.md), in order:
   study withdraw STUDY_DIR PSEUDONYM --data keep|delete
   study amend STUDY_DIR PROTOCOL --reason R [--change-arms]   a recorded change of the frozen protocol
   study repair STUDY_DIR                     record killed sessions and session folders the registry lacks
+  study record STUDY_DIR                     PostgreSQL: this laptop's sessions the server did not take yet
   study unblind STUDY_DIR --reason R         the statistician: the arms, the unblinding recorded
   study analyse STUDY_DIR                    the protocol's mixed model, estimates, figures
   study export STUDY_DIR --bids OUT | --published OUT
@@ -91,6 +93,9 @@ def actions_parser() -> argparse.ArgumentParser:
                    help="allow a change of what an enrolled arm does, or blinding turned off (recorded, reported)")
     p = sub.add_parser("repair", help="record sessions on disk the registry does not know, and killed ones")
     p.add_argument("root", type=Path, metavar="STUDY_DIR")
+    p = sub.add_parser("record", help="a site's laptop (PostgreSQL registry): record the sessions kept in "
+                                      "STUDY_DIR/outbox (the network went during them, or they were killed)")
+    p.add_argument("root", type=Path, metavar="STUDY_DIR")
     p = sub.add_parser("unblind", help="the statistician: reveal the arms (recorded with time, who and reason)")
     p.add_argument("root", type=Path, metavar="STUDY_DIR")
     p.add_argument("--reason", required=True)
@@ -111,8 +116,10 @@ def actions_parser() -> argparse.ArgumentParser:
     p.add_argument("--n", default="12,24,48,96", metavar="N1,N2,...", help="numbers of participants")
     p.add_argument("--reps", type=int, default=200, metavar="R", help="simulated studies per N")
     p.add_argument("--seed", type=int, default=1, metavar="S")
-    p.add_argument("--users", default="sessions", choices=("sessions", "clusters", "level-only"),
-                   help="simulated participants: one per real session (held out, needs --data), or the clusters")
+    p.add_argument("--users", default=None, choices=("sessions", "clusters", "level-only", "task"),
+                   help="simulated participants: one per real session (held out, needs --data; the default), the "
+                        "clusters, or the protocol's task's own (task: the default for a task the published data "
+                        "are not of, e.g. nback)")
     p.add_argument("--data", type=Path, metavar="ROOT", help="the published dataset root (for --users sessions)")
     p.add_argument("--drift", type=float, default=0.3, metavar="SD",
                    help="session-to-session change of ability (logit SD; default 0.3)")
@@ -152,13 +159,13 @@ def run(args: argparse.Namespace) -> int:
             + (["--no-figure"] if args.no_figure else [])
     sub = actions_parser().parse_args(words)
     root = getattr(sub, "root", None)
-    remote_ok = ("init", "site", "statistician", "enrol", "status", "unblind", "power", "table")
-    if sub.action not in remote_ok and root is not None:
+    if sub.action == "amend" and root is not None:
         from nao_trainer.study.remote import is_remote
 
         if is_remote(root):
-            raise ConfigError(f"study {sub.action}: not available yet for a study whose registry is on PostgreSQL "
-                              f"({root}); enrol, status, site add and unblind are")
+            raise ConfigError(f"study amend: not available on a PostgreSQL registry ({root}): every site's laptop "
+                              "runs the frozen protocol and its study configuration; for a new version create a new "
+                              "study database with `study init --registry` (docs/how-to/multi-site-study.md)")
     return int(globals()[f"_{sub.action}"](sub) or 0)
 
 
@@ -216,12 +223,20 @@ def _table(args: argparse.Namespace) -> int:
 def _init(args: argparse.Namespace) -> int:
     from nao_trainer.study.registry import init_study
 
+    seed = None
+    if args.allocation_seed_file is not None:
+        text = read_text(args.allocation_seed_file, ConfigError, fix="give the file the third party supplied")
+        try:
+            seed = int(text.strip(), 0)
+        except ValueError:
+            raise ConfigError(f"{args.allocation_seed_file}: not a whole number; the file holds the seed only") from None
     if args.registry is not None:
         from nao_trainer.study import remote
 
-        if args.allocation_seed_file is not None:
-            raise ConfigError("--allocation-seed-file: not supported with --registry yet")
-        made = remote.init(args.protocol, args.out, args.registry, args.stratify_by_site)
+        if seed is not None and args.stratify_by_site:
+            raise ConfigError("--allocation-seed-file with --stratify-by-site: each site's sequence is drawn when the "
+                              "site is added, from the operating system's entropy; give one or the other")
+        made = remote.init(args.protocol, args.out, args.registry, args.stratify_by_site, seed)
         print(f"{args.out}: study {made['protocol'].name} initialised on {remote.pg.redact(args.registry)} (roles "
               f"{made['prefix']}_operator, {made['prefix']}_statistician; add sites with `nao-trainer study site add "
               f"{args.out} NAME`); the allocation is readable by no operator role")
@@ -231,13 +246,6 @@ def _init(args: argparse.Namespace) -> int:
 
     from nao_trainer.study.registry import BACKUP, REGISTRY_FILE, block_sizes
 
-    seed = None
-    if args.allocation_seed_file is not None:
-        text = read_text(args.allocation_seed_file, ConfigError, fix="give the file the third party supplied")
-        try:
-            seed = int(text.strip(), 0)
-        except ValueError:
-            raise ConfigError(f"{args.allocation_seed_file}: not a whole number; the file holds the seed only") from None
     migrating = (args.out / REGISTRY_FILE).is_file()
     study = init_study(args.protocol, args.out, seed)
     p = study.protocol
@@ -284,9 +292,16 @@ def _enrol(args: argparse.Namespace) -> int:
 
 
 def _withdraw(args: argparse.Namespace) -> int:
+    from nao_trainer.study import remote
     from nao_trainer.study.registry import open_study, withdraw
     from nao_trainer.study.runner import repair
 
+    if remote.is_remote(args.root):
+        _entry, deleted = remote.withdraw(args.root, args.pseudonym, args.data, args.reason)
+        print(f"{args.pseudonym}: withdrawal recorded in the registry (data {args.data}"
+              + (f"; {len(deleted)} folder(s) deleted on this laptop: delete the statistician's copies too)"
+                 if args.data == "delete" else ")"))
+        return 0
     if not open_study(args.root).participant(args.pseudonym)["withdrawn"]:
         repair(args.root, args.pseudonym)  # a killed session of this participant is on record first
     _entry, deleted = withdraw(args.root, args.pseudonym, args.data, args.reason)
@@ -332,16 +347,21 @@ def _next(args: argparse.Namespace) -> int:
              "session.max_duration_s": args.max_duration}
     options = RunOptions(quiet=args.quiet, keys=not args.no_keys, console=args.console or args.console_port is not None,
                          console_port=args.console_port, console_bind=args.console_bind)
-    _plan, result = run_next(args.root, args.pseudonym, flags, options, resume=args.resume)
+    from nao_trainer.study import remote
+
+    go = remote.run_next if remote.is_remote(args.root) else run_next
+    _plan, result = go(args.root, args.pseudonym, flags, options, resume=args.resume)
     print(result.summary())
     return result.exit_code
 
 
 def _analyse(args: argparse.Namespace) -> int:
+    from nao_trainer.study import remote
     from nao_trainer.study.analysis import analyse
     from nao_trainer.study.registry import open_study
 
-    study = open_study(args.root, reveal=True)
+    study = remote.statistician_study(args.root, "study analyse") if remote.is_remote(args.root) else \
+        open_study(args.root, reveal=True)
     out = args.out or args.root / "analysis"
     report = analyse(study, out)
     print(report.text)
@@ -358,6 +378,7 @@ def _analyse(args: argparse.Namespace) -> int:
 
 def _power(args: argparse.Namespace) -> int:
     from nao_trainer.study.power import power_study
+    from nao_trainer.tasks.base import published
 
     try:
         ns = sorted({int(x) for x in args.n.split(",") if x.strip()})
@@ -368,6 +389,13 @@ def _power(args: argparse.Namespace) -> int:
     if not 0 <= args.drift <= 3:
         raise ConfigError(f"--drift {args.drift}: give a logit SD between 0 and 3")
     protocol = load_protocol(args.protocol)
+    task, engagement = _protocol_task(protocol)
+    ours = published(task)  # the fitted user sets and the dataset are people playing this task
+    args.users = args.users or ("sessions" if ours else "task")
+    if args.users != "task" and not ours:
+        raise ConfigError(f"study power --users {args.users}: the fitted user sets and the dataset are people playing "
+                          f"the sequence task; protocol {protocol.name!r} trains task {task.name!r}, simulated on its "
+                          "own simulated users (--users task, its default)")
     if args.users == "sessions" and args.data is None:
         raise ConfigError("study power --users sessions needs the published dataset: add --data ROOT (its extracted "
                           "clean_data folder), or give --users clusters")
@@ -378,12 +406,20 @@ def _power(args: argparse.Namespace) -> int:
     from nao_trainer.learn.users import load_users
 
     print(f"study power: loading the {args.users} users ...", file=sys.stderr, flush=True)
-    name, users = load_users(args.users, data=args.data, seed=args.seed)
+    if args.users == "task":
+        from nao_trainer.learn.users import task_user_set
+
+        name, users = f"task {task.name}", task_user_set(task, engagement)  # DataError in one line: none declared
+    else:
+        name, users = load_users(args.users, data=args.data, seed=args.seed)
     try:
         args.out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"{args.out}: cannot create ({exc.strerror}); give another --out") from None
     report = power_study(protocol, ns, args.reps, args.seed, users, name, args.drift, progress=sys.stderr)
+    if args.users == "task":
+        report.notes.append(f"users: task {task.name}'s own simulated users (Task.simulated_users), not fitted to "
+                            "people; their engagement is the study's participant_model.engagement_by_level")
     report.write(args.out)
     print(report.text())
     from nao_trainer.plots.trial import plot_power
@@ -392,12 +428,25 @@ def _power(args: argparse.Namespace) -> int:
     return 0
 
 
+def _protocol_task(protocol: Any) -> tuple[Any, Any]:
+    """(the task the protocol's arms train, the study's engagement by level); one line when the arms' tasks differ."""
+    configs = [protocol.arm_config(arm) for arm in protocol.arms]
+    names = sorted({c.task.name for c in configs})
+    if len(names) > 1:
+        raise ConfigError(f"study power: protocol {protocol.name!r}: its arms train different tasks ({', '.join(names)}); "
+                          "a power analysis simulates one task")
+    return configs[0].task.build_task(), configs[0].participant_model.engagement_by_level
+
+
 def _export(args: argparse.Namespace) -> int:
     from nao_trainer.study.registry import open_study
 
     if (args.bids is None) == (args.published is None):
         raise ConfigError("study export: give --bids OUT or --published OUT")
-    study = open_study(args.root, reveal=True)
+    from nao_trainer.study import remote
+
+    study = remote.statistician_study(args.root, "study export") if remote.is_remote(args.root) else \
+        open_study(args.root, reveal=True)
     if args.bids is not None:
         from nao_trainer.study.bids import export_bids
 
@@ -410,9 +459,22 @@ def _export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _record(args: argparse.Namespace) -> int:
+    from nao_trainer.study import remote
+
+    if not remote.is_remote(args.root):
+        return _repair(args)  # one laptop: what repair records
+    found = remote.record(args.root, sys.stdout)
+    print(f"{args.root}: {len(found)} session(s) recorded from {args.root / remote.OUTBOX}")
+    return 0
+
+
 def _repair(args: argparse.Namespace) -> int:
+    from nao_trainer.study import remote
     from nao_trainer.study.runner import repair
 
+    if remote.is_remote(args.root):  # a site's laptop: its outbox (killed sessions, and those the network lost)
+        return _record(args)
     found = repair(args.root)
     for e in found:
         print(f"{e['pseudonym']} session {e['number']}: {e['folder'] or 'no folder'} recorded as {e['status']}")

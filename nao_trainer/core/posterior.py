@@ -28,6 +28,7 @@ and reported in docs/explanation/results.md; the live policy leaves it off unles
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,6 +36,19 @@ import numpy as np
 from nao_trainer.core import mdp
 
 FLOOR = 1e-3
+
+_CLUSTER = re.compile(r"cluster-(\d+)(?:-(.+))?")
+
+
+def model_label(name: str) -> str:
+    """A user model's name in the words the output uses for it: ``cluster-3`` is "user model 3", the words of the
+    policy trained for it (``usp:3``: "personalised (user model 3)"), so the posterior, the match and the policy
+    name a model alike; ``cluster-2-level-only`` is "user model 2 (level-only)"; any other name follows
+    "user model". The files keep the names (``cluster-3``)."""
+    m = _CLUSTER.fullmatch(name)
+    if m is None:
+        return f"user model {name}"
+    return f"user model {m.group(1)}" + (f" ({m.group(2)})" if m.group(2) else "")
 
 
 def level_means(p_success: np.ndarray) -> np.ndarray:

@@ -38,6 +38,7 @@ from nao_trainer.learn import artifacts
 from nao_trainer.learn.fit_source import table_provenance
 from nao_trainer.learn.fitting import FitOptions, Turns, fit_cluster
 from nao_trainer.learn.parallel import fan_out
+from nao_trainer.tasks.base import published
 
 USER_SETS: tuple[str, ...] = ("clusters", "level-only", "sessions", "task")
 
@@ -105,6 +106,22 @@ def task_user_set(task: Any, engagement_by_level: Any = (0.5, 0.5, 0.5, 0.5)) ->
     if not users:
         raise DataError(f"task {task.name!r}: simulated_users() is empty")
     return users
+
+
+def policy_users(task: Any, policy: str) -> list[User] | None:
+    """``task``'s own simulated users (``task_user_set``) for a policy that otherwise takes the shipped user models
+    or priors, which are fitted on the published data (the sequence task's); None when those are ``task``'s
+    (``tasks.base.published``). One ``ConfigError`` line naming the task and what to do when it has none."""
+    if published(task):
+        return None
+    if getattr(task, "simulated_users", None) is None:
+        raise ConfigError(f"policy {policy!r} under task {task.name!r}: the shipped user models are fitted on the "
+                          f"sequence task's data and task {task.name!r} declares no simulated users of its own "
+                          "(Task.simulated_users); use schedule or random")
+    try:
+        return task_user_set(task)
+    except DataError as exc:
+        raise ConfigError(f"policy {policy!r}: {exc}") from None
 
 
 # ----------------------------------------------------------------------------------------------

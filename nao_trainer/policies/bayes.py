@@ -38,13 +38,14 @@ from typing import Any, Sequence
 import numpy as np
 
 from nao_trainer.core import bayes, mdp, objective
-from nao_trainer.core.posterior import level_means
+from nao_trainer.core.posterior import level_means, model_label
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import JsonFormat
 from nao_trainer.learn import artifacts
 from nao_trainer.learn.artifacts import load_simulator_file
 from nao_trainer.learn.bayes_cache import solve_cached
 from nao_trainer.learn.psychometric_prior import load_prior
+from nao_trainer.learn.users import policy_users
 from nao_trainer.policies.participant_state import FRESH, ParticipantState, open_saved
 from nao_trainer.policies.plugin import LiveContext, OfflineContext
 from nao_trainer.ports import Transition
@@ -160,15 +161,16 @@ class BayesPolicy:
         w = self.posterior()
         est = w @ self.p
         ranked = sorted(zip(self.names, w), key=lambda x: -x[1])
-        post = " | ".join(f"{n} {x:.2f}" for n, x in ranked[:4])
+        post = " | ".join(f"{model_label(n)} {x:.2f}" for n, x in ranked[:4])
         best = int(np.argmax(w))
         return {
             "phase": "bayes", "prior": self.prior,
             "posterior": {n: round(float(x), 4) for n, x in ranked[:SHOWN]},
             "matched": self.names[best], "match_probability": round(float(w[best]), 4),
             "following": f"bayes ({self.objective})", "level_success": [round(float(x), 4) for x in est],
+            "posterior_text": post,
             "progress": f"           posterior: {post} -> next level {self.decide()}",
-            "summary": (f"Bayes planner ({self.objective}, prior {self.prior}): most likely user model {self.names[best]} "
+            "summary": (f"Bayes planner ({self.objective}, prior {self.prior}): most likely {model_label(self.names[best])} "
                         f"(posterior {w[best]:.2f}; {post}); estimated success by level "
                         + " ".join(f"L{i + 1} {x:.2f}" for i, x in enumerate(est)) + self.why_one_level(w)),
         }
@@ -189,8 +191,8 @@ class BayesPolicy:
             gap = np.abs(self.p[a] - self.p[b])
             apart = int(np.argmax(gap))
             if apart != at:
-                text += (f"; the two likeliest user models succeed at level {at + 1} alike ({self.names[a]} "
-                         f"{self.p[a, at]:.2f}, {self.names[b]} {self.p[b, at]:.2f}) and differ most at level "
+                text += (f"; the two likeliest user models succeed at level {at + 1} alike ({model_label(self.names[a])} "
+                         f"{self.p[a, at]:.2f}, {model_label(self.names[b])} {self.p[b, at]:.2f}) and differ most at level "
                          f"{apart + 1} ({self.p[a, apart]:.2f}, {self.p[b, apart]:.2f}): only turns there would tell "
                          "them apart, and the planner expected them to cost more than they could gain over the turns "
                          "left")
@@ -275,18 +277,44 @@ def model_prior(prior: str, models_dir: Path | None = None) -> tuple[tuple[str, 
                       "user simulators; fix policy.prior (or --prior)")
 
 
+def task_prior(prior: str | None, task: Any, models_dir: Path | None = None
+               ) -> tuple[str, tuple[tuple[str, ...], np.ndarray, np.ndarray]] | None:
+    """(the prior in words, the mixture) for a task the shipped priors are not of: its own simulated users
+    (``learn.users.policy_users``), equal weights, when ``policy.prior`` is unset; a folder or file the study
+    names as it is. None for the sequence task. A shipped prior (``PRIORS``: fitted on the published data,
+    the sequence task's) under another task is one ``ConfigError`` line naming the task."""
+    users = policy_users(task, "bayes")
+    if users is None:
+        return None
+    if prior in PRIORS:
+        raise ConfigError(f"policy 'bayes' under task {task.name!r}: prior {prior!r} is fitted on the sequence task's "
+                          "data; leave policy.prior unset (the task's own simulated users) or give a folder of user "
+                          "simulators (--prior)")
+    if prior is not None:
+        return prior, model_prior(prior, models_dir)
+    sims = [u.truth for u in users]
+    return (f"task {task.name}'s simulated users",
+            (tuple(s.name for s in sims), level_means(np.stack([s.p_success for s in sims])), np.ones(len(sims))))
+
+
 def load_bayes(path: Path | None, pseudonym: str, turns: int, objective_text: str, fresh: bool,
-               prior: str | None = None, models_dir: Path | None = None, cache: Path | None = None) -> BayesPolicy:
+               prior: str | None = None, models_dir: Path | None = None, cache: Path | None = None,
+               task: Any = None) -> BayesPolicy:
     """The Bayes policy for ``pseudonym`` with the participant's saved counts at ``path`` (None: kept
-    in the session folder, nothing carried over); ``prior``: ``policy.prior`` (None: by the objective)."""
+    in the session folder, nothing carried over); ``prior``: ``policy.prior`` (None: by the objective);
+    ``task``: the session's (None: the sequence task; another task's prior: ``task_prior``)."""
     if not bayes.available():
         raise ConfigError("policy 'bayes' needs numba: pip install 'nao-trainer[all]'")
     try:
         obj = objective.parse(objective_text)
     except ValueError as exc:
         raise ConfigError(f"policy.objective: {exc}") from None
-    prior = prior or default_prior(obj)
-    names, p, w = model_prior(prior, models_dir)
+    own = task_prior(prior, task, models_dir)
+    if own is not None:
+        prior, (names, p, w) = own
+    else:
+        prior = prior or default_prior(obj)
+        names, p, w = model_prior(prior, models_dir)
     fp = prior_fingerprint(names, p, w, obj)
     saved = open_saved(path, fresh, lambda f: read_state(f, fp, pseudonym), "bayes", log)  # + the counts' checks
     if saved is not None:
@@ -300,7 +328,8 @@ def load_bayes(path: Path | None, pseudonym: str, turns: int, objective_text: st
 
 
 def live(ctx: LiveContext) -> BayesPolicy:
-    return load_bayes(ctx.state_file, ctx.participant, ctx.turns, ctx.settings.objective, ctx.fresh, ctx.settings.prior)
+    return load_bayes(ctx.state_file, ctx.participant, ctx.turns, ctx.settings.objective, ctx.fresh, ctx.settings.prior,
+                      task=ctx.task)
 
 
 class BayesSessions:
@@ -317,8 +346,12 @@ class BayesSessions:
         if not bayes.available():
             raise ConfigError("policy 'bayes' needs numba: pip install 'nao-trainer[all]'")
         self.objective = objective.parse(ctx.settings.objective)
-        self.prior = ctx.settings.prior or default_prior(self.objective)
-        self.names, self.p, weights = model_prior(self.prior, models_dir)
+        own = task_prior(ctx.settings.prior, ctx.task, models_dir)
+        if own is not None:
+            self.prior, (self.names, self.p, weights) = own
+        else:
+            self.prior = ctx.settings.prior or default_prior(self.objective)
+            self.names, self.p, weights = model_prior(self.prior, models_dir)
         self.weights = np.asarray(weights, dtype=float) / np.sum(weights)
         self.turns = int(ctx.turns)
         self.plan = solve_plan(self.p, self.weights, self.objective, self.turns, cache)

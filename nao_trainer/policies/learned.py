@@ -24,6 +24,7 @@ from nao_trainer.policies.base import Guidance, TableSessions, log
 from nao_trainer.policies.participant_state import ParticipantState, digest, session_state_file
 from nao_trainer.policies.plugin import LiveContext, OfflineContext
 from nao_trainer.ports import Transition
+from nao_trainer.tasks.base import published
 
 
 #: What a participant's learning state was made from: it must be the trained policy being loaded.
@@ -205,12 +206,23 @@ def load_policy(spec: str, learning: bool, state_path: Path | None, policies_dir
 # -- the plug-in's entry points (policies.kinds.USP) ------------------------------------------------
 
 
+def refuse_other_task(ctx: LiveContext | OfflineContext) -> None:
+    """A trained policy is trained on a user model fitted on the published data (the sequence task's): under
+    another task, one ``ConfigError`` line naming the task and what to do."""
+    if not published(ctx.task):
+        raise ConfigError(f"policy {ctx.kind!r} under task {ctx.task.name!r}: it is trained on a user model fitted on "
+                          "the sequence task's data; use personalised or bayes (they take the task's own simulated users), "
+                          "schedule or random")
+
+
 def live(ctx: LiveContext) -> LivePolicy:
+    refuse_other_task(ctx)
     return load_policy(ctx.kind, ctx.common.learning, ctx.state_file, guidance=ctx.common.guidance, fresh=ctx.fresh,
                        pseudonym=ctx.participant)
 
 
 def offline(ctx: OfflineContext) -> TableSessions:
     """Its trained table (no learning within the simulated sessions)."""
+    refuse_other_task(ctx)
     policy = load_policy(ctx.kind, False, None)
     return TableSessions(np.array([policy.probabilities(s) for s in range(mdp.N_STATES)]), ctx.turns)

@@ -28,11 +28,12 @@ import numpy as np
 
 from nao_trainer.core import assessment, baselines, evaluation, mdp
 from nao_trainer.core.assessment import Choice
-from nao_trainer.core.posterior import ModelSet
+from nao_trainer.core.posterior import ModelSet, model_label
 from nao_trainer.core.qlearning import QLearner
 from nao_trainer.errors import DataError
 from nao_trainer.files import JsonFormat
 from nao_trainer.learn import artifacts, policy_files
+from nao_trainer.learn.users import policy_users
 from nao_trainer.policies.base import Guidance, log
 from nao_trainer.policies.participant_state import FRESH, ParticipantState, open_saved, session_state_file, state_file
 from nao_trainer.policies.plugin import LiveContext, OfflineContext
@@ -61,7 +62,8 @@ def models_fingerprint(models: ModelSet, fingerprints: Sequence[str], policy_dig
 
 
 def plain_name(candidate: str, why: str = "") -> str:
-    """A candidate's name in words: ``usp:3`` is the policy trained for user model 3 (cluster-3), ``fixed:4``
+    """A candidate's name in words: ``usp:3`` is the policy trained for user model 3 (``cluster-3``, which
+    ``core.posterior.model_label`` prints as "user model 3" too), ``fixed:4``
     level 4 always; ``why`` (e.g. "by expected value") joins the parenthesis."""
     kind, _, arg = candidate.partition(":")
     if kind == "usp":
@@ -193,7 +195,7 @@ class PersonalisedPolicy:
         following = self.pers.candidates[current].name if current >= 0 else None
         phase = self.last_action_phase
         ranked = sorted(zip(self.models.names, w), key=lambda x: -x[1])
-        post = " | ".join(f"{n} {p:.2f}" for n, p in ranked)
+        post = " | ".join(f"{model_label(n)} {p:.2f}" for n, p in ranked)
         levels = self.pers.level_estimates()[0]
         return {
             "phase": phase,
@@ -202,10 +204,11 @@ class PersonalisedPolicy:
             "following": following, "policy": plain_name(following) if following else None,
             "switches": int(self.pers.switches[0]),
             "level_success": [round(float(x), 4) for x in levels],
-            "progress": f"           user models, posterior: {post}" + (
+            "posterior_text": post,
+            "progress": f"           posterior: {post}" + (
                 f" -> policy: {plain_name(following, 'by expected value')}" if following
                 else " (assessment: levels set in advance)"),
-            "summary": (f"matched user model: {self.models.names[best]} (posterior {w[best]:.2f}; {post}); "
+            "summary": (f"matched {model_label(self.models.names[best])} (posterior {w[best]:.2f}; {post}); "
                         + (f"policy: {plain_name(following)}, chosen by its expected score under the posterior over "
                            "all the user models (so not always the matched model's own policy)" if following
                            else "policy: the assessment (levels set in advance)")
@@ -263,11 +266,18 @@ def restore_learners(learners: list[tuple[str, QLearner]], tables: dict[str, Any
 def load_personalised(path: Path | None, pseudonym: str, turns: int, schedule: Sequence[int], kappa: float,
                       margin: float, learning: bool, fresh: bool, guidance: float = 0.0,
                       models_dir: Path | None = None, policies_dir: Path | None = None,
-                      use_engagement: bool = False) -> PersonalisedPolicy:
+                      use_engagement: bool = False, task: Any = None) -> PersonalisedPolicy:
     """The personalised policy for ``pseudonym`` from the shipped models and policies and the
     participant's saved state at ``path`` (None: kept in the session folder, nothing carried over);
     see the module docstring. ``guidance``: how much the supervisor's overrides weigh in the choice
-    (``PersonalisedPolicy.guidance_bonus``)."""
+    (``PersonalisedPolicy.guidance_bonus``). ``task``: the session's (None: the sequence task); under a task
+    the published data are not of, the user models are its own simulated users (``task_models``)."""
+    own = task_models(task)
+    if own is not None:
+        models, fingerprint = own
+        saved = open_saved(path, fresh, lambda f: read_state(f, fingerprint, pseudonym), "personalised", log)
+        return PersonalisedPolicy(models, [], fingerprint, path, turns, tuple(int(x) for x in schedule), kappa,
+                                  margin, learning, saved, False, guidance, pseudonym)
     manifest = artifacts.load_manifest(models_dir)
     rows = manifest.get("clusters", [])
     if not rows:
@@ -300,13 +310,28 @@ def load_personalised(path: Path | None, pseudonym: str, turns: int, schedule: S
                               margin, learning, saved, use_engagement, guidance, pseudonym)
 
 
+def task_models(task: Any) -> tuple[ModelSet, str] | None:
+    """(user models, fingerprint) of a task the shipped models are not of: its own simulated users
+    (``learn.users.policy_users``), equal prior weights. Their success depends on the level only, so each one's
+    best policy is a fixed level: the candidates are the four fixed levels (no trained per-model policy).
+    None for the sequence task (the shipped models); one ``ConfigError`` line for a task without users."""
+    users = policy_users(task, "personalised")
+    if users is None:
+        return None
+    sims = [u.truth for u in users]
+    models = ModelSet(tuple(s.name for s in sims), np.stack([s.p_success for s in sims]),
+                      np.stack([s.engagement for s in sims]), np.ones(len(sims)), None)
+    return models, models_fingerprint(models, [f"task:{task.name}"] + [s.fingerprint() for s in sims], [])
+
+
 # -- the plug-in's entry points (policies.kinds.PERSONALISED) ----------------------------------------
 
 
 def live(ctx: LiveContext) -> PersonalisedPolicy:
     own = ctx.settings
     return load_personalised(ctx.state_file, ctx.participant, ctx.turns, own.assessment, float(own.kappa),
-                             float(own.margin), ctx.common.learning, ctx.fresh, guidance=ctx.common.guidance)
+                             float(own.margin), ctx.common.learning, ctx.fresh, guidance=ctx.common.guidance,
+                             task=ctx.task)
 
 
 class PersonalisedSessions:
@@ -317,7 +342,7 @@ class PersonalisedSessions:
     def __init__(self, ctx: OfflineContext) -> None:
         own = ctx.settings
         live_policy = load_personalised(None, "offline", ctx.turns, own.assessment, float(own.kappa),
-                                        float(own.margin), False, False)
+                                        float(own.margin), False, False, task=ctx.task)
         self.pers = live_policy.pers
         self.assessment = tuple(live_policy.pers.schedule)
         self.turns = ctx.turns

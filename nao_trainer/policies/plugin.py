@@ -82,6 +82,7 @@ class LiveContext:
     state_file: Path | None  # where its participant state lives (None: the session folder), for persisting kinds
     turns: int
     fresh: bool  # --fresh-policy: set the saved state aside
+    task: Any = None  # the session's task (``tasks.base.Task``); None: the sequence task
 
 
 @dataclass(frozen=True)
@@ -93,6 +94,7 @@ class OfflineContext:
     settings: Any
     common: Any
     turns: int
+    task: Any = None  # the arm's task (``tasks.base.Task``); None: the sequence task
 
 
 def split(text: str) -> tuple[str, str | None]:

@@ -18,6 +18,9 @@ What each value means (NAOqi 2.8.5 SDK pages; a shape not documented is a guess,
   (``naoqi/sensors/albattery-api.html``);
 * ``ALChestButton/SimpleClickOccurred``: one click; NAO then says its name and IP
   (``naoqi/sensors/alchestbutton.html``);
+* ``ALChestButton/DoubleClickOccurred``: a double click (``naoqi/sensors/alchestbutton-api.html``); NAO then
+  removes its stiffness (``naoqi/sensors/alchestbutton.html``) or sets Autonomous Life off and on
+  (``family/nao_user_guide/chest_button_usages.html``): the pages disagree, the kit tells;
 * ``ALDiagnosis/RobotIsReady``: False when the passive diagnosis finds a failure ALMotion reacts to
   (``naoqi/motion/reflexes-diagnosis.html``; the key name is a guess to confirm with the kit);
 * ``AutonomousLife/State``: the new Autonomous Life state (``naoqi/interaction/autonomouslife-api.html``);
@@ -78,6 +81,9 @@ def read_event(kind: str, value: Any) -> HealthEvent | None:
     if kind == "chest":
         return HealthEvent("chest", "info", "chest button pressed (NAO says its name and IP aloud)", at=now,
                            value=shown)
+    if kind == "chest_double":
+        return HealthEvent("chest_double", "warning", "chest button double-clicked (NAO removes its stiffness, or "
+                           "switches Autonomous Life off and on)", at=now, value=shown)
     if kind == "diagnosis":
         if value is False or value == 0:
             return HealthEvent("diagnosis", "critical", "the diagnosis found a failure (the robot protects itself)",

@@ -42,6 +42,7 @@ class HealthKeys:
     hot: str = ""  # a device is hot (``HotDeviceDetected``)
     battery_low: str = ""  # ``ALBattery/BatteryLow``
     chest: str = ""  # one click of the chest button (``ALChestButton/SimpleClickOccurred``)
+    chest_double: str = ""  # a double click of the chest button (``ALChestButton/DoubleClickOccurred``)
     diagnosis: str = ""  # the passive diagnosis: False = a failure ALMotion reacts to (``ALDiagnosis/RobotIsReady``)
     safeguard: str = ""  # Autonomous Life's state changed (``AutonomousLife/State``): "safeguard" pauses
 
@@ -94,6 +95,16 @@ class RobotModel:
     def full_battery_minutes(self) -> float:
         """How long a full charge lasts in a session (``check``'s estimate)."""
         return float(getattr(self.settings, "full_battery_minutes", 60.0))
+
+    def heat_c_per_min(self) -> float:
+        """How fast (°C a minute) a joint that carries the robot warms while it stands stiff: ``check``'s heat
+        projection (a guess to confirm on a robot; a model without the setting gets 1.0)."""
+        return float(getattr(self.settings, "heat_c_per_min", 1.0))
+
+    def hot_joint_c(self) -> float:
+        """The joint temperature (°C) around which its status turns hot (1) and the stiffness is limited:
+        ``check``'s heat projection (a guess to confirm on a robot; a model without the setting gets 70)."""
+        return float(getattr(self.settings, "hot_joint_c", 70.0))
 
     def check_posture(self, which: str, posture: str) -> str | None:
         """A problem with using ``posture`` as the behaviors file's ``which`` posture on this model, or None."""

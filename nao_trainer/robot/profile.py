@@ -36,7 +36,8 @@ CALLS: dict[str, tuple[str, ...]] = {
 }
 #: ALMemory keys the project reads (getData), besides the head buttons.
 MEMORY_KEYS = ("FrontTactilTouched", "MiddleTactilTouched", "RearTactilTouched", "RobotConfig/Body/Type",
-               "Device/SubDeviceList/LKneePitch/Temperature/Sensor/Status")
+               "Device/SubDeviceList/LKneePitch/Temperature/Sensor/Status",
+               "Device/SubDeviceList/LKneePitch/Temperature/Sensor/Value")
 #: What ``record_profile`` says and the tone it plays to time them.
 SAY_TEXT = "One two three four five six seven eight nine ten."
 TONE_HZ, TONE_S = 880, 0.5

@@ -282,15 +282,29 @@ def _life_problem(robot: Any, plan: CheckPlan) -> tuple[str, str] | None:
 
 def _endurance(robot: Any, model: Any, plan: CheckPlan) -> tuple[str, str]:
     """Will a session of the study's length last on this battery charge and with these joint temperatures?
-    (estimate line, fix; the fix is empty when it will)."""
+    (estimate line, fix; the fix is empty when it will).
+
+    Both are estimates, guesses to confirm on a robot, and the line says so:
+
+    * battery: the charge (``ALBattery.getBatteryCharge``, percent) times ``full_battery_minutes`` (a full charge's
+      minutes in a session) against the session's length (``session_minutes``);
+    * heat: the warmest joint that carries the robot (``model.joints``; ``Device/SubDeviceList/<joint>/Temperature/
+      Sensor/Value``, °C, http://doc.aldebaran.com/2-8/family/nao_technical/lola/actuator_sensor_names.html) is
+      projected linearly: now + ``heat_c_per_min`` x the session's minutes, as if the robot stood stiff the whole
+      session (no cooling between turns, no sitting). It fails when the projection reaches ``hot_joint_c``, the
+      temperature where the status turns hot (1) and NAO starts limiting the stiffness; a joint whose status is
+      already non-null (``.../Temperature/Sensor/Status``) fails as hot now."""
     from nao_trainer.robot.lifecycle import _ask
 
     charge = _ask(lambda: robot.call("ALBattery", "getBatteryCharge"))
-    hot = []
+    hot, temps = [], {}
     for joint in model.joints:
         status = _ask(lambda j=joint: robot.call("ALMemory", "getData", f"Device/SubDeviceList/{j}/Temperature/Sensor/Status"))
         if isinstance(status, (int, float)) and status >= 1:
             hot.append(f"{joint} (status {int(status)})")
+        value = _ask(lambda j=joint: robot.call("ALMemory", "getData", f"Device/SubDeviceList/{j}/Temperature/Sensor/Value"))
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value):
+            temps[joint] = float(value)
     need = plan.session_minutes
     parts, fix = [], ""
     if charge is not None and need is not None:
@@ -303,6 +317,16 @@ def _endurance(robot: Any, model: Any, plan: CheckPlan) -> tuple[str, str]:
         parts.append(f"hot joints now: {', '.join(hot)}")
         fix = fix or (f"let the robot cool 15-20 minutes with its motors off ({model.title} sitting or resting) "
                       "before a session: standing heats the legs further")
+    elif temps and need is not None:
+        joint, now_c = max(temps.items(), key=lambda item: item[1])
+        rate, limit = model.heat_c_per_min(), model.hot_joint_c()
+        then_c = now_c + rate * need
+        parts.append(f"{joint} {now_c:.0f} °C now, ~{then_c:.0f} °C after ~{need:.0f} min standing (estimate: "
+                     f"+{rate:g} °C/min, hot at ~{limit:.0f} °C)")
+        if then_c >= limit:
+            fix = fix or (f"{joint} would be hot after ~{max(0.0, limit - now_c) / rate:.0f} min of standing: let the "
+                          f"robot cool with its motors off ({model.title} sitting or resting) first, or shorten the "
+                          "session (session.turns / session.max_duration_s)")
     return ("; ".join(parts) or "battery and joint temperatures unknown"), fix
 
 

@@ -95,7 +95,9 @@ class Session:
                                  bool(getattr(model.settings, "pause_on_safeguard", True)))
         self.checkpoints = Checkpointer(recorder, ports.policy, random.by_name())
         self.reconnector = Reconnector(ports.robot, config.robot, self.clock, recorder, self.log, self.stage)
-        self.reconnector.commands = ports.commands  # a stop ends the reconnection attempts
+        self.reconnector.commands = ports.commands  # a stop ends the reconnection attempts ...
+        self.reconnector.between_attempts = self._while_away  # ... a pause and a resume act at once
+        self.away_paused = False  # the operator paused while the robot was away: paused once it is back
         self.task = ports.task
         self.in_window = bool(getattr(ports.task, "presents_in_window", False))  # answers come during present
         self.stage.mark = ports.monitor.mark
@@ -549,6 +551,7 @@ class Session:
             self._abandon_turn(self.turn, f"interrupted: robot lost during {lost_in}")
             self.replay = self.turn
         self.log.say(f"robot lost during {lost_in}: paused, reconnecting...")
+        self.away_paused = False
         if not self.reconnector.reconnect():
             if self.reconnector.stopped:  # the operator stopped while the robot was away: no goodbye to say
                 self.status = "stopped"
@@ -563,11 +566,48 @@ class Session:
             self.rec.event("give_up", after_s=self.cfg.robot.max_reconnect_s)
             self.log.say(f"robot not back within {self.cfg.robot.max_reconnect_s:g} s: ending the session")
             return "give_up"
+        if self.away_paused:  # the operator paused meanwhile: paused until they go on (operator_pause says so)
+            self.away_paused = False
+            self.log.say(f"robot back after {self.reconnector.attempts} attempt(s): the session stays paused (paused "
+                         "by the operator while it was away)")
+            return "pause"
+        self.log.say(f"robot back after {self.reconnector.attempts} attempt(s): resuming")
+        self.stage.say("resumed", behavior="greeting")
         if lost_in in INTRO_STATES:
             return "resume_intro"
         if lost_in == "goodbye":
             return "resume_goodbye"
         return "resume_turn"
+
+    def _while_away(self) -> bool:
+        """Between reconnection attempts: True once the operator asked to stop (the attempts end). A pause acts at
+        once: recorded, and the session stays paused once the robot is back until the operator goes on; a resume
+        after it cancels it (the session plays on once the robot is back). Other commands act once it is back."""
+        if self.desk.stop_waiting():
+            return True
+        lost_in = self.lost_in or "select_action"
+        for cmd in self.desk.take(("pause", "resume")):
+            if cmd.kind == "pause":
+                if lost_in == "goodbye":
+                    accepted, detail = False, "the robot is away during the goodbye: it is said once the robot is back"
+                elif self.away_paused:
+                    accepted, detail = False, "already paused"
+                else:
+                    accepted, detail = True, ("paused while the robot is away: the session stays paused once it is "
+                                              "back, until resumed")
+                    self.away_paused = True
+                    self.desk.paused_in = lost_in
+            elif self.away_paused:
+                accepted, detail = True, "resumed while the robot is away: the session plays on once it is back"
+                self.away_paused = False
+            else:
+                accepted, detail = False, "not paused (the session plays on once the robot is back)"
+            self.desk.record(cmd, accepted, detail, self.state, self._turn_number())
+            if accepted and cmd.kind == "pause":
+                self.log.paused(lost_in)
+            elif accepted:
+                self.log.resumed()
+        return False
 
     # -- shutdown --------------------------------------------------------------------------------
 

@@ -15,7 +15,10 @@ operator and a console event, and a decision:
 * a chest-button press during a turn: the turn is marked invalid and replayed (an operator "repeat", source
   "robot": before the answer is scored the turn is recorded as interrupted and played again; once it is being
   scored it is recorded invalid, never learned from, and its action played again next), since NAO spoke its
-  name and IP over the trial.
+  name and IP over the trial;
+* a double click of the chest button: NAO removes its stiffness or switches Autonomous Life off and on (the 2.8
+  pages disagree); during a turn, the turn is marked invalid and replayed as for one click, and before the next
+  turn (the replay) the robot is set back either way (``RobotUpkeep.between_turns``: motors woken, life set back).
 """
 from __future__ import annotations
 
@@ -34,6 +37,7 @@ ADVICE = {
     "hot_critical": "",
     "battery_low": "the session ends after this turn: charge the robot (plug it in) before the next session",
     "chest": "",
+    "chest_double": "",
     "diagnosis": "paused; the motors stay as they are: check the robot (its web page, Diagnosis), then resume",
     "safeguard": "paused while the robot protects itself: clear its surroundings, then resume",
 }
@@ -71,6 +75,9 @@ class HealthDesk:
                       if self.cool_posture else "paused: the robot has no seated posture; let it cool, then resume")
         if event.kind == "chest":
             advice = "the turn is replayed (the robot spoke over it)" if in_trial else "no trial was running"
+        if event.kind == "chest_double":
+            advice = (("the turn is replayed; " if in_trial else "")
+                      + "the motors and Autonomous Life are set back before the next turn")
         if event.kind == "safeguard" and not self.pause_on_safeguard:
             advice = "reported only (robot.model_settings.pause_on_safeguard: false)"
         self.rec.event("robot_health", kind=event.kind, severity=event.severity, detail=event.detail, part=event.part,
@@ -92,12 +99,14 @@ class HealthDesk:
                 self._hold_and_pause(event.detail)
         elif kind == "battery_low":
             self.battery_low = True
-        elif kind == "chest" and in_trial:
+        elif kind in ("chest", "chest_double") and in_trial:
             # Marked invalid now (never learned from, even if it is recorded before the repeat acts: in score or
             # record the repeat waits, then plays the same action again); before that it is interrupted and replayed.
+            # A double click's stiffness (or life) change is set back by the upkeep before the replay.
+            why = "chest button " + ("double-clicked" if kind == "chest_double" else "pressed") + " during the trial"
             turn.invalid = True
-            turn.notes.append("invalid (robot): chest button pressed during the trial")
-            self.commands.submit("repeat", {"reason": "chest button pressed during the trial"}, source="robot")
+            turn.notes.append(f"invalid (robot): {why}")
+            self.commands.submit("repeat", {"reason": why}, source="robot")
 
     def _hold_and_pause(self, why: str) -> None:
         if self.held is None:

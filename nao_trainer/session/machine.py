@@ -57,7 +57,8 @@ TRANSITIONS: list[dict[str, Any]] = [
     {"trigger": "give_up", "source": "paused", "dest": "aborted"},
     {"trigger": "abort", "source": [*ACTIVE_STATES, "paused", "operator_pause"], "dest": "aborted"},
     # Operator commands (session.engine drains them between states; see docs/how-to/session.md).
-    {"trigger": "pause", "source": list(INTERRUPTIBLE), "dest": "operator_pause"},
+    # From ``paused`` (the robot away): an operator pause taken while it was away holds once it is back.
+    {"trigger": "pause", "source": [*INTERRUPTIBLE, "paused"], "dest": "operator_pause"},
     {"trigger": "operator_stop", "source": [*INTERRUPTIBLE, "operator_pause"], "dest": "goodbye"},
     {"trigger": "time_up", "source": ["select_action", "operator_pause"], "dest": "goodbye"},
     {"trigger": "repeat_turn", "source": list(REPLAYABLE), "dest": "select_action"},

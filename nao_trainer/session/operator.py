@@ -67,6 +67,16 @@ class OperatorDesk:
             pending = [c for c in pending if c.kind not in HELD_KINDS]
         return pending
 
+    def take(self, kinds: tuple[str, ...]) -> list[Command]:
+        """The held and queued commands of ``kinds``, oldest first, taken (the others stay)."""
+        held = [c for c in self._held if c.kind in kinds]
+        self._held = [c for c in self._held if c.kind not in kinds]
+        return held + self.commands.take(kinds)
+
+    def stop_waiting(self) -> bool:
+        """Whether a stop is held or queued (nothing is taken)."""
+        return any(c.kind == "stop" for c in self._held) or "stop" in self.commands.kinds()
+
     def hold(self, rest: list[Command]) -> None:
         """Commands that came after one that changed the state: they act at the next point."""
         self._held += rest

@@ -61,9 +61,11 @@ class SessionLog:
     def policy_status(self, status: dict[str, Any], turn: int) -> None:
         """What the policy says after a turn (e.g. its posterior over user models): events, console, progress."""
         if status:
-            shown = {k: v for k, v in status.items() if k not in ("progress", "summary", "phase")}
+            shown = {k: v for k, v in status.items() if k not in ("progress", "summary", "phase", "posterior_text")}
             self.rec.event("policy_status", turn=turn, **shown)
-            self.observer.notify("policy", {"turn": turn, **shown})
+            # the console also gets the posterior as the terminal words it (posterior_text: "user model 3 0.86 | ...")
+            words = {"posterior_text": status["posterior_text"]} if status.get("posterior_text") else {}
+            self.observer.notify("policy", {"turn": turn, **shown, **words})
             if status.get("progress"):
                 self.say(status["progress"])
 

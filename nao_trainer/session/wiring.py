@@ -183,7 +183,7 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
         # file, is found here. Per participant by default (policy.state_path); "{session}" = the session folder,
         # bound once the folder exists (_run_wired).
         policy = make_policy(config.policy, config.participant.pseudonym, config.output_dir(),
-                             turns=config.session.turns, fresh=options.fresh_policy)
+                             turns=config.session.turns, fresh=options.fresh_policy, task=config.task.build_task())
         if resume is not None:
             resume.check_policy(policy)  # a tampered learning state is refused before anything is written
         # Not closed on failure here: closing a learning policy saves it, and nothing is written before the robot answers.

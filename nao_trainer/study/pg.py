@@ -29,7 +29,8 @@ from typing import Any
 
 from nao_trainer.errors import ConfigError, DataError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: sessions keep their whole entry; withdraw, study_info, site_sessions
+DONE = ("completed", "time limit")  # the statuses that count towards a participant's sessions (study.runner)
 _NAME = re.compile(r"[a-z][a-z0-9_]{0,30}")
 
 
@@ -85,13 +86,16 @@ def call(conn, what: str, sql: str, params: tuple = ()) -> list[tuple]:
         raise _refused(exc, what) from None
     except psycopg.errors.RaiseException as exc:
         raise ConfigError(f"{what}: {exc.diag.message_primary}") from None
+    except psycopg.IntegrityError as exc:
+        raise ConfigError(f"{what}: refused by the registry ({exc.diag.message_primary})") from None
     except psycopg.OperationalError as exc:
         raise DataError(f"{what}: lost the registry server ({' '.join(str(exc).split())}); nothing was changed "
                         "unless the command says so; run it again") from None
 
 
 def create(conn, prefix: str, sequences: dict[str, list[str]], arm_configs: dict[str, dict[str, Any]],
-           stratify_by_site: bool, target_n: int, pseudonym_prefix: str = "P") -> None:
+           stratify_by_site: bool, target_n: int, pseudonym_prefix: str = "P",
+           public: dict[str, Any] | None = None) -> None:
     """Tables, roles and functions of a new study registry in the connected (empty) database."""
     p = _ident(prefix, "study prefix")
     op, st = f"{p}_operator", f"{p}_statistician"
@@ -109,8 +113,10 @@ def create(conn, prefix: str, sequences: dict[str, list[str]], arm_configs: dict
                                withdrawn jsonb, UNIQUE (stratum, allocation_index));
     CREATE TABLE sessions (key text PRIMARY KEY, pseudonym text NOT NULL REFERENCES participants,
                            number int NOT NULL, folder text, status text NOT NULL, files jsonb,
-                           recorded_by name NOT NULL DEFAULT session_user,
-                           recorded timestamptz NOT NULL DEFAULT now(), UNIQUE (pseudonym, number));
+                           entry jsonb NOT NULL DEFAULT '{{}}', recorded_by name NOT NULL DEFAULT session_user,
+                           recorded timestamptz NOT NULL DEFAULT now());
+    -- a participant's session N counts once: a second laptop's completed session N is kept as 'duplicate'
+    CREATE UNIQUE INDEX sessions_done_once ON sessions (pseudonym, number) WHERE status IN ('completed', 'time limit');
     CREATE TABLE unblindings (id serial PRIMARY KEY, time timestamptz NOT NULL DEFAULT now(),
                               who name NOT NULL, reason text NOT NULL);
     REVOKE ALL ON ALL TABLES IN SCHEMA public FROM PUBLIC;
@@ -119,8 +125,23 @@ def create(conn, prefix: str, sequences: dict[str, list[str]], arm_configs: dict
     CREATE VIEW site_participants AS
       SELECT pa.pseudonym, pa.site, pa.consent_date, pa.consent_version, pa.enrolled, pa.withdrawn IS NOT NULL
              AS withdrawn, (SELECT count(*) FROM sessions s WHERE s.pseudonym = pa.pseudonym
-                            AND s.status = 'completed') AS sessions_done
+                            AND s.status IN ('completed', 'time limit')) AS sessions_done
       FROM participants pa JOIN sites si ON si.name = pa.site WHERE si.role = session_user;
+
+    CREATE VIEW site_sessions AS
+      SELECT s.key, s.pseudonym, s.number, s.folder, s.status, s.entry ->> 'ended' AS ended
+      FROM sessions s JOIN participants pa ON pa.pseudonym = s.pseudonym JOIN sites si ON si.name = pa.site
+      WHERE si.role = session_user;
+
+    CREATE FUNCTION study_info() RETURNS jsonb LANGUAGE sql STABLE SECURITY DEFINER
+      SET search_path = public, pg_temp AS $$
+      SELECT jsonb_object_agg(key, value) || jsonb_build_object('role',
+               CASE WHEN EXISTS (SELECT 1 FROM sites WHERE role = session_user) THEN 'site'
+                    WHEN pg_has_role(session_user, '{st}', 'MEMBER') THEN 'statistician' ELSE 'other' END,
+               'site', (SELECT name FROM sites WHERE role = session_user))
+      FROM meta WHERE key IN ('schema_version', 'prefix', 'protocol_sha256', 'study_config_sha256', 'protocol_base',
+                              'session_salt', 'protocol_text')
+    $$;
 
     CREATE FUNCTION enrol(consent date, consent_version text, stratum text DEFAULT '')
       RETURNS text LANGUAGE plpgsql SECURITY DEFINER SET search_path = public, pg_temp AS $$
@@ -162,24 +183,54 @@ def create(conn, prefix: str, sequences: dict[str, list[str]], arm_configs: dict
     DECLARE p participants;
     BEGIN
       p := _own(pseud);
+      IF p.withdrawn IS NOT NULL THEN
+        RAISE EXCEPTION '%: withdrew on %; no further sessions', pseud, left(p.withdrawn ->> 'time', 10); END IF;
       RETURN jsonb_build_object('pseudonym', p.pseudonym, 'next_session',
-               (SELECT count(*) FROM sessions s WHERE s.pseudonym = p.pseudonym AND s.status = 'completed') + 1,
+               (SELECT count(*) FROM sessions s WHERE s.pseudonym = p.pseudonym
+                AND s.status IN ('completed', 'time limit')) + 1,
+               'last_ended', (SELECT s.entry ->> 'ended' FROM sessions s WHERE s.pseudonym = p.pseudonym
+                              AND s.status IN ('completed', 'time limit') ORDER BY s.number DESC LIMIT 1),
                'config', (SELECT ar.config FROM allocation a JOIN arms ar ON ar.name = a.arm
                           WHERE a.stratum = p.stratum AND a.position = p.allocation_index));
     END $$;
 
-    CREATE FUNCTION record_session(skey text, pseud text, num int, folder text, status text, files jsonb)
-      RETURNS boolean LANGUAGE plpgsql SECURITY DEFINER SET search_path = public, pg_temp AS $$
-    DECLARE p participants; done int;
+    -- idempotent by its key: recorded again (a retry after the network came back) it is one row; a counted
+    -- session is never set back (a late 'running'); a second counted session N of a participant is 'duplicate'
+    CREATE FUNCTION record_session(skey text, pseud text, num int, folder text, status text, files jsonb,
+                                   entry jsonb DEFAULT '{{}}') RETURNS text LANGUAGE plpgsql SECURITY DEFINER
+      SET search_path = public, pg_temp AS $$
+    DECLARE p participants; old sessions; st text := status;
     BEGIN
       p := _own(pseud);
-      INSERT INTO sessions (key, pseudonym, number, folder, status, files)
-        VALUES (skey, p.pseudonym, num, folder, status, files)
-        ON CONFLICT (key) DO UPDATE SET status = EXCLUDED.status, files = EXCLUDED.files, folder = EXCLUDED.folder
-        WHERE sessions.pseudonym = EXCLUDED.pseudonym AND sessions.number = EXCLUDED.number;
-      GET DIAGNOSTICS done = ROW_COUNT;
-      IF done = 0 THEN RAISE EXCEPTION 'session key % is recorded for another session', skey; END IF;
-      RETURN true;
+      PERFORM 1 FROM participants pa WHERE pa.pseudonym = p.pseudonym FOR UPDATE;  -- one record at a time
+      SELECT * INTO old FROM sessions s WHERE s.key = skey;
+      IF FOUND AND (old.pseudonym <> p.pseudonym OR old.number <> num) THEN
+        RAISE EXCEPTION 'session key % is recorded for another session', skey; END IF;
+      IF FOUND AND old.status IN ('completed', 'time limit', 'duplicate') AND NOT st IN ('completed', 'time limit') THEN
+        RETURN old.status; END IF;
+      IF st IN ('completed', 'time limit') AND EXISTS (SELECT 1 FROM sessions s WHERE s.pseudonym = p.pseudonym
+           AND s.number = num AND s.key <> skey AND s.status IN ('completed', 'time limit')) THEN
+        st := 'duplicate'; END IF;
+      INSERT INTO sessions AS s (key, pseudonym, number, folder, status, files, entry)
+        VALUES (skey, p.pseudonym, num, folder, st, files, entry)
+        ON CONFLICT (key) DO UPDATE SET status = EXCLUDED.status, files = EXCLUDED.files, folder = EXCLUDED.folder,
+          entry = EXCLUDED.entry, recorded = now(), recorded_by = session_user;
+      RETURN st;
+    END $$;
+
+    CREATE FUNCTION withdraw(pseud text, data text, reason text) RETURNS jsonb LANGUAGE plpgsql SECURITY DEFINER
+      SET search_path = public, pg_temp AS $$
+    DECLARE p participants; w jsonb;
+    BEGIN
+      p := _own(pseud);
+      IF data NOT IN ('keep', 'delete') THEN RAISE EXCEPTION '--data %: use keep or delete', data; END IF;
+      IF p.withdrawn IS NOT NULL THEN
+        IF p.withdrawn ->> 'data' = 'delete' THEN RETURN p.withdrawn; END IF;  -- a deletion to finish
+        RAISE EXCEPTION '%: already withdrawn on %', pseud, p.withdrawn ->> 'time'; END IF;
+      w := jsonb_build_object('time', to_char(now() AT TIME ZONE 'UTC', 'YYYY-MM-DD"T"HH24:MI:SS"+00:00"'),
+                              'data', data, 'reason', reason, 'by', session_user);
+      UPDATE participants SET withdrawn = w WHERE pseudonym = p.pseudonym;
+      RETURN w;
     END $$;
 
     CREATE FUNCTION unblind(reason text) RETURNS TABLE (pseudonym text, arm text) LANGUAGE plpgsql
@@ -195,9 +246,10 @@ def create(conn, prefix: str, sequences: dict[str, list[str]], arm_configs: dict
     CREATE ROLE {op} NOLOGIN;
     CREATE ROLE {st} NOLOGIN;
     GRANT USAGE ON SCHEMA public TO {op}, {st};
-    GRANT SELECT ON site_participants TO {op};
+    GRANT SELECT ON site_participants, site_sessions TO {op};
     GRANT EXECUTE ON FUNCTION enrol(date, text, text), session_config(text),
-          record_session(text, text, int, text, text, jsonb) TO {op};
+          record_session(text, text, int, text, text, jsonb, jsonb), withdraw(text, text, text) TO {op};
+    GRANT EXECUTE ON FUNCTION study_info() TO {op}, {st};
     GRANT EXECUTE ON FUNCTION unblind(text) TO {st};
     GRANT SELECT ON unblindings, sessions, sites, meta TO {st};
     GRANT SELECT (pseudonym, number, site, consent_date, consent_version, enrolled, withdrawn)
@@ -206,7 +258,8 @@ def create(conn, prefix: str, sequences: dict[str, list[str]], arm_configs: dict
     with conn.transaction():
         conn.execute(ddl)
         for k, v in {"schema_version": SCHEMA_VERSION, "prefix": p, "target_n": target_n,
-                     "stratify_by_site": stratify_by_site, "pseudonym_prefix": pseudonym_prefix}.items():
+                     "stratify_by_site": stratify_by_site, "pseudonym_prefix": pseudonym_prefix,
+                     "session_salt": secrets.token_hex(16), **(public or {})}.items():
             conn.execute("INSERT INTO meta VALUES (%s, %s)", (k, json.dumps(v)))
         for name, config in arm_configs.items():
             conn.execute("INSERT INTO arms VALUES (%s, %s)", (name, json.dumps(config, sort_keys=True)))
@@ -268,11 +321,42 @@ def session_config(conn, pseudonym: str) -> dict[str, Any]:
     return call(conn, "study next", "SELECT session_config(%s)", (pseudonym,))[0][0]
 
 
-def record_session(conn, key: str, pseudonym: str, number: int, folder: str, status: str,
-                   files: dict[str, str] | None) -> None:
-    """Idempotent by ``key``: the same session recorded again (a retry after the network came back) is one row."""
-    call(conn, "study record", "SELECT record_session(%s, %s, %s, %s, %s, %s)",
-         (key, pseudonym, number, folder, status, json.dumps(files) if files is not None else None))
+def record_session(conn, key: str, pseudonym: str, number: int, folder: str | None, status: str,
+                   files: dict[str, str] | None, entry: dict[str, Any] | None = None) -> str:
+    """Idempotent by ``key``: the same session recorded again (a retry after the network came back) is one row.
+    Returns the status recorded (``duplicate`` when the participant's session ``number`` already counts)."""
+    return call(conn, "study record", "SELECT record_session(%s, %s, %s, %s, %s, %s, %s)",
+                (key, pseudonym, number, folder, status, json.dumps(files) if files is not None else None,
+                 json.dumps(entry or {}, default=str)))[0][0]
+
+
+def study_info(conn) -> dict[str, Any]:
+    """What every role may read of the study: schema version, protocol hashes, session salt, its own role."""
+    psycopg = _psycopg()
+    try:
+        with conn.transaction():
+            info = conn.execute("SELECT study_info()").fetchone()[0]
+    except psycopg.errors.UndefinedFunction:
+        raise ConfigError("the registry was created by an earlier nao-trainer (schema 1, without study_info); "
+                          "create the study again with `study init --registry` on an empty database") from None
+    except psycopg.errors.InsufficientPrivilege as exc:
+        raise _refused(exc, "study") from None
+    except psycopg.OperationalError as exc:
+        raise DataError(f"lost the registry server ({' '.join(str(exc).split())}); run the command again") from None
+    if info.get("schema_version") != SCHEMA_VERSION:
+        raise ConfigError(f"the registry has schema {info.get('schema_version')}, this nao-trainer reads schema "
+                          f"{SCHEMA_VERSION}; use the nao-trainer version that created the study")
+    return info
+
+
+def site_sessions(conn) -> list[dict[str, Any]]:
+    rows = call(conn, "study next", "SELECT key, pseudonym, number, folder, status, ended FROM site_sessions "
+                "ORDER BY pseudonym, number")
+    return [dict(zip(("key", "pseudonym", "number", "folder", "status", "ended"), r)) for r in rows]
+
+
+def withdraw(conn, pseudonym: str, data: str, reason: str) -> dict[str, Any]:
+    return call(conn, "study withdraw", "SELECT withdraw(%s, %s, %s)", (pseudonym, data, reason))[0][0]
 
 
 def unblind(conn, reason: str) -> list[tuple[str, str]]:

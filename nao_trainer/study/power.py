@@ -2,7 +2,9 @@
 
 One simulated study of N participants: N users drawn with replacement from a user set
 (``learn.users``: by default one user per real session of the published data, success shrunk toward
-its cluster), allocated to the arms by blocked randomisation as the protocol says, each playing the
+its cluster; for a protocol of a task the published data are not of, e.g. n-back, the task's own
+simulated users, ``learn.users.task_user_set``, which the personalised and bayes arms also take as
+their user models and prior), allocated to the arms by blocked randomisation as the protocol says, each playing the
 protocol's sessions with its arm's policy. Every session is a simulated episode of ``session.turns``
 turns (``core.processes`` transitions, success drawn per turn), so the turn-to-turn randomness of a real
 session is in the outcomes; on top of it, a participant's ability moves from session to session
@@ -63,7 +65,7 @@ class SessionPolicies:
         config = protocol.arm_config(arm)
         self.turns = config.session.turns
         self.kind = arm.policy
-        self.offline = offline_policy(config.policy, self.turns)
+        self.offline = offline_policy(config.policy, self.turns, config.task.build_task())
 
     def start(self, n: int, session: int) -> Any:
         """The ``EpisodePolicy`` of session ``session`` (1-based) for the same ``n`` participants."""

@@ -4,20 +4,36 @@ The folder holds ``protocol.yaml`` and ``registry.url``: the server and database
 password (each command connects as the role of whoever runs it: ``PGUSER`` or the service file, the
 password from ``PGPASSWORD``, ``PGPASSFILE`` or the service file). Enrolment, status, sites and the
 unblinding go through ``study.pg``.
+
+A site's laptop (its folder a copy of the administrator's) runs its sessions with :func:`run_next`: the
+registry gives the configuration of the participant's next session (not the arm); the session is written
+to ``sessions/`` as on one laptop, and its entry goes to ``outbox/<key>.json`` first, then to the registry
+under its key (idempotent). An entry the registry did not take (the network went during the session) stays
+in the outbox: :func:`flush` (``study record``, ``study repair``, the next ``study next``) records it,
+once, when the server is back; a session whose process was killed is recorded as its folder says.
+
+The statistician's folder (a copy too, with the sites' ``sessions/`` folders copied into its own) is
+analysed and exported through :func:`statistician_study`: the sessions the registry lists, each folder
+checked against the checksums the site recorded, and the arms read through the logged unblinding.
 """
 from __future__ import annotations
 
+import datetime as dt
 import json
+import os
 import re
+import socket
+import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import write_text_atomic
 from nao_trainer.study import pg
-from nao_trainer.study.protocol import load_protocol
+from nao_trainer.study.protocol import Protocol, load_protocol, protocol_hash
 
 URL_FILE = "registry.url"
+OUTBOX = "outbox"
 
 
 def is_remote(root: Path) -> bool:
@@ -39,8 +55,11 @@ def connect(root: Path):
     return pg.connect(url_of(root), autocommit=True)
 
 
-def init(protocol_path: Path, out: Path, url: str, stratify_by_site: bool) -> dict[str, Any]:
-    """Create the registry in the (empty) database ``url`` as the connecting administrator, and the folder."""
+def init(protocol_path: Path, out: Path, url: str, stratify_by_site: bool,
+         allocation_seed: int | None = None) -> dict[str, Any]:
+    """Create the registry in the (empty) database ``url`` as the connecting administrator, and the folder.
+    ``allocation_seed``: a seed a third party supplied (``--allocation-seed-file``; not stored), else the
+    operating system's entropy."""
     from nao_trainer.study.registry import allocation_sequence, entropy_rng
 
     if not re.match(r"postgres(ql)?://", url):
@@ -53,7 +72,7 @@ def init(protocol_path: Path, out: Path, url: str, stratify_by_site: bool) -> di
         raise ConfigError("--stratify-by-site: the protocol has strata of its own; use one or the other")
     if protocol.allocation.strata:
         raise ConfigError(f"{protocol_path}: strata other than the site are not supported on PostgreSQL yet")
-    draw = entropy_rng()
+    draw = entropy_rng(allocation_seed)
     conn = pg.connect(url, autocommit=True)
     with conn:
         if pg.call(conn, "study init", "SELECT count(*) FROM pg_tables WHERE schemaname = 'public'")[0][0]:
@@ -63,10 +82,13 @@ def init(protocol_path: Path, out: Path, url: str, stratify_by_site: bool) -> di
         prefix = prefix if re.match(r"[a-z]", prefix) else f"s_{prefix}"[:20]
         # stratified by site: a sequence per site, drawn as sites are added (the sequence of '' is unused)
         sequences = allocation_sequence(protocol, draw)
+        from nao_trainer.study.registry import file_sha256
+
         pg.create(conn, prefix, sequences, {a.name: a.config_overrides() for a in protocol.arms},
-                  stratify_by_site, protocol.target_n, protocol.pseudonym_prefix)
-        pg.call(conn, "study init", "INSERT INTO meta VALUES ('protocol_base', %s)",
-                (json.dumps(str(Path(protocol.source).parent)),))
+                  stratify_by_site, protocol.target_n, protocol.pseudonym_prefix,
+                  {"protocol_base": str(Path(protocol.source).parent), "protocol_sha256": protocol.sha256,
+                   "protocol_text": protocol.text, "study_config_sha256": file_sha256(protocol.study_config),
+                   "study_config": str(protocol.study_config)})
         if stratify_by_site:
             pg.call(conn, "study init", "INSERT INTO meta VALUES ('draw_per_site', 'true')")
     out.mkdir(parents=True, exist_ok=True)
@@ -81,8 +103,7 @@ def site_add(root: Path, name: str) -> tuple[str, str]:
     with connect(root) as conn:
         role, password = pg.site_add(conn, name)
         if pg.call(conn, "study site add", "SELECT 1 FROM meta WHERE key = 'draw_per_site'"):
-            base = pg.call(conn, "study site add", "SELECT value #>> '{}' FROM meta WHERE key = 'protocol_base'")
-            protocol = load_protocol(Path(root) / "protocol.yaml", base=Path(base[0][0]))
+            protocol = open_protocol(root, pg.study_info(conn))
             seq = allocation_sequence(protocol, entropy_rng())[""]
             with conn.transaction(), conn.cursor() as cur:
                 cur.executemany("INSERT INTO allocation VALUES (%s, %s, %s)",
@@ -111,7 +132,7 @@ def status_lines(root: Path) -> list[str]:
                       f"{p['sessions_done']}{'  WITHDRAWN' if p['withdrawn'] else ''}" for p in people]
             return lines
         rows = pg.call(conn, "study status", "SELECT p.site, count(DISTINCT p.pseudonym), count(s.key) FILTER "
-                       "(WHERE s.status = 'completed') FROM participants p LEFT JOIN sessions s ON "
+                       "(WHERE s.status IN ('completed', 'time limit')) FROM participants p LEFT JOIN sessions s ON "
                        "s.pseudonym = p.pseudonym GROUP BY p.site ORDER BY p.site")
         log = pg.call(conn, "study status", "SELECT time::text, who, reason FROM unblindings ORDER BY id")
     lines.append("  per site (participants, completed sessions; arms only through `study unblind`, logged):")
@@ -123,3 +144,299 @@ def status_lines(root: Path) -> list[str]:
 def unblind(root: Path, reason: str) -> list[tuple[str, str]]:
     with connect(root) as conn:
         return pg.unblind(conn, reason)
+
+
+# --- the protocol on a site's (or the statistician's) laptop -------------------------------------------
+
+def open_protocol(root: Path, info: dict[str, Any]) -> Protocol:
+    """The study folder's protocol, checked against the one frozen in the registry (restored from it when
+    the copy is missing), with its study configuration unchanged since ``study init``."""
+    from nao_trainer.study.registry import PROTOCOL_FILE, file_sha256
+
+    path = Path(root) / PROTOCOL_FILE
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        text = info["protocol_text"]
+        write_text_atomic(path, text)
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: cannot read ({exc})") from None
+    if protocol_hash(text) != info["protocol_sha256"]:
+        raise DataError(f"{path}: not the protocol frozen in the registry (hash differs); copy protocol.yaml from "
+                        "the study's administrator again (or delete it: the next command restores it)")
+    protocol = load_protocol(path, base=Path(info["protocol_base"]), fallback=Path(root))
+    if file_sha256(protocol.study_config) != info["study_config_sha256"]:
+        raise DataError(f"{protocol.study_config}: the study configuration differs from the one frozen at `study "
+                        "init` (hash differs from the registry); use the administrator's copy")
+    return protocol
+
+
+def _study(root: Path, info: dict[str, Any], protocol: Protocol, registry: dict[str, Any] | None = None):
+    from nao_trainer.study.registry import Study, file_sha256
+
+    entry = {"sha256": protocol.sha256, "base": info["protocol_base"], "study_config": str(protocol.study_config),
+             "study_config_sha256": file_sha256(protocol.study_config), "name": protocol.name}
+    return Study(Path(root), protocol, {"protocol": entry, "session_salt": info["session_salt"], "amendments": [],
+                                        "participants": [], "unblindings": [], **(registry or {})})
+
+
+def _role(conn, root: Path, what: str, want: str) -> dict[str, Any]:
+    info = pg.study_info(conn)
+    if info["role"] != want:
+        who = pg.call(conn, what, "SELECT session_user")[0][0]
+        mine = f"site {info['site']}" if info["role"] == "site" else info["role"]
+        whose = "a site's role (an operator's PGUSER)" if want == "site" else "the statistician's role"
+        raise ConfigError(f"{what}: {whose} only; connected as {who} ({mine}): set PGUSER to that role")
+    return info
+
+
+# --- a site's sessions: the outbox ---------------------------------------------------------------------
+
+def _outbox_file(root: Path, key: str) -> Path:
+    if not re.fullmatch(r"[A-Za-z0-9_.-]+", key):
+        raise DataError(f"session key {key!r}: not a key nao-trainer writes")
+    return Path(root) / OUTBOX / f"{key}.json"
+
+
+def _keep(root: Path, entry: dict[str, Any]) -> None:
+    path = _outbox_file(root, entry["key"])
+    try:
+        path.parent.mkdir(exist_ok=True)
+        write_text_atomic(path, json.dumps(entry, sort_keys=True, default=str))
+    except OSError as exc:
+        raise DataError(f"{path}: cannot keep the session's entry ({exc.strerror}); free disk space") from None
+
+
+def _send(conn, entry: dict[str, Any]) -> str:
+    return pg.record_session(conn, entry["key"], entry["pseudonym"], int(entry["number"]), entry.get("folder"),
+                             entry["status"], entry.get("files"), entry)
+
+
+def _outbox(root: Path) -> list[tuple[Path, dict[str, Any]]]:
+    out = []
+    for path in sorted((Path(root) / OUTBOX).glob("*.json")):
+        try:
+            entry = json.loads(path.read_text(encoding="utf-8"))
+            assert isinstance(entry, dict) and isinstance(entry["key"], str) and isinstance(entry["pseudonym"], str) \
+                and type(entry["number"]) is int and isinstance(entry["status"], str)
+        except (OSError, ValueError, KeyError, AssertionError, RecursionError):
+            raise DataError(f"{path}: not a session entry nao-trainer wrote (edited or torn); move it out of "
+                            f"{path.parent} and run the command again") from None
+        out.append((path, entry))
+    return out
+
+
+def flush(root: Path, conn, pseudonym: str | None = None, progress: TextIO | None = None) -> list[dict[str, Any]]:
+    """Record what this laptop's outbox holds: sessions the registry did not take (the network went), and
+    sessions whose process was killed (recorded as their folder says: ``completed`` counts, otherwise
+    ``interrupted``). A session still running on this host is left. Each entry is removed from the outbox
+    only after the registry took it: a kill in between records it again under its key, once."""
+    from nao_trainer.study.registry import participant_folders, pid_alive
+    from nao_trainer.study.runner import _adopted, _stamp_time
+
+    pending = [(f, e) for f, e in _outbox(root) if pseudonym is None or e["pseudonym"] == pseudonym]
+    if not pending:
+        return []
+    info = pg.study_info(conn)
+    study = _study(root, info, open_protocol(root, info))
+    host, done = socket.gethostname(), []
+    known = {s["folder"] for s in pg.site_sessions(conn) if s["folder"]} | {e.get("folder") for _, e in pending}
+    for path, entry in pending:
+        if entry["status"] == "running":
+            if entry.get("host") not in (None, host) or (entry.get("pid") and pid_alive(int(entry["pid"]))):
+                continue  # running now (or another laptop's entry): not ours to close
+            folder = entry.get("folder")
+            if folder is None:  # the first folder of the participant made after the session started
+                start = dt.datetime.fromisoformat(entry["started"]).astimezone().replace(tzinfo=None, microsecond=0)
+                after = [f for f in participant_folders(study, entry["pseudonym"])
+                         if f.name not in known and (_stamp_time(f.name) or start) >= start]
+                folder = after[0].name if after else None
+                known.add(folder)
+            entry = _adopted(study, entry, folder)
+            _keep(root, entry)
+        entry["recorded_as"] = _send(conn, entry)
+        path.unlink(missing_ok=True)
+        done.append(entry)
+        if progress is not None:
+            print(f"study: {entry['pseudonym']}'s session {entry['number']} ({entry.get('folder') or 'no folder'}) "
+                  f"recorded as {entry['recorded_as']} (from {OUTBOX}/)", file=progress, flush=True)
+    return done
+
+
+def record(root: Path, progress: TextIO | None = None) -> list[dict[str, Any]]:
+    """``study record`` / ``study repair`` on a site's laptop: the outbox into the registry."""
+    with connect(root) as conn:
+        _role(conn, root, "study record", "site")
+        return flush(root, conn, None, progress)
+
+
+def _recorder(root: Path, progress: TextIO):
+    """Each entry kept in the outbox first, then sent on a new connection (the session's may have gone);
+    a final entry the registry took leaves the outbox. Unreachable: kept, one line, the session goes on."""
+    said = []
+
+    def send(entry: dict[str, Any]) -> None:
+        _keep(root, entry)
+        try:
+            with connect(root) as conn:
+                _send(conn, entry)
+        except DataError as exc:
+            if not said:
+                print(f"study next: the registry cannot be reached ({exc}); the session goes on and is kept in "
+                      f"{Path(root) / OUTBOX}: `nao-trainer study record {root}` (or the next `study next`) "
+                      "records it when the network is back", file=progress, flush=True)
+            said.append(entry["status"])
+            return
+        if entry["status"] != "running":
+            _outbox_file(root, entry["key"]).unlink(missing_ok=True)
+
+    send.failed = said  # type: ignore[attr-defined]
+    return send
+
+
+def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any, progress: TextIO | None = None,
+             resume: bool = False):
+    """``study next`` on a site's laptop: the next session's configuration from the registry (the arm's
+    settings, not its name), played and recorded as on one laptop, through the outbox."""
+    import uuid
+
+    from nao_trainer.policies.participant_state import participant_template
+    from nao_trainer.session.config import load_config
+    from nao_trainer.study.registry import now_iso
+    from nao_trainer.study.runner import BLIND_LABEL, NextSession, check_blinding, days_between, participant_lock, \
+        play, session_seed
+
+    progress = progress or sys.stderr
+    if resume:
+        raise ConfigError("study next --resume: not available on a PostgreSQL registry; run `study next` without it "
+                          "(the interrupted session stays on record, and the participant's next session follows)")
+    with connect(root) as conn:
+        info = _role(conn, root, "study next", "site")
+        protocol = open_protocol(root, info)
+        study = _study(root, info, protocol)
+    with participant_lock(study, pseudonym, progress):
+        with connect(root) as conn:
+            flush(root, conn, pseudonym, progress)
+            got = pg.session_config(conn, pseudonym)
+        number = int(got["next_session"])
+        per = protocol.sessions.per_participant
+        if number > per:
+            raise DataError(f"{pseudonym}: has completed all {per} sessions of the protocol")
+        warning = ""
+        if got.get("last_ended"):
+            gap = days_between(got["last_ended"], dt.datetime.now(dt.timezone.utc).astimezone())
+            lo, hi = protocol.sessions.min_days, protocol.sessions.max_days
+            if not lo <= gap <= hi:
+                warning = (f"{pseudonym}'s session {number} comes {gap:.1f} days after session {number - 1}; the "
+                           f"protocol allows {lo:g}-{hi:g} days (the session is recorded as outside the interval)")
+        settings = dict(got["config"])
+        extra = {**{k: v for k, v in flags.items() if v is not None}, "participant.pseudonym": pseudonym,
+                 "session.output": str(study.sessions_dir.resolve()),
+                 "session.seed": session_seed(study, pseudonym, number)}
+        if "policy.state_path" not in settings:
+            extra["policy.state_path"] = participant_template(settings["policy.kind"])
+        config = load_config(protocol.study_config, {**settings, **extra})
+        plan = NextSession(pseudonym, "", number, config, warning, key=uuid.uuid4().hex)
+        check_blinding(study, plan, options)
+        if warning:
+            print(f"warning: {warning}", file=progress, flush=True)
+        print(f"study {protocol.name}: {pseudonym}, session {number} of {per}, {BLIND_LABEL} (site "
+              f"{info['site']}; {now_iso()})", file=progress, flush=True)
+        send = _recorder(root, progress)
+        result = play(study, plan, options, progress, record=send)
+        if send.failed and send.failed[-1] != "running":
+            print(f"study next: {pseudonym}'s session {number} is kept in {Path(root) / OUTBOX} (not yet in the "
+                  f"registry): run `nao-trainer study record {root}` when the network is back", file=progress,
+                  flush=True)
+        return plan, result
+
+
+def withdraw(root: Path, pseudonym: str, data: str, reason: str = "") -> tuple[dict[str, Any], list[Path]]:
+    """``study withdraw`` on the participant's site: recorded in the registry (the site's role, its own
+    participants only), then with ``--data delete`` the participant's session folders and learning state on
+    this laptop removed (a kill while deleting: the same command finishes it)."""
+    import shutil
+
+    from nao_trainer.policies.participant_state import participant_dir
+    from nao_trainer.study.registry import DATA_CHOICES, _running_session, participant_folders
+
+    if data not in DATA_CHOICES:
+        raise ConfigError(f"--data {data!r}: use keep or delete")
+    with connect(root) as conn:
+        info = _role(conn, root, "study withdraw", "site")
+        study = _study(root, info, open_protocol(root, info))
+        running = _running_session(Path(root), pseudonym)
+        if running:
+            raise ConfigError(f"{pseudonym}: a session is running ({running}); stop it (key s or the console), "
+                              "then record the withdrawal")
+        flush(root, conn, pseudonym)  # a killed session of this participant is on record first
+        entry = pg.withdraw(conn, pseudonym, data, reason)
+        recorded = {s["folder"] for s in pg.site_sessions(conn) if s["pseudonym"] == pseudonym and s["folder"]}
+    if entry["data"] != "delete":
+        return entry, []
+    folders = {study.sessions_dir / f for f in recorded} | set(participant_folders(study, pseudonym))
+    folders.add(participant_dir(study.sessions_dir, pseudonym))
+    deleted = []
+    for folder in sorted(folders):
+        if folder.is_dir() and not folder.is_symlink():
+            try:
+                shutil.rmtree(folder)
+            except OSError as exc:
+                raise DataError(f"{folder}: cannot delete ({exc.strerror}); the withdrawal is recorded: run the "
+                                "same withdraw command again to finish the deletion") from None
+            deleted.append(folder)
+    return entry, deleted
+
+
+def statistician_study(root: Path, what: str):
+    """The study as the analysis and the export read it (``registry.Study``), for the statistician's role:
+    participants and sessions from the registry, each counted session's folder under ``STUDY_DIR/sessions``
+    checked against the checksums its site recorded, the arms read through ``unblind`` (so logged). A
+    blinded study must have been unblinded first (``study unblind``), as on one laptop."""
+    from nao_trainer.study.registry import file_sha256
+    from nao_trainer.study.runner import DONE
+
+    root = Path(root)
+    with connect(root) as conn:
+        info = _role(conn, root, what, "statistician")
+        protocol = open_protocol(root, info)
+        log = pg.call(conn, what, "SELECT time::text, who, reason FROM unblindings ORDER BY id")
+        if protocol.blinding and not log:
+            raise DataError(f"{root}: the study is blinded; its arms are revealed only after `nao-trainer study "
+                            f"unblind {root} --reason TEXT` (the statistician; the unblinding is logged)")
+        by_site = bool(pg.call(conn, what, "SELECT value = 'true'::jsonb FROM meta WHERE key = 'stratify_by_site'")
+                       [0][0])
+        people = pg.call(conn, what, "SELECT pseudonym, number, site, consent_date::text, consent_version, "
+                         "enrolled::text, withdrawn FROM participants ORDER BY number")
+        rows = pg.call(conn, what, "SELECT key, pseudonym, number, folder, status, files, entry FROM sessions "
+                       "ORDER BY pseudonym, number, recorded")
+        arms = dict(pg.unblind(conn, f"{what}: the arms read for it"))
+    sessions: dict[str, list[dict[str, Any]]] = {}
+    for key, pseud, number, folder, status, files, entry in rows:
+        sessions.setdefault(pseud, []).append({**(entry or {}), "key": key, "number": number, "folder": folder,
+                                               "status": status, "files": files})
+    participants = []
+    keys = ("pseudonym", "number", "site", "consent_date", "consent_version", "enrolled", "withdrawn")
+    for row in people:
+        p = dict(zip(keys, row))
+        p.update(stratum=p["site"] if by_site else "", allocation_index=None, arm=arms[p["pseudonym"]],
+                 sessions=sessions.get(p["pseudonym"], []))
+        participants.append(p)
+        if p["withdrawn"] and p["withdrawn"].get("data") == "delete":
+            continue
+        for s in p["sessions"]:
+            if s["status"] not in DONE:
+                continue
+            folder = root / "sessions" / (s["folder"] or "")
+            if not s["folder"] or not folder.is_dir():
+                raise DataError(f"{folder}: {p['pseudonym']}'s session {s['number']} (site {p['site']}) is not in "
+                                f"{root / 'sessions'}; copy every site's sessions/ folder into it (e.g. rsync -a "
+                                f"SITE:STUDY_DIR/sessions/ {root / 'sessions'}/), then run the command again")
+            for name, sha in (s["files"] or {}).items():
+                path = folder / name
+                if not path.is_file() or file_sha256(path) != sha:
+                    raise DataError(f"{path}: {'missing' if not path.is_file() else 'differs from the checksum'} "
+                                    f"its site recorded ({p['pseudonym']} session {s['number']}); copy the folder "
+                                    "from the site again")
+    unblindings = [{"time": t, "who": w, "reason": r} for t, w, r in log]
+    return _study(root, info, protocol, {"participants": participants, "unblindings": unblindings})

@@ -24,7 +24,7 @@ import socket
 import sys
 import uuid
 from pathlib import Path
-from typing import Any, Iterator, TextIO
+from typing import Any, Callable, Iterator, TextIO
 
 from nao_trainer.errors import ConfigError, DataError, UserError
 from nao_trainer.policies.participant_state import participant_template
@@ -194,9 +194,13 @@ class BlindStream(io.TextIOBase):
         return self._names.sub(BLIND_LABEL, line) if self._names else line
 
 
-def play(study: Study, plan: NextSession, options: Any, progress: TextIO) -> Any:
-    """Run the planned session through the session layer and record it in the registry."""
+def play(study: Study, plan: NextSession, options: Any, progress: TextIO,
+         record: Callable[[dict[str, Any]], None] | None = None) -> Any:
+    """Run the planned session through the session layer and record it in the registry (``record``: where an
+    entry goes, default the study folder's registry; ``study.remote`` passes its outbox and server)."""
     from nao_trainer.session.wiring import run_session
+
+    record = record or (lambda entry: record_session(study.root, plan.pseudonym, entry))
 
     blinded = study.protocol.blinding
     check_blinding(study, plan, options)
@@ -210,27 +214,27 @@ def play(study: Study, plan: NextSession, options: Any, progress: TextIO) -> Any
             if options.console:
                 options, console = stack.enter_context(blinded_console(plan, options, progress))
         before = set(study.sessions_dir.glob(f"{plan.pseudonym}_*"))
-        register_start(study, plan)
+        register_start(study, plan, record)
         try:
             result = run_session(plan.config, options, progress=stream, resume=plan.resume)
         except UserError as exc:  # e.g. the robot lost for good: a folder written is still recorded
             for folder in sorted(set(study.sessions_dir.glob(f"{plan.pseudonym}_*")) - before):
-                _record(study, plan, folder, "error", exc.exit_code)
+                _record(study, plan, folder, "error", exc.exit_code, record)
             raise
         if console is not None:
             from nao_trainer.session.turn import summary_data
 
             console.hub.notify("summary", {**summary_data(result), "policy_summary": ""})
     if result.path is not None:
-        _record(study, plan, result.path, result.status, result.exit_code)
+        _record(study, plan, result.path, result.status, result.exit_code, record)
     return dataclasses.replace(result, policy_summary="") if blinded else result
 
 
-def register_start(study: Study, plan: NextSession) -> None:
+def register_start(study: Study, plan: NextSession, record: Callable[[dict[str, Any]], None]) -> None:
     """The session is in the registry before it starts (``running``, with this process and host): a
     session killed at any moment is listed, counted when its folder says it completed, and resumable."""
-    record_session(study.root, plan.pseudonym, {
-        "key": plan.key, "number": plan.number, "folder": plan.resume.folder.name if plan.resume else None,
+    record({
+        "key": plan.key, "pseudonym": plan.pseudonym, "number": plan.number, "folder": plan.resume.folder.name if plan.resume else None,
         "status": "running", "exit_code": None, "started": now_iso(), "ended": None,
         "outside_interval": bool(plan.warning), "protocol_sha256": study.protocol.sha256,
         "host": socket.gethostname(), "pid": os.getpid(), "files": None})
@@ -249,10 +253,11 @@ def file_checksums(folder: Path) -> dict[str, str]:
     return out
 
 
-def _record(study: Study, plan: NextSession, folder: Path, status: str, exit_code: int) -> None:
+def _record(study: Study, plan: NextSession, folder: Path, status: str, exit_code: int,
+            record: Callable[[dict[str, Any]], None]) -> None:
     info = _session_info(folder)
-    record_session(study.root, plan.pseudonym, {
-        "key": plan.key, "number": plan.number, "folder": folder.name, "status": info.get("status") or status,
+    record({
+        "key": plan.key, "pseudonym": plan.pseudonym, "number": plan.number, "folder": folder.name, "status": info.get("status") or status,
         "exit_code": info.get("exit_code", exit_code), "started": info.get("started"),
         "ended": info.get("ended") or now_iso(), "outside_interval": bool(plan.warning),
         "protocol_sha256": study.protocol.sha256, "host": socket.gethostname(), "pid": None,

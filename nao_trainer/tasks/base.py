@@ -154,6 +154,13 @@ def table_fields(task: type | Task) -> tuple[tuple[str, str], ...]:
     return TABLE_BEFORE + middle + TABLE_AFTER
 
 
+def published(task: Any) -> bool:
+    """True when the published data, and every user model, prior and trained policy fitted on them, are ``task``'s
+    (its ``published_data``: only the sequence task's are). ``task`` None (a caller that names none) is the
+    sequence task."""
+    return task is None or bool(getattr(task, "published_data", False))
+
+
 def task_named(name: str) -> Task:
     """The registered task ``name``, built (one ``ConfigError`` line for an unknown or broken one)."""
     return registry.make("task", name)

@@ -87,7 +87,44 @@ def test_the_policy_choice_is_spelled_out_and_said_to_be_by_expected_value():
     assert status["following"] == "fixed:4"
     assert status["progress"].endswith("-> policy: fixed level 4 (by expected value)")
     assert "fixed:" not in status["progress"] and "fixed:" not in status["summary"]
-    assert status["summary"].startswith("matched user model: ")
+    assert status["summary"].startswith("matched user model ")
     assert ("policy: fixed level 4, chosen by its expected score under the posterior over all the user models "
             "(so not always the matched model's own policy)") in status["summary"]
     assert personalised.plain_name("usp:3", "by expected value") == "personalised (user model 3, by expected value)"
+
+
+def test_the_posterior_the_match_and_the_policy_name_each_user_model_alike():
+    """`run --user-model sim/participants/level2.json` printed `posterior: cluster-3 0.65 | cluster-1 0.25 ...`,
+    `matched user model: cluster-3` and `policy: personalised (user model 1)`: two names for one user model. The
+    posterior line, the summary and the policy name it `user model N` alike (the files keep `cluster-N`)."""
+    import re
+
+    import numpy as np
+
+    from nao_trainer.core import mdp
+    from nao_trainer.core.posterior import model_label
+    from nao_trainer.policies import personalised
+    from nao_trainer.ports import Transition
+    policy = personalised.load_personalised(None, "g", 25, (), 10.0, 0.5, False, False)  # no assessment
+    rng = np.random.default_rng(0)
+    state = mdp.START
+    for turn in range(6):
+        action = policy.act(state, rng)
+        success = turn % 3 != 0
+        after = mdp.next_state(state, action, success)
+        policy.observe(Transition(state, action, mdp.LENGTHS.index(mdp.decode(after).length) + 1 if success else -1, None, after, False))
+        state = after
+    status = policy.status()
+    assert status["following"]
+    shown = status["progress"] + "\n" + status["summary"]
+    assert "cluster" not in shown, shown
+    named = set(re.findall(r"user model (\d+)", shown))
+    assert named == {"1", "2", "3"}, shown
+    assert set(status["posterior"]) == {"cluster-1", "cluster-2", "cluster-3"}  # the files keep the names
+    best = max(status["posterior"], key=status["posterior"].get)
+    assert status["summary"].startswith(f"matched {model_label(best)} (posterior ")
+    assert re.search(r"posterior: user model \d \d\.\d\d \| user model \d", status["progress"]), status["progress"]
+    assert personalised.plain_name("usp:3").startswith("personalised (user model 3")
+    assert model_label("cluster-3") == "user model 3" == personalised.plain_name("usp:3")[len("personalised ("):][:12]
+    assert model_label("cluster-2-level-only") == "user model 2 (level-only)"
+    assert model_label("span 7.3") == "user model span 7.3"

@@ -51,8 +51,8 @@ def test_weak_and_strong_participants_get_different_levels_and_the_state_carries
         levels[who] = [int(r["level"]) for r in rows[6:]]
         status = [e for e in read_events(folder) if e["event"] == "policy_status"]
         assert len(status) == 25 and abs(sum(status[-1]["posterior"].values()) - 1) < 1e-3
-        assert "matched user model: cluster-" in res.stdout and "posterior" in res.stdout
-        assert "posterior: cluster-" in res.stderr  # the operator sees the posterior move
+        assert "matched user model " in res.stdout and "posterior" in res.stdout
+        assert "posterior: user model " in res.stderr  # the operator sees the posterior move
         # in words (issue 29): which policy, and that it was chosen by expected value, not by the match alone
         assert "-> policy: " in res.stderr and "by expected value)" in res.stderr and "usp:" not in res.stderr
         assert "chosen by its expected score" in res.stdout
@@ -91,7 +91,10 @@ def test_evaluate_personalise_on_a_held_out_session(dataset_root, tmp_path, monk
                "--assessment", "0,3", "--episodes", "300", "--mc-episodes", "30", "--out", str(out), "--no-plots",
                "--json", "--export-users", str(users)])
     assert rc == 0
-    report = json.loads(capsys.readouterr().out)
+    said = capsys.readouterr()
+    report = json.loads(said.out)
+    # issue 29: about 6 minutes on the published data with nothing said; each held-out session is said on stderr
+    assert "evaluate --personalise: held-out sessions: 1/1 done" in said.err, said.err
     got = {(s["policy"], s["assessment"]) for s in report["summary"]}
     assert got == {("fixed:2", None), ("best-fixed", None), ("generic", None), ("oracle", None),
                    *((p, a) for p in ("paper", "posterior-ev", "personalised") for a in (0, 3))}

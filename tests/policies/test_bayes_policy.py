@@ -127,6 +127,6 @@ def test_a_session_at_one_level_says_why_in_its_summary(tmp_path):
         pol.observe(Transition(mdp.START if t == 0 else level2, 1, 2, None, level2, False))
     summary = pol.status()["summary"]
     assert "It played level 2 in all 5 turns, the highest expected value per turn under the posterior (now L1 " in summary
-    assert "succeed at level 2 alike (weak 0.95, strong 0.93) and differ most at level 4 (0.05, 0.85)" in summary
+    assert "succeed at level 2 alike (user model weak 0.95, user model strong 0.93) and differ most at level 4 (0.05, 0.85)" in summary
     pol.observe(Transition(level2, 3, -1, None, 3 * 27 + 4, False))
     assert "It played" not in pol.status()["summary"]  # several levels: nothing to explain

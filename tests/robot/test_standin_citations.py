@@ -21,6 +21,9 @@ PAGES = {
     "naoqi/core/almemory-api.html", "naoqi/interaction/autonomouslife-api.html", "naoqi/sensors/albattery-api.html",
     "naoqi/core/alsystem-api.html", "naoqi/sensors/albodytemperature.html", "naoqi/sensors/alchestbutton.html",
     "naoqi/sensors/altouch.html", "family/nao_user_guide/activity_nao.html", "family/nao_user_guide/sleep_nao.html",
+    # checked in the NAOqi 2.8.7.4 documentation mirrored in the public repository Cartheur-Nao/aldeb-2.8.7.4:
+    "naoqi/sensors/alchestbutton-api.html", "family/nao_user_guide/chest_button_usages.html",
+    "family/nao_technical/lola/actuator_sensor_names.html",
 }
 #: The control service's methods that steer the stand-in (timing, links, the transcript) rather than show what a
 #: robot does: nothing to cite.

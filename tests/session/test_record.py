@@ -69,6 +69,30 @@ def test_session_plot(tmp_path):
     assert out == path / "session.png" and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 10_000
 
 
+def test_session_plot_names_the_robot_feedback_in_words(tmp_path):
+    """Issue 29: the figure labelled the robot's feedback `enc` / `chl`; it says encouraging / challenging, as the
+    turn line (`robot feedback: encouraging`) and the dialogue do."""
+    from nao_trainer.plots import pyplot
+    from nao_trainer.plots.session import session_figure
+
+    rec = SessionRecorder(tmp_path, "PL")
+    path = rec.open({})
+    for i, (level, ok, fb) in enumerate([(2, True, 1), (2, False, 2), (3, True, 0), (3, True, 1)], start=1):
+        rec.turn({"turn": i, "level": level, "success": ok, "feedback": fb, "score": level if ok else -1})
+    rec.close("completed", 0)
+    fig = session_figure(path)
+    try:
+        top = fig.axes[0]
+        labels = [text.get_text() for text in top.get_legend().get_texts()]
+        assert {"robot feedback: encouraging", "robot feedback: challenging"} <= set(labels), labels
+        words = {text.get_text() for ax in fig.axes for text in ax.texts} | set(labels)
+        assert not {"enc", "chl"} & words, words
+        marks = {c.get_label(): len(c.get_offsets()) for c in top.collections}
+        assert marks["robot feedback: encouraging"] == 2 and marks["robot feedback: challenging"] == 1, marks
+    finally:
+        pyplot().close(fig)
+
+
 def test_a_session_folder_that_cannot_be_created_is_a_config_error(tmp_path):
     import pytest
 

@@ -118,6 +118,44 @@ def test_a_chest_press_during_a_trial_replays_that_turn(tmp_path, standin):
     assert [(c["kind"], c["accepted"]) for c in commands] == [("repeat", True)]
 
 
+def _calls(standin):
+    return [(c["service"], c["method"]) for c in standin.transcript()]
+
+
+@pytest.mark.parametrize("does", ["stiffness", "life"])
+def test_a_double_press_of_the_chest_button_mid_trial_replays_the_turn_on_a_robot_set_back(tmp_path, standin, does):
+    """Pressed twice at turn 1's beep, the stand-in raises ALChestButton/DoubleClickOccurred and removes its
+    stiffness (alchestbutton.html) or switches Autonomous Life off and on (chest_button_usages.html): the turn is
+    marked invalid and replayed, and before the replay's beep the session has set the robot back (motors woken,
+    or life disabled again). Without the event the turn would be scored; without the upkeep, the replay would play
+    on a limp (or autonomous) robot."""
+    standin.control.set_chest_double(does)
+    standin.control.act_after("ALAudioPlayer.playSine", "chest", [2])
+    result = _play(_config(tmp_path, standin.url), RunOptions(quiet=True))
+    assert result.status == "completed"
+    folder = result.path
+    rows = read_turns(folder)
+    first = rows[0]
+    assert first["invalid"] == "True" and "chest button double-clicked during the trial" in first["notes"]
+    again = rows[1]
+    assert again["action"] == first["action"] and again["success"] in ("True", "False") and not again.get("invalid")
+    events = read_events(folder)
+    health = [e for e in events if e["event"] == "robot_health"]
+    assert [(e["kind"], e["turn"]) for e in health] == [("chest_double", 1)]
+    assert "set back before the next turn" in health[0]["decision"]
+    robot_commands = [e for e in events if e["event"] == "command" and e["source"] == "robot"]
+    assert [(c["kind"], c["accepted"]) for c in robot_commands] == [("repeat", True)]
+    calls = _calls(standin)
+    pressed = calls.index(("NaoTrainerStandIn", "chest"))
+    next_beep = calls.index(("ALAudioPlayer", "playSine"), pressed)
+    set_back = ("ALMotion", "wakeUp") if does == "stiffness" else ("ALAutonomousLife", "setState")
+    assert set_back in calls[pressed:next_beep]  # restored before the replayed turn's beep
+    found = "motors_found_off" if does == "stiffness" else "autonomous_life_changed"
+    replay_start = [e["mono"] for e in events if e["event"] == "turn_start"][1]
+    assert [e["mono"] <= replay_start for e in events if e["event"] == found] == [True]
+    assert sum(r["success"] in ("True", "False") for r in rows) == 3
+
+
 def test_a_critically_hot_knee_makes_the_nao_sit_before_the_next_turn(tmp_path, standin):
     standin.control.act_after("ALAudioPlayer.playSine", "heat", ["LKneePitch", 3])
     result = _play(_config(tmp_path, standin.url), RunOptions(quiet=True))
@@ -284,3 +322,71 @@ def test_a_stop_while_the_robot_is_away_ends_the_session_at_once(tmp_path):
     stop = [e for e in events if e["event"] == "command" and e["kind"] == "stop"]
     assert len(stop) == 1 and stop[0]["accepted"] and stop[0]["state"] == "paused"
     assert any(e["event"] == "robot_lost" for e in events)
+
+
+@pytest.mark.parametrize("go_on_while_away", [False, True])
+def test_a_pause_while_the_robot_is_away_acts_at_once_and_holds_once_it_is_back(tmp_path, go_on_while_away):
+    """The robot's link is gone (the stand-in stopped after turn 1) and the operator pauses: the pause is taken at
+    once (recorded while the session is still reconnecting, before the robot is back). The robot comes back (a new
+    stand-in on the same address): the session stays paused, no turn plays, until the operator goes on; then it
+    replays the interrupted turn and completes. A go-on given while the robot is still away cancels the pause:
+    the session plays on as soon as the robot is back. Not honoured, the pause would only be recorded once the
+    robot is back, and the robot is brought back only after it is recorded: the hang limit fails the test."""
+    first = StandIn.start(speed=50)
+    url = first.url
+    commands, watcher = CommandQueue(), _Watcher()
+    lost = watcher.when("robot", lambda d: d.get("robot") == "lost")
+    one_row = watcher.when("row", lambda d: d.get("success") in (True, False))
+    paused_away = watcher.when("command", lambda d: d["kind"] == "pause" and d["accepted"] and d["state"] == "paused")
+    went_on_away = watcher.when("command", lambda d: d["kind"] == "resume" and d["accepted"] and d["state"] == "paused")
+    held = watcher.when("state", lambda d: d.get("state") == "operator_pause")
+    back: list[StandIn] = []
+
+    def robot_and_operator():
+        if not one_row.wait(HANG_S):
+            return
+        first.stop()
+        if not lost.wait(HANG_S):
+            return
+        commands.submit("pause", source="keys")
+        if not paused_away.wait(HANG_S):
+            return
+        if go_on_while_away:
+            commands.submit("resume", source="keys")
+            if not went_on_away.wait(HANG_S):
+                return
+        back.append(StandIn.start(url, speed=50))  # the robot is back, on the same address
+        if not go_on_while_away and held.wait(HANG_S):
+            commands.submit("resume", source="keys")
+
+    helper = threading.Thread(target=robot_and_operator, daemon=True)
+    helper.start()
+    try:
+        config = _config(tmp_path, url, **{"session.turns": 3, "robot.max_reconnect_s": 120,
+                                           "robot.backoff_initial_s": 0.1, "robot.backoff_max_s": 0.3})
+        result = _play(config, RunOptions(quiet=True, commands=commands, observer=watcher))
+        helper.join(HANG_S)
+    finally:
+        first.stop()
+        for robot in back:
+            robot.stop()
+    assert back, "the pause was not taken while the robot was away"
+    assert result.status == "completed" and result.exit_code == 0
+    events = read_events(result.path)
+    names = [e["event"] for e in events]
+    ops = [(e["kind"], e["state"], e["accepted"]) for e in events if e["event"] == "command"]
+    reconnected = names.index("reconnected")
+    pause_at = next(i for i, e in enumerate(events) if e["event"] == "command" and e["kind"] == "pause")
+    assert pause_at < reconnected  # taken while the robot was away
+    holds = [e for e in events if e["event"] == "transition" and e["source"] == "paused" and e["trigger"] == "pause"]
+    after_back = [e for e in events[reconnected:] if e["event"] == "turn_start"]
+    if go_on_while_away:
+        assert ops == [("pause", "paused", True), ("resume", "paused", True)] and not holds
+        assert after_back  # played on once back
+    else:
+        assert ops == [("pause", "paused", True), ("resume", "operator_pause", True)] and len(holds) == 1
+        resume_at = max(i for i, e in enumerate(events) if e["event"] == "command" and e["kind"] == "resume")
+        assert [i for i, e in enumerate(events) if e["event"] == "turn_start" and i > reconnected][0] > resume_at
+    rows = read_turns(result.path)
+    interrupted = [r for r in rows if r["notes"].startswith("interrupted: robot lost")]
+    assert len(interrupted) <= 1 and sum(r["success"] in ("True", "False") for r in rows) == 3

@@ -1,7 +1,8 @@
 """The seeded sequence-task demo writes the same turns.csv and events.jsonl as the recording made before the
 task moved to ``nao_trainer/tasks/sequence`` (issue 26: behaviour identical).
 
-The fixture (``fixtures/sequence_demo``) was recorded with the code of main before the move (44f73ae; again at 62073fb, where policy_status gained a key), by
+The fixture (``fixtures/sequence_demo``) was recorded with the code of main before the move (44f73ae; again at 62073fb, where policy_status gained a key; issue 29 re-worded the summary's
+model names, cluster-3 -> user model 3, in the one policy_summary event), by
 ``nao-trainer run --turns 8 --seed 7 --speed 100 --eeg off --quiet --no-keys`` (the demo study: stand-in over
 qi, the simulated participant of sim/participants/level4.json, the personalised policy). Only wall-clock fields
 are normalised: timestamps, monotonic times, measured round trips and press/reaction/completion times.

@@ -29,7 +29,7 @@ def test_an_untagged_turn_line_looks_the_same_as_a_tagged_one():
 
 
 def test_lines_about_the_policy_are_dropped_and_arm_names_hidden():
-    lines = _shown("           posterior: cluster-3 0.37 | cluster-1 0.33 | cluster-2 0.30 (assessment)\n"
-                   "matched user model: cluster-3 (posterior 0.81)\n"
+    lines = _shown("           posterior: user model 3 0.37 | user model 1 0.33 | user model 2 0.30 (assessment)\n"
+                   "matched user model 3 (posterior 0.81)\n"
                    "arm level2 ready\n")
     assert lines == [f"arm {BLIND_LABEL} ready"]

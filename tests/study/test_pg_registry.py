@@ -84,7 +84,7 @@ def test_operator_cannot_read_an_arm(study):
         config = pg.session_config(op, pseud)
         assert config["next_session"] == 1 and "policy.kind" in config["config"]
         arm_names = {a.name for a in study.protocol.arms}
-        assert set(config) == {"pseudonym", "next_session", "config"}  # no arm name, no slot
+        assert set(config) == {"pseudonym", "next_session", "last_ended", "config"}  # no arm name, no slot
         for sql in ("SELECT arm FROM allocation", "SELECT * FROM allocation", "SELECT * FROM participants",
                     "SELECT stratum, allocation_index FROM participants", "SELECT * FROM arms",
                     "SELECT * FROM unblindings", "SELECT * FROM unblind('curious')"):
@@ -277,8 +277,8 @@ def test_command_line_two_sites_from_two_shells(pg_cluster, tmp_path, monkeypatc
     assert not any(a.name in out.split("\n", 2)[2] for a in load_protocol(PROTOCOL).arms)
     code, out = _cli(capsys, "unblind", study, "--reason", "curious")
     assert code == 2 and out.count("\n") == 1 and "permission denied" in out
-    code, out = _cli(capsys, "next", study, "P001")
-    assert code == 2 and "not available yet" in out
+    code, out = _cli(capsys, "analyse", study)
+    assert code == 2 and out.count("\n") == 1 and "the statistician's role only" in out
     monkeypatch.setenv("PGUSER", roles["stats"])
     code, out = _cli(capsys, "status", study)
     assert code == 0 and "north: 6 participant(s)" in out and "south: 6 participant(s)" in out
@@ -347,3 +347,32 @@ def test_command_line_stratified_by_site(pg_cluster, tmp_path, monkeypatch, caps
         assert [arm for s, arm in per if s == site] == seqs[site][:6]
         assert sorted(seqs[site]) == sorted(arms * (len(seqs[site]) // len(arms)))
     assert _cli(capsys, "init", PROTOCOL, "--out", tmp_path / "x", "--stratify-by-site")[0] == 2
+
+
+def test_allocation_seed_file_with_a_postgresql_registry(pg_cluster, tmp_path, monkeypatch, capsys):
+    """--allocation-seed-file with --registry: the sequence drawn from the third party's seed (the same seed,
+    the same sequence; the seed stored nowhere); with --stratify-by-site refused in one line."""
+    passfile = tmp_path / "pgpass"
+    passfile.write_text(f"*:*:*:postgres:{pg_cluster.password}\n")
+    passfile.chmod(0o600)
+    monkeypatch.setenv("PGPASSFILE", str(passfile))
+    monkeypatch.setenv("PGUSER", "postgres")
+    seed_file = tmp_path / "seed.txt"
+    seed_file.write_text("0x5eed2026\n")
+    got = []
+    for i in range(2):
+        db = f"a{i}_" + uuid.uuid4().hex[:8]
+        with pg.connect(pg_cluster.url(), autocommit=True) as c:
+            c.execute(f"CREATE DATABASE {db}")
+        code, out = _cli(capsys, "init", PROTOCOL, "--out", tmp_path / f"s{i}", "--registry", pg_cluster.url(db),
+                         "--allocation-seed-file", seed_file)
+        assert code == 0, out
+        with pg.connect(pg_cluster.url(db), autocommit=True) as c:
+            got.append([r[0] for r in c.execute("SELECT arm FROM allocation WHERE stratum = '' ORDER BY position")])
+            stored = " ".join(str(r[0]) for r in c.execute("SELECT value FROM meta"))
+        assert str(0x5eed2026) not in stored and "5eed2026" not in stored
+    expected = allocation_sequence(load_protocol(PROTOCOL), np.random.default_rng(0x5eed2026))[""]
+    assert got == [expected, expected]
+    code, out = _cli(capsys, "init", PROTOCOL, "--out", tmp_path / "s9", "--registry", pg_cluster.url("x"),
+                     "--allocation-seed-file", seed_file, "--stratify-by-site")
+    assert code == 2 and out.count("\n") == 1 and "give one or the other" in out

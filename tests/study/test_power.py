@@ -208,3 +208,63 @@ def test_baseline_covariate_model_and_arm_specific_variances_on_data():
     w = {r["term"]: r for r in own}["arm[b]"]
     pw = {r["term"]: r for r in pooled}["arm[b]"]
     assert w["se"] < 0.6 * pw["se"] and w["df"] < 27
+
+
+NBACK_PROTOCOL = """\
+protocol: {name: nback-3arm, description: three arms on n-back}
+study_config: nback-base.yaml
+arms:
+  - {name: personalised, policy: personalised}
+  - {name: bayes, policy: bayes}
+  - {name: level2, policy: schedule, overrides: {policy.schedule: [L2]}}
+sessions: {per_participant: 2, interval_days: {min: 0, max: 7}}
+target_n: 12
+allocation: {method: blocked, block_size: 6, seed: 7}
+blinding: false
+outcomes: {primary: score, secondary: [success_rate]}
+analysis: {model: "outcome ~ arm + session + (1|participant)", reference_arm: level2}
+"""
+
+
+def test_an_nback_protocols_model_based_arms_are_simulated_over_the_tasks_own_users(tmp_path, monkeypatch):
+    """Issue 26: under n-back the personalised arm's user models and the bayes arm's prior are the task's simulated
+    users (the live policies' own, ``tasks/nback``), not the models fitted on the sequence task's data."""
+    from nao_trainer.core import bayes
+    from nao_trainer.policies.bayes import BayesSessions, load_bayes
+    from nao_trainer.policies.personalised import PersonalisedSessions
+    from nao_trainer.study.power import SessionPolicies
+    from nao_trainer.tasks.nback import NBackTask
+
+    if not bayes.available():
+        pytest.skip("numba is not installed")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    (tmp_path / "nback-base.yaml").write_text("task: {name: nback}\nsession: {turns: 4, practice: false}\n"
+                                              "robot: {url: mock}\n")
+    (tmp_path / "protocol.yaml").write_text(NBACK_PROTOCOL)
+    protocol = load_protocol(tmp_path / "protocol.yaml")
+    arms = {a.name: SessionPolicies(protocol, a) for a in protocol.arms}
+    names = tuple(name for name, _ in NBackTask().simulated_users())
+    assert isinstance(arms["personalised"].offline, PersonalisedSessions)
+    assert arms["personalised"].offline.pers.models.names == names
+    assert isinstance(arms["bayes"].offline, BayesSessions) and arms["bayes"].offline.names == names
+    live = load_bayes(None, "P1", 4, "score", False, None, task=NBackTask())
+    assert arms["bayes"].offline.plan.fingerprint == live.plan.fingerprint  # the live n-back policy's plan
+
+
+def test_study_power_on_the_nback_protocol_simulates_the_tasks_own_users(tmp_path, capsys):
+    import json
+
+    from nao_trainer.cli import main
+    from nao_trainer.files import PROJECT_ROOT
+
+    shipped = PROJECT_ROOT / "config" / "protocols" / "nback-2arm.yaml"
+    out = tmp_path / "power"
+    assert main(["study", "power", str(shipped), "--reps", "4", "--n", "4", "--out", str(out)]) == 0
+    power = json.loads((out / "power.json").read_text())
+    assert power["users"] == "task nback" and any("task nback's own simulated users" in n for n in power["notes"])
+    capsys.readouterr()
+    code = main(["study", "power", str(shipped), "--users", "clusters", "--reps", "4", "--n", "4",
+                 "--out", str(tmp_path / "again")])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert "protocol 'nback-2arm' trains task 'nback'" in err and not (tmp_path / "again").exists()

@@ -131,3 +131,24 @@ def test_run_task_nback_plays_the_chain_and_writes_its_own_fields(tmp_path):
     for name, t in zip(names, markers["time_stamps"]):
         if "_stimulus_" in name:
             assert abs(t - stamped[name]) < 2e-6, name
+
+
+def test_run_task_nback_with_the_personalised_policy_matches_the_tasks_own_users(tmp_path):
+    """Issue 26: the session hands its task to the policy; the personalised policy of an n-back session assesses
+    and matches the n-back observers (Task.simulated_users), not the user models fitted on the sequence task."""
+    study = tmp_path / "nback.yaml"
+    study.write_text(STUDY.replace("policy: {kind: schedule, schedule: [L1, L2, L3]}",
+                                   "policy: {kind: personalised, state_path: '{session}'}")
+                     .replace("eeg: {mode: simulated, processing: {window_s: 0.5, hop_s: 0.1}}", 'eeg: {mode: "off"}'))
+    res = subprocess.run([sys.executable, "-m", "nao_trainer", "run", "--config", str(study), "--out", str(tmp_path),
+                          "--turns", "2", "--speed", "100", "--quiet", "--no-keys"], capture_output=True, text=True,
+                         env=dict(os.environ, QI_LOG_LEVEL="silent"), timeout=300)
+    assert res.returncode == 0, res.stderr
+    (folder,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    state = json.loads((folder / "personalised.json").read_text())["payload"]
+    names = [name for name, _ in NBackTask().simulated_users()]
+    assert state["models"] == names
+    events = [json.loads(line) for line in (folder / "events.jsonl").read_text().splitlines()]
+    (first, *_) = [e for e in events if e["event"] == "policy_status"]
+    assert set(first["posterior"]) == set(names)
+    assert "matched user model nback-" in res.stdout

@@ -63,8 +63,9 @@ function renderPolicyStatus() {
   // What a personalising policy believes: the posterior over user models and what it follows.
   const p = S.policy_status, box = $("policy-status");
   if (!p || !p.posterior) { box.textContent = ""; return; }
+  // posterior_text names each model as the terminal does ("user model 3", the words of the policy line)
   const ranked = Object.entries(p.posterior).sort((a, b) => b[1] - a[1]);
-  box.textContent = "user models: " + ranked.map(([n, w]) => n + " " + fmt(w)).join(" | ") +
+  box.textContent = "posterior: " + (p.posterior_text || ranked.map(([n, w]) => n + " " + fmt(w)).join(" | ")) +
     (p.following ? " · policy: " + (p.policy || p.following) : " · assessment");
 }
 

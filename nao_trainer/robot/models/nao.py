@@ -14,7 +14,10 @@ Each value names the NAOqi 2.8.5 SDK page it follows (``doc/`` of the SDK):
 * battery: ``ALBattery/BatteryLow``, "raised when the battery level is low and will soon need charging",
   status always True (``naoqi/sensors/albattery-api.html``);
 * chest button: one click makes NAO say its name and IP (``naoqi/sensors/alchestbutton.html``);
-  ``ALChestButton/SimpleClickOccurred`` (``naoqi/sensors/alchestbutton-api.html``).
+  ``ALChestButton/SimpleClickOccurred`` and, for a double click, ``ALChestButton/DoubleClickOccurred``
+  (``naoqi/sensors/alchestbutton-api.html``). What a double click does, the 2.8 pages disagree on: the stiffness
+  is removed (``alchestbutton.html``) or Autonomous Life is set off and on
+  (``family/nao_user_guide/chest_button_usages.html``); the session sets back either before the next turn.
 """
 from __future__ import annotations
 
@@ -40,6 +43,12 @@ class NaoSettings:
     full_battery_minutes: float = setting(60.0, kind=(int, float), min=5, max=1440,
                                           doc="minutes a full charge lasts in a session (check's estimate; "
                                               "about an hour of activity; measure yours)")
+    heat_c_per_min: float = setting(1.0, kind=(int, float), min=0.01, max=20,
+                                    doc="how fast (°C a minute) a standing NAO's leg joints warm (check's heat "
+                                        "projection; a guess: measure yours)")
+    hot_joint_c: float = setting(70.0, kind=(int, float), min=30, max=150,
+                                 doc="the leg joint temperature (°C) where NAO starts limiting stiffness (check's heat "
+                                     "projection; a guess: read Temperature/Sensor/Value when the status turns 1)")
 
 
 class NaoModel(RobotModel):
@@ -52,6 +61,7 @@ class NaoModel(RobotModel):
     buttons = dict(BUTTON_LETTERS)
     health = HealthKeys(falling="ALMotion/RobotIsFalling", fallen="robotHasFallen", hot="HotDeviceDetected",
                         battery_low="ALBattery/BatteryLow", chest="ALChestButton/SimpleClickOccurred",
+                        chest_double="ALChestButton/DoubleClickOccurred",
                         diagnosis="ALDiagnosis/RobotIsReady")
     services = tuple(Service(name) for name in TASK_SERVICES) + (
         Service("ALAutonomousLife", False, "Autonomous Life is left as found"),

@@ -47,6 +47,7 @@ class PepperModel(RobotModel):
     buttons = dict(BUTTON_LETTERS)
     health = HealthKeys(falling="ALMotion/RobotIsFalling", fallen="robotHasFallen", hot="HotDeviceDetected",
                         battery_low="ALBattery/BatteryLow", chest="ALChestButton/SimpleClickOccurred",
+                        chest_double="ALChestButton/DoubleClickOccurred",
                         diagnosis="ALDiagnosis/RobotIsReady",
                         safeguard="AutonomousLife/State")
     services = (

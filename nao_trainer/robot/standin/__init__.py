@@ -16,8 +16,8 @@ the client (``nao_trainer.robot.naoqi.NaoqiRobot``) talks to it exactly as it ta
   robotName, systemVersion (``body``)
 * ``NaoTrainerStandIn`` (control, not NAOqi) press(button or letter), hold, hold_after, chest(clicks),
   chest_after, bounce, body, set_battery, set_latency, freeze, freeze_after, transcript(), clear(),
-  set_speed(x), speed(); the robot's health: fall, stand_up, heat(joint, status), battery_low, safeguard,
-  refuse_life(bool), set_languages(list), act_after(call, action, args) (``body`` cites the pages)
+  set_speed(x), speed(); the robot's health: fall, stand_up, heat(joint, status), warm(joint, celsius), battery_low, safeguard,
+  refuse_life(bool), set_languages(list), set_chest_double("stiffness" or "life"), act_after(call, action, args) (``body`` cites the pages)
 * ``StandIn.start(model="pepper", without=(...), profile=...)``: plays a Pepper, lacks services, or answers as a
   recorded robot did (``robot.profile``)
 

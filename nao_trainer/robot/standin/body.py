@@ -42,6 +42,9 @@ LIFE_STATES = ("solitary", "interactive", "safeguard", "disabled")
 #: A hand on the head this long (robot seconds) stops the activity / puts NAO to sleep, with life on.
 STOP_ACTIVITY_HOLD_S, SLEEP_HOLD_S = 1.0, 3.0
 NAOQI_VERSION = "2.8.5.10"
+#: A joint's temperature (°C) until ``Control.warm`` sets it: a rested robot in a room, a guess to confirm with the
+#: conformance kit (it records ``Device/SubDeviceList/LKneePitch/Temperature/Sensor/Value``).
+JOINT_C = 35.0
 
 
 @dataclass
@@ -62,7 +65,10 @@ class Body:
     languages: list = field(default_factory=lambda: ["English", "French"])
     fallen: bool = False
     hot: dict = field(default_factory=dict)  # joint -> temperature status 1..3
+    #: joint -> temperature (°C) set by ``Control.warm``; the others read ``JOINT_C``.
+    temperatures: dict = field(default_factory=dict)
     life_refused: bool = False
+    chest_double: str = "stiffness"  # what a double click of the chest button does (Control.chest)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def check_awake(self, what: str) -> None:

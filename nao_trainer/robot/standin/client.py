@@ -83,6 +83,10 @@ class StandInClient:
     def set_battery(self, percent: int) -> None:
         self._control.set_battery(int(percent))
 
+    def warm(self, joint: str, celsius: float) -> None:
+        """``joint``'s temperature (°C), as ``check`` reads it."""
+        self._control.warm(str(joint), float(celsius))
+
     def set_latency(self, round_trip_s: float = 0.0, beep_s: float = 0.0) -> None:
         self._control.set_latency(float(round_trip_s), float(beep_s))
 

@@ -15,6 +15,11 @@ from nao_trainer.robot.standin.recorder import Channel, Recorder, check_speed  #
 from nao_trainer.robot.standin.services import (PRESS_HOLD_S, Memory, AnimatedSpeech, AudioPlayer,  # noqa: E402
                                                 Leds, Motion, RobotPosture, TextToSpeech, button_key)
 
+#: What a double click of the chest button may do (the two NAOqi 2.8 pages disagree: ``Control.chest``).
+CHEST_DOUBLE = ("stiffness", "life")
+#: How long (robot seconds) one press of the chest button is held: a guess to confirm with the conformance kit.
+CHEST_PRESS_S = 0.05
+
 
 @qi.multiThreaded()
 class Control:
@@ -137,20 +142,53 @@ class Control:
 
     @qi.bind(qi.String, [qi.Int32])
     def chest(self, clicks: int) -> str:
-        """Clicks of the chest button (http://doc.aldebaran.com/2-8/naoqi/sensors/alchestbutton.html: a simple click makes
-        the robot say its name and address, a double click removes the stiffness); returns what it did.
-        ``ALChestButton/SimpleClickOccurred`` is raised on a simple click. Guesses to confirm with the conformance kit:
-        the double click sets the motors off with the posture unchanged
-        (``family/nao_user_guide/chest_button_usages.html`` says life off and on instead), and the simple click says
-        nothing here."""
+        """Clicks of the chest button; returns what the robot did.
+
+        Events (http://doc.aldebaran.com/2-8/naoqi/sensors/alchestbutton-api.html): each press raises
+        ``ChestButtonPressed`` 1.0, then ``ALChestButton/SimpleClickOccurred``, ``ALChestButton/DoubleClickOccurred``
+        or ``ALChestButton/TripleClickOccurred`` for one, two or three clicks. That a release raises
+        ``ChestButtonPressed`` 0.0, and that a double click raises no simple click first, are guesses to confirm with the
+        conformance kit.
+
+        What the robot does: the two NAOqi 2.8 pages disagree on a double click. The stand-in follows
+        http://doc.aldebaran.com/2-8/naoqi/sensors/alchestbutton.html ("At double click, the stiffness is removed":
+        the motors go off, the posture unchanged); http://doc.aldebaran.com/2-8/family/nao_user_guide/chest_button_usages.html
+        says "Press twice: set the life off and on" instead, played after ``set_chest_double("life")``; which one a
+        NAO does is a guess to confirm with the conformance kit. A simple click makes NAO say its name and address
+        (alchestbutton.html); the stand-in says nothing (a guess: it speaks over the task on a robot)."""
         self._rec.record("NaoTrainerStandIn", "chest", [clicks])
-        if clicks == 1:
-            self._memory.emit("ALChestButton/SimpleClickOccurred", True)  # naoqi/sensors/alchestbutton-api.html
+        for _ in range(max(0, int(clicks))):
+            self._memory.emit("ChestButtonPressed", 1.0)
+            self._rec.wait(CHEST_PRESS_S)
+            self._memory.emit("ChestButtonPressed", 0.0)
         if clicks == 2:
             with self._body.lock:
-                self._body.motors_on = False
-            return "stiffness removed"
-        return "name and address" if clicks == 1 else "nothing"
+                does = self._body.chest_double
+                if does == "life":  # off and on: life on from disabled (the robot stands), else off
+                    self._body.life = "solitary" if self._body.life == "disabled" else "disabled"
+                    if self._body.life == "solitary":
+                        self._body.motors_on, self._body.posture = True, "Stand"
+                else:
+                    self._body.motors_on = False
+            self._memory.emit("ALChestButton/DoubleClickOccurred", True)
+            return "life switched off and on" if does == "life" else "stiffness removed"
+        if clicks == 1:
+            self._memory.emit("ALChestButton/SimpleClickOccurred", True)
+            return "name and address"
+        if clicks == 3:
+            self._memory.emit("ALChestButton/TripleClickOccurred", True)
+        return "nothing"
+
+    @qi.bind(qi.Void, [qi.String])
+    def set_chest_double(self, does: str) -> None:
+        """What a double click of the chest button does from now on: "stiffness" (the default, following
+        http://doc.aldebaran.com/2-8/naoqi/sensors/alchestbutton.html) or "life" (off and on, following
+        http://doc.aldebaran.com/2-8/family/nao_user_guide/chest_button_usages.html); either is a guess until the
+        conformance kit settles it."""
+        if does not in CHEST_DOUBLE:
+            raise RuntimeError(f"set_chest_double: {does!r} is not one of {', '.join(CHEST_DOUBLE)}")
+        with self._body.lock:
+            self._body.chest_double = does
 
     @qi.bind(qi.Void, [qi.String, qi.Int32])
     def chest_after(self, call: str, clicks: int) -> None:
@@ -199,6 +237,15 @@ class Control:
         self._memory.emit(f"Device/SubDeviceList/{joint}/Temperature/Sensor/Status", status)
         if status:
             self._memory.emit("HotDeviceDetected", [[joint, status]])
+
+    @qi.bind(qi.Void, [qi.String, qi.Float])
+    def warm(self, joint: str, celsius: float) -> None:
+        """``joint``'s temperature in °C (``Device/SubDeviceList/<joint>/Temperature/Sensor/Value``,
+        http://doc.aldebaran.com/2-8/family/nao_technical/lola/actuator_sensor_names.html), its status unchanged (set
+        that with ``heat``); that the two move independently is a guess to confirm with the conformance kit."""
+        self._rec.record("NaoTrainerStandIn", "warm", [joint, celsius])
+        with self._body.lock:
+            self._body.temperatures[str(joint)] = float(celsius)
 
     @qi.bind(qi.Void, [])
     def battery_low(self) -> None:

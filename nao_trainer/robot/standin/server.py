@@ -162,7 +162,8 @@ class StandIn:
         self._control.hold_after(call, button, seconds)
 
     def chest(self, clicks: int) -> str:
-        """Clicks of the chest button (``Control.chest``: a double click removes the stiffness)."""
+        """Clicks of the chest button (``Control.chest``: a double click removes the stiffness, or switches
+        Autonomous Life off and on after ``control.set_chest_double("life")``)."""
         return self._control.chest(clicks)
 
     def chest_after(self, call: str, clicks: int) -> None:

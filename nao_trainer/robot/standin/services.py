@@ -14,7 +14,7 @@ os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise; mu
 import qi  # noqa: E402
 
 from nao_trainer.ports import BUTTON_LETTERS  # noqa: E402
-from nao_trainer.robot.standin.body import Body  # noqa: E402
+from nao_trainer.robot.standin.body import JOINT_C, Body  # noqa: E402
 from nao_trainer.robot.standin.recorder import Channel, Recorder  # noqa: E402
 
 #: Speaking time per character at speed 1.0 (a NAO speaks roughly 12-15 characters a second).
@@ -356,6 +356,7 @@ class Memory:
 
     def __init__(self, rec: Recorder, body: Body | None = None) -> None:
         self._rec = rec
+        self._body = body
         self._lock = threading.Lock()
         self._data: dict[str, Any] = {key: 0.0 for key in BUTTON_LETTERS}
         model = body.model if body is not None else "nao"
@@ -389,11 +390,18 @@ class Memory:
     @qi.bind(qi.Dynamic, [qi.String])
     def getData(self, key: str) -> Any:
         """The value stored for ``key`` (http://doc.aldebaran.com/2-8/naoqi/core/almemory-api.html); the wording of the
-        error for a missing key is a guess."""
+        error for a missing key is a guess. A joint's ``Device/SubDeviceList/<joint>/Temperature/Sensor/Value`` (°C,
+        http://doc.aldebaran.com/2-8/family/nao_technical/lola/actuator_sensor_names.html) is always there: the one
+        ``Control.warm`` set, else ``body.JOINT_C`` (a guess)."""
         with self._lock:
-            if key not in self._data:
-                raise RuntimeError(f"ALMemory::getData: there is no data for key {key!r}")
-            return self._data[key]
+            if key in self._data:
+                return self._data[key]
+        joint = _temperature_joint(key)
+        if joint is not None:
+            with (self._body.lock if self._body is not None else self._lock):
+                temps = self._body.temperatures if self._body is not None else {}
+                return float(temps.get(joint, JOINT_C))
+        raise RuntimeError(f"ALMemory::getData: there is no data for key {key!r}")
 
     @qi.bind(qi.List(qi.String), [])
     def getDataListName(self) -> list[str]:
@@ -415,6 +423,14 @@ class Memory:
         """Drop every subscriber (the stand-in stops)."""
         with self._lock:
             self._subscribers.clear()
+
+
+def _temperature_joint(key: str) -> str | None:
+    """The joint of a ``Device/SubDeviceList/<joint>/Temperature/Sensor/Value`` key, else None."""
+    head, tail = "Device/SubDeviceList/", "/Temperature/Sensor/Value"
+    if key.startswith(head) and key.endswith(tail) and "/" not in key[len(head):-len(tail)]:
+        return key[len(head):-len(tail)] or None
+    return None
 
 
 def button_key(button: str) -> str:
