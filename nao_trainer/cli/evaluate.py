@@ -10,6 +10,8 @@ from pathlib import Path
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.cli import ceiling_report
 from nao_trainer.cli._checks import make_output_dir, require_matplotlib
+from nao_trainer.learn.parallel import check_backend
+from nao_trainer.session.config import load_config
 
 MDPS = ("paper", "informed")  # core.processes.NAMES, repeated so that --help does not import numpy
 
@@ -106,7 +108,6 @@ def run(args) -> int:
         return run_personalise(args)
     from nao_trainer.experiments import comparison, reports
     from nao_trainer.learn import users
-    from nao_trainer.learn.parallel import check_backend
 
     policies = tuple(s.strip() for s in args.policies.split(",") if s.strip()) if args.policies else \
         comparison.DEFAULT_POLICIES
@@ -122,8 +123,6 @@ def run(args) -> int:
     make_output_dir(args.out)
     t0 = time.perf_counter()
     if which == "task":
-        from nao_trainer.session.config import load_config
-
         engagement = load_config(None).participant_model.engagement_by_level  # the demo's (the task models none)
         kind, user_list = f"task {task.name}", users.task_user_set(task, engagement)[:args.limit]
         print(f"evaluate: task {task.name}, levels {', '.join(map(str, task.levels))}: its own simulated users "
@@ -169,7 +168,6 @@ def run_personalise(args) -> int:
     """``evaluate --personalise``: the pipeline on leave-one-session-out users (experiments.personalisation)."""
     from nao_trainer.experiments import personalisation, reports
     from nao_trainer.learn import artifacts
-    from nao_trainer.learn.parallel import check_backend
 
     if args.users not in ("sessions",) and not Path(args.users).exists():
         raise ConfigError("--personalise evaluates on held-out sessions: use --users sessions --data DATASET_ROOT")

@@ -6,8 +6,9 @@ from pathlib import Path
 import sys
 
 from nao_trainer.errors import ConfigError
-from nao_trainer.files import PROJECT_ROOT
+from nao_trainer.files import PROJECT_ROOT, write_text_atomic
 from nao_trainer.session.config import DESKTOP, MOCK, load_config
+from nao_trainer.robot.profile import diff, load_profile, record_profile
 
 
 def register(sub) -> None:
@@ -55,9 +56,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _record(robot, path: str) -> None:
     """The conformance profile of ``robot`` in ``path`` (written whole, then the differences from the docs')."""
-    from nao_trainer.files import write_text_atomic
-    from nao_trainer.robot.profile import diff, load_profile, record_profile
-
     print("recording the robot's answers (it speaks, beeps, stands up and rests) ...", flush=True)
     profile = record_profile(robot)
     try:

@@ -6,6 +6,7 @@ import sys
 
 from nao_trainer.errors import ConfigError
 from nao_trainer.robot.address import credentials_from_env
+from nao_trainer.robot.profile import load_profile
 
 
 def register(sub) -> None:
@@ -82,8 +83,6 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _profile(path: str | None):
-    from nao_trainer.robot.profile import load_profile
-
     return None if path is None else load_profile(path)
 
 

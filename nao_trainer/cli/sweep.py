@@ -9,6 +9,7 @@ from pathlib import Path
 
 from nao_trainer.errors import ConfigError
 from nao_trainer.cli._checks import make_output_dir, require_matplotlib
+from nao_trainer.learn.parallel import check_backend
 
 MDPS = ("paper", "informed")
 
@@ -41,7 +42,6 @@ def register(sub) -> None:
 def run(args) -> int:
     from nao_trainer.experiments import reports, sweep
     from nao_trainer.learn import users
-    from nao_trainer.learn.parallel import check_backend
 
     spec = sweep.make_spec(args.param, args.method, args.seeds, args.episodes, seed=args.seed, process=args.mdp)
     check_backend(args.backend)

@@ -43,6 +43,7 @@ from nao_trainer.console.guard import (HEADER_TIMEOUT_S, CappedListener, HostChe
                                        is_loopback)
 from nao_trainer.errors import ConfigError
 from nao_trainer.ports import COMMAND_KINDS, CommandQueue
+from nao_trainer.console import tls as console_tls
 
 STATIC = Path(__file__).parent / "static"
 STATIC_FILES = {"console.js": "text/javascript", "console.css": "text/css", "uPlot.iife.min.js": "text/javascript",
@@ -431,10 +432,8 @@ class Console:
         rejected = RejectLog(log or (lambda *a, **k: None))
         certificate = None
         if tls:
-            from nao_trainer.console.tls import make_certificate
-
             try:
-                certificate = make_certificate(sorted(hosts.names))
+                certificate = console_tls.make_certificate(sorted(hosts.names))
             except BaseException:
                 sock.close()
                 raise

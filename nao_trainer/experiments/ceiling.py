@@ -27,6 +27,9 @@ import numpy as np
 from nao_trainer.core import bayes, evaluation, mdp, people
 from nao_trainer.core.objective import Objective
 from nao_trainer.errors import DataError
+from nao_trainer.core.psychometric import PooledModel
+from nao_trainer.experiments import adaptive
+from nao_trainer.learn.bayes_cache import solve_cached
 
 
 def level_rates(sim: Any) -> np.ndarray:
@@ -51,8 +54,6 @@ def user_rates(users: Sequence[Any]) -> dict[str, np.ndarray]:
 
 
 def _solve(p: np.ndarray, w: np.ndarray, obj: Objective, turns: int, commit: int, cache: Path | None) -> bayes.Plan:
-    from nao_trainer.learn.bayes_cache import solve_cached
-
     return solve_cached(p, w, obj.coefficients(p.shape[1]), turns, commit, cache, terminal=obj.terminal(turns))
 
 
@@ -132,8 +133,6 @@ def prior_checks(rows: list[dict[str, Any]], priors: dict[str, dict[str, tuple[n
     priors; for a planner also the value it expects, ``predicted``) beside what the users show and
     what the planner achieves on them. A prior whose predicted value is far above the achieved one
     believes in more to win than the users have."""
-    from nao_trainer.experiments import adaptive
-
     out = []
     for policy, per_user in priors.items():
         checks = [prior_check(np.asarray(pk), np.asarray(wk), p) for pk, wk in per_user.values()]
@@ -158,8 +157,6 @@ def adaptive_rows(rates: dict[str, np.ndarray], clusters: dict[str, str], obj: O
     staircases 2-down/1-up and 3-down/1-up from level ``start``, the staircase tuned on the other
     people (rule and start), QUEST+ by expected entropy with a uniform prior and (``fitted``) with
     the prior fitted on the other people, and QUEST+ by its posterior mean."""
-    from nao_trainer.experiments import adaptive
-
     names = list(rates)
     p = np.array([rates[n] for n in names])
     out = []
@@ -472,7 +469,6 @@ def personalise_inputs(result: dict[str, Any]) -> tuple[dict[str, np.ndarray], d
     """Rates, training rates, clusters and the live priors per held-out user (``evaluate --personalise``):
     ``bayes`` with the fitted clusters, ``bayes-psychometric`` with the pooled psychometric model
     fitted on the other sessions."""
-    from nao_trainer.core.psychometric import PooledModel
     from nao_trainer.core.simulation import UserSimulator
 
     sims = [UserSimulator.from_dict(u) for u in result["users"]]

@@ -27,6 +27,9 @@ from nao_trainer.robot.address import redact_url
 from nao_trainer.robot.desktop import DesktopRobot
 from nao_trainer.session.config_rules import LANGUAGES, is_robot_address
 from nao_trainer.session.record import WRITE_CAUSES
+from nao_trainer.robot.lifecycle import _ask, read_status, refused_life_line
+from nao_trainer.robot.model import default_model
+from nao_trainer.session.robot_setup import available_languages, missing_language_line
 
 #: Exit codes of failed required checks, by kind (as `nao-trainer run` would fail later).
 EXIT = {"robot": 3, "eeg": 4, "disk": 2}
@@ -216,10 +219,7 @@ def check_robot(plan: CheckPlan) -> CheckResult:
 
 
 def _check_naoqi(url: str, plan: CheckPlan, label: str | None) -> CheckResult:
-    from nao_trainer.robot.lifecycle import read_status  # heavy: qi
-    from nao_trainer.robot.naoqi import NaoqiRobot
-
-    from nao_trainer.robot.model import default_model
+    from nao_trainer.robot.naoqi import NaoqiRobot  # heavy: qi
 
     where = label or redact_url(url)
     model = plan.model or default_model()
@@ -252,8 +252,6 @@ def _check_naoqi(url: str, plan: CheckPlan, label: str | None) -> CheckResult:
 
 def _language_problem(robot: Any, language: str) -> tuple[str, str] | None:
     """(what, fix) when ``language``'s voice is not installed on the robot (ALTextToSpeech.getAvailableLanguages)."""
-    from nao_trainer.session.robot_setup import available_languages, missing_language_line
-
     name = LANGUAGES[language]
     installed = available_languages(robot)
     if installed is None or name in installed:
@@ -266,8 +264,6 @@ def _language_problem(robot: Any, language: str) -> tuple[str, str] | None:
 def _life_problem(robot: Any, plan: CheckPlan) -> tuple[str, str] | None:
     """(what, fix) when the robot refuses ALAutonomousLife.setState and the study wants life off without
     allowing it on: asked with the state it is in already, so ``check`` changes nothing."""
-    from nao_trainer.robot.lifecycle import refused_life_line
-
     if plan.autonomous_life != "disabled" or plan.allow_life_on or not robot.has_service("ALAutonomousLife"):
         return None
     try:
@@ -294,8 +290,6 @@ def _endurance(robot: Any, model: Any, plan: CheckPlan) -> tuple[str, str]:
       session (no cooling between turns, no sitting). It fails when the projection reaches ``hot_joint_c``, the
       temperature where the status turns hot (1) and NAO starts limiting the stiffness; a joint whose status is
       already non-null (``.../Temperature/Sensor/Status``) fails as hot now."""
-    from nao_trainer.robot.lifecycle import _ask
-
     charge = _ask(lambda: robot.call("ALBattery", "getBatteryCharge"))
     hot, temps = [], {}
     for joint in model.joints:

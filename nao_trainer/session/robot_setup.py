@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Any, TextIO
 
 from nao_trainer.errors import ConfigError, RobotUnavailable
-from nao_trainer.ports import Robot
+from nao_trainer.ports import Robot, RobotCallFailed
 from nao_trainer.robot.address import redact_url
 from nao_trainer.robot.desktop import DesktopRobot
 from nao_trainer.robot.lifecycle import TaskLife
@@ -78,8 +78,6 @@ def set_language(robot: Any, model: RobotModel, language: str, report: Any) -> N
 
 
 def available_languages(robot: Any) -> list[str] | None:
-    from nao_trainer.ports import RobotCallFailed
-
     try:
         return [str(x) for x in robot.call("ALTextToSpeech", "getAvailableLanguages")]
     except RobotCallFailed:

@@ -45,6 +45,7 @@ from nao_trainer.session.resume import Resumption
 from nao_trainer.session.robot_setup import RobotSetup, connect_robot
 from nao_trainer.session.stage import leave_robot_safe
 from nao_trainer.session.turn import SessionResult, summary_data
+from nao_trainer.robot.health import HealthWatch
 
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
@@ -374,8 +375,6 @@ def _report_lost_events(out: "_Outcome", recorder: SessionRecorder) -> None:
 
 def _watch_health(robot: Robot, config: StudyConfig) -> RobotHealthWatch:
     """Falls, heat, the diagnosis, a low battery and the chest button, as the robot model declares them."""
-    from nao_trainer.robot.health import HealthWatch  # qi-side: only for a robot over NAOqi
-
     return HealthWatch.start(robot, config.robot.robot_model())
 
 

@@ -45,6 +45,7 @@ from nao_trainer.files import write_text_atomic
 from nao_trainer.learn.psychometric_prior import load_prior
 from nao_trainer.study.registry import Study
 from nao_trainer.study.runner import DONE
+from nao_trainer.study.power import welch
 
 COLUMNS = ("role", "outcome", "model", "term", "estimate", "se", "df", "ci_low", "ci_high", "p", "p_holm", "n_sessions",
            "n_participants")
@@ -142,8 +143,6 @@ def welch_rows(frame: Any, outcome: str, reference: str, b_session: float) -> li
     """Each arm against ``reference`` on the participants' session-adjusted means, each arm with its
     own variance, t with Satterthwaite's df (``study.power.welch``, the power simulation's test)."""
     import numpy as np
-
-    from nao_trainer.study.power import welch
 
     adj = frame[outcome] - b_session * frame["session"]
     means = adj.groupby(frame["participant"]).mean()

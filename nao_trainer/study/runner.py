@@ -32,6 +32,8 @@ from nao_trainer.ports import CommandQueue
 from nao_trainer.session.config import StudyConfig
 from nao_trainer.study.registry import (Study, _running_session, now_iso, open_study, participant_folders, pid_alive, read_lock,
                                        record_session)
+from nao_trainer.session.resume import prepare_resume
+from nao_trainer.session.turn import summary_data
 
 BLIND_LABEL = "arm (blinded)"
 #: Sessions that count towards the protocol's number (the others are kept on record).
@@ -101,8 +103,6 @@ def plan_next(study: Study, pseudonym: str, flags: dict[str, Any], now: dt.datet
 def plan_resume(study: Study, pseudonym: str) -> NextSession:
     """Continue the participant's last session when it was interrupted (its folder, configuration, seed and
     learning state, through ``session.resume.prepare_resume``); ``DataError`` when there is none."""
-    from nao_trainer.session.resume import prepare_resume
-
     study.check_study_config()
     p = study.participant(pseudonym)
     if p["withdrawn"]:
@@ -222,8 +222,6 @@ def play(study: Study, plan: NextSession, options: Any, progress: TextIO,
                 _record(study, plan, folder, "error", exc.exit_code, record)
             raise
         if console is not None:
-            from nao_trainer.session.turn import summary_data
-
             console.hub.notify("summary", {**summary_data(result), "policy_summary": ""})
     if result.path is not None:
         _record(study, plan, result.path, result.status, result.exit_code, record)

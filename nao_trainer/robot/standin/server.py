@@ -24,6 +24,7 @@ from nao_trainer.robot.standin.control import Control, build_services  # noqa: E
 from nao_trainer.robot.standin.link import Link  # noqa: E402
 from nao_trainer.robot.standin.login import Login  # noqa: E402
 from nao_trainer.robot.standin.services import Memory  # noqa: E402
+from nao_trainer.robot.standin.tls import server_context
 
 #: The first line ``nao-trainer mock-robot`` prints once it serves.
 READY_PREFIX = "nao-trainer mock-robot: listening on "
@@ -223,8 +224,6 @@ class StandIn:
 def _start_link(scheme: str, host: str, port: int, login: Login | None) -> Link:
     tls = None
     if scheme == "tcps":
-        from nao_trainer.robot.standin.tls import server_context
-
         folder = Path(tempfile.mkdtemp(prefix="nao-standin-tls-"))
         try:
             tls = server_context(folder)  # the key is loaded: it need not stay on disk
