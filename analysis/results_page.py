@@ -50,7 +50,7 @@ LABELS = {"fixed:2": "always level 2", "best-fixed-objective": "best fixed level
           "questplus-mean": "QUEST+ placing by its posterior mean", "oracle-objective": "per-user oracle"}
 SHORT = {"ceiling": "the ceiling", "bayes-psychometric": "`bayes-psychometric`", "bayes": "`bayes` (clusters)",
          "bayes-loo": "leave-one-out Bayes", "personalised": "the personalised pipeline",
-         "best-fixed-objective": "the best fixed level of the nearest cluster",
+         "best-fixed-objective": "the best fixed level of the nearest cluster (which the held-out session picks)",
          "staircase-2d1u@2": "2-down/1-up", "staircase-3d1u@2": "3-down/1-up",
          "staircase-tuned": "the tuned staircase", "questplus": "QUEST+ (uniform prior)",
          "questplus-fitted": "QUEST+ (fitted prior)"}
@@ -207,6 +207,59 @@ def multi_block(objective: str, users: str, text: str) -> str:
     return "\n".join(out) + "\n"
 
 
+EVAL_LABELS = {"fixed:1": "fixed level 1", "fixed:2": "fixed level 2", "fixed:3": "fixed level 3",
+               "fixed:4": "fixed level 4", "best-fixed": "best fixed level (chosen on the training simulators)",
+               "random": "random", "staircase:1u1d@2": "staircase 1-up/1-down from 2",
+               "staircase:2d1u@2": "staircase 2-down/1-up from 2", "usp:performance": "learner, performance (frozen)",
+               "usp:shaping": "learner, reward shaping", "usp:qaug": "learner, Q-augmentation",
+               "usp-learning:performance": "learner, performance, still learning",
+               "usp-learning:shaping": "learner, reward shaping, still learning",
+               "usp-learning:qaug": "learner, Q-augmentation, still learning", "oracle": "oracle (finite-horizon optimum)"}
+EVAL_SETS = ("clusters", "level-only", "clusters-tested", "sessions")
+
+
+def _evaluation(name: str) -> dict:
+    return json.loads((RESULTS / name / "evaluation.json").read_text())
+
+
+def eval_block(name: str) -> str:
+    """The score table of one stored ``nao-trainer evaluate`` output (docs/results/NAME/evaluation.json)."""
+    j = _evaluation(name)
+    words = shlex.split(j["command"])
+    words = [("ROOT" if i and words[i - 1] == "--data" else f"docs/results/{name}" if i and words[i - 1] == "--out"
+              else w) for i, w in enumerate(words)]
+    command = " ".join(words)
+    rows = j["summary"]
+    out = [f"`{command}` ({rows[0]['n']} (user, seed) rows per policy, {rows[0]['users']} users; "
+           f"`docs/results/{name}/evaluation.json`). Score per 25-turn session [95 % t-interval over the rows]; "
+           "regret = the user's oracle score minus the policy's; d = policy − best fixed level, paired.", "",
+           "| policy | score [95 % CI] | regret | d best fixed [95 % CI] | engagement |", "|---|---|---|---|---|"]
+    for s in rows:
+        v = s.get("vs_reference") or {}
+        d = "" if s["policy"] == v.get("reference") or "score_diff" not in v else \
+            f"{v['score_diff']:+.2f} {_ci(v.get('score_diff_ci'), 2)}"
+        out.append(f"| {EVAL_LABELS.get(s['policy'], s['policy'])} | {s['score']:.2f} {_ci(s['score_ci'], 2)} | "
+                   f"{s['regret']:.2f} | {d} | {s['engagement']:.3f} |")
+    return "\n".join(out) + "\n"
+
+
+def claims_block() -> str:
+    """The engagement-feedback claim, retested: shaping or Q-augmentation minus the performance-only learner."""
+    names = {"clusters": "clusters (authors' fit)", "level-only": "level-only", "clusters-tested": "tested-effects clusters",
+             "sessions": "sessions (leave one session out)"}
+    out = ["Paired over (user, seed) rows; frozen learners (`claims` of each `evaluation.json`):", "",
+           "| user set | shaping: score | shaping: engagement | Q-aug.: score | Q-aug.: engagement |", "|---|---|---|---|---|"]
+    for name in EVAL_SETS:
+        by = {c["a"]: c for c in _evaluation(name).get("claims", []) if c["b"] == "usp:performance"}
+        cells = []
+        for a in ("usp:shaping", "usp:qaug"):
+            c = by.get(a)
+            cells += ["", ""] if c is None else [f"{c['score_diff']:+.2f} {_ci(c['score_diff_ci'], 2)}",
+                                                f"{c['engagement_diff']:+.4f} {_ci(c['engagement_diff_ci'], 4)}"]
+        out.append(f"| {names[name]} | " + " | ".join(cells) + " |")
+    return "\n".join(out) + "\n"
+
+
 def _holds(s: dict, key: str) -> int:
     """+1 / -1 when the paired interval of ``key`` lies above / below 0, else 0."""
     ci = s.get(key + "_ci")
@@ -261,7 +314,7 @@ def holds_block(short: bool = False) -> str:
         lines.append(f"Intervals: paired 95 % over {people} of the published data (own rates: each session's "
                      "own success per level); every table, the data-prior users and the score: "
                      "[docs/explanation/results.md](docs/explanation/results.md).")
-        return "\n".join(textwrap.fill(line, 110, initial_indent="- ", subsequent_indent="  ",
+        return "\n".join(textwrap.fill(line, 150, initial_indent="- ", subsequent_indent="  ",
                                        break_on_hyphens=False, break_long_words=False) for line in lines) + "\n"
     out = ["Written by `analysis/results_page.py` from the stored outputs (each d = policy − always level 2, "
            "a paired 95 % interval over people; a claim holds only when the interval excludes 0):", ""]
@@ -350,6 +403,10 @@ def render_block(name: str, where: str = "docs/explanation/results.md") -> str:
         return holds_block(short=True)
     if name == "power-n":
         return power_n_block()
+    if name == "claims":
+        return claims_block()
+    if name.startswith("eval."):
+        return eval_block(name.split(".", 1)[1])
     if name.startswith("power."):
         return power_block(name.split(".", 1)[1])
     multi = name.startswith("multi.")

@@ -4,8 +4,9 @@
     PYTHONPATH=. NAO_TRAINER_KEYS=$(mktemp -d) python benchmarks/bench_study_kills.py [--kills 50] [--fills 20]
 
 The harness and what "whole" means: tests/_study_kills.py. With ``--registry postgresql``: a throwaway
-PostgreSQL cluster (tests/_pg_cluster.py) and ``study enrol`` from two sites killed at --kills moments
-(tests/_pg_kills.py)."""
+PostgreSQL cluster (tests/_pg_cluster.py): ``study enrol`` from two sites killed at --kills moments, then
+--kills rounds of a site's ``study next`` and ``study record`` each killed at a random moment, the
+registry checked after a whole ``study record`` (tests/_pg_kills.py)."""
 from __future__ import annotations
 
 import argparse
@@ -38,6 +39,7 @@ def main() -> int:
 def _postgresql(args) -> int:
     from _pg_cluster import Cluster, find_bin
     from _pg_kills import run as run_pg
+    from _pg_kills import run_sessions
 
     if find_bin() is None:
         print("PostgreSQL server binaries not found: install the OS package postgresql")
@@ -47,13 +49,19 @@ def _postgresql(args) -> int:
     try:
         with tempfile.TemporaryDirectory(prefix="study-kills-pg-") as work:
             r = run_pg(cluster, Path(work), args.kills, args.seed)
+            for f in r.failures:
+                print("BROKEN", f)
+            print(f"postgresql: {r.trials} killed enrolments ({r.enrolled} completed before the kill), "
+                  f"{len(r.failures)} broken", flush=True)
+        with tempfile.TemporaryDirectory(prefix="study-kills-pg-") as work:
+            s = run_sessions(cluster, Path(work), args.kills, args.seed)
+            for f in s.failures:
+                print("BROKEN", f)
+            print(f"postgresql: {s.trials} rounds of a killed study next and a killed study record ({s.enrolled} "
+                  f"sessions ended before the kill), {len(s.failures)} broken")
     finally:
         cluster.stop()
-    for f in r.failures:
-        print("BROKEN", f)
-    print(f"postgresql: {r.trials} killed enrolments ({r.enrolled} completed before the kill), "
-          f"{len(r.failures)} broken")
-    return 1 if r.failures else 0
+    return 1 if r.failures or s.failures else 0
 
 
 if __name__ == "__main__":

@@ -86,6 +86,18 @@ def test_install_is_quiet(tmp_path):
     assert (tmp_path / "out" / "nao_trainer" / "console" / "static" / "console.html").is_file()
 
 
+FOLDERS = ("tutorials", "how-to", "reference", "explanation")
+
+
+def test_every_page_lives_in_one_of_the_four_folders():
+    """Issue 29: docs/ was 13 flat pages mixing how-to, reference and research. Only the home page stays on top."""
+    flat = sorted(p.name for p in (ROOT / "docs").glob("*.md") if p.name != "index.md")
+    assert flat == [], f"pages outside {FOLDERS}: {flat}"
+    stray = sorted(str(p.relative_to(ROOT / "docs")) for p in (ROOT / "docs").rglob("*.md")
+                   if p.parent != ROOT / "docs" and p.relative_to(ROOT / "docs").parts[0] not in FOLDERS)
+    assert stray == [], stray
+
+
 DOCS_PAGE = re.compile(r"\bdocs/[\w./-]+?\.md\b")
 
 

@@ -25,7 +25,8 @@ def test_the_results_page_is_what_the_script_writes_from_the_stored_outputs():
     mod = _script()
     names = [m.group("name") for m in mod.MARK.finditer(page)]
     assert {f"{u}.{o}" for u, _ in mod.USERS for o in mod.OBJECTIVES} <= set(names)
-    assert "holds" in names
+    assert "holds" in names and "claims" in names
+    assert {f"eval.{name}" for name in mod.EVAL_SETS} <= set(names)
     assert mod.render(page) == page, "docs/explanation/results.md is stale: run PYTHONPATH=. python analysis/results_page.py"
 
 

@@ -18,7 +18,7 @@ def register(sub) -> None:
                     "A, B, C and beeps (touch the front button if you heard them), then asks for each head "
                     "button in turn and reports each press and how long after the request it came. Shows the "
                     "system volume, mute, battery, Autonomous Life and NAOqi version and ends with one PASS or "
-                    "FAIL line per item. Exit code 0 when all pass, 3 otherwise. See docs/before-first-participant.md.",
+                    "FAIL line per item. Exit code 0 when all pass, 3 otherwise. See docs/how-to/before-first-participant.md.",
     )
     p.add_argument("--robot", metavar="URL", help="robot address (overrides robot.url): tcp://IP:9559 or tcps://IP:9503")
     p.add_argument("--config", metavar="FILE", help="study configuration (default: config/default.yaml)")

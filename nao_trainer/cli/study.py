@@ -223,12 +223,20 @@ def _table(args: argparse.Namespace) -> int:
 def _init(args: argparse.Namespace) -> int:
     from nao_trainer.study.registry import init_study
 
+    seed = None
+    if args.allocation_seed_file is not None:
+        text = read_text(args.allocation_seed_file, ConfigError, fix="give the file the third party supplied")
+        try:
+            seed = int(text.strip(), 0)
+        except ValueError:
+            raise ConfigError(f"{args.allocation_seed_file}: not a whole number; the file holds the seed only") from None
     if args.registry is not None:
         from nao_trainer.study import remote
 
-        if args.allocation_seed_file is not None:
-            raise ConfigError("--allocation-seed-file: not supported with --registry yet")
-        made = remote.init(args.protocol, args.out, args.registry, args.stratify_by_site)
+        if seed is not None and args.stratify_by_site:
+            raise ConfigError("--allocation-seed-file with --stratify-by-site: each site's sequence is drawn when the "
+                              "site is added, from the operating system's entropy; give one or the other")
+        made = remote.init(args.protocol, args.out, args.registry, args.stratify_by_site, seed)
         print(f"{args.out}: study {made['protocol'].name} initialised on {remote.pg.redact(args.registry)} (roles "
               f"{made['prefix']}_operator, {made['prefix']}_statistician; add sites with `nao-trainer study site add "
               f"{args.out} NAME`); the allocation is readable by no operator role")
@@ -238,13 +246,6 @@ def _init(args: argparse.Namespace) -> int:
 
     from nao_trainer.study.registry import BACKUP, REGISTRY_FILE, block_sizes
 
-    seed = None
-    if args.allocation_seed_file is not None:
-        text = read_text(args.allocation_seed_file, ConfigError, fix="give the file the third party supplied")
-        try:
-            seed = int(text.strip(), 0)
-        except ValueError:
-            raise ConfigError(f"{args.allocation_seed_file}: not a whole number; the file holds the seed only") from None
     migrating = (args.out / REGISTRY_FILE).is_file()
     study = init_study(args.protocol, args.out, seed)
     p = study.protocol

@@ -55,8 +55,11 @@ def connect(root: Path):
     return pg.connect(url_of(root), autocommit=True)
 
 
-def init(protocol_path: Path, out: Path, url: str, stratify_by_site: bool) -> dict[str, Any]:
-    """Create the registry in the (empty) database ``url`` as the connecting administrator, and the folder."""
+def init(protocol_path: Path, out: Path, url: str, stratify_by_site: bool,
+         allocation_seed: int | None = None) -> dict[str, Any]:
+    """Create the registry in the (empty) database ``url`` as the connecting administrator, and the folder.
+    ``allocation_seed``: a seed a third party supplied (``--allocation-seed-file``; not stored), else the
+    operating system's entropy."""
     from nao_trainer.study.registry import allocation_sequence, entropy_rng
 
     if not re.match(r"postgres(ql)?://", url):
@@ -69,7 +72,7 @@ def init(protocol_path: Path, out: Path, url: str, stratify_by_site: bool) -> di
         raise ConfigError("--stratify-by-site: the protocol has strata of its own; use one or the other")
     if protocol.allocation.strata:
         raise ConfigError(f"{protocol_path}: strata other than the site are not supported on PostgreSQL yet")
-    draw = entropy_rng()
+    draw = entropy_rng(allocation_seed)
     conn = pg.connect(url, autocommit=True)
     with conn:
         if pg.call(conn, "study init", "SELECT count(*) FROM pg_tables WHERE schemaname = 'public'")[0][0]:
@@ -127,9 +130,14 @@ def status_lines(root: Path) -> list[str]:
                          f"{len(people)} participant(s)")
             lines += [f"  {p['pseudonym']}  consent {p['consent_date']} v{p['consent_version']}  sessions "
                       f"{p['sessions_done']}{'  WITHDRAWN' if p['withdrawn'] else ''}" for p in people]
+            kept = len(list((Path(root) / OUTBOX).glob("*.json")))
+            if kept:
+                lines.append(f"  on this laptop, not yet in the registry: {kept} session entr{'y' if kept == 1 else 'ies'} "
+                             f"in {Path(root) / OUTBOX} (running, or the network went): `nao-trainer study record "
+                             f"{root}`")
             return lines
         rows = pg.call(conn, "study status", "SELECT p.site, count(DISTINCT p.pseudonym), count(s.key) FILTER "
-                       "(WHERE s.status = 'completed') FROM participants p LEFT JOIN sessions s ON "
+                       "(WHERE s.status IN ('completed', 'time limit')) FROM participants p LEFT JOIN sessions s ON "
                        "s.pseudonym = p.pseudonym GROUP BY p.site ORDER BY p.site")
         log = pg.call(conn, "study status", "SELECT time::text, who, reason FROM unblindings ORDER BY id")
     lines.append("  per site (participants, completed sessions; arms only through `study unblind`, logged):")

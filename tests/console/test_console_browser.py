@@ -312,3 +312,53 @@ def test_over_tls_the_page_works_with_a_secure_cookie_and_the_printed_fingerprin
         context.close()
         run.proc.terminate()
         run.proc.wait(30)
+
+
+#: Records each clock the page shows, with the turn rows the page had then (installed once the page is up).
+_WATCH_CLOCK = """() => {
+  window.clockSeen = [];
+  new MutationObserver(() => window.clockSeen.push({text: document.getElementById('elapsed').textContent,
+                                                    rows: S.rows.length}))
+    .observe(document.getElementById('elapsed'), {childList: true, characterData: true, subtree: true});
+}"""
+
+
+@pytest.mark.slow
+def test_the_clock_of_a_sped_up_session_shows_wall_seconds(browser, tmp_path):
+    """Issue 29: the console's clock showed 656 s for a 30 s demo (it counted sped-up session time).
+
+    No wall-clock bound: each turn row the page receives carries the session's own elapsed session seconds
+    (``elapsed_s``, speed x wall seconds by the session's clock). A clock shown after row k arrived and before
+    row k+1 did was read between those two rows, so in wall seconds it lies between their elapsed_s / speed; a
+    clock that counted session seconds would show at least row k's elapsed_s, far above. The personalised
+    policy's posterior on the page names user models as the terminal does ("user model 3", not "cluster-3")."""
+    speed = 50
+    run = Run(tmp_path / "out", "--speed", str(speed), "--policy", "personalised")
+    context = browser.new_context(bypass_csp=True)
+    try:
+        page = context.new_page()
+        assert page.goto(run.link).status == 200
+        page.wait_for_function("S !== null && document.getElementById('turns') !== null", timeout=60000)
+        page.evaluate(_WATCH_CLOCK)
+        page.wait_for_function("S.rows.length >= 7", timeout=120000)
+        seen = page.evaluate("window.clockSeen")
+        session_s = page.evaluate("S.rows.map((r) => r.elapsed_s)")
+        policy_text = page.inner_text("#policy-status")
+    finally:
+        context.close()
+        run.proc.terminate()
+        run.proc.wait(30)
+    assert all(isinstance(s, (int, float)) for s in session_s), session_s
+    checked = 0
+    for shown in seen:
+        k = shown["rows"]
+        if not 3 <= k < len(session_s):
+            continue  # before the third row, or after the last the page had when read: no upper row
+        assert shown["text"].endswith(f"(wall clock; the session runs x{speed})"), shown["text"]
+        clock = float(shown["text"].split(" s", 1)[0])
+        before, after = session_s[k - 1] / speed, session_s[k] / speed
+        assert session_s[k - 1] > after + 1  # a clock of session seconds would fail the next line
+        assert before - 1 <= clock <= after + 1, (clock, before, after, shown)  # 1 s: the page rounds to seconds
+        checked += 1
+    assert checked >= 3, seen
+    assert policy_text.startswith("posterior: user model ") and "cluster-" not in policy_text, policy_text

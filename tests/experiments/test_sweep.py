@@ -50,8 +50,10 @@ def test_sweep_command_writes_its_table_and_figure(tmp_path, capsys):
     out = tmp_path / "s"
     assert main(["sweep", "--param", "beta1=0:7.5:2", "--seeds", "2", "--episodes", "200", "--out", str(out),
                  "--json"]) == 0
-    report = json.loads(capsys.readouterr().out)
+    said = capsys.readouterr()
+    report = json.loads(said.out)
     assert len(report["results"]) == 2 * 3 and report["method"] == "shaping"
+    assert "sweep: (point, user) runs: 6/6 done" in said.err, said.err  # issue 29: long commands say their progress
     assert {r["beta1"] for r in report["results"]} == {0.0, 7.5}
     assert (out / "sweep.csv").read_text().count("\n") == 7 and (out / "sweep.png").stat().st_size > 0
 

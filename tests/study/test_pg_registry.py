@@ -347,3 +347,49 @@ def test_command_line_stratified_by_site(pg_cluster, tmp_path, monkeypatch, caps
         assert [arm for s, arm in per if s == site] == seqs[site][:6]
         assert sorted(seqs[site]) == sorted(arms * (len(seqs[site]) // len(arms)))
     assert _cli(capsys, "init", PROTOCOL, "--out", tmp_path / "x", "--stratify-by-site")[0] == 2
+
+
+def test_allocation_seed_file_with_a_postgresql_registry(pg_cluster, tmp_path, monkeypatch, capsys):
+    """--allocation-seed-file with --registry: the sequence drawn from the third party's seed (the same seed,
+    the same sequence; the seed stored nowhere); with --stratify-by-site refused in one line."""
+    passfile = tmp_path / "pgpass"
+    passfile.write_text(f"*:*:*:postgres:{pg_cluster.password}\n")
+    passfile.chmod(0o600)
+    monkeypatch.setenv("PGPASSFILE", str(passfile))
+    monkeypatch.setenv("PGUSER", "postgres")
+    seed_file = tmp_path / "seed.txt"
+    seed_file.write_text("0x5eed2026\n")
+    got = []
+    for i in range(2):
+        db = f"a{i}_" + uuid.uuid4().hex[:8]
+        with pg.connect(pg_cluster.url(), autocommit=True) as c:
+            c.execute(f"CREATE DATABASE {db}")
+        code, out = _cli(capsys, "init", PROTOCOL, "--out", tmp_path / f"s{i}", "--registry", pg_cluster.url(db),
+                         "--allocation-seed-file", seed_file)
+        assert code == 0, out
+        with pg.connect(pg_cluster.url(db), autocommit=True) as c:
+            got.append([r[0] for r in c.execute("SELECT arm FROM allocation WHERE stratum = '' ORDER BY position")])
+            stored = " ".join(str(r[0]) for r in c.execute("SELECT value FROM meta"))
+        assert str(0x5eed2026) not in stored and "5eed2026" not in stored
+    expected = allocation_sequence(load_protocol(PROTOCOL), np.random.default_rng(0x5eed2026))[""]
+    assert got == [expected, expected]
+    code, out = _cli(capsys, "init", PROTOCOL, "--out", tmp_path / "s9", "--registry", pg_cluster.url("x"),
+                     "--allocation-seed-file", seed_file, "--stratify-by-site")
+    assert code == 2 and out.count("\n") == 1 and "give one or the other" in out
+
+
+def test_a_counted_session_is_never_set_back_nor_counted_twice(study):
+    """A late 'running' entry of a completed session (a retry's leftover) leaves it completed; a second
+    completed session 1 of the same participant under another key (two laptops of one site) is kept as
+    'duplicate' and not counted."""
+    role = study.site("north")
+    with pg.connect(study.url(role), autocommit=True) as op:
+        pseud = pg.enrol(op, "2026-12-01", "v1")
+        assert pg.record_session(op, "k1", pseud, 1, "f1", "completed", {"a": "0" * 64}, {"ended": "x"}) == "completed"
+        assert pg.record_session(op, "k1", pseud, 1, None, "running", None) == "completed"
+        assert pg.record_session(op, "k2", pseud, 1, "f2", "completed", None) == "duplicate"
+        assert pg.record_session(op, "k2", pseud, 1, "f2", "completed", None) == "duplicate"
+        assert pg.site_participants(op)[0]["sessions_done"] == 1
+        assert pg.session_config(op, pseud)["next_session"] == 2
+    rows = pg.call(study.admin, "rows", "SELECT key, folder, status, entry FROM sessions ORDER BY key")
+    assert rows == [("k1", "f1", "completed", {"ended": "x"}), ("k2", "f2", "duplicate", {})]

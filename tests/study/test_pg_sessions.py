@@ -180,6 +180,8 @@ def test_network_lost_mid_session_finishes_locally_and_is_recorded_once(trial, c
         code, _, err = cli(capsys, "record", north)
         assert code == 2 and "cannot reach the registry server" in err and len(err.strip().splitlines()) == 1
         relay.restore()
+        code, out, _ = cli(capsys, "status", north)
+        assert code == 0 and "not yet in the registry: 1 session entry" in out
         code, out, _ = cli(capsys, "record", north)
         assert code == 0 and "1 session(s) recorded" in out and "recorded as completed" in out
         code, out, _ = cli(capsys, "record", north)  # again: nothing left, nothing recorded twice
@@ -364,3 +366,15 @@ def test_withdraw_refusals_and_the_statisticians_checks_on_postgresql(trial, cap
     stats = trial.as_("stats")  # P001's data deleted: left out (its altered copy is not read)
     code, out, err = cli(capsys, "export", stats, "--bids", trial.tmp / "bids")
     assert code == 0 and "1 participants, 0 sessions" in out, err
+
+
+@pytest.mark.slow
+def test_killed_study_next_and_record_leave_the_registry_whole(pg_cluster, tmp_path):
+    """Two rounds of issue 31's kill test on a site's laptop: `study next` SIGKILLed at a random moment of
+    its session, then `study record` SIGKILLed at a random moment; a whole `study record` afterwards leaves
+    no outbox entry, nothing `running`, every folder recorded once (tests/_pg_kills.py; 50 rounds:
+    benchmarks/bench_study_kills.py --registry postgresql)."""
+    from tests._pg_kills import run_sessions
+
+    result = run_sessions(pg_cluster, tmp_path, kills=2, seed=int.from_bytes(os.urandom(4), "little"))
+    assert result.trials == 2 and not result.failures, result.failures
