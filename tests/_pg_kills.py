@@ -221,7 +221,8 @@ def _session_kills(cluster, work: Path, kills: int, seed: int, env: dict[str, st
         return res.stdout.split(":")[0]
 
     def nxt() -> list:
-        return ["next", state["study"], participant(), "--no-keys", "--user-model", "1"]
+        pseudonym = participant()  # first: it may move on to a new study
+        return ["next", state["study"], pseudonym, "--no-keys", "--user-model", "1"]
 
     new_study()
     t0 = time.monotonic()

@@ -6,13 +6,17 @@ lays out the tables, the group roles and the functions:
 * ``<prefix>_operator`` (a group; each site's login role is a member, ``site_add``): no privilege on any
   table. It enrols (``enrol``: the next slot of the ONE concealed sequence, stratified by site when the
   protocol says so, a pseudonym from its site's range), reads its site's pseudonyms, consent and session
-  counts (view ``site_participants``, filtered by ``session_user``), records sessions by an idempotent key
-  (``record_session``: a laptop that lost the network records once when it is back) and receives the
+  counts (view ``site_participants``, filtered by ``session_user``; its sessions' keys, folders and
+  statuses: ``site_sessions``), records sessions by an idempotent key (``record_session``: a laptop that
+  lost the network records once when it is back; a counted session is never set back, a second counted
+  session N of a participant is kept as ``duplicate``), records withdrawals (``withdraw``) and receives the
   configuration of its next session (``session_config``: the arm's settings, not its name). It cannot
   SELECT an arm: the table ``allocation`` grants it nothing, and every function it may call is
   ``SECURITY DEFINER`` with a fixed ``search_path``.
 * ``<prefix>_statistician``: ``unblind(reason)`` returns every participant's arm and logs the unblinding
   (time, role, reason) in the same transaction; it may read the log and the sessions, not the table of arms.
+* both: ``study_info()``: the schema version, the protocol's hash and text, the study configuration's
+  hash, the session salt and which role the caller is.
 
 Credentials are never written here or into the study folder: a URL carries no password, libpq reads it
 from ``PGPASSWORD``, ``PGPASSFILE`` (``~/.pgpass``) or a service file (``PGSERVICEFILE``). ``site_add``

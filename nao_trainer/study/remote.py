@@ -130,6 +130,11 @@ def status_lines(root: Path) -> list[str]:
                          f"{len(people)} participant(s)")
             lines += [f"  {p['pseudonym']}  consent {p['consent_date']} v{p['consent_version']}  sessions "
                       f"{p['sessions_done']}{'  WITHDRAWN' if p['withdrawn'] else ''}" for p in people]
+            kept = len(list((Path(root) / OUTBOX).glob("*.json")))
+            if kept:
+                lines.append(f"  on this laptop, not yet in the registry: {kept} session entr{'y' if kept == 1 else 'ies'} "
+                             f"in {Path(root) / OUTBOX} (running, or the network went): `nao-trainer study record "
+                             f"{root}`")
             return lines
         rows = pg.call(conn, "study status", "SELECT p.site, count(DISTINCT p.pseudonym), count(s.key) FILTER "
                        "(WHERE s.status IN ('completed', 'time limit')) FROM participants p LEFT JOIN sessions s ON "

@@ -376,3 +376,20 @@ def test_allocation_seed_file_with_a_postgresql_registry(pg_cluster, tmp_path, m
     code, out = _cli(capsys, "init", PROTOCOL, "--out", tmp_path / "s9", "--registry", pg_cluster.url("x"),
                      "--allocation-seed-file", seed_file, "--stratify-by-site")
     assert code == 2 and out.count("\n") == 1 and "give one or the other" in out
+
+
+def test_a_counted_session_is_never_set_back_nor_counted_twice(study):
+    """A late 'running' entry of a completed session (a retry's leftover) leaves it completed; a second
+    completed session 1 of the same participant under another key (two laptops of one site) is kept as
+    'duplicate' and not counted."""
+    role = study.site("north")
+    with pg.connect(study.url(role), autocommit=True) as op:
+        pseud = pg.enrol(op, "2026-12-01", "v1")
+        assert pg.record_session(op, "k1", pseud, 1, "f1", "completed", {"a": "0" * 64}, {"ended": "x"}) == "completed"
+        assert pg.record_session(op, "k1", pseud, 1, None, "running", None) == "completed"
+        assert pg.record_session(op, "k2", pseud, 1, "f2", "completed", None) == "duplicate"
+        assert pg.record_session(op, "k2", pseud, 1, "f2", "completed", None) == "duplicate"
+        assert pg.site_participants(op)[0]["sessions_done"] == 1
+        assert pg.session_config(op, pseud)["next_session"] == 2
+    rows = pg.call(study.admin, "rows", "SELECT key, folder, status, entry FROM sessions ORDER BY key")
+    assert rows == [("k1", "f1", "completed", {"ended": "x"}), ("k2", "f2", "duplicate", {})]

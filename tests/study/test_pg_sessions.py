@@ -180,6 +180,8 @@ def test_network_lost_mid_session_finishes_locally_and_is_recorded_once(trial, c
         code, _, err = cli(capsys, "record", north)
         assert code == 2 and "cannot reach the registry server" in err and len(err.strip().splitlines()) == 1
         relay.restore()
+        code, out, _ = cli(capsys, "status", north)
+        assert code == 0 and "not yet in the registry: 1 session entry" in out
         code, out, _ = cli(capsys, "record", north)
         assert code == 0 and "1 session(s) recorded" in out and "recorded as completed" in out
         code, out, _ = cli(capsys, "record", north)  # again: nothing left, nothing recorded twice
