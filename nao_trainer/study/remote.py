@@ -313,8 +313,10 @@ def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any, pr
 
     progress = progress or sys.stderr
     if resume:
-        raise ConfigError("study next --resume: not available on a PostgreSQL registry; run `study next` without it "
-                          "(the interrupted session stays on record, and the participant's next session follows)")
+        given = [k for k, v in flags.items() if v is not None]
+        if given:
+            raise ConfigError(f"--resume continues a session with its own configuration; drop the flags for "
+                              f"{', '.join(given)}")
     with connect(root) as conn:
         info = _role(conn, root, "study next", "site")
         protocol = open_protocol(root, info)
@@ -323,8 +325,11 @@ def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any, pr
         with connect(root) as conn:
             flush(root, conn, pseudonym, progress)
             got = pg.session_config(conn, pseudonym)
-        number = int(got["next_session"])
+            mine = [x for x in pg.site_sessions(conn) if x["pseudonym"] == pseudonym]
         per = protocol.sessions.per_participant
+        if resume:
+            return _resume(root, study, info, mine, pseudonym, options, progress)
+        number = int(got["next_session"])
         if number > per:
             raise DataError(f"{pseudonym}: has completed all {per} sessions of the protocol")
         warning = ""
@@ -354,6 +359,30 @@ def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any, pr
                   f"registry): run `nao-trainer study record {root}` when the network is back", file=progress,
                   flush=True)
         return plan, result
+
+
+def _resume(root: Path, study, info: dict[str, Any], sessions: list[dict[str, Any]], pseudonym: str, options: Any,
+            progress: TextIO):
+    """``study next --resume`` on a site's laptop: the participant's last session, when the registry has it as
+    interrupted and its folder is on this laptop, continued under its own key (``session.resume``)."""
+    from nao_trainer.session.resume import prepare_resume
+    from nao_trainer.study.runner import BLIND_LABEL, DONE, NextSession, check_blinding, play
+
+    last = sessions[-1] if sessions else None
+    if last is None or last["status"] in DONE or last["status"] == "duplicate" or not last["folder"]:
+        raise DataError(f"{pseudonym}: no interrupted session to resume; run the next one without --resume")
+    config, resumption = prepare_resume(study.sessions_dir / last["folder"])
+    plan = NextSession(pseudonym, "", int(last["number"]), config, "", resumption, key=last["key"])
+    check_blinding(study, plan, options)
+    print(f"study {study.protocol.name}: {pseudonym}, session {plan.number} of "
+          f"{study.protocol.sessions.per_participant} (resumed), {BLIND_LABEL} (site {info['site']})",
+          file=progress, flush=True)
+    send = _recorder(root, progress)
+    result = play(study, plan, options, progress, record=send)
+    if send.failed and send.failed[-1] != "running":
+        print(f"study next: {pseudonym}'s session {plan.number} is kept in {Path(root) / OUTBOX} (not yet in the "
+              f"registry): run `nao-trainer study record {root}` when the network is back", file=progress, flush=True)
+    return plan, result
 
 
 def withdraw(root: Path, pseudonym: str, data: str, reason: str = "") -> tuple[dict[str, Any], list[Path]]:
