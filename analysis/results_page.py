@@ -260,6 +260,41 @@ def claims_block() -> str:
     return "\n".join(out) + "\n"
 
 
+PIPELINES = {"paper": "paper: most likely cluster → its policy", "posterior-ev": "posterior expected value, models as fitted",
+             "personalised": "whole pipeline (+ per-level Beta, probes)"}
+
+
+def personalise_block(name: str) -> str:
+    """The assessment-length table of one stored ``evaluate --personalise`` output (docs/results/NAME)."""
+    j = json.loads((RESULTS / name / "personalise.json").read_text())
+    words = shlex.split(j["command"])
+    words = [("ROOT" if i and words[i - 1] == "--data" else f"docs/results/{name}" if i and words[i - 1] == "--out"
+              else w) for i, w in enumerate(words)]
+    if "--export-users" in words:
+        k = words.index("--export-users")
+        words = words[:k] + words[k + 2:]
+    rows = [s for s in j["summary"]]
+    by = {(s["policy"], s.get("assessment")): s for s in rows}
+    lengths = [a for a in (0, 3, 6, 9, 12) if ("personalised", a) in by]
+    unit = "people" if "people" in rows[0] else "sessions"
+    n = rows[0].get("people", rows[0]["users"])
+    out = [f"`{' '.join(words)}` (`docs/results/{name}/personalise.json`; {n} {unit}). Score per 25-turn session, "
+           "assessment turns counted (difference to the best fixed level [95 % t-interval], paired):", "",
+           "| policy | " + " | ".join(f"A = {a}" for a in lengths) + " |", "|---|" + "---|" * len(lengths)]
+    for pol, label in PIPELINES.items():
+        cells = []
+        for a in lengths:
+            s = by.get((pol, a))
+            cells.append("" if s is None else f"{s['score']:.2f} ({s['d_reference']:+.2f} {_ci(s.get('d_reference_ci'), 2)})")
+        out.append(f"| {label} | " + " | ".join(cells) + " |")
+    fixed = [f"{lab} {by[(p, None)]['score']:.2f} {_ci(by[(p, None)]['score_ci'], 2)}"
+             for p, lab in (("fixed:2", "always level 2"), ("best-fixed", "best fixed level"),
+                            ("generic", "generic policy (pooled data)"), ("oracle", "per-user oracle"))
+             if (p, None) in by]
+    out += ["", "No assessment: " + "; ".join(fixed) + "."]
+    return "\n".join(out) + "\n"
+
+
 def _holds(s: dict, key: str) -> int:
     """+1 / -1 when the paired interval of ``key`` lies above / below 0, else 0."""
     ci = s.get(key + "_ci")
@@ -405,6 +440,8 @@ def render_block(name: str, where: str = "docs/explanation/results.md") -> str:
         return power_n_block()
     if name == "claims":
         return claims_block()
+    if name.startswith("personalise."):
+        return personalise_block(name.split(".", 1)[1])
     if name.startswith("eval."):
         return eval_block(name.split(".", 1)[1])
     if name.startswith("power."):
