@@ -256,7 +256,7 @@ def create(conn, prefix: str, sequences: dict[str, list[str]], arm_configs: dict
     GRANT EXECUTE ON FUNCTION study_info() TO {op}, {st};
     GRANT EXECUTE ON FUNCTION unblind(text) TO {st};
     GRANT SELECT ON unblindings, sessions, sites, meta TO {st};
-    GRANT SELECT (pseudonym, number, site, consent_date, consent_version, enrolled, withdrawn)
+    GRANT SELECT (pseudonym, number, site, stratum, consent_date, consent_version, enrolled, withdrawn)
           ON participants TO {st};
     """
     with conn.transaction():

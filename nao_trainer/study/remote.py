@@ -70,8 +70,6 @@ def init(protocol_path: Path, out: Path, url: str, stratify_by_site: bool,
     protocol = load_protocol(protocol_path)
     if protocol.allocation.strata and stratify_by_site:
         raise ConfigError("--stratify-by-site: the protocol has strata of its own; use one or the other")
-    if protocol.allocation.strata:
-        raise ConfigError(f"{protocol_path}: strata other than the site are not supported on PostgreSQL yet")
     draw = entropy_rng(allocation_seed)
     conn = pg.connect(url, autocommit=True)
     with conn:
@@ -111,9 +109,16 @@ def site_add(root: Path, name: str) -> tuple[str, str]:
     return role, password
 
 
-def enrol(root: Path, consent_date: str, consent_version: str) -> str:
+def enrol(root: Path, consent_date: str, consent_version: str, strata: dict[str, str] | None = None) -> str:
+    """The next pseudonym of the connecting site; ``strata``: the participant's level of each of the protocol's
+    strata (``--stratum NAME=LEVEL``), checked against the protocol as on one laptop."""
+    from nao_trainer.study.registry import _parse_date, _stratum_key
+
+    day = _parse_date(consent_date)
     with connect(root) as conn:
-        return pg.enrol(conn, consent_date, consent_version)
+        info = pg.study_info(conn)
+        key = _stratum_key(_study(root, info, open_protocol(root, info)), strata or {})
+        return pg.enrol(conn, day, consent_version, key)
 
 
 def status_lines(root: Path) -> list[str]:
@@ -438,9 +443,7 @@ def statistician_study(root: Path, what: str):
         if protocol.blinding and not log:
             raise DataError(f"{root}: the study is blinded; its arms are revealed only after `nao-trainer study "
                             f"unblind {root} --reason TEXT` (the statistician; the unblinding is logged)")
-        by_site = bool(pg.call(conn, what, "SELECT value = 'true'::jsonb FROM meta WHERE key = 'stratify_by_site'")
-                       [0][0])
-        people = pg.call(conn, what, "SELECT pseudonym, number, site, consent_date::text, consent_version, "
+        people = pg.call(conn, what, "SELECT pseudonym, number, site, stratum, consent_date::text, consent_version, "
                          "enrolled::text, withdrawn FROM participants ORDER BY number")
         rows = pg.call(conn, what, "SELECT key, pseudonym, number, folder, status, files, entry FROM sessions "
                        "ORDER BY pseudonym, number, recorded")
@@ -450,10 +453,10 @@ def statistician_study(root: Path, what: str):
         sessions.setdefault(pseud, []).append({**(entry or {}), "key": key, "number": number, "folder": folder,
                                                "status": status, "files": files})
     participants = []
-    keys = ("pseudonym", "number", "site", "consent_date", "consent_version", "enrolled", "withdrawn")
+    keys = ("pseudonym", "number", "site", "stratum", "consent_date", "consent_version", "enrolled", "withdrawn")
     for row in people:
         p = dict(zip(keys, row))
-        p.update(stratum=p["site"] if by_site else "", allocation_index=None, arm=arms[p["pseudonym"]],
+        p.update(allocation_index=None, arm=arms[p["pseudonym"]],
                  sessions=sessions.get(p["pseudonym"], []))
         participants.append(p)
         if p["withdrawn"] and p["withdrawn"].get("data") == "delete":
