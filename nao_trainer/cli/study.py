@@ -276,9 +276,7 @@ def _enrol(args: argparse.Namespace) -> int:
     from nao_trainer.study import remote
 
     if remote.is_remote(args.root):
-        if strata:
-            raise ConfigError("--stratum: not supported on a PostgreSQL registry yet (--stratify-by-site is)")
-        pseudonym = remote.enrol(args.root, args.consent_date, args.consent_version)
+        pseudonym = remote.enrol(args.root, args.consent_date, args.consent_version, strata)
         print(f"{pseudonym}: enrolled (arm concealed: this role cannot read it; consent {args.consent_date} version "
               f"{args.consent_version})")
         return 0

@@ -24,8 +24,11 @@ What each value means (NAOqi 2.8.5 SDK pages; a shape not documented is a guess,
 * ``ALChestButton/DoubleClickOccurred``: a double click (``naoqi/sensors/alchestbutton-api.html``); NAO then
   removes its stiffness (``naoqi/sensors/alchestbutton.html``) or sets Autonomous Life off and on
   (``family/nao_user_guide/chest_button_usages.html``): the pages disagree, the kit tells;
-* ``ALDiagnosis/RobotIsReady``: False when the passive diagnosis finds a failure ALMotion reacts to
-  (``naoqi/motion/reflexes-diagnosis.html``; the key name is a guess to confirm with the kit);
+* ``ALDiagnosis/RobotIsReady``: read as False when the diagnosis finds a failure ALMotion reacts to
+  (``naoqi/motion/reflexes-diagnosis.html``). Its 2.8 page (``naoqi/diagnosis/aldiagnosis-api.html``) says it is
+  "raised when the active diagnosis, automatically launched after the NAOqi startup, is finished", True if no
+  critical error: so mid-session it may come only after a NAOqi restart, not on a passive-diagnosis failure; a
+  guess to confirm with the kit;
 * ``AutonomousLife/State``: the new Autonomous Life state (``naoqi/interaction/autonomouslife-api.html``);
   only "safeguard" is reported.
 """

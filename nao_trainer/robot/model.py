@@ -44,7 +44,7 @@ class HealthKeys:
     battery_charge: str = ""  # ``BatteryChargeChanged`` (percent): at or below ``battery_low_percent`` it is battery low
     chest: str = ""  # one click of the chest button (``ALChestButton/SimpleClickOccurred``)
     chest_double: str = ""  # a double click of the chest button (``ALChestButton/DoubleClickOccurred``)
-    diagnosis: str = ""  # the passive diagnosis: False = a failure ALMotion reacts to (``ALDiagnosis/RobotIsReady``)
+    diagnosis: str = ""  # the diagnosis: False = a failure (``ALDiagnosis/RobotIsReady``: documented for the start-up one)
     safeguard: str = ""  # Autonomous Life's state changed (``AutonomousLife/State``): "safeguard" pauses
 
     def items(self) -> list[tuple[str, str]]:

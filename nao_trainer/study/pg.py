@@ -133,7 +133,7 @@ def create(conn, prefix: str, sequences: dict[str, list[str]], arm_configs: dict
       FROM participants pa JOIN sites si ON si.name = pa.site WHERE si.role = session_user;
 
     CREATE VIEW site_sessions AS
-      SELECT s.key, s.pseudonym, s.number, s.folder, s.status, s.entry ->> 'ended' AS ended
+      SELECT s.key, s.pseudonym, s.number, s.folder, s.status, s.entry ->> 'ended' AS ended, s.recorded
       FROM sessions s JOIN participants pa ON pa.pseudonym = s.pseudonym JOIN sites si ON si.name = pa.site
       WHERE si.role = session_user;
 
@@ -256,7 +256,7 @@ def create(conn, prefix: str, sequences: dict[str, list[str]], arm_configs: dict
     GRANT EXECUTE ON FUNCTION study_info() TO {op}, {st};
     GRANT EXECUTE ON FUNCTION unblind(text) TO {st};
     GRANT SELECT ON unblindings, sessions, sites, meta TO {st};
-    GRANT SELECT (pseudonym, number, site, consent_date, consent_version, enrolled, withdrawn)
+    GRANT SELECT (pseudonym, number, site, stratum, consent_date, consent_version, enrolled, withdrawn)
           ON participants TO {st};
     """
     with conn.transaction():
@@ -355,7 +355,7 @@ def study_info(conn) -> dict[str, Any]:
 
 def site_sessions(conn) -> list[dict[str, Any]]:
     rows = call(conn, "study next", "SELECT key, pseudonym, number, folder, status, ended FROM site_sessions "
-                "ORDER BY pseudonym, number")
+                "ORDER BY pseudonym, number, recorded")
     return [dict(zip(("key", "pseudonym", "number", "folder", "status", "ended"), r)) for r in rows]
 
 

@@ -70,8 +70,6 @@ def init(protocol_path: Path, out: Path, url: str, stratify_by_site: bool,
     protocol = load_protocol(protocol_path)
     if protocol.allocation.strata and stratify_by_site:
         raise ConfigError("--stratify-by-site: the protocol has strata of its own; use one or the other")
-    if protocol.allocation.strata:
-        raise ConfigError(f"{protocol_path}: strata other than the site are not supported on PostgreSQL yet")
     draw = entropy_rng(allocation_seed)
     conn = pg.connect(url, autocommit=True)
     with conn:
@@ -111,9 +109,16 @@ def site_add(root: Path, name: str) -> tuple[str, str]:
     return role, password
 
 
-def enrol(root: Path, consent_date: str, consent_version: str) -> str:
+def enrol(root: Path, consent_date: str, consent_version: str, strata: dict[str, str] | None = None) -> str:
+    """The next pseudonym of the connecting site; ``strata``: the participant's level of each of the protocol's
+    strata (``--stratum NAME=LEVEL``), checked against the protocol as on one laptop."""
+    from nao_trainer.study.registry import _parse_date, _stratum_key
+
+    day = _parse_date(consent_date)
     with connect(root) as conn:
-        return pg.enrol(conn, consent_date, consent_version)
+        info = pg.study_info(conn)
+        key = _stratum_key(_study(root, info, open_protocol(root, info)), strata or {})
+        return pg.enrol(conn, day, consent_version, key)
 
 
 def status_lines(root: Path) -> list[str]:
@@ -313,8 +318,10 @@ def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any, pr
 
     progress = progress or sys.stderr
     if resume:
-        raise ConfigError("study next --resume: not available on a PostgreSQL registry; run `study next` without it "
-                          "(the interrupted session stays on record, and the participant's next session follows)")
+        given = [k for k, v in flags.items() if v is not None]
+        if given:
+            raise ConfigError(f"--resume continues a session with its own configuration; drop the flags for "
+                              f"{', '.join(given)}")
     with connect(root) as conn:
         info = _role(conn, root, "study next", "site")
         protocol = open_protocol(root, info)
@@ -323,8 +330,11 @@ def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any, pr
         with connect(root) as conn:
             flush(root, conn, pseudonym, progress)
             got = pg.session_config(conn, pseudonym)
-        number = int(got["next_session"])
+            mine = [x for x in pg.site_sessions(conn) if x["pseudonym"] == pseudonym]
         per = protocol.sessions.per_participant
+        if resume:
+            return _resume(root, study, info, mine, pseudonym, options, progress)
+        number = int(got["next_session"])
         if number > per:
             raise DataError(f"{pseudonym}: has completed all {per} sessions of the protocol")
         warning = ""
@@ -354,6 +364,30 @@ def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any, pr
                   f"registry): run `nao-trainer study record {root}` when the network is back", file=progress,
                   flush=True)
         return plan, result
+
+
+def _resume(root: Path, study, info: dict[str, Any], sessions: list[dict[str, Any]], pseudonym: str, options: Any,
+            progress: TextIO):
+    """``study next --resume`` on a site's laptop: the participant's last session, when the registry has it as
+    interrupted and its folder is on this laptop, continued under its own key (``session.resume``)."""
+    from nao_trainer.session.resume import prepare_resume
+    from nao_trainer.study.runner import BLIND_LABEL, DONE, NextSession, check_blinding, play
+
+    last = sessions[-1] if sessions else None
+    if last is None or last["status"] in DONE or last["status"] == "duplicate" or not last["folder"]:
+        raise DataError(f"{pseudonym}: no interrupted session to resume; run the next one without --resume")
+    config, resumption = prepare_resume(study.sessions_dir / last["folder"])
+    plan = NextSession(pseudonym, "", int(last["number"]), config, "", resumption, key=last["key"])
+    check_blinding(study, plan, options)
+    print(f"study {study.protocol.name}: {pseudonym}, session {plan.number} of "
+          f"{study.protocol.sessions.per_participant} (resumed), {BLIND_LABEL} (site {info['site']})",
+          file=progress, flush=True)
+    send = _recorder(root, progress)
+    result = play(study, plan, options, progress, record=send)
+    if send.failed and send.failed[-1] != "running":
+        print(f"study next: {pseudonym}'s session {plan.number} is kept in {Path(root) / OUTBOX} (not yet in the "
+              f"registry): run `nao-trainer study record {root}` when the network is back", file=progress, flush=True)
+    return plan, result
 
 
 def withdraw(root: Path, pseudonym: str, data: str, reason: str = "") -> tuple[dict[str, Any], list[Path]]:
@@ -409,9 +443,7 @@ def statistician_study(root: Path, what: str):
         if protocol.blinding and not log:
             raise DataError(f"{root}: the study is blinded; its arms are revealed only after `nao-trainer study "
                             f"unblind {root} --reason TEXT` (the statistician; the unblinding is logged)")
-        by_site = bool(pg.call(conn, what, "SELECT value = 'true'::jsonb FROM meta WHERE key = 'stratify_by_site'")
-                       [0][0])
-        people = pg.call(conn, what, "SELECT pseudonym, number, site, consent_date::text, consent_version, "
+        people = pg.call(conn, what, "SELECT pseudonym, number, site, stratum, consent_date::text, consent_version, "
                          "enrolled::text, withdrawn FROM participants ORDER BY number")
         rows = pg.call(conn, what, "SELECT key, pseudonym, number, folder, status, files, entry FROM sessions "
                        "ORDER BY pseudonym, number, recorded")
@@ -421,10 +453,10 @@ def statistician_study(root: Path, what: str):
         sessions.setdefault(pseud, []).append({**(entry or {}), "key": key, "number": number, "folder": folder,
                                                "status": status, "files": files})
     participants = []
-    keys = ("pseudonym", "number", "site", "consent_date", "consent_version", "enrolled", "withdrawn")
+    keys = ("pseudonym", "number", "site", "stratum", "consent_date", "consent_version", "enrolled", "withdrawn")
     for row in people:
         p = dict(zip(keys, row))
-        p.update(stratum=p["site"] if by_site else "", allocation_index=None, arm=arms[p["pseudonym"]],
+        p.update(allocation_index=None, arm=arms[p["pseudonym"]],
                  sessions=sessions.get(p["pseudonym"], []))
         participants.append(p)
         if p["withdrawn"] and p["withdrawn"].get("data") == "delete":

@@ -319,8 +319,8 @@ def load_sha(trial) -> str:
 def test_withdraw_refusals_and_the_statisticians_checks_on_postgresql(trial, capsys):
     """`study withdraw` at the participant's site (recorded in the registry; --data delete removes the
     laptop's folders; no further session); the statistician's export refuses a session folder not copied
-    or altered, in one line; a site's role is refused the export; amend and next --resume are refused in
-    one line that says why."""
+    or altered, in one line; a site's role is refused the export; amend is refused in one line that says
+    why, and --resume of a session that completed."""
     north = trial.as_("north")
     for _ in range(2):
         assert cli(capsys, "enrol", north, "--consent-date", "2026-12-01", "--consent-version", "v1")[0] == 0
@@ -335,8 +335,8 @@ def test_withdraw_refusals_and_the_statisticians_checks_on_postgresql(trial, cap
     one_line(code, err, "the statistician's role only")
     code, _, err = cli(capsys, "amend", north, trial.tmp / "protocol.yaml", "--reason", "r")
     one_line(code, err, "study amend: not available on a PostgreSQL registry")
-    code, _, err = cli(capsys, "next", north, "P002", "--resume", "--no-keys")
-    one_line(code, err, "not available on a PostgreSQL registry")
+    code, _, err = cli(capsys, "next", north, "P001", "--resume", "--no-keys")
+    one_line(code, err, "P001: no interrupted session to resume")
     code, _, err = cli(capsys, "withdraw", trial.as_("south"), "P001", "--data", "keep")
     one_line(code, err, "not a participant of your site")
 
@@ -378,3 +378,33 @@ def test_killed_study_next_and_record_leave_the_registry_whole(pg_cluster, tmp_p
 
     result = run_sessions(pg_cluster, tmp_path, kills=2, seed=int.from_bytes(os.urandom(4), "little"))
     assert result.trials == 2 and not result.failures, result.failures
+
+
+def test_a_killed_session_is_resumed_under_its_key(trial, capsys):
+    """SIGKILL after a turn of a slow session; `study next --resume` records the killed one from the outbox
+    (interrupted), continues its folder under the same key and completes it: one row, counted once."""
+    north = trial.as_("north")
+    assert cli(capsys, "enrol", north, "--consent-date", "2026-12-01", "--consent-version", "v1")[0] == 0
+    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "study", "next", str(north), "P001", "--no-keys",
+                             "--user-model", "1", "--turns", "5", "--speed", "12"], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, env=_env(trial.roles["north"]))
+
+    def turns() -> int:
+        found = sorted((north / "sessions").glob("P001_*/turns.csv"))
+        return len(found[0].read_text().splitlines()) - 1 if found else 0
+
+    try:
+        while turns() < 1 and proc.poll() is None:
+            threading_wait(0.05)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    assert turns() < 5, "the session ended before the kill"
+    res = subprocess.run([sys.executable, "-m", "nao_trainer", "study", "next", str(north), "P001", "--resume",
+                          "--no-keys"], capture_output=True, text=True, env=_env(trial.roles["north"]), timeout=240)
+    assert res.returncode == 0, res.stderr
+    assert "recorded as interrupted (from outbox/)" in res.stderr and "session 1 of 2 (resumed)" in res.stderr
+    rows = trial.sql("SELECT number, status, folder FROM sessions")
+    assert len(rows) == 1 and rows[0][:2] == (1, "completed") and turns() == 5
+    code, _, err = cli(capsys, "next", north, "P001", "--resume", "--no-keys")
+    assert code == 2 and "no interrupted session to resume" in err
