@@ -168,7 +168,10 @@ def open_protocol(root: Path, info: dict[str, Any]) -> Protocol:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         text = info["protocol_text"]
-        write_text_atomic(path, text)
+        try:
+            write_text_atomic(path, text)
+        except OSError as exc:
+            raise DataError(f"{path}: cannot restore the protocol copy from the registry ({exc.strerror})") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise DataError(f"{path}: cannot read ({exc})") from None
     if protocol_hash(text) != info["protocol_sha256"]:
@@ -227,11 +230,12 @@ def _outbox(root: Path) -> list[tuple[Path, dict[str, Any]]]:
     for path in sorted((Path(root) / OUTBOX).glob("*.json")):
         try:
             entry = json.loads(path.read_text(encoding="utf-8"))
-            assert isinstance(entry, dict) and isinstance(entry["key"], str) and isinstance(entry["pseudonym"], str) \
-                and type(entry["number"]) is int and isinstance(entry["status"], str)
-        except (OSError, ValueError, KeyError, AssertionError, RecursionError):
+        except (OSError, ValueError, RecursionError):
+            entry = None
+        if not (isinstance(entry, dict) and all(isinstance(entry.get(k), str) for k in ("key", "pseudonym", "status"))
+                and type(entry.get("number")) is int and entry["key"] == path.stem):
             raise DataError(f"{path}: not a session entry nao-trainer wrote (edited or torn); move it out of "
-                            f"{path.parent} and run the command again") from None
+                            f"{path.parent} and run the command again")
         out.append((path, entry))
     return out
 

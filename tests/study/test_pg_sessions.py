@@ -408,3 +408,12 @@ def test_a_killed_session_is_resumed_under_its_key(trial, capsys):
     assert len(rows) == 1 and rows[0][:2] == (1, "completed") and turns() == 5
     code, _, err = cli(capsys, "next", north, "P001", "--resume", "--no-keys")
     assert code == 2 and "no interrupted session to resume" in err
+
+
+def test_an_edited_outbox_entry_is_one_line(trial, capsys):
+    north = trial.as_("north")
+    (north / "outbox").mkdir()
+    for text in ("{", '{"key": "other", "pseudonym": "P001", "number": 1, "status": "completed"}', "[" * 100_000):
+        (north / "outbox" / "k1.json").write_text(text)
+        code, _, err = cli(capsys, "record", north)
+        assert code == 2 and "not a session entry nao-trainer wrote" in err and len(err.strip().splitlines()) == 1
