@@ -104,7 +104,8 @@ def _ceiling(users: str, objective: str) -> dict | None:
         return None
     j = json.loads(path.read_text())
     c = j["ceiling"]
-    c["command"] = _command(j.get("command", ""), str(path.parent.relative_to(ROOT)))
+    out = path.parent.relative_to(ROOT) if path.parent.is_relative_to(ROOT) else path.parent
+    c["command"] = _command(j.get("command", ""), str(out))
     return c if any("people" in s and "d_level2" in s for s in c["summary"]) else None
 
 
