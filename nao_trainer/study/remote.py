@@ -174,6 +174,12 @@ def open_protocol(root: Path, info: dict[str, Any]) -> Protocol:
             raise DataError(f"{path}: cannot restore the protocol copy from the registry ({exc.strerror})") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise DataError(f"{path}: cannot read ({exc})") from None
+    if protocol_hash(text) != info["protocol_sha256"] and protocol_hash(text) in info.get("earlier_sha256", []):
+        try:  # the version an amendment replaced: the registry's text is the study's protocol now
+            write_text_atomic(path, info["protocol_text"])
+        except OSError as exc:
+            raise DataError(f"{path}: cannot write the amended protocol from the registry ({exc.strerror})") from None
+        text = info["protocol_text"]
     if protocol_hash(text) != info["protocol_sha256"]:
         raise DataError(f"{path}: not the protocol frozen in the registry (hash differs); copy protocol.yaml from "
                         "the study's administrator again (or delete it: the next command restores it)")
@@ -451,6 +457,10 @@ def statistician_study(root: Path, what: str):
                          "enrolled::text, withdrawn FROM participants ORDER BY number")
         rows = pg.call(conn, what, "SELECT key, pseudonym, number, folder, status, files, entry FROM sessions "
                        "ORDER BY pseudonym, number, recorded")
+        amendments = [dict(zip(("time", "reason", "old_sha256", "new_sha256", "enrolled_at_amendment", "changes",
+                                "study_config"), r))
+                      for r in pg.call(conn, what, "SELECT time::text, reason, old_sha256, new_sha256, "
+                                       "enrolled_at_amendment, changes, study_config FROM amendments ORDER BY id")]
         arms = dict(pg.unblind(conn, f"{what}: the arms read for it"))
     sessions: dict[str, list[dict[str, Any]]] = {}
     for key, pseud, number, folder, status, files, entry in rows:
@@ -480,4 +490,91 @@ def statistician_study(root: Path, what: str):
                                     f"its site recorded ({p['pseudonym']} session {s['number']}); copy the folder "
                                     "from the site again")
     unblindings = [{"time": t, "who": w, "reason": r} for t, w, r in log]
-    return _study(root, info, protocol, {"participants": participants, "unblindings": unblindings})
+    return _study(root, info, protocol, {"participants": participants, "unblindings": unblindings,
+                                         "amendments": amendments})
+
+
+def amend(root: Path, protocol_path: Path, reason: str, change_arms: bool = False) -> dict[str, Any]:
+    """``study amend`` by the study's administrator (the role that ran ``study init``), with the rules of one
+    laptop (``registry.amend``): once someone is enrolled, what the allocation was drawn from cannot change,
+    and what an arm does only with ``change_arms``. Registry, arms' configurations and the amendment's
+    record change in one transaction; each site's copy of the protocol is replaced by the registry's text
+    at its next command (the old version is in the amendments)."""
+    from nao_trainer.study.registry import allocation_sequence, arm_changes, entropy_rng, file_sha256
+
+    if not reason.strip() or "\n" in reason.strip():
+        raise ConfigError("--reason: an amendment needs its reason (one line)")
+    with connect(root) as conn:
+        info = pg.study_info(conn)
+        if info["role"] != "admin":
+            raise ConfigError(f"study amend: the study's administrator only (the role that ran `study init`); this "
+                              f"is {'site ' + info['site'] if info['role'] == 'site' else info['role']}'s role")
+        old = open_protocol(root, info)
+        new = load_protocol(protocol_path, fallback=Path(info["protocol_base"]))
+        new_config_sha = file_sha256(new.study_config)
+        if new.sha256 == old.sha256 and new_config_sha == info["study_config_sha256"]:
+            raise ConfigError(f"{protocol_path}: identical to the frozen protocol; nothing to amend")
+        what = "study amend"
+        enrolled = pg.call(conn, what, "SELECT count(*) FROM participants")[0][0]
+        changes: list[str] = []
+        drawn = lambda p: ([(a.name, a.ratio) for a in p.arms], p.allocation.block_size,  # noqa: E731
+                           p.allocation.strata)
+        if enrolled:
+            if drawn(new) != drawn(old):
+                raise ConfigError(f"{protocol_path}: changes the arms or the allocation after enrolment began; "
+                                  "only other keys can be amended (start a new study for a new design)")
+            changes = arm_changes(old, new)
+            if changes and not change_arms:
+                raise ConfigError(f"{protocol_path}: {'; '.join(changes)} while {enrolled} participant(s) are "
+                                  "enrolled; if that is intended, give --change-arms (recorded in the registry and "
+                                  "reported by the analysis)")
+            shortest = pg.call(conn, what, "SELECT min(n) FROM (SELECT count(*) AS n FROM allocation GROUP BY "
+                               "stratum) c")[0][0]
+            if new.target_n > old.target_n and new.target_n > (shortest or 0):
+                raise ConfigError(f"{protocol_path}: target_n {new.target_n} exceeds the allocation sequence drawn "
+                                  "at init; start a new study")
+        per_site = bool(pg.call(conn, what, "SELECT 1 FROM meta WHERE key = 'draw_per_site'"))
+        if per_site and new.allocation.strata:
+            raise ConfigError(f"{protocol_path}: strata of its own in a study stratified by site; use one or the other")
+        psycopg = pg._psycopg()
+        try:
+            with conn.transaction():
+                conn.execute("LOCK TABLE participants IN SHARE ROW EXCLUSIVE MODE")  # no enrolment meanwhile
+                if conn.execute("SELECT count(*) FROM participants").fetchone()[0] != enrolled:
+                    raise ConfigError(f"{root}: someone was enrolled meanwhile; run the amendment again")
+                entry = {"reason": reason.strip(), "old_sha256": old.sha256, "new_sha256": new.sha256,
+                         "enrolled_at_amendment": enrolled, "changes": changes, "study_config": str(new.study_config)}
+                conn.execute("INSERT INTO amendments (reason, old_sha256, new_sha256, enrolled_at_amendment, changes, "
+                             "study_config) VALUES (%s, %s, %s, %s, %s, %s)",
+                             (entry["reason"], old.sha256, new.sha256, enrolled, json.dumps(changes),
+                              entry["study_config"]))
+                for key, value in {"protocol_text": new.text, "protocol_sha256": new.sha256,
+                                   "study_config_sha256": new_config_sha, "study_config": str(new.study_config),
+                                   "protocol_base": new.base, "target_n": new.target_n}.items():
+                    conn.execute("INSERT INTO meta VALUES (%s, %s) ON CONFLICT (key) DO UPDATE SET value = "
+                                 "EXCLUDED.value", (key, json.dumps(value)))
+                if not enrolled:  # nobody allocated yet: the sequence of the new design
+                    sites = [r[0] for r in conn.execute("SELECT name FROM sites ORDER BY name")]
+                    conn.execute("DELETE FROM allocation")
+                    conn.execute("DELETE FROM arms")
+                    for a in new.arms:
+                        conn.execute("INSERT INTO arms VALUES (%s, %s)",
+                                     (a.name, json.dumps(a.config_overrides(), sort_keys=True)))
+                    draw = entropy_rng()
+                    sequences = {s: allocation_sequence(new, draw)[""] for s in sites} if per_site \
+                        else allocation_sequence(new, draw)
+                    with conn.cursor() as cur:
+                        cur.executemany("INSERT INTO allocation VALUES (%s, %s, %s)",
+                                        [(k, i, arm) for k, seq in sequences.items() for i, arm in enumerate(seq)])
+                else:
+                    for a in new.arms:
+                        conn.execute("UPDATE arms SET config = %s WHERE name = %s",
+                                     (json.dumps(a.config_overrides(), sort_keys=True), a.name))
+                entry["time"] = conn.execute("SELECT now()::text").fetchone()[0]
+        except psycopg.errors.InsufficientPrivilege as exc:
+            raise pg._refused(exc, what) from None
+    try:
+        write_text_atomic(Path(root) / "protocol.yaml", new.text)
+    except OSError:
+        pass  # the registry holds the text; the next command restores the copy
+    return entry
