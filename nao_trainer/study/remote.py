@@ -15,12 +15,15 @@ once, when the server is back; a session whose process was killed is recorded as
 The statistician's folder (a copy too, with the sites' ``sessions/`` folders copied into its own) is
 analysed and exported through :func:`statistician_study`: the sessions the registry lists, each folder
 checked against the checksums the site recorded, and the arms read through the logged unblinding.
+
+:func:`amend` (the administrator) changes the registry's protocol; each folder's copy follows at its next
+command (:func:`open_protocol`). ``study next --resume`` continues the participant's interrupted last
+session on the laptop that ran it, under its key (:func:`_resume`).
 """
 from __future__ import annotations
 
 import datetime as dt
 import json
-import os
 import re
 import socket
 import sys
