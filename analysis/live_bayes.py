@@ -56,9 +56,10 @@ def compare(folder: Path, cache: Path) -> None:
     for pol in (LIVE, "bayes-psychometric", "bayes", "pooled-fixed", "ceiling"):
         s = summary[pol]
         share = s["achievable_share_pooled"]
-        sh = "" if share["share"] is None else (f"; {100 * share['share']:.0f} % [{100 * share['share_ci'][0]:.0f}, "
-                                                f"{100 * share['share_ci'][1]:.0f}] of the ceiling's gain over the "
-                                                "pooled best level")
+        ci = share.get("share_ci")
+        sh = "" if share["share"] is None else (f"; {100 * share['share']:.0f} % "
+                                                + (f"[{100 * ci[0]:.0f}, {100 * ci[1]:.0f}]" if ci else "[unbounded]")
+                                                + " of the ceiling's gain over the pooled best level")
         print(f"  {pol:<34} {s['value']:.{digits}f} [{s['value_ci'][0]:.{digits}f}, {s['value_ci'][1]:.{digits}f}]"
               f"  minus ceiling {s['d_ceiling']:+.{digits}f}{sh}")
     stored = {r["user"]: float(r["utility"]) for r in rows if r["policy"] == "bayes-psychometric"}

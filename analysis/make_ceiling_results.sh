@@ -21,4 +21,7 @@ for OBJ in ${OBJECTIVES:-score target-p:0.75 target-rate:0.75}; do
 done
 # which user model predicts held-out turns best (per level, clusters, pooled psychometric)
 $NT evaluate --user-models --users sessions --data "$ROOT" --out docs/results/user-models
+# the live bayes policy (shipped psychometric prior) valued on the same held-out users as bayes-psychometric
+PYTHONPATH=. "${PYTHON:-.venv/bin/python}" analysis/live_bayes.py --data "$ROOT" docs/results/ceiling-{own-rates,data-prior}-{target-p-0.75,target-rate-0.75,score} \
+    > docs/results/live_bayes.txt
 PYTHONPATH=. "${PYTHON:-.venv/bin/python}" analysis/results_page.py   # the generated blocks of docs/explanation/results.md

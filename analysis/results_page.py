@@ -102,7 +102,10 @@ def _ceiling(users: str, objective: str) -> dict | None:
     path = _path(users, objective)
     if not path.exists():
         return None
-    c = json.loads(path.read_text())["ceiling"]
+    j = json.loads(path.read_text())
+    c = j["ceiling"]
+    out = path.parent.relative_to(ROOT) if path.parent.is_relative_to(ROOT) else path.parent
+    c["command"] = _command(j.get("command", ""), str(out))
     return c if any("people" in s and "d_level2" in s for s in c["summary"]) else None
 
 
@@ -116,6 +119,17 @@ def _missing(users: str, objective: str, text: str) -> str:
             f"`analysis/make_ceiling_results.sh` (`{path.relative_to(ROOT)}` is missing or older).*\n")
 
 
+def _command(text: str, out: str) -> str:
+    """A stored output's command line with the data folder as ROOT, the output folder as stored, no export."""
+    words = shlex.split(text)
+    words = [("ROOT" if i and words[i - 1] == "--data" else out if i and words[i - 1] == "--out" else w)
+             for i, w in enumerate(words)]
+    if "--export-users" in words:
+        k = words.index("--export-users")
+        words = words[:k] + words[k + 2:]
+    return " ".join(words)
+
+
 def block(objective: str, users: str, text: str) -> str:
     c = _ceiling(users, objective)
     path = _path(users, objective)
@@ -123,8 +137,8 @@ def block(objective: str, users: str, text: str) -> str:
         return _missing(users, objective, text)
     by = _by(c)
     first = next(iter(by.values()))
-    out = [f"{text}, objective `{c['objective']}`, {c['turns']}-turn sessions, {first['users']} sessions of "
-           f"{first['people']} people (`{path.parent.relative_to(ROOT)}`). Mean over people [95 % t-interval]; "
+    out = [f"`{c['command']}`: {text}, objective `{c['objective']}`, {c['turns']}-turn sessions, {first['users']} "
+           f"sessions of {first['people']} people (`{path.parent.relative_to(ROOT)}`). Mean over people [95 % t-interval]; "
            "d = policy − reference, paired over people; the ceiling is solved on these users, so intervals "
            "against it are conditional on them. *Best fixed (cluster)*: the level best under the objective on the "
            "participant's nearest cluster, fitted without the participant, but the held-out session itself picks "
@@ -225,10 +239,7 @@ def _evaluation(name: str) -> dict:
 def eval_block(name: str) -> str:
     """The score table of one stored ``nao-trainer evaluate`` output (docs/results/NAME/evaluation.json)."""
     j = _evaluation(name)
-    words = shlex.split(j["command"])
-    words = [("ROOT" if i and words[i - 1] == "--data" else f"docs/results/{name}" if i and words[i - 1] == "--out"
-              else w) for i, w in enumerate(words)]
-    command = " ".join(words)
+    command = _command(j["command"], f"docs/results/{name}")
     rows = j["summary"]
     out = [f"`{command}` ({rows[0]['n']} (user, seed) rows per policy, {rows[0]['users']} users; "
            f"`docs/results/{name}/evaluation.json`). Score per 25-turn session [95 % t-interval over the rows]; "
@@ -257,6 +268,36 @@ def claims_block() -> str:
             cells += ["", ""] if c is None else [f"{c['score_diff']:+.2f} {_ci(c['score_diff_ci'], 2)}",
                                                 f"{c['engagement_diff']:+.4f} {_ci(c['engagement_diff_ci'], 4)}"]
         out.append(f"| {names[name]} | " + " | ".join(cells) + " |")
+    return "\n".join(out) + "\n"
+
+
+PIPELINES = {"paper": "paper: most likely cluster → its policy", "posterior-ev": "posterior expected value, models as fitted",
+             "personalised": "whole pipeline (+ per-level Beta, probes)"}
+
+
+def personalise_block(name: str) -> str:
+    """The assessment-length table of one stored ``evaluate --personalise`` output (docs/results/NAME)."""
+    j = json.loads((RESULTS / name / "personalise.json").read_text())
+    command = _command(j["command"], f"docs/results/{name}")
+    rows = [s for s in j["summary"]]
+    by = {(s["policy"], s.get("assessment")): s for s in rows}
+    lengths = [a for a in (0, 3, 6, 9, 12) if ("personalised", a) in by]
+    unit = "people" if "people" in rows[0] else "sessions"
+    n = rows[0].get("people", rows[0]["users"])
+    out = [f"`{command}` (`docs/results/{name}/personalise.json`; {n} {unit}). Score per 25-turn session, "
+           "assessment turns counted (difference to the best fixed level [95 % t-interval], paired):", "",
+           "| policy | " + " | ".join(f"A = {a}" for a in lengths) + " |", "|---|" + "---|" * len(lengths)]
+    for pol, label in PIPELINES.items():
+        cells = []
+        for a in lengths:
+            s = by.get((pol, a))
+            cells.append("" if s is None else f"{s['score']:.2f} ({s['d_reference']:+.2f} {_ci(s.get('d_reference_ci'), 2)})")
+        out.append(f"| {label} | " + " | ".join(cells) + " |")
+    fixed = [f"{lab} {by[(p, None)]['score']:.2f} {_ci(by[(p, None)]['score_ci'], 2)}"
+             for p, lab in (("fixed:2", "always level 2"), ("best-fixed", "best fixed level"),
+                            ("generic", "generic policy (pooled data)"), ("oracle", "per-user oracle"))
+             if (p, None) in by]
+    out += ["", "No assessment: " + "; ".join(fixed) + "."]
     return "\n".join(out) + "\n"
 
 
@@ -405,6 +446,8 @@ def render_block(name: str, where: str = "docs/explanation/results.md") -> str:
         return power_n_block()
     if name == "claims":
         return claims_block()
+    if name.startswith("personalise."):
+        return personalise_block(name.split(".", 1)[1])
     if name.startswith("eval."):
         return eval_block(name.split(".", 1)[1])
     if name.startswith("power."):

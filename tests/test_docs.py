@@ -120,3 +120,18 @@ def test_every_docs_page_named_in_code_config_and_tests_exists():
     missing = sorted({(str(f.relative_to(ROOT)), page) for f in files if f.is_file()
                       for page in _named_pages(f.read_text(errors="replace")) if not (ROOT / page).is_file()})
     assert missing == [], missing
+
+
+#: The demo's output as it read before issue 29: a page quoting it teaches words the program no longer prints.
+OLD_OUTPUT = re.compile(r"following (?:usp|fixed):\d|posterior: cluster-\d|matched user model: cluster-\d"
+                        r"|user models, posterior:|\bL\d\s+(?:enc|chl)\b")
+
+
+def test_no_page_quotes_the_old_jargon_of_the_output():
+    """Issue 29: `-> following usp:3`, `cluster-3` beside `user model 3`, `L2 enc`: the pages quote the output as
+    it is now (personalisation.md quoted `matched user model: cluster-3 ...; following fixed:2`)."""
+    assert OLD_OUTPUT.search("matched user model: cluster-3 (posterior 0.81; ...); following fixed:2")
+    assert not OLD_OUTPUT.search("matched user model 3 (posterior 0.81; ...); policy: fixed level 2")
+    quoted = [(str(p.relative_to(ROOT)), m.group(0)) for p in [ROOT / "README.md", *(ROOT / "docs").rglob("*.md")]
+              for m in OLD_OUTPUT.finditer(p.read_text())]
+    assert quoted == [], quoted

@@ -147,3 +147,16 @@ def test_the_stored_outputs_are_what_the_code_computes_now(path):
         assert obj.fixed_value(p, c["turns"])[0] == pytest.approx(stored[(user, "fixed:1")], abs=1e-6)
         checked += 1
     assert checked == 3
+
+
+def test_every_generated_table_names_the_command_that_made_it():
+    """Each ceiling block opens with its stored output's command (data folder as ROOT), objective and folder."""
+    mod = _script()
+    for users, text in mod.USERS:
+        for objective in mod.ALL_OBJECTIVES:
+            first = mod.block(objective, users, text).splitlines()[0]
+            assert first.startswith("`nao-trainer evaluate --personalise --users sessions --data ROOT "), first
+            assert f"--objective {objective} " in first and \
+                f"--out docs/results/ceiling-{users}-{objective.replace(':', '-')}`" in first, first
+    for name in mod.EVAL_SETS:
+        assert mod.eval_block(name).startswith("`nao-trainer evaluate --users "), name

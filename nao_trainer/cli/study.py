@@ -159,13 +159,6 @@ def run(args: argparse.Namespace) -> int:
             + (["--no-figure"] if args.no_figure else [])
     sub = actions_parser().parse_args(words)
     root = getattr(sub, "root", None)
-    if sub.action == "amend" and root is not None:
-        from nao_trainer.study.remote import is_remote
-
-        if is_remote(root):
-            raise ConfigError(f"study amend: not available on a PostgreSQL registry ({root}): every site's laptop "
-                              "runs the frozen protocol and its study configuration; for a new version create a new "
-                              "study database with `study init --registry` (docs/how-to/multi-site-study.md)")
     return int(globals()[f"_{sub.action}"](sub) or 0)
 
 
@@ -276,9 +269,7 @@ def _enrol(args: argparse.Namespace) -> int:
     from nao_trainer.study import remote
 
     if remote.is_remote(args.root):
-        if strata:
-            raise ConfigError("--stratum: not supported on a PostgreSQL registry yet (--stratify-by-site is)")
-        pseudonym = remote.enrol(args.root, args.consent_date, args.consent_version)
+        pseudonym = remote.enrol(args.root, args.consent_date, args.consent_version, strata)
         print(f"{pseudonym}: enrolled (arm concealed: this role cannot read it; consent {args.consent_date} version "
               f"{args.consent_version})")
         return 0
@@ -314,9 +305,11 @@ def _withdraw(args: argparse.Namespace) -> int:
 
 
 def _amend(args: argparse.Namespace) -> int:
+    from nao_trainer.study import remote
     from nao_trainer.study.registry import amend
 
-    entry = amend(args.root, args.protocol, args.reason, args.change_arms)
+    go = remote.amend if remote.is_remote(args.root) else amend
+    entry = go(args.root, args.protocol, args.reason, args.change_arms)
     changes = f"; CHANGES ARMS: {'; '.join(entry['changes'])}" if entry["changes"] else ""
     print(f"{args.root}: amendment recorded {entry['time']}: {entry['old_sha256'][:12]} -> {entry['new_sha256'][:12]} "
           f"({entry['reason']}){changes}; study configuration {entry['study_config']}")

@@ -14,15 +14,21 @@ What each value means (NAOqi 2.8.5 SDK pages; a shape not documented is a guess,
   (``naoqi/sensors/albodytemperature.html``). The value's shape is a guess: a list of device names, or of
   ``[name, status]`` pairs with the temperature status 1 (hot), 2 (very hot), 3 (critical: stiffness off);
   both are read; without a status the level is "warning";
-* ``ALBattery/BatteryLow``: "the battery level is low and will soon need charging", status always True
-  (``naoqi/sensors/albattery-api.html``);
+* ``ALBattery/BatteryLow``: "the battery level is low and will soon need charging", status always True (NAOqi
+  2.5 ``naoqi/sensors/albattery-api.html``); deprecated, removed in NAOqi 2.8.6 (2.8 ``news/2.8/whatsnew2.8.6.html``),
+  so that a 2.8.5 NAO raises it is a guess to confirm with the kit;
+* ``BatteryChargeChanged``: the percentage remaining (2.8 ``naoqi/sensors/albattery-api.html``); at or below the
+  model's ``battery_low_percent`` (a guess) it is read as battery low, once (whichever of the two comes first);
 * ``ALChestButton/SimpleClickOccurred``: one click; NAO then says its name and IP
   (``naoqi/sensors/alchestbutton.html``);
 * ``ALChestButton/DoubleClickOccurred``: a double click (``naoqi/sensors/alchestbutton-api.html``); NAO then
   removes its stiffness (``naoqi/sensors/alchestbutton.html``) or sets Autonomous Life off and on
   (``family/nao_user_guide/chest_button_usages.html``): the pages disagree, the kit tells;
-* ``ALDiagnosis/RobotIsReady``: False when the passive diagnosis finds a failure ALMotion reacts to
-  (``naoqi/motion/reflexes-diagnosis.html``; the key name is a guess to confirm with the kit);
+* ``ALDiagnosis/RobotIsReady``: read as False when the diagnosis finds a failure ALMotion reacts to
+  (``naoqi/motion/reflexes-diagnosis.html``). Its 2.8 page (``naoqi/diagnosis/aldiagnosis-api.html``) says it is
+  "raised when the active diagnosis, automatically launched after the NAOqi startup, is finished", True if no
+  critical error: so mid-session it may come only after a NAOqi restart, not on a passive-diagnosis failure; a
+  guess to confirm with the kit;
 * ``AutonomousLife/State``: the new Autonomous Life state (``naoqi/interaction/autonomouslife-api.html``);
   only "safeguard" is reported.
 """
@@ -59,8 +65,9 @@ def _hot_parts(value: Any) -> list[tuple[str, int | None]]:
     return parts
 
 
-def read_event(kind: str, value: Any) -> HealthEvent | None:
-    """The ``HealthEvent`` of one ALMemory value for watched ``kind`` (``RobotModel.health``), None to ignore."""
+def read_event(kind: str, value: Any, battery_low_percent: int = 15) -> HealthEvent | None:
+    """The ``HealthEvent`` of one ALMemory value for watched ``kind`` (``RobotModel.health``), None to ignore;
+    ``battery_low_percent``: the charge a ``battery_charge`` value counts as battery low at."""
     now = time.monotonic()
     shown = value if isinstance(value, (bool, int, float, str, list, dict)) or value is None else str(value)
     if kind == "falling":
@@ -78,6 +85,11 @@ def read_event(kind: str, value: Any) -> HealthEvent | None:
                            part=worst[0], at=now, value=shown)
     if kind == "battery_low":
         return HealthEvent("battery_low", "critical", "battery low: it will soon need charging", at=now, value=shown)
+    if kind == "battery_charge":
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and value <= battery_low_percent:
+            return HealthEvent("battery_low", "critical", f"battery low ({value:g}%): it will soon need charging",
+                               at=now, value=shown)
+        return None
     if kind == "chest":
         return HealthEvent("chest", "info", "chest button pressed (NAO says its name and IP aloud)", at=now,
                            value=shown)
@@ -106,6 +118,7 @@ class HealthWatch:
         self._lock = threading.Lock()
         self._pending: list[HealthEvent] = []
         self._on_event = on_event
+        self._battery_low_seen = False
         self.watched = [key for _, key in model.health.items()]
 
     @classmethod
@@ -116,10 +129,13 @@ class HealthWatch:
 
     def _handler(self, kind: str) -> Callable[[Any], None]:
         def handle(value: Any) -> None:
-            event = read_event(kind, value)
+            event = read_event(kind, value, self.model.battery_low_percent())
             if event is None:
                 return
             with self._lock:
+                if event.kind == "battery_low" and self._battery_low_seen:
+                    return  # BatteryLow and a low BatteryChargeChanged say the same: once
+                self._battery_low_seen = self._battery_low_seen or event.kind == "battery_low"
                 self._pending.append(event)
             if self._on_event is not None:
                 self._on_event(event)

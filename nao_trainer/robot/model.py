@@ -40,10 +40,11 @@ class HealthKeys:
     falling: str = ""  # the fall manager started (``ALMotion/RobotIsFalling``)
     fallen: str = ""  # the fall manager finished: the robot is down (``robotHasFallen``)
     hot: str = ""  # a device is hot (``HotDeviceDetected``)
-    battery_low: str = ""  # ``ALBattery/BatteryLow``
+    battery_low: str = ""  # ``ALBattery/BatteryLow`` (deprecated; removed in NAOqi 2.8.6)
+    battery_charge: str = ""  # ``BatteryChargeChanged`` (percent): at or below ``battery_low_percent`` it is battery low
     chest: str = ""  # one click of the chest button (``ALChestButton/SimpleClickOccurred``)
     chest_double: str = ""  # a double click of the chest button (``ALChestButton/DoubleClickOccurred``)
-    diagnosis: str = ""  # the passive diagnosis: False = a failure ALMotion reacts to (``ALDiagnosis/RobotIsReady``)
+    diagnosis: str = ""  # the diagnosis: False = a failure (``ALDiagnosis/RobotIsReady``: documented for the start-up one)
     safeguard: str = ""  # Autonomous Life's state changed (``AutonomousLife/State``): "safeguard" pauses
 
     def items(self) -> list[tuple[str, str]]:
@@ -95,6 +96,11 @@ class RobotModel:
     def full_battery_minutes(self) -> float:
         """How long a full charge lasts in a session (``check``'s estimate)."""
         return float(getattr(self.settings, "full_battery_minutes", 60.0))
+
+    def battery_low_percent(self) -> int:
+        """The charge (percent) at or below which a ``BatteryChargeChanged`` value counts as battery low (a guess to
+        confirm on a robot; a model without the setting gets 15)."""
+        return int(getattr(self.settings, "battery_low_percent", 15))
 
     def heat_c_per_min(self) -> float:
         """How fast (°C a minute) a joint that carries the robot warms while it stands stiff: ``check``'s heat

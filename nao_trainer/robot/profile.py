@@ -2,7 +2,7 @@
 
 ``record_profile(robot)`` (``nao-trainer hardware-check --record FILE``) stores what a real robot answers to
 what the project asks: the signature of every method it calls (from qi's ``metaObject``), the values of the
-ALMemory keys it reads, the measured ``say`` and ``playSine`` durations against the text and the tone,
+ALMemory keys it reads, whether it declares each event the session watches, the measured ``say`` and ``playSine`` durations against the text and the tone,
 ``ALMotion.wakeUp``'s result, the installed speech languages, the NAOqi version and the body type.
 ``nao-trainer mock-robot --profile FILE`` serves the stand-in with those answers (``Profile.apply``), and
 ``diff`` lists where two profiles differ; ``config/robot-profiles/naoqi-2.8-docs.json`` is the profile the
@@ -28,7 +28,7 @@ CALLS: dict[str, tuple[str, ...]] = {
     "ALLeds": ("fadeRGB",),
     "ALRobotPosture": ("goToPosture", "getPostureList"),
     "ALMotion": ("wakeUp", "rest", "robotIsWakeUp"),
-    "ALMemory": ("subscriber", "getData", "insertData"),
+    "ALMemory": ("subscriber", "getData", "insertData", "getEventList"),
     "ALAutonomousLife": ("getState", "setState"),
     "ALAudioDevice": ("getOutputVolume", "isAudioOutMuted"),
     "ALBattery": ("getBatteryCharge",),
@@ -55,6 +55,9 @@ class Profile:
     say_s_per_char: float | None = None
     play_sine_extra_s: float | None = None  # playSine's return minus the tone (latency + blocking), round trip off
     memory: dict[str, Any] = field(default_factory=dict)
+    #: Each ALMemory event the session watches (the NAO model's health keys) -> whether the robot declares it
+    #: (``ALMemory.getEventList``): a robot without ``ALBattery/BatteryLow`` (NAOqi 2.8.6 and later) shows False.
+    events: dict[str, bool] = field(default_factory=dict)
     signatures: dict[str, list[str]] = field(default_factory=dict)  # "Service.method" -> ["(params)return", ...]
     without: list[str] = field(default_factory=list)  # services of CALLS the robot lacks
     cites: dict[str, str] = field(default_factory=dict)
@@ -72,6 +75,7 @@ class Profile:
             body.languages = list(self.languages)
         if self.body_type:
             body.model = {"juliette": "pepper"}.get(self.body_type, self.body_type)
+        body.silent_events = {event for event, declared in self.events.items() if not declared}
 
     def apply_services(self, services: dict[str, Any]) -> None:
         """Speech pace and the beep's extra time as measured; the memory values read."""
@@ -135,6 +139,12 @@ def record_profile(robot: Any, source: str = "", speed: float = 1.0) -> Profile:
         value = _ask(lambda k=key: robot.call("ALMemory", "getData", k))
         if value is not None:
             profile.memory[key] = value
+    declared = _ask(lambda: robot.call("ALMemory", "getEventList"))
+    if declared is not None:
+        from nao_trainer.robot.model import default_model
+
+        names = {str(x) for x in declared}
+        profile.events = {key: key in names for _, key in default_model().health.items()}
     profile.naoqi_version = _ask(lambda: robot.call("ALSystem", "systemVersion"))
     profile.body_type = profile.memory.get("RobotConfig/Body/Type")
     languages = _ask(lambda: robot.call("ALTextToSpeech", "getAvailableLanguages"))
@@ -171,6 +181,8 @@ def diff(ours: Profile, theirs: Profile, documented_only: bool = False) -> list[
             note(key, getattr(ours, key), getattr(theirs, key))
     for key in sorted(theirs.memory):
         note(f"memory[{key}]", ours.memory.get(key), theirs.memory[key])
+    for key in sorted(theirs.events):
+        note(f"events[{key}]", ours.events.get(key), theirs.events[key])
     for key in sorted(theirs.signatures):
         note(f"signatures[{key}]", ours.signatures.get(key), theirs.signatures[key])
     note("without", sorted(ours.without), sorted(theirs.without))

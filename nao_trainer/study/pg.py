@@ -123,6 +123,10 @@ def create(conn, prefix: str, sequences: dict[str, list[str]], arm_configs: dict
     CREATE UNIQUE INDEX sessions_done_once ON sessions (pseudonym, number) WHERE status IN ('completed', 'time limit');
     CREATE TABLE unblindings (id serial PRIMARY KEY, time timestamptz NOT NULL DEFAULT now(),
                               who name NOT NULL, reason text NOT NULL);
+    CREATE TABLE amendments (id serial PRIMARY KEY, time timestamptz NOT NULL DEFAULT now(),
+                             who name NOT NULL DEFAULT session_user, reason text NOT NULL, old_sha256 text NOT NULL,
+                             new_sha256 text NOT NULL, enrolled_at_amendment int NOT NULL,
+                             changes jsonb NOT NULL DEFAULT '[]', study_config text NOT NULL);
     REVOKE ALL ON ALL TABLES IN SCHEMA public FROM PUBLIC;
     REVOKE CREATE ON SCHEMA public FROM PUBLIC;
 
@@ -133,14 +137,18 @@ def create(conn, prefix: str, sequences: dict[str, list[str]], arm_configs: dict
       FROM participants pa JOIN sites si ON si.name = pa.site WHERE si.role = session_user;
 
     CREATE VIEW site_sessions AS
-      SELECT s.key, s.pseudonym, s.number, s.folder, s.status, s.entry ->> 'ended' AS ended
+      SELECT s.key, s.pseudonym, s.number, s.folder, s.status, s.entry ->> 'ended' AS ended, s.recorded
       FROM sessions s JOIN participants pa ON pa.pseudonym = s.pseudonym JOIN sites si ON si.name = pa.site
       WHERE si.role = session_user;
 
     CREATE FUNCTION study_info() RETURNS jsonb LANGUAGE sql STABLE SECURITY DEFINER
       SET search_path = public, pg_temp AS $$
-      SELECT jsonb_object_agg(key, value) || jsonb_build_object('role',
+      SELECT jsonb_object_agg(key, value) || jsonb_build_object(
+               'earlier_sha256', (SELECT coalesce(jsonb_agg(old_sha256), '[]') FROM amendments), 'role',
                CASE WHEN EXISTS (SELECT 1 FROM sites WHERE role = session_user) THEN 'site'
+                    WHEN session_user = (SELECT tableowner FROM pg_tables WHERE schemaname = 'public'
+                                         AND tablename = 'meta')
+                         OR (SELECT rolsuper FROM pg_roles WHERE rolname = session_user) THEN 'admin'
                     WHEN pg_has_role(session_user, '{st}', 'MEMBER') THEN 'statistician' ELSE 'other' END,
                'site', (SELECT name FROM sites WHERE role = session_user))
       FROM meta WHERE key IN ('schema_version', 'prefix', 'protocol_sha256', 'study_config_sha256', 'protocol_base',
@@ -255,8 +263,8 @@ def create(conn, prefix: str, sequences: dict[str, list[str]], arm_configs: dict
           record_session(text, text, int, text, text, jsonb, jsonb), withdraw(text, text, text) TO {op};
     GRANT EXECUTE ON FUNCTION study_info() TO {op}, {st};
     GRANT EXECUTE ON FUNCTION unblind(text) TO {st};
-    GRANT SELECT ON unblindings, sessions, sites, meta TO {st};
-    GRANT SELECT (pseudonym, number, site, consent_date, consent_version, enrolled, withdrawn)
+    GRANT SELECT ON unblindings, sessions, sites, meta, amendments TO {st};
+    GRANT SELECT (pseudonym, number, site, stratum, consent_date, consent_version, enrolled, withdrawn)
           ON participants TO {st};
     """
     with conn.transaction():
@@ -355,7 +363,7 @@ def study_info(conn) -> dict[str, Any]:
 
 def site_sessions(conn) -> list[dict[str, Any]]:
     rows = call(conn, "study next", "SELECT key, pseudonym, number, folder, status, ended FROM site_sessions "
-                "ORDER BY pseudonym, number")
+                "ORDER BY pseudonym, number, recorded")
     return [dict(zip(("key", "pseudonym", "number", "folder", "status", "ended"), r)) for r in rows]
 
 

@@ -15,12 +15,15 @@ once, when the server is back; a session whose process was killed is recorded as
 The statistician's folder (a copy too, with the sites' ``sessions/`` folders copied into its own) is
 analysed and exported through :func:`statistician_study`: the sessions the registry lists, each folder
 checked against the checksums the site recorded, and the arms read through the logged unblinding.
+
+:func:`amend` (the administrator) changes the registry's protocol; each folder's copy follows at its next
+command (:func:`open_protocol`). ``study next --resume`` continues the participant's interrupted last
+session on the laptop that ran it, under its key (:func:`_resume`).
 """
 from __future__ import annotations
 
 import datetime as dt
 import json
-import os
 import re
 import socket
 import sys
@@ -70,8 +73,6 @@ def init(protocol_path: Path, out: Path, url: str, stratify_by_site: bool,
     protocol = load_protocol(protocol_path)
     if protocol.allocation.strata and stratify_by_site:
         raise ConfigError("--stratify-by-site: the protocol has strata of its own; use one or the other")
-    if protocol.allocation.strata:
-        raise ConfigError(f"{protocol_path}: strata other than the site are not supported on PostgreSQL yet")
     draw = entropy_rng(allocation_seed)
     conn = pg.connect(url, autocommit=True)
     with conn:
@@ -111,9 +112,16 @@ def site_add(root: Path, name: str) -> tuple[str, str]:
     return role, password
 
 
-def enrol(root: Path, consent_date: str, consent_version: str) -> str:
+def enrol(root: Path, consent_date: str, consent_version: str, strata: dict[str, str] | None = None) -> str:
+    """The next pseudonym of the connecting site; ``strata``: the participant's level of each of the protocol's
+    strata (``--stratum NAME=LEVEL``), checked against the protocol as on one laptop."""
+    from nao_trainer.study.registry import _parse_date, _stratum_key
+
+    day = _parse_date(consent_date)
     with connect(root) as conn:
-        return pg.enrol(conn, consent_date, consent_version)
+        info = pg.study_info(conn)
+        key = _stratum_key(_study(root, info, open_protocol(root, info)), strata or {})
+        return pg.enrol(conn, day, consent_version, key)
 
 
 def status_lines(root: Path) -> list[str]:
@@ -163,9 +171,18 @@ def open_protocol(root: Path, info: dict[str, Any]) -> Protocol:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         text = info["protocol_text"]
-        write_text_atomic(path, text)
+        try:
+            write_text_atomic(path, text)
+        except OSError as exc:
+            raise DataError(f"{path}: cannot restore the protocol copy from the registry ({exc.strerror})") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise DataError(f"{path}: cannot read ({exc})") from None
+    if protocol_hash(text) != info["protocol_sha256"] and protocol_hash(text) in info.get("earlier_sha256", []):
+        try:  # the version an amendment replaced: the registry's text is the study's protocol now
+            write_text_atomic(path, info["protocol_text"])
+        except OSError as exc:
+            raise DataError(f"{path}: cannot write the amended protocol from the registry ({exc.strerror})") from None
+        text = info["protocol_text"]
     if protocol_hash(text) != info["protocol_sha256"]:
         raise DataError(f"{path}: not the protocol frozen in the registry (hash differs); copy protocol.yaml from "
                         "the study's administrator again (or delete it: the next command restores it)")
@@ -222,11 +239,12 @@ def _outbox(root: Path) -> list[tuple[Path, dict[str, Any]]]:
     for path in sorted((Path(root) / OUTBOX).glob("*.json")):
         try:
             entry = json.loads(path.read_text(encoding="utf-8"))
-            assert isinstance(entry, dict) and isinstance(entry["key"], str) and isinstance(entry["pseudonym"], str) \
-                and type(entry["number"]) is int and isinstance(entry["status"], str)
-        except (OSError, ValueError, KeyError, AssertionError, RecursionError):
+        except (OSError, ValueError, RecursionError):
+            entry = None
+        if not (isinstance(entry, dict) and all(isinstance(entry.get(k), str) for k in ("key", "pseudonym", "status"))
+                and type(entry.get("number")) is int and entry["key"] == path.stem):
             raise DataError(f"{path}: not a session entry nao-trainer wrote (edited or torn); move it out of "
-                            f"{path.parent} and run the command again") from None
+                            f"{path.parent} and run the command again")
         out.append((path, entry))
     return out
 
@@ -313,8 +331,10 @@ def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any, pr
 
     progress = progress or sys.stderr
     if resume:
-        raise ConfigError("study next --resume: not available on a PostgreSQL registry; run `study next` without it "
-                          "(the interrupted session stays on record, and the participant's next session follows)")
+        given = [k for k, v in flags.items() if v is not None]
+        if given:
+            raise ConfigError(f"--resume continues a session with its own configuration; drop the flags for "
+                              f"{', '.join(given)}")
     with connect(root) as conn:
         info = _role(conn, root, "study next", "site")
         protocol = open_protocol(root, info)
@@ -323,8 +343,11 @@ def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any, pr
         with connect(root) as conn:
             flush(root, conn, pseudonym, progress)
             got = pg.session_config(conn, pseudonym)
-        number = int(got["next_session"])
+            mine = [x for x in pg.site_sessions(conn) if x["pseudonym"] == pseudonym]
         per = protocol.sessions.per_participant
+        if resume:
+            return _resume(root, study, info, mine, pseudonym, options, progress)
+        number = int(got["next_session"])
         if number > per:
             raise DataError(f"{pseudonym}: has completed all {per} sessions of the protocol")
         warning = ""
@@ -354,6 +377,30 @@ def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any, pr
                   f"registry): run `nao-trainer study record {root}` when the network is back", file=progress,
                   flush=True)
         return plan, result
+
+
+def _resume(root: Path, study, info: dict[str, Any], sessions: list[dict[str, Any]], pseudonym: str, options: Any,
+            progress: TextIO):
+    """``study next --resume`` on a site's laptop: the participant's last session, when the registry has it as
+    interrupted and its folder is on this laptop, continued under its own key (``session.resume``)."""
+    from nao_trainer.session.resume import prepare_resume
+    from nao_trainer.study.runner import BLIND_LABEL, DONE, NextSession, check_blinding, play
+
+    last = sessions[-1] if sessions else None
+    if last is None or last["status"] in DONE or last["status"] == "duplicate" or not last["folder"]:
+        raise DataError(f"{pseudonym}: no interrupted session to resume; run the next one without --resume")
+    config, resumption = prepare_resume(study.sessions_dir / last["folder"])
+    plan = NextSession(pseudonym, "", int(last["number"]), config, "", resumption, key=last["key"])
+    check_blinding(study, plan, options)
+    print(f"study {study.protocol.name}: {pseudonym}, session {plan.number} of "
+          f"{study.protocol.sessions.per_participant} (resumed), {BLIND_LABEL} (site {info['site']})",
+          file=progress, flush=True)
+    send = _recorder(root, progress)
+    result = play(study, plan, options, progress, record=send)
+    if send.failed and send.failed[-1] != "running":
+        print(f"study next: {pseudonym}'s session {plan.number} is kept in {Path(root) / OUTBOX} (not yet in the "
+              f"registry): run `nao-trainer study record {root}` when the network is back", file=progress, flush=True)
+    return plan, result
 
 
 def withdraw(root: Path, pseudonym: str, data: str, reason: str = "") -> tuple[dict[str, Any], list[Path]]:
@@ -409,22 +456,24 @@ def statistician_study(root: Path, what: str):
         if protocol.blinding and not log:
             raise DataError(f"{root}: the study is blinded; its arms are revealed only after `nao-trainer study "
                             f"unblind {root} --reason TEXT` (the statistician; the unblinding is logged)")
-        by_site = bool(pg.call(conn, what, "SELECT value = 'true'::jsonb FROM meta WHERE key = 'stratify_by_site'")
-                       [0][0])
-        people = pg.call(conn, what, "SELECT pseudonym, number, site, consent_date::text, consent_version, "
+        people = pg.call(conn, what, "SELECT pseudonym, number, site, stratum, consent_date::text, consent_version, "
                          "enrolled::text, withdrawn FROM participants ORDER BY number")
         rows = pg.call(conn, what, "SELECT key, pseudonym, number, folder, status, files, entry FROM sessions "
                        "ORDER BY pseudonym, number, recorded")
+        amendments = [dict(zip(("time", "reason", "old_sha256", "new_sha256", "enrolled_at_amendment", "changes",
+                                "study_config"), r))
+                      for r in pg.call(conn, what, "SELECT time::text, reason, old_sha256, new_sha256, "
+                                       "enrolled_at_amendment, changes, study_config FROM amendments ORDER BY id")]
         arms = dict(pg.unblind(conn, f"{what}: the arms read for it"))
     sessions: dict[str, list[dict[str, Any]]] = {}
     for key, pseud, number, folder, status, files, entry in rows:
         sessions.setdefault(pseud, []).append({**(entry or {}), "key": key, "number": number, "folder": folder,
                                                "status": status, "files": files})
     participants = []
-    keys = ("pseudonym", "number", "site", "consent_date", "consent_version", "enrolled", "withdrawn")
+    keys = ("pseudonym", "number", "site", "stratum", "consent_date", "consent_version", "enrolled", "withdrawn")
     for row in people:
         p = dict(zip(keys, row))
-        p.update(stratum=p["site"] if by_site else "", allocation_index=None, arm=arms[p["pseudonym"]],
+        p.update(allocation_index=None, arm=arms[p["pseudonym"]],
                  sessions=sessions.get(p["pseudonym"], []))
         participants.append(p)
         if p["withdrawn"] and p["withdrawn"].get("data") == "delete":
@@ -444,4 +493,91 @@ def statistician_study(root: Path, what: str):
                                     f"its site recorded ({p['pseudonym']} session {s['number']}); copy the folder "
                                     "from the site again")
     unblindings = [{"time": t, "who": w, "reason": r} for t, w, r in log]
-    return _study(root, info, protocol, {"participants": participants, "unblindings": unblindings})
+    return _study(root, info, protocol, {"participants": participants, "unblindings": unblindings,
+                                         "amendments": amendments})
+
+
+def amend(root: Path, protocol_path: Path, reason: str, change_arms: bool = False) -> dict[str, Any]:
+    """``study amend`` by the study's administrator (the role that ran ``study init``), with the rules of one
+    laptop (``registry.amend``): once someone is enrolled, what the allocation was drawn from cannot change,
+    and what an arm does only with ``change_arms``. Registry, arms' configurations and the amendment's
+    record change in one transaction; each site's copy of the protocol is replaced by the registry's text
+    at its next command (the old version is in the amendments)."""
+    from nao_trainer.study.registry import allocation_sequence, arm_changes, entropy_rng, file_sha256
+
+    if not reason.strip() or "\n" in reason.strip():
+        raise ConfigError("--reason: an amendment needs its reason (one line)")
+    with connect(root) as conn:
+        info = pg.study_info(conn)
+        if info["role"] != "admin":
+            raise ConfigError(f"study amend: the study's administrator only (the role that ran `study init`); this "
+                              f"is {'site ' + info['site'] if info['role'] == 'site' else info['role']}'s role")
+        old = open_protocol(root, info)
+        new = load_protocol(protocol_path, fallback=Path(info["protocol_base"]))
+        new_config_sha = file_sha256(new.study_config)
+        if new.sha256 == old.sha256 and new_config_sha == info["study_config_sha256"]:
+            raise ConfigError(f"{protocol_path}: identical to the frozen protocol; nothing to amend")
+        what = "study amend"
+        enrolled = pg.call(conn, what, "SELECT count(*) FROM participants")[0][0]
+        changes: list[str] = []
+        drawn = lambda p: ([(a.name, a.ratio) for a in p.arms], p.allocation.block_size,  # noqa: E731
+                           p.allocation.strata)
+        if enrolled:
+            if drawn(new) != drawn(old):
+                raise ConfigError(f"{protocol_path}: changes the arms or the allocation after enrolment began; "
+                                  "only other keys can be amended (start a new study for a new design)")
+            changes = arm_changes(old, new)
+            if changes and not change_arms:
+                raise ConfigError(f"{protocol_path}: {'; '.join(changes)} while {enrolled} participant(s) are "
+                                  "enrolled; if that is intended, give --change-arms (recorded in the registry and "
+                                  "reported by the analysis)")
+            shortest = pg.call(conn, what, "SELECT min(n) FROM (SELECT count(*) AS n FROM allocation GROUP BY "
+                               "stratum) c")[0][0]
+            if new.target_n > old.target_n and new.target_n > (shortest or 0):
+                raise ConfigError(f"{protocol_path}: target_n {new.target_n} exceeds the allocation sequence drawn "
+                                  "at init; start a new study")
+        per_site = bool(pg.call(conn, what, "SELECT 1 FROM meta WHERE key = 'draw_per_site'"))
+        if per_site and new.allocation.strata:
+            raise ConfigError(f"{protocol_path}: strata of its own in a study stratified by site; use one or the other")
+        psycopg = pg._psycopg()
+        try:
+            with conn.transaction():
+                conn.execute("LOCK TABLE participants IN SHARE ROW EXCLUSIVE MODE")  # no enrolment meanwhile
+                if conn.execute("SELECT count(*) FROM participants").fetchone()[0] != enrolled:
+                    raise ConfigError(f"{root}: someone was enrolled meanwhile; run the amendment again")
+                entry = {"reason": reason.strip(), "old_sha256": old.sha256, "new_sha256": new.sha256,
+                         "enrolled_at_amendment": enrolled, "changes": changes, "study_config": str(new.study_config)}
+                conn.execute("INSERT INTO amendments (reason, old_sha256, new_sha256, enrolled_at_amendment, changes, "
+                             "study_config) VALUES (%s, %s, %s, %s, %s, %s)",
+                             (entry["reason"], old.sha256, new.sha256, enrolled, json.dumps(changes),
+                              entry["study_config"]))
+                for key, value in {"protocol_text": new.text, "protocol_sha256": new.sha256,
+                                   "study_config_sha256": new_config_sha, "study_config": str(new.study_config),
+                                   "protocol_base": new.base, "target_n": new.target_n}.items():
+                    conn.execute("INSERT INTO meta VALUES (%s, %s) ON CONFLICT (key) DO UPDATE SET value = "
+                                 "EXCLUDED.value", (key, json.dumps(value)))
+                if not enrolled:  # nobody allocated yet: the sequence of the new design
+                    sites = [r[0] for r in conn.execute("SELECT name FROM sites ORDER BY name")]
+                    conn.execute("DELETE FROM allocation")
+                    conn.execute("DELETE FROM arms")
+                    for a in new.arms:
+                        conn.execute("INSERT INTO arms VALUES (%s, %s)",
+                                     (a.name, json.dumps(a.config_overrides(), sort_keys=True)))
+                    draw = entropy_rng()
+                    sequences = {s: allocation_sequence(new, draw)[""] for s in sites} if per_site \
+                        else allocation_sequence(new, draw)
+                    with conn.cursor() as cur:
+                        cur.executemany("INSERT INTO allocation VALUES (%s, %s, %s)",
+                                        [(k, i, arm) for k, seq in sequences.items() for i, arm in enumerate(seq)])
+                else:
+                    for a in new.arms:
+                        conn.execute("UPDATE arms SET config = %s WHERE name = %s",
+                                     (json.dumps(a.config_overrides(), sort_keys=True), a.name))
+                entry["time"] = conn.execute("SELECT now()::text").fetchone()[0]
+        except psycopg.errors.InsufficientPrivilege as exc:
+            raise pg._refused(exc, what) from None
+    try:
+        write_text_atomic(Path(root) / "protocol.yaml", new.text)
+    except OSError:
+        pass  # the registry holds the text; the next command restores the copy
+    return entry

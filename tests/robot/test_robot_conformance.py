@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 from nao_trainer.files import PROJECT_ROOT
+from nao_trainer.robot.model import default_model
 from nao_trainer.robot.naoqi import NaoqiRobot
 from nao_trainer.robot.profile import CALLS, Profile, diff, load_profile, standin_profile
 from nao_trainer.robot.standin import StandIn
@@ -30,7 +31,9 @@ KNOWN = {
 def test_the_docs_profile_cites_a_page_or_a_guess_for_every_value():
     docs = load_profile(DOCS)
     assert set(docs.signatures) == {f"{s}.{m}" for s, ms in CALLS.items() for m in ms}  # every method called
+    assert set(docs.events) == {key for _, key in default_model().health.items()}  # every event the session watches
     for key in [*(f"signatures[{k}]" for k in docs.signatures), *(f"memory[{k}]" for k in docs.memory),
+                *(f"events[{k}]" for k in docs.events),
                 "naoqi_version", "languages", "wake_up_result", "say_s_per_char", "play_sine_extra_s"]:
         assert docs.cites.get(key), f"{key} cites no page"
 
@@ -41,6 +44,21 @@ def test_the_standin_defaults_follow_the_documentation_except_where_it_says_why(
     assert documented == KNOWN, sorted(documented - KNOWN)
     guesses = diff(ours, load_profile(DOCS))  # what a lab's recording settles (printed by hardware-check --record)
     assert any(line.startswith("languages:") and "guess" in line for line in guesses)
+
+
+def test_a_robot_without_battery_low_shows_in_its_profile_against_the_docs_guess():
+    """NAOqi 2.8.6 removed ALBattery/BatteryLow (the 2.8 docs' news/2.8/whatsnew2.8.6.html): a stand-in playing a
+    2.8.7 NAO declares no such event (ALMemory.getEventList over qi), its recorded profile says so, and the diff
+    against the docs profile names the guess; one recorded with BatteryLow missing is served without it."""
+    newer = standin_profile(speed=10.0, profile=Profile(source="a 2.8.7 NAO", naoqi_version="2.8.7.4"))
+    assert newer.events["ALBattery/BatteryLow"] is False and newer.events["BatteryChargeChanged"] is True
+    (line,) = [ln for ln in diff(newer, load_profile(DOCS)) if ln.startswith("events[")]
+    assert line.startswith("events[ALBattery/BatteryLow]: stand-in/ours False, robot/theirs True (guess: deprecated")
+    assert "news/2.8/whatsnew2.8.6.html" in line
+    assert standin_profile().events["ALBattery/BatteryLow"] is True  # the stand-in's 2.8.5 default: the guess
+    served = standin_profile(speed=10.0, profile=Profile(naoqi_version="2.8.5.10",
+                                                         events={"ALBattery/BatteryLow": False}))
+    assert served.events["ALBattery/BatteryLow"] is False
 
 
 def test_a_recorded_profile_is_served_back_by_the_standin(tmp_path):

@@ -24,6 +24,7 @@ PAGES = {
     # checked in the NAOqi 2.8.7.4 documentation mirrored in the public repository Cartheur-Nao/aldeb-2.8.7.4:
     "naoqi/sensors/alchestbutton-api.html", "family/nao_user_guide/chest_button_usages.html",
     "family/nao_technical/lola/actuator_sensor_names.html",
+    "naoqi/sensors/albattery.html", "news/2.8/whatsnew2.8.6.html",
 }
 #: The control service's methods that steer the stand-in (timing, links, the transcript) rather than show what a
 #: robot does: nothing to cite.

@@ -103,6 +103,27 @@ def test_battery_low_finishes_the_turn_then_ends_cleanly_with_what_to_do(tmp_pat
                for e in events)
 
 
+@pytest.mark.parametrize("version", ["2.8.5.10", "2.8.7.4"])
+def test_battery_low_is_seen_once_with_or_without_the_removed_battery_low_event(tmp_path, version):
+    """NAOqi 2.8.6 removed ALBattery/BatteryLow (news/2.8/whatsnew2.8.6.html): a stand-in playing 2.8.7.4 raises only
+    BatteryChargeChanged 10 (albattery-api.html), a 2.8.5 one both; either way the session sees one battery low,
+    finishes the turn and ends cleanly. Without the BatteryChargeChanged watch, the 2.8.7 session plays all 4 turns."""
+    from nao_trainer.robot.profile import Profile
+
+    robot = StandIn.start(speed=50, profile=Profile(naoqi_version=version))
+    try:
+        robot.control.act_after("ALAudioPlayer.playSine", "battery_low", [])
+        result = _play(_config(tmp_path, robot.url, **{"session.turns": 4}), RunOptions(quiet=True))
+    finally:
+        robot.stop()
+    assert result.status == "battery low" and result.exit_code == 0
+    low = [e for e in read_events(result.path) if e["event"] == "robot_health" and e["kind"] == "battery_low"]
+    assert len(low) == 1 and "charge the robot" in low[0]["decision"]
+    if version == "2.8.7.4":
+        assert low[0]["detail"] == "battery low (10%): it will soon need charging" and low[0]["value"] == 10
+    assert len([r for r in read_turns(result.path) if r["success"] in ("True", "False")]) == 1
+
+
 def test_a_chest_press_during_a_trial_replays_that_turn(tmp_path, standin):
     standin.control.act_after("ALAudioPlayer.playSine", "chest", [1])  # NAO says its IP over turn 1's answer
     result = _play(_config(tmp_path, standin.url), RunOptions(quiet=True))

@@ -393,3 +393,41 @@ def test_a_counted_session_is_never_set_back_nor_counted_twice(study):
         assert pg.session_config(op, pseud)["next_session"] == 2
     rows = pg.call(study.admin, "rows", "SELECT key, folder, status, entry FROM sessions ORDER BY key")
     assert rows == [("k1", "f1", "completed", {"ended": "x"}), ("k2", "f2", "duplicate", {})]
+
+
+def test_protocol_strata_on_a_postgresql_registry(pg_cluster, tmp_path, monkeypatch, capsys):
+    """A protocol with strata of its own on PostgreSQL: `study enrol --stratum` takes the next slot of that
+    stratum's sequence (one sequence per level); a missing or unknown level is refused in one line."""
+    text = PROTOCOL.read_text().replace("strata: {}", "strata: {age: [under60, over60]}")
+    protocol = tmp_path / "strata.yaml"
+    protocol.write_text(text.replace("../studies/demo.yaml", str((PROTOCOL.parent / "../studies/demo.yaml").resolve())))
+    db = "r_" + uuid.uuid4().hex[:10]
+    passfile = tmp_path / "pgpass"
+    lines = [f"*:*:*:postgres:{pg_cluster.password}"]
+    passfile.write_text(lines[0] + "\n")
+    passfile.chmod(0o600)
+    monkeypatch.setenv("PGPASSFILE", str(passfile))
+    monkeypatch.setenv("PGUSER", "postgres")
+    with pg.connect(pg_cluster.url(), autocommit=True) as c:
+        c.execute(f"CREATE DATABASE {db}")
+    study = tmp_path / "study"
+    code, out = _cli(capsys, "init", protocol, "--out", study, "--registry", pg_cluster.url(db))
+    assert code == 0, out
+    code, out = _cli(capsys, "site", "add", study, "north")
+    role = out.split("role ")[1].split(";")[0]
+    lines.append(f"*:*:*:{role}:{out.strip().rsplit(' ', 1)[1]}")
+    passfile.write_text("\n".join(lines) + "\n")
+    monkeypatch.setenv("PGUSER", role)
+    levels = ["over60", "under60", "over60", "over60"]
+    for level in levels:
+        code, out = _cli(capsys, "enrol", study, "--consent-date", "2026-12-01", "--consent-version", "v1",
+                         "--stratum", f"age={level}")
+        assert code == 0, out
+    for bad, says in ((["--stratum", "age=teen"], "use one of under60, over60"), ([], "stratum 'age' missing")):
+        code, out = _cli(capsys, "enrol", study, "--consent-date", "2026-12-01", "--consent-version", "v1", *bad)
+        assert code == 2 and out.count("\n") == 1 and says in out, out
+    with pg.connect(pg_cluster.url(db), autocommit=True) as c:
+        rows = c.execute("SELECT stratum, allocation_index FROM participants ORDER BY number").fetchall()
+        strata = {r[0] for r in c.execute("SELECT DISTINCT stratum FROM allocation")}
+    assert strata == {"age=under60", "age=over60"}
+    assert rows == [("age=over60", 0), ("age=under60", 0), ("age=over60", 1), ("age=over60", 2)]

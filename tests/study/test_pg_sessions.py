@@ -319,8 +319,8 @@ def load_sha(trial) -> str:
 def test_withdraw_refusals_and_the_statisticians_checks_on_postgresql(trial, capsys):
     """`study withdraw` at the participant's site (recorded in the registry; --data delete removes the
     laptop's folders; no further session); the statistician's export refuses a session folder not copied
-    or altered, in one line; a site's role is refused the export; amend and next --resume are refused in
-    one line that says why."""
+    or altered, in one line; a site's role is refused the export and the amendment, and --resume of a
+    session that completed."""
     north = trial.as_("north")
     for _ in range(2):
         assert cli(capsys, "enrol", north, "--consent-date", "2026-12-01", "--consent-version", "v1")[0] == 0
@@ -334,9 +334,9 @@ def test_withdraw_refusals_and_the_statisticians_checks_on_postgresql(trial, cap
     code, _, err = cli(capsys, "export", north, "--bids", trial.tmp / "x")
     one_line(code, err, "the statistician's role only")
     code, _, err = cli(capsys, "amend", north, trial.tmp / "protocol.yaml", "--reason", "r")
-    one_line(code, err, "study amend: not available on a PostgreSQL registry")
-    code, _, err = cli(capsys, "next", north, "P002", "--resume", "--no-keys")
-    one_line(code, err, "not available on a PostgreSQL registry")
+    one_line(code, err, "study amend: the study's administrator only")
+    code, _, err = cli(capsys, "next", north, "P001", "--resume", "--no-keys")
+    one_line(code, err, "P001: no interrupted session to resume")
     code, _, err = cli(capsys, "withdraw", trial.as_("south"), "P001", "--data", "keep")
     one_line(code, err, "not a participant of your site")
 
@@ -378,3 +378,80 @@ def test_killed_study_next_and_record_leave_the_registry_whole(pg_cluster, tmp_p
 
     result = run_sessions(pg_cluster, tmp_path, kills=2, seed=int.from_bytes(os.urandom(4), "little"))
     assert result.trials == 2 and not result.failures, result.failures
+
+
+def test_a_killed_session_is_resumed_under_its_key(trial, capsys):
+    """SIGKILL after a turn of a slow session; `study next --resume` records the killed one from the outbox
+    (interrupted), continues its folder under the same key and completes it: one row, counted once."""
+    north = trial.as_("north")
+    assert cli(capsys, "enrol", north, "--consent-date", "2026-12-01", "--consent-version", "v1")[0] == 0
+    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "study", "next", str(north), "P001", "--no-keys",
+                             "--user-model", "1", "--turns", "5", "--speed", "12"], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, env=_env(trial.roles["north"]))
+
+    def turns() -> int:
+        found = sorted((north / "sessions").glob("P001_*/turns.csv"))
+        return len(found[0].read_text().splitlines()) - 1 if found else 0
+
+    try:
+        while turns() < 1 and proc.poll() is None:
+            threading_wait(0.05)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    assert turns() < 5, "the session ended before the kill"
+    res = subprocess.run([sys.executable, "-m", "nao_trainer", "study", "next", str(north), "P001", "--resume",
+                          "--no-keys"], capture_output=True, text=True, env=_env(trial.roles["north"]), timeout=240)
+    assert res.returncode == 0, res.stderr
+    assert "recorded as interrupted (from outbox/)" in res.stderr and "session 1 of 2 (resumed)" in res.stderr
+    rows = trial.sql("SELECT number, status, folder FROM sessions")
+    assert len(rows) == 1 and rows[0][:2] == (1, "completed") and turns() == 5
+    code, _, err = cli(capsys, "next", north, "P001", "--resume", "--no-keys")
+    assert code == 2 and "no interrupted session to resume" in err
+
+
+def test_an_edited_outbox_entry_is_one_line(trial, capsys):
+    north = trial.as_("north")
+    (north / "outbox").mkdir()
+    for text in ("{", '{"key": "other", "pseudonym": "P001", "number": 1, "status": "completed"}', "[" * 100_000):
+        (north / "outbox" / "k1.json").write_text(text)
+        code, _, err = cli(capsys, "record", north)
+        assert code == 2 and "not a session entry nao-trainer wrote" in err and len(err.strip().splitlines()) == 1
+
+
+def test_amendments_on_postgresql(trial, capsys):
+    """`study amend` by the administrator: before enrolment the sequence of the new design is drawn; after,
+    the design is refused and an arm's change needs --change-arms (then the registry holds the arm's new
+    configuration, the one `study next` receives); each site's copy of the protocol is replaced by the registry's text at its next command;
+    the export counts the amendments."""
+    admin_env = trial.roles.copy()
+    small = PROTOCOL.replace("block_size: 6", "block_size: 3")
+    (trial.tmp / "small.yaml").write_text(small)
+    trial.monkeypatch.setenv("PGUSER", "postgres")
+    code, out, err = cli(capsys, "amend", trial.admin, trial.tmp / "small.yaml", "--reason", "smaller blocks")
+    assert code == 0, err
+    from nao_trainer.study.protocol import protocol_hash
+
+    assert trial.sql("SELECT value #>> '{}' FROM meta WHERE key = 'protocol_sha256'")[0][0] == protocol_hash(small)
+    assert trial.sql("SELECT count(*) FROM allocation")[0][0] == 12
+    north = trial.as_("north")
+    assert cli(capsys, "enrol", north, "--consent-date", "2026-12-01", "--consent-version", "v1")[0] == 0
+    assert (north / "protocol.yaml").read_text() == small  # the site's copy follows the registry
+    trial.monkeypatch.setenv("PGUSER", "postgres")
+    code, _, err = cli(capsys, "amend", trial.admin, trial.tmp / "protocol.yaml", "--reason", "back")
+    assert code == 2 and "after enrolment began" in err and len(err.strip().splitlines()) == 1
+    changed = small.replace("policy.schedule: [L2]", "policy.schedule: [L3]")
+    (trial.tmp / "l3.yaml").write_text(changed)
+    code, _, err = cli(capsys, "amend", trial.admin, trial.tmp / "l3.yaml", "--reason", "harder")
+    assert code == 2 and "--change-arms" in err and len(err.strip().splitlines()) == 1
+    code, out, err = cli(capsys, "amend", trial.admin, trial.tmp / "l3.yaml", "--reason", "harder", "--change-arms")
+    assert code == 0 and "CHANGES ARMS: arm level2 changed" in out, err
+    config = trial.sql("SELECT config FROM arms WHERE name = 'level2'")[0][0]
+    assert config["policy.schedule"] == ["L3"]
+    stats = trial.as_("stats")
+    assert cli(capsys, "unblind", stats, "--reason", "check")[0] == 0
+    code, out, err = cli(capsys, "export", stats, "--bids", trial.tmp / "bids")
+    assert code == 0, err
+    assert "2 amendment(s)" in (trial.tmp / "bids" / "dataset_description.json").read_text()
+    assert (stats / "protocol.yaml").read_text() == changed
+    assert admin_env == trial.roles

@@ -11,8 +11,13 @@ Each value names the NAOqi 2.8.5 SDK page it follows (``doc/`` of the SDK):
 * heat: ``HotDeviceDetected`` (``naoqi/sensors/albodytemperature.html``: a joint, actuator or the battery
   with a non-null temperature status); at critical status the motors are set off and the robot rests
   (``naoqi/motion/reflexes-diagnosis.html``);
-* battery: ``ALBattery/BatteryLow``, "raised when the battery level is low and will soon need charging",
-  status always True (``naoqi/sensors/albattery-api.html``);
+* battery: ``ALBattery/BatteryLow`` ("raised when the battery level is low and will soon need charging", in the
+  NAOqi 2.5 ``naoqi/sensors/albattery-api.html``) is deprecated: the 2.8 documentation lists it among the events
+  removed in NAOqi 2.8.6 (``news/2.8/whatsnew2.8.6.html``, "Removal of deprecated modules, events, and methods")
+  while ``naoqi/sensors/albattery.html`` still speaks of "a BatteryLow notification"; that a 2.8.5 NAO raises it
+  is a guess (the conformance kit records it: ``events`` in a profile). So ``BatteryChargeChanged`` (the percentage
+  remaining, 2.8 ``naoqi/sensors/albattery-api.html``) is watched too: at or below ``battery_low_percent`` (a
+  guess) it counts as battery low;
 * chest button: one click makes NAO say its name and IP (``naoqi/sensors/alchestbutton.html``);
   ``ALChestButton/SimpleClickOccurred`` and, for a double click, ``ALChestButton/DoubleClickOccurred``
   (``naoqi/sensors/alchestbutton-api.html``). What a double click does, the 2.8 pages disagree on: the stiffness
@@ -43,6 +48,9 @@ class NaoSettings:
     full_battery_minutes: float = setting(60.0, kind=(int, float), min=5, max=1440,
                                           doc="minutes a full charge lasts in a session (check's estimate; "
                                               "about an hour of activity; measure yours)")
+    battery_low_percent: int = setting(15, kind=int, min=1, max=50,
+                                       doc="a charge (percent, BatteryChargeChanged) at or below which the session "
+                                           "ends after the turn in flight, as on BatteryLow (a guess)")
     heat_c_per_min: float = setting(1.0, kind=(int, float), min=0.01, max=20,
                                     doc="how fast (°C a minute) a standing NAO's leg joints warm (check's heat "
                                         "projection; a guess: measure yours)")
@@ -60,7 +68,8 @@ class NaoModel(RobotModel):
     safe_postures = SAFE_POSTURES
     buttons = dict(BUTTON_LETTERS)
     health = HealthKeys(falling="ALMotion/RobotIsFalling", fallen="robotHasFallen", hot="HotDeviceDetected",
-                        battery_low="ALBattery/BatteryLow", chest="ALChestButton/SimpleClickOccurred",
+                        battery_low="ALBattery/BatteryLow",
+                        battery_charge="BatteryChargeChanged", chest="ALChestButton/SimpleClickOccurred",
                         chest_double="ALChestButton/DoubleClickOccurred",
                         diagnosis="ALDiagnosis/RobotIsReady")
     services = tuple(Service(name) for name in TASK_SERVICES) + (

@@ -46,7 +46,8 @@ class PepperModel(RobotModel):
     safe_postures = SAFE_POSTURES
     buttons = dict(BUTTON_LETTERS)
     health = HealthKeys(falling="ALMotion/RobotIsFalling", fallen="robotHasFallen", hot="HotDeviceDetected",
-                        battery_low="ALBattery/BatteryLow", chest="ALChestButton/SimpleClickOccurred",
+                        battery_low="ALBattery/BatteryLow",
+                        battery_charge="BatteryChargeChanged", chest="ALChestButton/SimpleClickOccurred",
                         chest_double="ALChestButton/DoubleClickOccurred",
                         diagnosis="ALDiagnosis/RobotIsReady",
                         safeguard="AutonomousLife/State")

@@ -20,7 +20,8 @@ NAOqi 2.8.5 SDK documentation (``doc/`` of the SDK; pages named in docs/how-to/r
   confirm with the conformance kit); at status 3 (critical) the motors go off and ``ALMotion.wakeUp`` answers
   False until the joint cools (``naoqi/motion/reflexes-diagnosis.html``; "True if the call succeeded",
   ``naoqi/motion/control-stiffness-api.html``).
-* ``ALBattery/BatteryLow`` (True) when the battery is set low (``naoqi/sensors/albattery-api.html``).
+* A low battery (``Control.battery_low``): ``BatteryChargeChanged`` with the charge (``naoqi/sensors/albattery-api.html``)
+  and, below NAOqi 2.8.6 (which removed it: ``news/2.8/whatsnew2.8.6.html``), ``ALBattery/BatteryLow`` True (a guess).
 * ``ALAutonomousLife.setState`` refused with "Calls to the setState method are not currently allowed" when
   ``Control.refuse_life`` is on (seen on robots whose getting-started wizard was not finished).
 
@@ -47,6 +48,19 @@ NAOQI_VERSION = "2.8.5.10"
 JOINT_C = 35.0
 
 
+def raises_battery_low(version: str) -> bool:
+    """Whether a NAOqi of ``version`` raises ``ALBattery/BatteryLow`` (removed in 2.8.6: ``Control.battery_low``)."""
+    return _version(version) < (2, 8, 6)
+
+
+def _version(version: str) -> tuple[int, ...]:
+    parts = []
+    for part in str(version).split(".")[:3]:
+        digits = "".join(ch for ch in part if ch.isdigit())
+        parts.append(int(digits) if digits else 0)
+    return tuple(parts)
+
+
 @dataclass
 class Body:
     """The robot's state shared by the services; thread-safe through ``lock``."""
@@ -69,6 +83,8 @@ class Body:
     temperatures: dict = field(default_factory=dict)
     life_refused: bool = False
     chest_double: str = "stiffness"  # what a double click of the chest button does (Control.chest)
+    #: Events this robot never raises nor declares (a recorded profile's ``events`` that are False).
+    silent_events: set = field(default_factory=set)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def check_awake(self, what: str) -> None:

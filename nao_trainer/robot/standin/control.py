@@ -10,7 +10,8 @@ import qi  # noqa: E402
 
 from nao_trainer.errors import ConfigError  # noqa: E402
 from nao_trainer.robot.standin.body import (SLEEP_HOLD_S, STOP_ACTIVITY_HOLD_S, AudioDevice,  # noqa: E402
-                                             AutonomousLife, Battery, Body, BodyTemperature, System)
+                                             AutonomousLife, Battery, Body, BodyTemperature, System,
+                                             raises_battery_low)
 from nao_trainer.robot.standin.recorder import Channel, Recorder, check_speed  # noqa: E402
 from nao_trainer.robot.standin.services import (PRESS_HOLD_S, Memory, AnimatedSpeech, AudioPlayer,  # noqa: E402
                                                 Leds, Motion, RobotPosture, TextToSpeech, button_key)
@@ -99,8 +100,13 @@ class Control:
 
     @qi.bind(qi.Void, [qi.Int32])
     def set_battery(self, percent: int) -> None:
+        """The charge (percent); a change raises ``BatteryChargeChanged`` with it
+        (http://doc.aldebaran.com/2-8/naoqi/sensors/albattery-api.html)."""
         with self._body.lock:
-            self._body.battery = max(0, min(100, int(percent)))
+            before, self._body.battery = self._body.battery, max(0, min(100, int(percent)))
+            after = self._body.battery
+        if after != before:
+            self._memory.emit("BatteryChargeChanged", after)
 
     @qi.bind(qi.Void, [qi.Float, qi.Float])
     def set_latency(self, round_trip_s: float, beep_s: float) -> None:
@@ -249,13 +255,19 @@ class Control:
 
     @qi.bind(qi.Void, [])
     def battery_low(self) -> None:
-        """The battery runs low: charge 10 % and ``ALBattery/BatteryLow`` (True). ALBattery's events are on
-        http://doc.aldebaran.com/2-8/naoqi/sensors/albattery-api.html; the key's exact name and value are a guess to
-        confirm with the conformance kit."""
+        """The battery runs low: the charge drops to 10 % (``BatteryChargeChanged`` 10, "raised when the battery level
+        percentage changes", http://doc.aldebaran.com/2-8/naoqi/sensors/albattery-api.html) and, on a NAOqi older than
+        2.8.6, ``ALBattery/BatteryLow`` True. The 2.8 documentation lists ``ALBattery/BatteryLow`` among the events
+        removed in 2.8.6 (http://doc.aldebaran.com/2-8/news/2.8/whatsnew2.8.6.html), its description comes from the
+        2.5 pages, and http://doc.aldebaran.com/2-8/naoqi/sensors/albattery.html still names "a BatteryLow
+        notification": that a 2.8.5 NAO raises it, and with True, is a guess to confirm with the conformance kit."""
         self._rec.record("NaoTrainerStandIn", "battery_low", [])
         with self._body.lock:
             self._body.battery = min(self._body.battery, 10)
-        self._memory.emit("ALBattery/BatteryLow", True)
+            charge, raises = self._body.battery, raises_battery_low(self._body.version)
+        self._memory.emit("BatteryChargeChanged", charge)
+        if raises:
+            self._memory.emit("ALBattery/BatteryLow", True)
 
     @qi.bind(qi.Void, [])
     def safeguard(self) -> None:

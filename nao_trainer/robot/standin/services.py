@@ -14,7 +14,7 @@ os.environ.setdefault("QI_LOG_LEVEL", "silent")  # qi logs to fd 1 otherwise; mu
 import qi  # noqa: E402
 
 from nao_trainer.ports import BUTTON_LETTERS  # noqa: E402
-from nao_trainer.robot.standin.body import JOINT_C, Body  # noqa: E402
+from nao_trainer.robot.standin.body import JOINT_C, NAOQI_VERSION, Body, raises_battery_low  # noqa: E402
 from nao_trainer.robot.standin.recorder import Channel, Recorder  # noqa: E402
 
 #: Speaking time per character at speed 1.0 (a NAO speaks roughly 12-15 characters a second).
@@ -404,6 +404,16 @@ class Memory:
         raise RuntimeError(f"ALMemory::getData: there is no data for key {key!r}")
 
     @qi.bind(qi.List(qi.String), [])
+    def getEventList(self) -> list[str]:
+        """The declared events (http://doc.aldebaran.com/2-8/naoqi/core/almemory-api.html: "a list containing the names
+        of all the declared events"): those the stand-in raises (``EVENTS``), without ``ALBattery/BatteryLow`` on a
+        NAOqi of 2.8.6 or later (``Control.battery_low``). That a NAO declares each event it raises is a guess to
+        confirm with the conformance kit."""
+        version = self._body.version if self._body is not None else NAOQI_VERSION
+        silent = self._body.silent_events if self._body is not None else set()
+        return sorted(e for e in EVENTS if e not in silent and (e != "ALBattery/BatteryLow" or raises_battery_low(version)))
+
+    @qi.bind(qi.List(qi.String), [])
     def getDataListName(self) -> list[str]:
         """The names of the stored keys (http://doc.aldebaran.com/2-8/naoqi/core/almemory-api.html)."""
         with self._lock:
@@ -411,7 +421,10 @@ class Memory:
 
     @qi.nobind  # the stand-in's own control service raises touches through it; not an ALMemory method
     def emit(self, key: str, value: Any) -> None:
-        """Set ``key`` and notify its subscribers (like NAOqi, inserting a value also raises the event)."""
+        """Set ``key`` and notify its subscribers (like NAOqi, inserting a value also raises the event); an event this
+        robot does not have (``body.silent_events``, from a recorded profile) is dropped."""
+        if self._body is not None and key in self._body.silent_events:
+            return
         with self._lock:
             self._data[key] = value
             subscribers = list(self._subscribers.get(key, ()))
@@ -423,6 +436,13 @@ class Memory:
         """Drop every subscriber (the stand-in stops)."""
         with self._lock:
             self._subscribers.clear()
+
+
+#: The events the stand-in raises (``Control``: touches, the chest button, falls, heat, the battery, life).
+EVENTS = (*BUTTON_LETTERS, "ChestButtonPressed", "ALChestButton/SimpleClickOccurred",
+          "ALChestButton/DoubleClickOccurred", "ALChestButton/TripleClickOccurred", "ALMotion/RobotIsFalling",
+          "robotHasFallen", "HotDeviceDetected", "BatteryChargeChanged", "ALBattery/BatteryLow", "AutonomousLife/State",
+          "ALDiagnosis/RobotIsReady")  # the last: declared, raised by a NAO after its start-up diagnosis only
 
 
 def _temperature_joint(key: str) -> str | None:
