@@ -141,11 +141,13 @@ def run(args) -> int:
     ceiling = ceiling_report.comparison_section(args, user_list, rows, spec.turns)
     report, paths = reports.write_comparison(Path(args.out), rows, spec, command=_command(args, ["evaluate"]),
                                              users=kind, n_users=len(user_list), policy_files=args.policy_files,
-                                             started=t0, extra={"ceiling": ceiling})
+                                             started=t0, extra={"ceiling": ceiling}, by_person=which == "sessions")
     if not args.no_plots:
         from nao_trainer.plots.evaluation import plot_evaluation
 
-        title = f"{kind} users ({len(user_list)}), {args.mdp} MDP: means and 95 % CIs over users and seeds"
+        over = f"{report['summary'][0]['people']} people" if report["summary"][0].get("unit") == "people" else \
+            "users and seeds"
+        title = f"{kind} users ({len(user_list)}), {args.mdp} MDP: means and 95 % CIs over {over}"
         paths.append(plot_evaluation(report["summary"], title, Path(args.out) / "evaluation.png"))
     if args.json:
         print(json.dumps(report))

@@ -17,7 +17,8 @@ learners by Monte Carlo over ``mc_episodes`` episodes per (user, seed).
 
 Each row is one (user, policy, seed) with the score per episode, mean engagement and success rate
 per turn, and the regret against the per-user oracle. ``summarise`` aggregates per policy with
-95 % t-intervals over users and seeds, and paired differences to a reference policy.
+95 % t-intervals over (user, seed) rows, or over PEOPLE for users that are sessions of people
+(``by_person``: a person's seeds and sessions averaged first), and paired differences to a reference policy.
 """
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from nao_trainer.core import baselines, evaluation, processes
+from nao_trainer.core import baselines, evaluation, people, processes
 from nao_trainer.core.batch import BatchLearner
 from nao_trainer.core.qlearning import METHODS, QConfig, QLearner
 from nao_trainer.errors import ConfigError
@@ -187,49 +188,80 @@ def _ci(values: np.ndarray) -> list[float] | None:
     return None if ci is None else [ci[0], ci[1]]
 
 
-def summarise(rows: list[dict[str, Any]], reference: str = "best-fixed") -> list[dict[str, Any]]:
-    """Per policy: means and 95 % t-intervals over (user, seed) rows; paired difference to ``reference``.
+def _unit(r: dict[str, Any], i: int, by_person: bool) -> str | int:
+    """The unit of row ``i``: its person, or the row itself."""
+    return people.person_of(r["user"]) if by_person else i
 
+
+def _over(values: dict[Any, list[float]]) -> np.ndarray:
+    """One value per unit, in first-seen order: the mean of its rows (a person's seeds and sessions together)."""
+    return np.array([v[0] if len(v) == 1 else float(np.mean(v)) for v in values.values()])
+
+
+def summarise(rows: list[dict[str, Any]], reference: str = "best-fixed", by_person: bool = False) -> list[dict[str, Any]]:
+    """Per policy: means and 95 % t-intervals; paired difference to ``reference``.
+
+    ``by_person`` (users that are sessions of people, ``--users sessions``): the unit is the PERSON,
+    a person's rows (seeds and sessions) averaged first, so means, intervals and ``people`` count
+    people (48 in the published data, not 50 sessions). Otherwise the unit is the (user, seed) row.
     The paired difference compares each row with the reference's row of the same user (the
-    reference has one row per user); its interval is over the same (user, seed) rows.
+    reference has one row per user), averaged per unit like the values.
     """
     policies = list(dict.fromkeys(r["policy"] for r in rows))
     ref = {r["user"]: r for r in rows if r["policy"] == reference}
     out = []
     for pol in policies:
         mine = [r for r in rows if r["policy"] == pol]
-        entry: dict[str, Any] = {"policy": pol, "n": len(mine), "users": len({r["user"] for r in mine})}
+        units = {_unit(r, i, by_person) for i, r in enumerate(mine)}
+        entry: dict[str, Any] = {"policy": pol, "n": len(units) if by_person else len(mine),
+                                 "users": len({r["user"] for r in mine}),
+                                 "unit": "people" if by_person else "rows"}
+        if by_person:
+            entry["people"] = len(units)
         for key in ("score", "engagement", "success", "regret"):
-            v = np.array([r[key] for r in mine])
+            acc: dict[str, list[float]] = {}
+            for i, r in enumerate(mine):
+                acc.setdefault(_unit(r, i, by_person), []).append(r[key])
+            v = _over(acc)
             entry[key] = float(v.mean())
             entry[f"{key}_ci"] = _ci(v)
         if ref and pol != reference:
-            d = np.array([r["score"] - ref[r["user"]]["score"] for r in mine if r["user"] in ref])
-            de = np.array([r["engagement"] - ref[r["user"]]["engagement"] for r in mine if r["user"] in ref])
+            ds: dict[str, list[float]] = {}
+            de: dict[str, list[float]] = {}
+            for i, r in enumerate(r for r in mine if r["user"] in ref):
+                ds.setdefault(_unit(r, i, by_person), []).append(r["score"] - ref[r["user"]]["score"])
+                de.setdefault(_unit(r, i, by_person), []).append(r["engagement"] - ref[r["user"]]["engagement"])
+            d, e = _over(ds), _over(de)
             entry["vs_reference"] = {"reference": reference, "score_diff": float(d.mean()), "score_diff_ci": _ci(d),
-                                     "engagement_diff": float(de.mean()), "engagement_diff_ci": _ci(de)}
+                                     "engagement_diff": float(e.mean()), "engagement_diff_ci": _ci(e)}
         out.append(entry)
     return out
 
 
-def paired(rows: list[dict[str, Any]], a: str, b: str) -> dict[str, Any] | None:
-    """Difference a - b in score and engagement over (user, seed) pairs present in both (None if absent)."""
+def paired(rows: list[dict[str, Any]], a: str, b: str, by_person: bool = False) -> dict[str, Any] | None:
+    """Difference a - b in score and engagement over (user, seed) pairs present in both (None if absent);
+    ``by_person``: the pairs averaged per person first, the interval and ``n`` over people."""
     rb = {(r["user"], r["seed"]): r for r in rows if r["policy"] == b}
     pairs = [(r, rb[(r["user"], r["seed"])]) for r in rows if r["policy"] == a and (r["user"], r["seed"]) in rb]
     if not pairs:
         return None
-    ds = np.array([x["score"] - y["score"] for x, y in pairs])
-    de = np.array([x["engagement"] - y["engagement"] for x, y in pairs])
-    return {"a": a, "b": b, "n": len(pairs), "score_diff": float(ds.mean()), "score_diff_ci": _ci(ds),
-            "engagement_diff": float(de.mean()), "engagement_diff_ci": _ci(de)}
+    ds: dict[str, list[float]] = {}
+    de: dict[str, list[float]] = {}
+    for i, (x, y) in enumerate(pairs):
+        ds.setdefault(_unit(x, i, by_person), []).append(x["score"] - y["score"])
+        de.setdefault(_unit(x, i, by_person), []).append(x["engagement"] - y["engagement"])
+    d, e = _over(ds), _over(de)
+    return {"a": a, "b": b, "n": len(d), "unit": "people" if by_person else "rows",
+            "score_diff": float(d.mean()), "score_diff_ci": _ci(d),
+            "engagement_diff": float(e.mean()), "engagement_diff_ci": _ci(e)}
 
 
-def claims(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def claims(rows: list[dict[str, Any]], by_person: bool = False) -> list[dict[str, Any]]:
     """The paper's engagement-feedback claim, retested: shaping and qaug vs the performance-only learner."""
     out = []
     for kind in ("usp", "usp-learning"):
         for method in ("shaping", "qaug"):
-            d = paired(rows, f"{kind}:{method}", f"{kind}:performance")
+            d = paired(rows, f"{kind}:{method}", f"{kind}:performance", by_person)
             if d is not None:
                 out.append(d)
     return out

@@ -305,44 +305,56 @@ def _by_user(rows: list[dict[str, Any]], policy: str, length: int | None = None)
     return {r["user"]: r["score"] for r in rows if r["policy"] == policy and r["assessment"] == length}
 
 
-def gap_closed(rows: list[dict[str, Any]], policy: str, length: int | None, seed: int = 0,
+def gap_closed(rows: list[dict[str, Any]], policy: str, length: int | None, rng: np.random.Generator | None = None,
                reference: str = "best-fixed", boot: int = 2000) -> dict[str, Any]:
     """Share of the gap between ``reference`` and the per-user oracle that ``policy`` closes:
-    mean(policy - reference) / mean(oracle - reference), with a bootstrap 95 % interval over users."""
+    mean(policy - reference) / mean(oracle - reference) over PEOPLE (a person's sessions averaged),
+    with a bootstrap 95 % interval that resamples people (a person's sessions together), drawn
+    from ``rng`` (default: ``default_rng(0)``). ``people``: how many."""
+    rng = np.random.default_rng(0) if rng is None else rng
     ref, orc, mine = _by_user(rows, reference), _by_user(rows, "oracle"), _by_user(rows, policy, length)
     users = sorted(set(ref) & set(orc) & set(mine))
-    gain = np.array([mine[u] - ref[u] for u in users])
-    gap = np.array([orc[u] - ref[u] for u in users])
+    gain_p = people.by_person({u: mine[u] - ref[u] for u in users})
+    gap_p = people.by_person({u: orc[u] - ref[u] for u in users})
+    gain, gap = np.array(list(gain_p.values())), np.array(list(gap_p.values()))
     if not users or gap.mean() <= 0:
-        return {"share": None, "share_ci": None, "gap": float(gap.mean()) if users else None}
-    rng = np.random.default_rng(seed)
-    idx = rng.integers(len(users), size=(boot, len(users)))
+        return {"share": None, "share_ci": None, "gap": float(gap.mean()) if users else None, "people": len(gap)}
+    idx = rng.integers(len(gap), size=(boot, len(gap)))
     sample_gap = gap[idx].mean(axis=1)
     ok = sample_gap > 0
     shares = gain[idx].mean(axis=1)[ok] / sample_gap[ok]
     return {"share": float(gain.mean() / gap.mean()), "share_ci": [float(np.percentile(shares, 2.5)),
                                                                     float(np.percentile(shares, 97.5))],
-            "gap": float(gap.mean())}
+            "gap": float(gap.mean()), "people": len(gap)}
 
 
-def summarise(rows: list[dict[str, Any]], reference: str = "best-fixed") -> list[dict[str, Any]]:
-    """Per (policy, assessment length): mean score and regret with 95 % t-intervals over users, the
-    paired difference to ``reference`` and the share of the gap to the oracle closed."""
+def _per_person(rows: list[dict[str, Any]], key: str) -> np.ndarray:
+    return np.array(list(people.by_person({r["user"]: r[key] for r in rows}).values()))
+
+
+def summarise(rows: list[dict[str, Any]], reference: str = "best-fixed", seed: int = 0) -> list[dict[str, Any]]:
+    """Per (policy, assessment length): mean score and regret with 95 % t-intervals over PEOPLE (the
+    held-out users are sessions; a person's sessions averaged, so user_1's and user_4's two sessions
+    count once), the paired difference to ``reference`` over people and the share of the gap to the
+    oracle closed (bootstrap over people, one ``default_rng(seed)`` for the whole summary)."""
+    rng = np.random.default_rng(seed)
     keys = list(dict.fromkeys((r["policy"], r["assessment"]) for r in rows))
     ref = _by_user(rows, reference)
     out = []
     for pol, length in keys:
         mine = [r for r in rows if r["policy"] == pol and r["assessment"] == length]
-        entry: dict[str, Any] = {"policy": pol, "assessment": length, "users": len(mine)}
+        entry: dict[str, Any] = {"policy": pol, "assessment": length, "users": len(mine),
+                                 "people": len(people.people(r["user"] for r in mine))}
         for key in ("score", "regret", "engagement"):
-            v = np.array([r[key] for r in mine])
+            v = _per_person(mine, key)
             entry[key], entry[f"{key}_ci"] = float(v.mean()), _ci(v)
-        d = np.array([r["score"] - ref[r["user"]] for r in mine if r["user"] in ref])
+        d = np.array(list(people.by_person({r["user"]: r["score"] - ref[r["user"]] for r in mine
+                                            if r["user"] in ref}).values()))
         entry["d_reference"], entry["d_reference_ci"] = (float(d.mean()), _ci(d)) if d.size else (None, None)
         if "matched" in mine[0]:
-            entry["matched"] = float(np.mean([r["matched"] for r in mine]))
-            entry["switches"] = float(np.mean([r["switches"] for r in mine]))
-        entry["gap_closed"] = gap_closed(rows, pol, length, reference=reference)
+            entry["matched"] = float(_per_person(mine, "matched").mean())
+            entry["switches"] = float(_per_person(mine, "switches").mean())
+        entry["gap_closed"] = gap_closed(rows, pol, length, rng, reference=reference)
         out.append(entry)
     return out
 

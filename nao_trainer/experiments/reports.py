@@ -34,18 +34,19 @@ ROW_COLUMNS = ("user", "cluster", "policy", "seed", "score", "engagement", "succ
 
 def write_comparison(out: Path, rows: list[dict], spec: comparison.EvalSpec, *, command: str, users: str,
                      n_users: int, policy_files: Path | None, started: float,
-                     extra: dict[str, Any] | None = None) -> tuple[dict[str, Any], list[Path]]:
+                     extra: dict[str, Any] | None = None, by_person: bool = False) -> tuple[dict[str, Any], list[Path]]:
     """``evaluation.json``, ``evaluation.csv`` and the row file in ``out``; the report and the paths.
     ``started``: ``time.perf_counter()`` when the run began (the report's ``seconds``); ``extra``: more
-    sections of the report (e.g. the Bayes ceiling)."""
-    summary = comparison.summarise(rows)
+    sections of the report (e.g. the Bayes ceiling); ``by_person``: the users are sessions of people,
+    so means and intervals are over people (``comparison.summarise``)."""
+    summary = comparison.summarise(rows, by_person=by_person)
     report = {
         "command": command, "users": users, "n_users": n_users, "mdp": spec.process,
         "spec": {"policies": list(spec.policies), "seeds": spec.seeds, "episodes": spec.episodes,
                  "mc_episodes": spec.mc_episodes, "turns": spec.turns, "seed": spec.seed,
                  "hyperparameters": spec.config.to_dict(),
                  "policy_files": None if policy_files is None else str(policy_files)},
-        "summary": summary, "claims": comparison.claims(rows), "rows_file": ROWS_FILE,
+        "summary": summary, "claims": comparison.claims(rows, by_person), "rows_file": ROWS_FILE,
         **(extra or {}), "seconds": round(time.perf_counter() - started, 2),
     }
     out = Path(out)
@@ -63,9 +64,16 @@ def _lo_hi(ci) -> tuple[str, str]:
     return ("", "") if not ci else (f"{ci[0]:.6g}", f"{ci[1]:.6g}")
 
 
+def _unit_header(summary: list[dict]) -> str:
+    if summary and summary[0].get("unit") == "people":
+        return (f"means and 95 % t-intervals over {summary[0]['people']} people ({summary[0]['users']} sessions; "
+                "a person's sessions and seeds averaged); n = people")
+    return "means and 95 % t-intervals over (user, seed) rows; n = rows"
+
+
 def format_table(summary: list[dict], claims: list[dict]) -> str:
     """The summary as aligned text; d best-fixed = paired score difference to the best fixed level."""
-    lines = [f"{'policy':<26} {'n':>4} {'score':>7} {'95% CI':>17} {'engage':>7} {'success':>7} "
+    lines = [_unit_header(summary), f"{'policy':<26} {'n':>4} {'score':>7} {'95% CI':>17} {'engage':>7} {'success':>7} "
              f"{'regret':>7} {'95% CI':>17} {'d best-fixed':>13} {'95% CI':>17}"]
     for s in summary:
         ref = s.get("vs_reference")
@@ -74,7 +82,8 @@ def format_table(summary: list[dict], claims: list[dict]) -> str:
         lines.append(f"{s['policy']:<26} {s['n']:>4} {s['score']:7.2f} {_ci(s['score_ci']):>17} {s['engagement']:7.3f} "
                      f"{s['success']:7.3f} {s['regret']:7.2f} {_ci(s['regret_ci']):>17} {d:>13} {dci:>17}")
     if claims:
-        lines.append("engagement feedback vs the performance-only learner (paired over users x seeds):")
+        over = "people" if claims[0].get("unit") == "people" else "users x seeds"
+        lines.append(f"engagement feedback vs the performance-only learner (paired over {over}):")
         for c in claims:
             lines.append(f"  {c['a']:<22} - {c['b']:<26} score {c['score_diff']:+.2f} {_ci(c['score_diff_ci'])}  "
                          f"engagement {c['engagement_diff']:+.4f} {_ci(c['engagement_diff_ci'], 4)}")
@@ -180,7 +189,10 @@ def _share(g: dict) -> str:
 
 def format_personalise(summary: list[dict], engagement: list[dict]) -> str:
     """The personalisation summary as aligned text (d best-fixed: paired score difference)."""
-    lines = [f"{'policy':<14} {'A':>3} {'score':>7} {'95% CI':>17} {'d best-fixed':>13} {'95% CI':>17} "
+    lines = [(f"means and 95 % t-intervals over {summary[0]['people']} people ({summary[0]['users']} held-out sessions; "
+              "a person's sessions averaged); gap closed: bootstrap over people") if summary and "people" in summary[0]
+             else "means and 95 % t-intervals over held-out sessions",
+             f"{'policy':<14} {'A':>3} {'score':>7} {'95% CI':>17} {'d best-fixed':>13} {'95% CI':>17} "
              f"{'gap closed':>24} {'matched':>8}"]
     for s in summary:
         a = "" if s["assessment"] is None else str(s["assessment"])
@@ -199,12 +211,13 @@ def format_personalise(summary: list[dict], engagement: list[dict]) -> str:
 
 
 def personalise_csv(summary: list[dict]) -> str:
-    cols = ["policy", "assessment", "users", "score", "score_lo", "score_hi", "d_best_fixed", "d_best_fixed_lo",
+    cols = ["policy", "assessment", "users", "people", "score", "score_lo", "score_hi", "d_best_fixed", "d_best_fixed_lo",
             "d_best_fixed_hi", "gap_closed", "gap_closed_lo", "gap_closed_hi", "regret", "matched", "switches"]
     lines = [",".join(cols)]
     for s in summary:
         g = s["gap_closed"]
-        vals = [s["policy"], "" if s["assessment"] is None else s["assessment"], s["users"], f"{s['score']:.6g}",
+        vals = [s["policy"], "" if s["assessment"] is None else s["assessment"], s["users"], s.get("people", ""),
+                f"{s['score']:.6g}",
                 *_lo_hi(s["score_ci"]), "" if s["d_reference"] is None else f"{s['d_reference']:.6g}",
                 *_lo_hi(s["d_reference_ci"]), "" if g.get("share") is None else f"{g['share']:.6g}",
                 *_lo_hi(g.get("share_ci")), f"{s['regret']:.6g}", s.get("matched", ""), s.get("switches", "")]
