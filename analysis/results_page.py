@@ -241,9 +241,16 @@ def eval_block(name: str) -> str:
     j = _evaluation(name)
     command = _command(j["command"], f"docs/results/{name}")
     rows = j["summary"]
-    out = [f"`{command}` ({rows[0]['n']} (user, seed) rows per policy, {rows[0]['users']} users; "
-           f"`docs/results/{name}/evaluation.json`). Score per 25-turn session [95 % t-interval over the rows]; "
-           "regret = the user's oracle score minus the policy's; d = policy − best fixed level, paired.", "",
+    if rows[0].get("unit") == "people":
+        head = (f"`{command}` ({rows[0]['users']} sessions of {rows[0]['people']} people; "
+                f"`docs/results/{name}/evaluation.json`). Score per 25-turn session, mean over people [95 % t-interval "
+                "over people: a person's sessions and seeds averaged first]; regret = the user's oracle score minus the "
+                "policy's; d = policy − best fixed level, paired over people.")
+    else:
+        head = (f"`{command}` ({rows[0]['n']} (user, seed) rows per policy, {rows[0]['users']} users; "
+                f"`docs/results/{name}/evaluation.json`). Score per 25-turn session [95 % t-interval over the rows]; "
+                "regret = the user's oracle score minus the policy's; d = policy − best fixed level, paired.")
+    out = [head, "",
            "| policy | score [95 % CI] | regret | d best fixed [95 % CI] | engagement |", "|---|---|---|---|---|"]
     for s in rows:
         v = s.get("vs_reference") or {}
@@ -257,8 +264,13 @@ def eval_block(name: str) -> str:
 def claims_block() -> str:
     """The engagement-feedback claim, retested: shaping or Q-augmentation minus the performance-only learner."""
     names = {"clusters": "clusters (authors' fit)", "level-only": "level-only", "clusters-tested": "tested-effects clusters",
-             "sessions": "sessions (leave one session out)"}
-    out = ["Paired over (user, seed) rows; frozen learners (`claims` of each `evaluation.json`):", "",
+             "sessions": "sessions (leave one person out)"}
+    over = {name: "people" if any(c.get("unit") == "people" for c in _evaluation(name).get("claims", [])) else "rows"
+            for name in EVAL_SETS}
+    people = [names[n].split(" (")[0] for n in EVAL_SETS if over[n] == "people"]
+    unit = "Paired over (user, seed) rows" if not people else \
+        f"Paired over (user, seed) rows, over people for the {_list(people)} (a person's sessions and seeds averaged)"
+    out = [f"{unit}; frozen learners (`claims` of each `evaluation.json`):", "",
            "| user set | shaping: score | shaping: engagement | Q-aug.: score | Q-aug.: engagement |", "|---|---|---|---|---|"]
     for name in EVAL_SETS:
         by = {c["a"]: c for c in _evaluation(name).get("claims", []) if c["b"] == "usp:performance"}
@@ -282,10 +294,12 @@ def personalise_block(name: str) -> str:
     rows = [s for s in j["summary"]]
     by = {(s["policy"], s.get("assessment")): s for s in rows}
     lengths = [a for a in (0, 3, 6, 9, 12) if ("personalised", a) in by]
-    unit = "people" if "people" in rows[0] else "sessions"
-    n = rows[0].get("people", rows[0]["users"])
-    out = [f"`{command}` (`docs/results/{name}/personalise.json`; {n} {unit}). Score per 25-turn session, "
-           "assessment turns counted (difference to the best fixed level [95 % t-interval], paired):", "",
+    if "people" in rows[0]:
+        n, mean, over = f"{rows[0]['users']} sessions of {rows[0]['people']} people", " mean over people,", "over people, "
+    else:
+        n, mean, over = f"{rows[0]['users']} sessions", "", ""
+    out = [f"`{command}` (`docs/results/{name}/personalise.json`; {n}). Score per 25-turn session,{mean} "
+           f"assessment turns counted (difference to the best fixed level [95 % t-interval {over}paired]):", "",
            "| policy | " + " | ".join(f"A = {a}" for a in lengths) + " |", "|---|" + "---|" * len(lengths)]
     for pol, label in PIPELINES.items():
         cells = []

@@ -27,7 +27,7 @@ def register(sub) -> None:
                    help="comma-separated policies (default: all baselines, usp:METHOD and usp-learning:METHOD "
                         "for every method, oracle); see docs/explanation/evaluation.md")
     p.add_argument("--users", default=None,
-                   help="clusters | level-only | sessions | DATASET_ROOT (per-session users, leave-one-session-out) | "
+                   help="clusters | level-only | sessions | DATASET_ROOT (per-session users, each fitted without its person) | "
                         "task (the --task's own simulated users); default clusters, with --task nback: task")
     p.add_argument("--task", metavar="NAME", default=None,
                    help="the task the users play (nao-trainer plugins lists them); default the sequence task, whose "
@@ -167,7 +167,7 @@ def _command(args, default: list[str]) -> str:
 
 
 def run_personalise(args) -> int:
-    """``evaluate --personalise``: the pipeline on leave-one-session-out users (experiments.personalisation)."""
+    """``evaluate --personalise``: the pipeline on per-session users, each fitted without its person (experiments.personalisation)."""
     from nao_trainer.experiments import personalisation, reports
     from nao_trainer.learn import artifacts
 
@@ -212,8 +212,8 @@ def run_personalise(args) -> int:
         from nao_trainer.plots.personalise import plot_personalise
 
         prior = "Beta prior from the data" if spec.session_prior is None else f"own rates, prior {spec.session_prior:g} turns"
-        title = (f"{len(result['users'])} held-out sessions (leave-one-session-out; {prior}): "
-                 "means and 95 % CIs over users")
+        title = (f"{len(result['users'])} held-out sessions of {report['summary'][0]['people']} people "
+                 f"(leave-one-person-out; {prior}): means and 95 % CIs over people")
         paths.append(plot_personalise(report["summary"], title, out / "personalise.png"))
     if args.json:
         print(json.dumps(report))

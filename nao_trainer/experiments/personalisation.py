@@ -1,6 +1,6 @@
 """Evaluate the personalisation pipeline on held-out sessions: ``nao-trainer evaluate --personalise``.
 
-For each real session i (leave-one-session-out, as ``learn.users``' per-session users):
+For each real session i (leave its person out, as ``learn.users``' per-session users):
 
 * the sessions without i are clustered again (K clusters); every cluster gets its default fit
   (``learn.effects``) from its members' turns, and one more *generic* simulator is fitted on all

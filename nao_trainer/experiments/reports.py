@@ -161,7 +161,7 @@ def write_personalisation(out: Path, result: dict[str, Any], spec: personalisati
     summary = personalisation.summarise(result["rows"])
     engagement = personalisation.summarise_engagement(result["engagement"])
     report = {"command": command,
-              "users": "sessions (leave-one-session-out)", "n_users": len(result["users"]),
+              "users": "sessions (leave-one-person-out)", "n_users": len(result["users"]),
               "spec": {"lengths": list(spec.lengths), "levels": list(spec.levels), "kappa": spec.kappa,
                        "session_prior": "data" if spec.session_prior is None else spec.session_prior,
                        "margin": spec.margin, "method": spec.method, "episodes": spec.episodes,

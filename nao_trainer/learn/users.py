@@ -125,7 +125,7 @@ def policy_users(task: Any, policy: str) -> list[User] | None:
 
 
 # ----------------------------------------------------------------------------------------------
-# Per-session users, leave one session out
+# Per-session users, leave the person out
 # ----------------------------------------------------------------------------------------------
 
 
@@ -223,7 +223,7 @@ def _loso_one(turns: Any, session: str, k: int, n_init: int, seed: int) -> User:
 
 def session_user_set(source: Path, compat: str | None = None, k: int = 3, n_init: int = 50, seed: int = 0,
                      workers: int = 2, backend: str | None = None, limit: int | None = None) -> list[User]:
-    """Leave-one-session-out users of a dataset root or turn-table CSV (module docstring)."""
+    """Per-session users of a dataset root or turn-table CSV, each fitted without its person (module docstring)."""
     turns = Turns.from_columns(read_turns(Path(source), compat).columns)
     return leave_one_person_out(turns, _loso_one, (k, n_init, seed), k, source, workers, backend, limit)
 
