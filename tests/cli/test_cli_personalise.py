@@ -105,7 +105,7 @@ def test_evaluate_personalise_on_a_held_out_session(dataset_root, tmp_path, monk
     beside = {s["policy"]: s for s in report["ceiling"]["summary"]}  # the Bayes ceiling section (issue 21)
     assert {"ceiling", "bayes", "bayes-psychometric", "questplus", "staircase-2d1u@2", "oracle-objective"} <= set(beside)
     assert beside["oracle-objective"]["value"] >= beside["ceiling"]["value"] - 1e-9
-    assert (out / "personalise.csv").read_text().startswith("policy,assessment,users,score")
+    assert (out / "personalise.csv").read_text().startswith("policy,assessment,users,people,score")
     import gzip
 
     with gzip.open(out / "personalise_rows.csv.gz", "rt") as fh:

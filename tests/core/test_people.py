@@ -98,3 +98,92 @@ def _held_out_sessions(turns, session):
 
     split = hold_out(turns, session, 2, 2, 0)
     return session, sorted(np.unique(split.rest.session).tolist())
+
+
+# ----------------------------------------------------------------------------------------------
+# evaluate --users sessions and evaluate --personalise: means, intervals and counts over people
+# ----------------------------------------------------------------------------------------------
+
+_SESSIONS = ["session:user_1/session_4", "session:user_1/session_5", "session:user_2/session_1",
+             "session:user_3/session_1"]
+
+
+def _eval_rows():
+    """Rows of `evaluate`: two baselines (one row per session) and a learner (2 seeds per session)."""
+    rows = []
+    for i, u in enumerate(_SESSIONS):
+        rows.append({"user": u, "policy": "best-fixed", "seed": None, "score": 40.0 + i, "engagement": 0.3,
+                     "success": 0.9, "regret": 1.0})
+        rows.append({"user": u, "policy": "fixed:2", "seed": None, "score": 40.0 + i * i, "engagement": 0.3 + i / 100,
+                     "success": 0.8, "regret": 2.0 + i})
+        for seed in (0, 1):
+            for method, shift in (("performance", 0.0), ("qaug", 0.5 * seed + i / 10)):
+                rows.append({"user": u, "policy": f"usp:{method}", "seed": seed, "score": 39.0 + i + shift,
+                             "engagement": 0.3 + shift / 10, "success": 0.85, "regret": 1.5})
+    return rows
+
+
+def test_evaluate_on_sessions_counts_and_resamples_people_not_sessions():
+    """user_1's two sessions are one person: n = 3 people, the interval is the t-interval over the
+    three person means (user_1's sessions and seeds averaged first), not over 4 sessions / 8 rows."""
+    from nao_trainer.experiments import comparison, reports
+
+    rows = _eval_rows()
+    by = {s["policy"]: s for s in comparison.summarise(rows, by_person=True)}
+    f2 = by["fixed:2"]
+    assert f2["n"] == f2["people"] == 3 and f2["users"] == 4 and f2["unit"] == "people"
+    per_person = np.array([(40.0 + 41.0) / 2, 44.0, 49.0])  # user_1: sessions 0 and 1 averaged
+    assert f2["score"] == pytest.approx(per_person.mean())
+    assert f2["score_ci"] == pytest.approx(people.t_interval(per_person))
+    d = np.array([(0.0 + 0.0) / 2, 4.0 - 2.0, 9.0 - 3.0])
+    assert f2["vs_reference"]["score_diff_ci"] == pytest.approx(people.t_interval(d))
+    lrn = by["usp:qaug"]  # 8 (session, seed) rows of 3 people
+    assert lrn["n"] == 3
+    v = np.array([np.mean([39.0 + 0.0, 39.5, 40.1, 40.6]), np.mean([41.2, 41.7]), np.mean([42.3, 42.8])])
+    assert lrn["score_ci"] == pytest.approx(people.t_interval(v))
+    (claim,) = [c for c in comparison.claims(rows, by_person=True) if c["a"] == "usp:qaug"]
+    dq = np.array([np.mean([0.0, 0.5, 0.1, 0.6]), np.mean([0.2, 0.7]), np.mean([0.3, 0.8])])
+    assert claim["n"] == 3 and claim["score_diff_ci"] == pytest.approx(people.t_interval(dq))
+    # simulated users (not people): the unit stays the (user, seed) row
+    rowwise = {s["policy"]: s for s in comparison.summarise(rows)}
+    assert rowwise["usp:qaug"]["n"] == 8 and "people" not in rowwise["usp:qaug"]
+    table = reports.format_table(list(by.values()), comparison.claims(rows, by_person=True))
+    assert table.splitlines()[0].startswith("means and 95 % t-intervals over 3 people (4 sessions")
+    assert "paired over people" in table
+
+
+def _personalise_rows():
+    rows = []
+    for i, u in enumerate(_SESSIONS):
+        rows.append({"user": u, "policy": "best-fixed", "assessment": None, "score": 40.0, "regret": 1.0,
+                     "engagement": 0.3})
+        rows.append({"user": u, "policy": "oracle", "assessment": None, "score": 41.0 + i, "regret": 0.0,
+                     "engagement": 0.3})
+        rows.append({"user": u, "policy": "personalised", "assessment": 0, "score": 40.0 + i * i / 2,
+                     "regret": 1.0 + i, "engagement": 0.3, "matched": float(i % 2), "switches": float(i)})
+    return rows
+
+
+def test_evaluate_personalise_intervals_and_the_gap_bootstrap_are_over_people():
+    from nao_trainer.experiments import personalisation, reports
+
+    rows = _personalise_rows()
+    by = {(s["policy"], s["assessment"]): s for s in personalisation.summarise(rows)}
+    mine = by[("personalised", 0)]
+    assert mine["users"] == 4 and mine["people"] == 3
+    gain = np.array([(0.0 + 0.5) / 2, 2.0, 4.5])  # user_1: its two sessions averaged
+    gap = np.array([(1.0 + 2.0) / 2, 3.0, 4.0])
+    assert mine["d_reference"] == pytest.approx(gain.mean())
+    assert mine["d_reference_ci"] == pytest.approx(people.t_interval(gain))
+    assert mine["matched"] == pytest.approx(np.mean([0.5, 0.0, 1.0]))
+    # the bootstrap resamples the 3 people (a person's sessions together), from the Generator given
+    g = personalisation.gap_closed(rows, "personalised", 0, np.random.default_rng(7), boot=400)
+    idx = np.random.default_rng(7).integers(3, size=(400, 3))
+    shares = gain[idx].mean(axis=1) / gap[idx].mean(axis=1)
+    assert g["people"] == 3 and g["share"] == pytest.approx(gain.mean() / gap.mean())
+    assert g["share_ci"] == pytest.approx([np.percentile(shares, 2.5), np.percentile(shares, 97.5)])
+    again = personalisation.gap_closed(rows, "personalised", 0, np.random.default_rng(7), boot=400)
+    assert again == g  # seeded: bit-reproducible
+    assert personalisation.summarise(rows) == personalisation.summarise(rows)
+    text = reports.format_personalise(list(by.values()), [])
+    assert text.splitlines()[0].startswith("means and 95 % t-intervals over 3 people (4 held-out sessions")
