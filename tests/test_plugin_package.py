@@ -115,3 +115,38 @@ def test_nothing_in_nao_trainer_names_the_packages_plugins():
         text = path.read_text(encoding="utf-8")
         assert "tiny_lab_plugins" not in text and "tinyband" not in text and "alternate_levels" not in text, path
         assert "BackwardTask" not in text and "correct_positions" not in text, path
+
+
+WRONG_FIELDS = '''\
+from tiny_lab_plugins.backward import BackwardTask
+
+
+class WrongFields(BackwardTask):
+    """The lab's task, its console table naming a field its rows do not record."""
+
+    name = "wrongfields"
+    table_fields = {"letters": "letters", "reaction_ms": "reaction"}
+'''
+
+
+def test_a_plugin_task_whose_table_fields_its_rows_do_not_record_is_refused_in_one_line(
+        installed, tmp_path, monkeypatch, capsys):
+    """Issue 26: ``nao-trainer run`` with a lab's task whose ``table_fields`` names a field not among its
+    columns: the config-error exit code, one line naming the task and the field, no traceback, no session."""
+    from nao_trainer.cli import main
+
+    (tmp_path / "lab").mkdir()
+    (tmp_path / "lab" / "wrong_fields_lab.py").write_text(WRONG_FIELDS)
+    monkeypatch.syspath_prepend(str(tmp_path / "lab"))
+    registry.register("task", "wrongfields", "wrong_fields_lab:WrongFields", origin="tests")
+    try:
+        code = main(["run", "--task", "wrongfields", "--policy", "alternate", "--robot", "mock", "--input", "simulated",
+                     "--eeg", "off", "--turns", "2", "--speed", "200", "--no-practice", "--seed", "3", "--no-keys",
+                     "--out", str(tmp_path / "sessions")])
+    finally:
+        registry.unregister("task", "wrongfields")
+    out, err = capsys.readouterr()
+    assert code == ConfigError.exit_code == 2, (out, err)
+    assert "Traceback" not in out + err and len(err.strip().splitlines()) == 1, err
+    assert "task 'wrongfields'" in err and "['reaction_ms']" in err, err
+    assert not (tmp_path / "sessions").exists()  # refused before the robot connects or a folder is made

@@ -14,6 +14,7 @@ from nao_trainer.files import read_text, write_text_atomic
 from nao_trainer.session.config import INPUTS
 from nao_trainer.study.protocol import load_protocol
 from nao_trainer.study.seal import key_path
+from nao_trainer.study import remote
 
 ACTIONS = ("init", "site", "statistician", "enrol", "withdraw", "amend", "status", "next", "record", "repair",
            "unblind", "analyse", "power", "export", "table")
@@ -163,8 +164,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _statistician(args: argparse.Namespace) -> int:
-    from nao_trainer.study import remote
-
     if not remote.is_remote(args.root):
         raise ConfigError(f"{args.root}: roles need a registry on PostgreSQL (study init --registry postgresql://...)")
     with remote.connect(args.root) as conn:
@@ -174,8 +173,6 @@ def _statistician(args: argparse.Namespace) -> int:
 
 
 def _site(args: argparse.Namespace) -> int:
-    from nao_trainer.study import remote
-
     if not remote.is_remote(args.root):
         raise ConfigError(f"{args.root}: sites need a registry on PostgreSQL (study init --registry postgresql://...)")
     role, password = remote.site_add(args.root, args.name)
@@ -224,8 +221,6 @@ def _init(args: argparse.Namespace) -> int:
         except ValueError:
             raise ConfigError(f"{args.allocation_seed_file}: not a whole number; the file holds the seed only") from None
     if args.registry is not None:
-        from nao_trainer.study import remote
-
         if seed is not None and args.stratify_by_site:
             raise ConfigError("--allocation-seed-file with --stratify-by-site: each site's sequence is drawn when the "
                               "site is added, from the operating system's entropy; give one or the other")
@@ -266,7 +261,6 @@ def _enrol(args: argparse.Namespace) -> int:
         if not sep:
             raise ConfigError(f"--stratum {item!r}: write NAME=LEVEL")
         strata[name] = level
-    from nao_trainer.study import remote
 
     if remote.is_remote(args.root):
         pseudonym = remote.enrol(args.root, args.consent_date, args.consent_version, strata)
@@ -283,7 +277,6 @@ def _enrol(args: argparse.Namespace) -> int:
 
 
 def _withdraw(args: argparse.Namespace) -> int:
-    from nao_trainer.study import remote
     from nao_trainer.study.registry import open_study, withdraw
     from nao_trainer.study.runner import repair
 
@@ -305,7 +298,6 @@ def _withdraw(args: argparse.Namespace) -> int:
 
 
 def _amend(args: argparse.Namespace) -> int:
-    from nao_trainer.study import remote
     from nao_trainer.study.registry import amend
 
     go = remote.amend if remote.is_remote(args.root) else amend
@@ -318,7 +310,6 @@ def _amend(args: argparse.Namespace) -> int:
 
 def _status(args: argparse.Namespace) -> int:
     from nao_trainer.study.progress import study_status
-    from nao_trainer.study import remote
     from nao_trainer.study.registry import open_study
 
     if remote.is_remote(args.root):
@@ -340,7 +331,6 @@ def _next(args: argparse.Namespace) -> int:
              "session.max_duration_s": args.max_duration}
     options = RunOptions(quiet=args.quiet, keys=not args.no_keys, console=args.console or args.console_port is not None,
                          console_port=args.console_port, console_bind=args.console_bind)
-    from nao_trainer.study import remote
 
     go = remote.run_next if remote.is_remote(args.root) else run_next
     _plan, result = go(args.root, args.pseudonym, flags, options, resume=args.resume)
@@ -349,7 +339,6 @@ def _next(args: argparse.Namespace) -> int:
 
 
 def _analyse(args: argparse.Namespace) -> int:
-    from nao_trainer.study import remote
     from nao_trainer.study.analysis import analyse
     from nao_trainer.study.registry import open_study
 
@@ -436,7 +425,6 @@ def _export(args: argparse.Namespace) -> int:
 
     if (args.bids is None) == (args.published is None):
         raise ConfigError("study export: give --bids OUT or --published OUT")
-    from nao_trainer.study import remote
 
     study = remote.statistician_study(args.root, "study export") if remote.is_remote(args.root) else \
         open_study(args.root, reveal=True)
@@ -453,8 +441,6 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _record(args: argparse.Namespace) -> int:
-    from nao_trainer.study import remote
-
     if not remote.is_remote(args.root):
         return _repair(args)  # one laptop: what repair records
     found = remote.record(args.root, sys.stdout)
@@ -463,7 +449,6 @@ def _record(args: argparse.Namespace) -> int:
 
 
 def _repair(args: argparse.Namespace) -> int:
-    from nao_trainer.study import remote
     from nao_trainer.study.runner import repair
 
     if remote.is_remote(args.root):  # a site's laptop: its outbox (killed sessions, and those the network lost)
@@ -476,7 +461,6 @@ def _repair(args: argparse.Namespace) -> int:
 
 
 def _unblind(args: argparse.Namespace) -> int:
-    from nao_trainer.study import remote
     from nao_trainer.study.registry import unblind
 
     pairs = remote.unblind(args.root, args.reason) if remote.is_remote(args.root) else \

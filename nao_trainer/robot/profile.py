@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from nao_trainer.errors import ConfigError
+from nao_trainer.robot.model import default_model
 
 FORMAT = "nao-trainer robot profile 1"
 #: Every NAOqi method the project calls, by service (robot.naoqi, robot.lifecycle, session.check, robot_setup).
@@ -141,8 +142,6 @@ def record_profile(robot: Any, source: str = "", speed: float = 1.0) -> Profile:
             profile.memory[key] = value
     declared = _ask(lambda: robot.call("ALMemory", "getEventList"))
     if declared is not None:
-        from nao_trainer.robot.model import default_model
-
         names = {str(x) for x in declared}
         profile.events = {key: key in names for _, key in default_model().health.items()}
     profile.naoqi_version = _ask(lambda: robot.call("ALSystem", "systemVersion"))

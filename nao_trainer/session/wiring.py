@@ -175,6 +175,10 @@ def run_session(config: StudyConfig, options: RunOptions = RunOptions(), progres
                           f"{language!r}; point session.dialogue at a {language} file")
     behaviors = load_behaviors(config.session.behaviors_path)
     check_postures(config, behaviors)
+    try:  # a plug-in's console fields must be among its columns: said before the robot connects or a file is written
+        table_fields(config.task.build_task())
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
     seed = config.session.seed if resume is None else resume.seed
     seed = int(seed) if seed is not None else secrets.randbelow(2**31)
     simulator = build_simulator(config) if config.answers.input == "simulated" else None
@@ -266,10 +270,6 @@ def _run_wired(config: StudyConfig, progress: TextIO | None, dialogue: Dialogue,
     whatever happens (the record is closed last but the stand-in, so every close is logged in it)."""
     out = _Outcome(seed, span_rate=span_rate(config.policy.objective))
     task = config.task.build_task()
-    try:
-        table_fields(task)  # a plug-in's console fields must be among its columns: said before anything starts
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
     out.task = task
     recorder = SessionRecorder(config.output_dir(), config.participant.pseudonym, columns=task.columns)
     stack = ExitStack()

@@ -34,6 +34,8 @@ from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import write_text_atomic
 from nao_trainer.study import pg
 from nao_trainer.study.protocol import Protocol, load_protocol, protocol_hash
+from nao_trainer.policies.participant_state import participant_dir, participant_template
+from nao_trainer.session.config import load_config
 
 URL_FILE = "registry.url"
 OUTBOX = "outbox"
@@ -323,8 +325,6 @@ def run_next(root: Path, pseudonym: str, flags: dict[str, Any], options: Any, pr
     settings, not its name), played and recorded as on one laptop, through the outbox."""
     import uuid
 
-    from nao_trainer.policies.participant_state import participant_template
-    from nao_trainer.session.config import load_config
     from nao_trainer.study.registry import now_iso
     from nao_trainer.study.runner import BLIND_LABEL, NextSession, check_blinding, days_between, participant_lock, \
         play, session_seed
@@ -409,7 +409,6 @@ def withdraw(root: Path, pseudonym: str, data: str, reason: str = "") -> tuple[d
     this laptop removed (a kill while deleting: the same command finishes it)."""
     import shutil
 
-    from nao_trainer.policies.participant_state import participant_dir
     from nao_trainer.study.registry import DATA_CHOICES, _running_session, participant_folders
 
     if data not in DATA_CHOICES:

@@ -5,6 +5,7 @@ withdrawals, and the statistician's `study analyse` and `study export --bids`. A
 ``pg_cluster``); a site's network path is a relay the test can cut (tests/_pg_cluster.py ``Relay``)."""
 from __future__ import annotations
 
+import csv
 import io
 import json
 import os
@@ -408,6 +409,62 @@ def test_a_killed_session_is_resumed_under_its_key(trial, capsys):
     assert len(rows) == 1 and rows[0][:2] == (1, "completed") and turns() == 5
     code, _, err = cli(capsys, "next", north, "P001", "--resume", "--no-keys")
     assert code == 2 and "no interrupted session to resume" in err
+
+
+def test_a_session_killed_while_the_network_is_down_is_resumed_under_its_key(trial, capsys):
+    """The site's network is cut (tests/_pg_cluster.py ``Relay``) after the first turn; the session goes on
+    locally and is SIGKILLed while the network is still down; with the network back `study next --resume`
+    records the killed one from the outbox (interrupted), continues its folder under the same key and
+    completes it: one row, every turn on disk, nothing left in the outbox."""
+    from tests._pg_cluster import Relay
+
+    north = trial.as_("north")
+    assert cli(capsys, "enrol", north, "--consent-date", "2026-12-01", "--consent-version", "v1")[0] == 0
+    relay = Relay(trial.cluster, Path(f"/tmp/nt-relay-{uuid.uuid4().hex[:8]}")).start()
+    try:
+        (north / "registry.url").write_text(relay.url(trial.db) + "\n")
+        proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "study", "next", str(north), "P001",
+                                 "--no-keys", "--user-model", "1", "--turns", "4", "--speed", "12"],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                                env=_env(trial.roles["north"]))
+
+        def turns() -> int:
+            found = sorted((north / "sessions").glob("P001_*/turns.csv"))
+            return len(found[0].read_text().splitlines()) - 1 if found else 0
+
+        try:
+            while turns() < 1 and proc.poll() is None:
+                threading_wait(0.02)
+            relay.cut()  # the network goes: the session plays on locally
+            while turns() < 2 and proc.poll() is None:
+                threading_wait(0.02)
+        finally:
+            proc.send_signal(signal.SIGKILL)
+            _, err = proc.communicate()
+        assert 2 <= turns() < 4, f"the session ended before the kill: {err}"
+        assert "Traceback" not in err, err
+        (entry,) = [json.loads(p.read_text()) for p in (north / "outbox").glob("*.json")]
+        assert entry["status"] == "running"
+        assert trial.sql("SELECT key, status FROM sessions") == [(entry["key"], "running")]  # before the cut
+        code, _, err = cli(capsys, "next", north, "P001", "--resume", "--no-keys")  # the network still down
+        assert code == 2 and "cannot reach the registry server" in err and len(err.strip().splitlines()) == 1, err
+        assert turns() < 4 and (north / "outbox" / f"{entry['key']}.json").is_file()  # nothing played, entry kept
+        relay.restore()
+        res = subprocess.run([sys.executable, "-m", "nao_trainer", "study", "next", str(north), "P001", "--resume",
+                              "--no-keys"], capture_output=True, text=True, env=_env(trial.roles["north"]),
+                             timeout=240)
+        assert res.returncode == 0, res.stderr
+        assert "recorded as interrupted (from outbox/)" in res.stderr and "session 1 of 2 (resumed)" in res.stderr
+        rows = trial.sql("SELECT key, number, status, folder FROM sessions")
+        (folder,) = (north / "sessions").glob("P001_*")  # the killed session's folder, continued
+        assert len(rows) == 1 and rows[0] == (entry["key"], 1, "completed", folder.name)
+        assert turns() == 4 and not list((north / "outbox").glob("*.json"))
+        assert [int(r["turn"]) for r in csv.DictReader((folder / "turns.csv").open())] == [1, 2, 3, 4]  # each once
+        code, out, _ = cli(capsys, "record", north)
+        assert code == 0 and "0 session(s) recorded" in out
+    finally:
+        relay.cut()
+        shutil.rmtree(relay.folder, ignore_errors=True)
 
 
 def test_an_edited_outbox_entry_is_one_line(trial, capsys):
