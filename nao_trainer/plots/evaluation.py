@@ -17,7 +17,7 @@ def _err(entry: dict[str, Any], key: str) -> tuple[float, float]:
 
 
 def plot_evaluation(summary: list[dict[str, Any]], title: str, path: Path) -> Path:
-    """Score and engagement per policy (means with 95 % intervals over users and seeds)."""
+    """Score and engagement per policy (means with 95 % intervals over users and seeds, or over people for session users)."""
     plt = pyplot()
     names = [s["policy"] for s in summary]
     y = np.arange(len(names))
