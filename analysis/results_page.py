@@ -200,7 +200,7 @@ def multi_block(objective: str, users: str, text: str) -> str:
     out = [f"Several sessions of one participant, {text}, objective `{c['objective']}` "
            f"(`{_path(users, objective).parent.relative_to(ROOT)}`, {rows[0]['people']} people): value per session "
            "[95 % t-interval]; d = minus the level best for the population, paired over people; share of the "
-           "oracle's gap over that level (its interval excludes 0), bootstrap 95 % interval over people.", "",
+           "oracle's gap over that level (only when the gap's interval excludes 0), Fieller's 95 % interval over people.", "",
            "| policy | " + " | ".join(f"{n} session{'s' * (n > 1)}" for n in sessions) + " |",
            "|---|" + "---|" * len(sessions)]
     for pol, label in MULTI.items():

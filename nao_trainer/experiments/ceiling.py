@@ -13,8 +13,9 @@ clusters), ``core.bayes`` gives exact values:
 
 Every policy of an evaluation is also scored under the chosen objective from its expected turns
 per level (exact for level-only users: a turn's utility depends on its level only), and its
-*share of the achievable gap* is ``mean(policy - best fixed) / mean(ceiling - best fixed)`` with a
-bootstrap 95 % interval over users. ``multi_session`` values S sessions of the same participant
+*share of the achievable gap* is ``mean(policy - best fixed) / mean(ceiling - best fixed)`` over
+people, given with Fieller's 95 % interval only when the gap's own interval excludes 0
+(``core.people.fieller``). ``multi_session`` values S sessions of the same participant
 with the counts carried over (module ``core.bayes``: ``commit``).
 """
 from __future__ import annotations
