@@ -81,7 +81,7 @@ def test_sessions_import_fit_train_and_play_a_trained_policy(tmp_path):
     strong = next(c["id"] for c, g in zip(report["clusters"], groups) if g == {"strong"})
     assert [c["size"] for c in report["clusters"]] == [4, 4]
 
-    _cli("train", "--models", str(tmp_path / "models"), "--out", str(tmp_path / "policies"), "--seeds", "2",
+    _cli("train", "--models", str(tmp_path / "models"), "--out", str(tmp_path / "policies"), "--seeds", "1",
          "--episodes", "300", "--turns", "8", "--methods", "performance", "--no-plots")
     env = _env(NAO_TRAINER_MODELS=str(tmp_path / "models"), NAO_TRAINER_POLICIES=str(tmp_path / "policies"))
     _cli("run", "--config", str(tmp_path / "strong.yaml"), "--user-model", str(strong), "--policy",
