@@ -34,7 +34,7 @@ import uuid
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
@@ -435,9 +435,10 @@ def withdraw(root: Path, pseudonym: str, data: str, reason: str = "") -> tuple[d
         raise ConfigError(f"--data {data!r}: use keep or delete")
     study = open_study(root)
     p = study.participant(pseudonym)
+    recorded = [s["folder"] for s in p["sessions"] if s.get("folder")]
     if p["withdrawn"]:
         if p["withdrawn"]["data"] == "delete":  # a deletion a kill interrupted: finished now
-            return p, _delete_data(study, pseudonym)
+            return p, delete_data(study, pseudonym, recorded)
         raise ConfigError(f"{pseudonym}: already withdrawn on {p['withdrawn']['time']}")
     running = _running_session(study.root, pseudonym)
     if running:
@@ -450,13 +451,13 @@ def withdraw(root: Path, pseudonym: str, data: str, reason: str = "") -> tuple[d
         p["withdrawn"] = {"time": now_iso(), "data": data, "reason": reason}
         tx.set_withdrawn(pseudonym, p["withdrawn"])
     # recorded first: a kill while deleting leaves the decision on file (the same command finishes it)
-    return p, (_delete_data(study, pseudonym) if data == "delete" else [])
+    return p, (delete_data(study, pseudonym, recorded) if data == "delete" else [])
 
 
-def _delete_data(study: Study, pseudonym: str) -> list[Path]:
-    p = study.participant(pseudonym)
-    folders = {study.sessions_dir / s["folder"] for s in p["sessions"] if s.get("folder")}
-    folders |= set(participant_folders(study, pseudonym))
+def delete_data(study: Study, pseudonym: str, recorded: Iterable[str]) -> list[Path]:
+    """Delete a withdrawn participant's session folders (``recorded``: their names in the registry, plus any on
+    disk) and their policy state; a kill or a failure midway is finished by the same withdraw command."""
+    folders = {study.sessions_dir / f for f in recorded} | set(participant_folders(study, pseudonym))
     folders.add(participant_dir(study.sessions_dir, pseudonym))
     deleted = []
     for folder in sorted(folders):

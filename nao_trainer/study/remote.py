@@ -34,7 +34,7 @@ from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import write_text_atomic
 from nao_trainer.study import pg
 from nao_trainer.study.protocol import Protocol, load_protocol, protocol_hash
-from nao_trainer.policies.participant_state import participant_dir, participant_template
+from nao_trainer.policies.participant_state import participant_template
 from nao_trainer.session.config import load_config
 
 URL_FILE = "registry.url"
@@ -407,9 +407,7 @@ def withdraw(root: Path, pseudonym: str, data: str, reason: str = "") -> tuple[d
     """``study withdraw`` on the participant's site: recorded in the registry (the site's role, its own
     participants only), then with ``--data delete`` the participant's session folders and learning state on
     this laptop removed (a kill while deleting: the same command finishes it)."""
-    import shutil
-
-    from nao_trainer.study.registry import DATA_CHOICES, _running_session, participant_folders
+    from nao_trainer.study.registry import DATA_CHOICES, _running_session, delete_data
 
     if data not in DATA_CHOICES:
         raise ConfigError(f"--data {data!r}: use keep or delete")
@@ -425,18 +423,7 @@ def withdraw(root: Path, pseudonym: str, data: str, reason: str = "") -> tuple[d
         recorded = {s["folder"] for s in pg.site_sessions(conn) if s["pseudonym"] == pseudonym and s["folder"]}
     if entry["data"] != "delete":
         return entry, []
-    folders = {study.sessions_dir / f for f in recorded} | set(participant_folders(study, pseudonym))
-    folders.add(participant_dir(study.sessions_dir, pseudonym))
-    deleted = []
-    for folder in sorted(folders):
-        if folder.is_dir() and not folder.is_symlink():
-            try:
-                shutil.rmtree(folder)
-            except OSError as exc:
-                raise DataError(f"{folder}: cannot delete ({exc.strerror}); the withdrawal is recorded: run the "
-                                "same withdraw command again to finish the deletion") from None
-            deleted.append(folder)
-    return entry, deleted
+    return entry, delete_data(study, pseudonym, recorded)
 
 
 def statistician_study(root: Path, what: str):
