@@ -20,7 +20,6 @@ from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
-from scipy import stats
 
 _SESSION = re.compile(r"^(?:session:)?([^/]+)/[^/]+$")
 
@@ -44,11 +43,19 @@ def by_person(values: Mapping[str, float]) -> dict[str, float]:
     return {p: float(np.mean(v)) for p, v in sorted(acc.items())}
 
 
+def _t_quantile(q: float, df: int) -> float:
+    # lazy: scipy.stats costs ~1 s of CPU to import, and every session imports this module (through the
+    # personalised policy's users) without ever asking for an interval
+    from scipy.stats import t as student_t
+
+    return float(student_t.ppf(q, df))
+
+
 def t_interval(v: np.ndarray, level: float = 0.95) -> list[float] | None:
     v = np.asarray(v, dtype=float)
     if v.size < 2:
         return None
-    half = stats.t.ppf(0.5 + level / 2, v.size - 1) * v.std(ddof=1) / np.sqrt(v.size)
+    half = _t_quantile(0.5 + level / 2, v.size - 1) * v.std(ddof=1) / np.sqrt(v.size)
     return [float(v.mean() - half), float(v.mean() + half)]
 
 
@@ -77,7 +84,7 @@ def fieller(num: np.ndarray, den: np.ndarray, level: float = 0.95) -> Ratio | No
     n = x.size
     if n < 2 or y.size != n:
         return None
-    t = float(stats.t.ppf(0.5 + level / 2, n - 1))
+    t = _t_quantile(0.5 + level / 2, n - 1)
     a, b = x.mean(), y.mean()
     vaa, vbb = x.var(ddof=1) / n, y.var(ddof=1) / n
     vab = float(np.cov(x, y, ddof=1)[0, 1]) / n
