@@ -28,6 +28,7 @@ ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "docs" / "results"
 SUMMARY, RESULTS_MD, STUDY = ("docs/explanation/results-summary.md", "docs/explanation/results.md",
                               "docs/how-to/study.md")
+PERSONALISATION = "docs/explanation/personalisation.md"
 
 
 # ----------------------------------------------------------------------------------------------
@@ -281,11 +282,21 @@ CASES: list[Quote] = [
     Quote(RESULTS_MD, "the nearest cluster is the most likely model after 6 turns for {0:.0f} % of the {1} people from "
                       "outcomes alone and {2:.0f} % with the engagement likelihood; its probability changes by "
                       "{3:+.3f} [{4:.3f}, {5:.3f}] after 6 turns, {6:+.3f} [{7:.3f}, {8:.3f}] after 12 and "
-                      "{9:+.3f} [{10:.3f}, {11:.3f}] after 25 (after 25 turns the accuracy {12:.0f} % → {13:.0f} %)",
+                      "{9:+.3f} [{10:.3f}, {11:.3f}] after 25 (after 25 turns the accuracy even drops, {12:.0f} % → {13:.0f} %;",
           lambda: (100 * engagement("personalise", 6)["outcomes"]["accuracy"], engagement("personalise", 6)["people"],
                    100 * engagement("personalise", 6)["outcomes+engagement"]["accuracy"],
                    *(x for t in (6, 12, 25) for x in (engagement("personalise", t)["p_true_diff"],
                                                       *engagement("personalise", t)["p_true_diff_ci"])),
+                   100 * engagement("personalise", 25)["outcomes"]["accuracy"],
+                   100 * engagement("personalise", 25)["outcomes+engagement"]["accuracy"])),
+    # --- personalisation.md -----------------------------------------------------------------------
+    Quote(PERSONALISATION, "On the published data after 6 turns: {0:.0f} % of the {1} people matched from outcomes alone, "
+                           "{2:.0f} % with engagement; the probability of the right cluster {3:+.3f} [{4:.3f}, {5:.3f}]; "
+                           "after 25 turns {6:+.3f} [{7:.3f}, {8:.3f}], with the accuracy falling from {9:.0f} % to {10:.0f} %",
+          lambda: (100 * engagement("personalise", 6)["outcomes"]["accuracy"], engagement("personalise", 6)["people"],
+                   100 * engagement("personalise", 6)["outcomes+engagement"]["accuracy"],
+                   engagement("personalise", 6)["p_true_diff"], *engagement("personalise", 6)["p_true_diff_ci"],
+                   engagement("personalise", 25)["p_true_diff"], *engagement("personalise", 25)["p_true_diff_ci"],
                    100 * engagement("personalise", 25)["outcomes"]["accuracy"],
                    100 * engagement("personalise", 25)["outcomes+engagement"]["accuracy"])),
     # --- how-to/study.md: in plain words -------------------------------------------------------
@@ -330,7 +341,7 @@ def test_the_page_quotes_the_stored_output(quote):
 
 
 def test_every_results_page_is_covered():
-    assert {q.page for q in CASES} == {SUMMARY, RESULTS_MD, STUDY}
+    assert {q.page for q in CASES} == {SUMMARY, RESULTS_MD, STUDY, PERSONALISATION}
     assert len(CASES) >= 40
 
 
