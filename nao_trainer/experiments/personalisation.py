@@ -262,6 +262,23 @@ def engagement_information(h: HeldOut, lengths: Sequence[int] = (6, 12, 25)) -> 
     return out
 
 
+def _engagement_one(turns: Any, session: str, k: int, n_init: int, seed: int) -> list[dict[str, Any]]:
+    return engagement_information(held_out(turns, session, k, n_init, seed))
+
+
+def engagement_run(source: Any, compat: str | None = None, k: int = 3, n_init: int = 50, seed: int = 0,
+                   workers: int = 2, backend: str | None = None, limit: int | None = None) -> list[dict[str, Any]]:
+    """``run(...)["engagement"]`` alone: the engagement measurements of every held-out session,
+    without training or scoring any policy. They depend on the held-out fits (``k``, ``n_init``,
+    ``seed``) and the session's real turns only, not on the objective, the session prior, the
+    assessment lengths or any Monte Carlo setting, so one call gives what every ``evaluate
+    --personalise`` run on the same data, models and ``--seed`` writes (about a second per session)."""
+    turns = Turns.from_columns(read_turns(Path(source), compat).columns)
+    parts = leave_one_person_out(turns, _engagement_one, (k, n_init, seed), k, source, workers, backend, limit,
+                                 progress="engagement information: held-out sessions")
+    return [r for part in parts for r in part]
+
+
 def _one(turns: Any, session: str, k: int, n_init: int, seed: int, spec: PersonaliseSpec) -> dict[str, Any]:
     h = held_out(turns, session, k, n_init, seed, spec.session_prior)
     # the pooled psychometric model of the other PEOPLE (issue 21; a person's other session is left out too)
@@ -359,17 +376,28 @@ def summarise(rows: list[dict[str, Any]], reference: str = "best-fixed", seed: i
     return out
 
 
+def _engagement_by_person(meas: list[dict[str, Any]], label: str, key: str) -> np.ndarray:
+    """Per-person means of ``m[label][key]`` (label "diff": P(true) with minus without engagement)."""
+    def value(m: dict[str, Any]) -> float:
+        if label == "diff":
+            return float(m["outcomes+engagement"][key]) - float(m["outcomes"][key])
+        return float(m[label][key])
+    return np.array(list(people.by_person({m["user"]: value(m) for m in meas}).values()))
+
+
 def summarise_engagement(meas: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per number of turns: match accuracy and mean P(true cluster) with and without engagement,
-    and the paired difference of P(true cluster) with a 95 % interval over sessions."""
+    and the paired difference of P(true cluster), over PEOPLE (a person's sessions averaged first,
+    so user_1's and user_4's two sessions count once), with a 95 % t-interval over people."""
     out = []
     for n in sorted({m["turns"] for m in meas}):
         mine = [m for m in meas if m["turns"] == n]
-        entry: dict[str, Any] = {"turns": n, "sessions": len(mine)}
+        entry: dict[str, Any] = {"turns": n, "sessions": len(mine),
+                                 "people": len(people.people(m["user"] for m in mine))}
         for label in ("outcomes", "outcomes+engagement"):
-            entry[label] = {"accuracy": float(np.mean([m[label]["correct"] for m in mine])),
-                            "p_true": float(np.mean([m[label]["p_true"] for m in mine]))}
-        d = np.array([m["outcomes+engagement"]["p_true"] - m["outcomes"]["p_true"] for m in mine])
+            entry[label] = {"accuracy": float(_engagement_by_person(mine, label, "correct").mean()),
+                            "p_true": float(_engagement_by_person(mine, label, "p_true").mean())}
+        d = _engagement_by_person(mine, "diff", "p_true")
         entry["p_true_diff"], entry["p_true_diff_ci"] = float(d.mean()), _ci(d)
         out.append(entry)
     return out

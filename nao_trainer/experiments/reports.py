@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import gzip
+import json
 import os
 import time
 from pathlib import Path
@@ -23,6 +24,9 @@ PERSONALISE_ROWS_FILE = "personalise_rows.csv.gz"
 PERSONALISE_ROW_COLUMNS = ("user", "cluster", "user_best_level", "policy", "assessment", "score", "engagement",
                            "success", "regret", "samples", "switches", "matched", "level", "visits_1", "visits_2",
                            "visits_3", "visits_4")
+ENGAGEMENT_ROWS_FILE = "engagement_rows.csv"
+ENGAGEMENT_ROW_COLUMNS = ("user", "turns", "outcomes_correct", "outcomes_p_true", "engagement_correct",
+                          "engagement_p_true")
 ROW_COLUMNS = ("user", "cluster", "policy", "seed", "score", "engagement", "success", "regret", "samples",
                "visits_l1", "visits_l2", "visits_l3", "visits_l4")
 
@@ -160,19 +164,23 @@ def write_personalisation(out: Path, result: dict[str, Any], spec: personalisati
     ``export_users``); the report and the paths."""
     summary = personalisation.summarise(result["rows"])
     engagement = personalisation.summarise_engagement(result["engagement"])
+    # the per-session measurements are in ENGAGEMENT_ROWS_FILE: re-summarise with read_engagement_rows
     report = {"command": command,
               "users": "sessions (leave-one-person-out)", "n_users": len(result["users"]),
               "spec": {"lengths": list(spec.lengths), "levels": list(spec.levels), "kappa": spec.kappa,
                        "session_prior": "data" if spec.session_prior is None else spec.session_prior,
                        "margin": spec.margin, "method": spec.method, "episodes": spec.episodes,
                        "mc_episodes": spec.mc_episodes, "turns": spec.turns, "seed": spec.seed},
-              "summary": summary, "engagement_information": engagement, "rows_file": PERSONALISE_ROWS_FILE,
+              "summary": summary, "engagement_information": engagement,
+              "engagement_rows_file": ENGAGEMENT_ROWS_FILE, "rows_file": PERSONALISE_ROWS_FILE,
               **(extra or {}), "seconds": round(time.perf_counter() - started, 2)}
     out = Path(out)
     write_json_atomic(out / "personalise.json", report)
     write_text_atomic(out / "personalise.csv", personalise_csv(summary))
     write_personalise_rows(result["rows"], out / PERSONALISE_ROWS_FILE)
-    paths = [out / "personalise.json", out / "personalise.csv", out / PERSONALISE_ROWS_FILE]
+    write_engagement_rows(result["engagement"], out / ENGAGEMENT_ROWS_FILE)
+    paths = [out / "personalise.json", out / "personalise.csv", out / PERSONALISE_ROWS_FILE,
+             out / ENGAGEMENT_ROWS_FILE]
     if export_users is not None:
         for user in result["users"]:
             name = user["name"].removeprefix("session:").replace("/", "_")
@@ -201,12 +209,22 @@ def format_personalise(summary: list[dict], engagement: list[dict]) -> str:
         lines.append(f"{s['policy']:<14} {a:>3} {s['score']:7.2f} {_ci(s['score_ci']):>17} {d:>13} "
                      f"{_ci(s['d_reference_ci']):>17} {_share(s['gap_closed']):>24} {m:>8}")
     if engagement:
-        lines.append("does engagement help the match? (real turns of each held-out session; P = P(its cluster))")
-        for e in engagement:
-            a, b = e["outcomes"], e["outcomes+engagement"]
-            lines.append(f"  first {e['turns']:2d} turns: outcomes only {a['accuracy']:.2f} right, P {a['p_true']:.2f}; "
-                         f"with engagement {b['accuracy']:.2f} right, P {b['p_true']:.2f}; "
-                         f"diff P {e['p_true_diff']:+.3f} {_ci(e['p_true_diff_ci'], 3)}")
+        lines.append(format_engagement(engagement))
+    return "\n".join(lines)
+
+
+def format_engagement(engagement: list[dict]) -> str:
+    """"Does engagement help the match?" as text: means over people, the difference's 95 % t-interval."""
+    first = engagement[0]
+    unit = (f"{first['people']} people ({first['sessions']} held-out sessions; a person's sessions averaged)"
+            if "people" in first else f"{first['sessions']} held-out sessions")
+    lines = [f"does engagement help the match? (real turns of each held-out session; P = P(its cluster); "
+             f"means and 95 % t-interval over {unit})"]
+    for e in engagement:
+        a, b = e["outcomes"], e["outcomes+engagement"]
+        lines.append(f"  first {e['turns']:2d} turns: outcomes only {a['accuracy']:.2f} right, P {a['p_true']:.2f}; "
+                     f"with engagement {b['accuracy']:.2f} right, P {b['p_true']:.2f}; "
+                     f"diff P {e['p_true_diff']:+.3f} {_ci(e['p_true_diff_ci'], 3)}")
     return "\n".join(lines)
 
 
@@ -232,6 +250,43 @@ def write_personalise_rows(rows: list[dict], path: Path) -> None:
         vals = [r.get(k) for k in PERSONALISE_ROW_COLUMNS[:-4]] + list(r["visits"])
         lines.append(",".join("" if v is None else repr(v) if isinstance(v, float) else str(v) for v in vals))
     _write_gzip_lines(lines, path)
+
+
+_ENGAGEMENT_LABELS = (("outcomes", "outcomes"), ("engagement", "outcomes+engagement"))
+
+
+def write_engagement_rows(meas: list[dict], path: Path) -> None:
+    """The per-session engagement measurements (``personalisation.engagement_information``) as CSV,
+    floats as ``repr`` so that ``read_engagement_rows`` gives them back exactly."""
+    lines = [",".join(ENGAGEMENT_ROW_COLUMNS)]
+    for m in meas:
+        vals = [m["user"], str(int(m["turns"]))]
+        for _, label in _ENGAGEMENT_LABELS:
+            vals += [str(bool(m[label]["correct"])), repr(float(m[label]["p_true"]))]
+        lines.append(",".join(vals))
+    write_text_atomic(Path(path), "\n".join(lines) + "\n")
+
+
+def read_engagement_rows(path: Path) -> list[dict]:
+    """The measurements ``write_engagement_rows`` wrote (``personalisation.summarise_engagement`` takes them)."""
+    with open(path, newline="") as fh:
+        return [{"user": r["user"], "turns": int(r["turns"]),
+                 **{label: {"correct": r[f"{col}_correct"] == "True", "p_true": float(r[f"{col}_p_true"])}
+                    for col, label in _ENGAGEMENT_LABELS}} for r in csv.DictReader(fh)]
+
+
+def rewrite_engagement(out: Path, meas: list[dict], command: str) -> dict[str, Any]:
+    """Replace the engagement part of an ``evaluate --personalise`` output folder (its row file and
+    ``personalise.json``'s ``engagement_information``) by ``meas``, keeping everything else of the
+    report; ``command`` (what recomputed it) is recorded as ``engagement_command``. The report."""
+    out = Path(out)
+    report = json.loads((out / "personalise.json").read_text())
+    report["engagement_information"] = personalisation.summarise_engagement(meas)
+    report["engagement_rows_file"] = ENGAGEMENT_ROWS_FILE
+    report["engagement_command"] = command
+    write_engagement_rows(meas, out / ENGAGEMENT_ROWS_FILE)
+    write_json_atomic(out / "personalise.json", report)
+    return report
 
 
 # ----------------------------------------------------------------------------------------------

@@ -1,6 +1,7 @@
 """Personalisation from the command line: `run --policy personalised` live, `evaluate --personalise`."""
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import subprocess
@@ -102,6 +103,24 @@ def test_evaluate_personalise_on_a_held_out_session(dataset_root, tmp_path, monk
     exact = [s for s in report["summary"] if s["assessment"] is None]
     assert all(oracle["score"] >= s["score"] - 1e-9 for s in exact)
     assert [e["turns"] for e in report["engagement_information"]] == [6, 12, 25]
+    assert all(e["people"] == 1 and e["sessions"] == 1 for e in report["engagement_information"])
+    # the per-session measurements are stored: the table is re-summarised (over people) without a rerun
+    from nao_trainer.experiments import personalisation, reports
+
+    meas = reports.read_engagement_rows(out / report["engagement_rows_file"])
+    assert [m["turns"] for m in meas] == [6, 12, 25] and len({m["user"] for m in meas}) == 1
+    assert meas[0]["user"].startswith("session:user_")
+    assert personalisation.summarise_engagement(meas) == report["engagement_information"]
+    # the engagement part alone (analysis/engagement_information.py, no policy trained) writes what the full run wrote
+    stored = (out / "engagement_rows.csv").read_bytes()
+    spec = importlib.util.spec_from_file_location("engagement_information",
+                                                  PROJECT_ROOT / "analysis" / "engagement_information.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    again = script.rewrite(dataset_root, [out], limit=1)[out]
+    assert (out / "engagement_rows.csv").read_bytes() == stored
+    assert again["engagement_information"] == report["engagement_information"]
+    assert again["summary"] == report["summary"] and again["engagement_command"].endswith(str(out))
     beside = {s["policy"]: s for s in report["ceiling"]["summary"]}  # the Bayes ceiling section (issue 21)
     assert {"ceiling", "bayes", "bayes-psychometric", "questplus", "staircase-2d1u@2", "oracle-objective"} <= set(beside)
     assert beside["oracle-objective"]["value"] >= beside["ceiling"]["value"] - 1e-9
@@ -115,6 +134,22 @@ def test_evaluate_personalise_on_a_held_out_session(dataset_root, tmp_path, monk
 
     (exported,) = list(users.iterdir())
     assert load_simulator_file(exported).name.startswith("session:")
+
+
+@pytest.mark.slow
+def test_the_engagement_measurements_do_not_depend_on_the_session_prior(dataset_root, tmp_path, monkeypatch):
+    """What lets analysis/engagement_information.py recompute the own-rates outputs' engagement part with the
+    default session prior: the held-out fits it uses are the same for every --session-prior."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    from nao_trainer.experiments import personalisation
+    from nao_trainer.learn.artifacts import load_manifest
+    from nao_trainer.learn.fitting import Turns
+    from nao_trainer.learn.users import read_turns
+
+    turns = Turns.from_columns(read_turns(dataset_root, load_manifest(None)["compat"]).columns)
+    data, own = (personalisation.held_out(turns, "user_1/session_4", 3, 50, 0, prior) for prior in (None, 2.0))
+    assert not (data.user.truth.p_success == own.user.truth.p_success).all()  # the users differ ...
+    assert personalisation.engagement_information(own) == personalisation.engagement_information(data)  # not this
 
 
 @pytest.mark.parametrize("args", [["--users", "clusters"], ["--users", "sessions"],

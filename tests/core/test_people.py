@@ -187,3 +187,36 @@ def test_evaluate_personalise_intervals_and_the_gap_bootstrap_are_over_people():
     assert personalisation.summarise(rows) == personalisation.summarise(rows)
     text = reports.format_personalise(list(by.values()), [])
     assert text.splitlines()[0].startswith("means and 95 % t-intervals over 3 people (4 held-out sessions")
+
+
+def _engagement_measurements():
+    """Per-session engagement measurements (``personalisation.engagement_information``) at 6 and 25 turns."""
+    p_out = [0.2, 0.4, 0.5, 0.9]
+    p_eng = [0.8, 0.9, 0.4, 0.9]  # user_1's two sessions gain 0.6 and 0.5, user_2 loses 0.1, user_3 gains 0
+    meas = []
+    for turns in (6, 25):
+        for u, a, b in zip(_SESSIONS, p_out, p_eng):
+            meas.append({"user": u, "turns": turns, "outcomes": {"correct": a > 0.45, "p_true": a},
+                         "outcomes+engagement": {"correct": b > 0.45, "p_true": b}})
+    return meas
+
+
+def test_does_engagement_help_the_match_is_summarised_over_people(tmp_path):
+    """Accuracy, P(true cluster) and their difference average a person's sessions first (user_1's two count
+    once) with the t-interval over the 3 people, not the 4 sessions; the row file gives them back exactly."""
+    from nao_trainer.experiments import personalisation, reports
+
+    meas = _engagement_measurements()
+    got = personalisation.summarise_engagement(meas)
+    assert [e["turns"] for e in got] == [6, 25]
+    e = got[0]
+    assert e["people"] == 3 and e["sessions"] == 4
+    assert e["outcomes"]["p_true"] == pytest.approx(np.mean([0.3, 0.5, 0.9]))  # over sessions: 0.5
+    assert e["outcomes"]["accuracy"] == pytest.approx(np.mean([0.0, 1.0, 1.0]))  # over sessions: 0.5
+    assert e["outcomes+engagement"]["accuracy"] == pytest.approx(np.mean([1.0, 0.0, 1.0]))  # over sessions: 0.75
+    d = np.array([0.55, -0.1, 0.0])
+    assert e["p_true_diff"] == pytest.approx(d.mean())  # over sessions: 0.25
+    assert e["p_true_diff_ci"] == pytest.approx(people.t_interval(d))
+    assert "over 3 people (4 held-out sessions" in reports.format_engagement(got)
+    reports.write_engagement_rows(meas, tmp_path / reports.ENGAGEMENT_ROWS_FILE)
+    assert reports.read_engagement_rows(tmp_path / reports.ENGAGEMENT_ROWS_FILE) == meas
