@@ -7,6 +7,7 @@ may import its own layer and the layers below it; ``nao_trainer.x.y`` belongs to
 from __future__ import annotations
 
 import ast
+import sys
 from pathlib import Path
 
 import nao_trainer
@@ -138,3 +139,45 @@ def test_no_import_cycle():
 
 def modules_is_package(name: str) -> bool:
     return (PACKAGE.parent / Path(*name.split(".")) / "__init__.py").exists()
+
+
+def _local_imports():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("local_imports", PACKAGE.parent / "tools" / "local_imports.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["local_imports"] = module  # its dataclass looks its module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_every_function_local_import_of_the_package_has_its_reason():
+    """Issue 26: a function-local import of a package module is a cycle broken, a heavy package kept out of a
+    module that loads none (``tools/local_imports.py`` works it out from the code), or an optional extra;
+    anything else belongs at the top of its module."""
+    tool = _local_imports()
+    sites = tool.sites()
+    assert sites, "no function-local import found: the walk is broken"
+    bare = [f"{s.path} imports {s.target}" for s in sites if not s.reason]
+    assert not bare, "function-local imports with no reason (move them to the top of the module):\n" + "\n".join(bare)
+
+
+def test_a_free_local_import_is_found_and_a_heavy_one_is_not(tmp_path, monkeypatch):
+    """The walk itself: in a copy of two modules, a local import of a module that loads nothing heavy has no
+    reason, one that loads numpy into a module without it does, and a guarded one names the extra."""
+    tool = _local_imports()
+    pkg = tmp_path / "nao_trainer"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "light.py").write_text("import json\n")
+    (pkg / "heavy.py").write_text("import numpy as np\n")
+    (pkg / "user.py").write_text("def f():\n    from nao_trainer import light\n\n"
+                                 "def g():\n    from nao_trainer.heavy import np\n\n"
+                                 "def h():\n    try:\n        from nao_trainer import light\n"
+                                 "    except ImportError:\n        raise SystemExit(2)\n")
+    monkeypatch.setattr(tool, "PACKAGE", pkg)
+    for cached in (tool._modules, tool._parsed, tool.closure):
+        cached.cache_clear()
+    found = {s.path: s.reason for s in tool.sites()}
+    assert found == {"nao_trainer/user.py:2": "", "nao_trainer/user.py:5": "loads numpy",
+                     "nao_trainer/user.py:9": "extra: an optional extra, refused in one line when missing"}

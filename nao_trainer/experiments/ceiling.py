@@ -29,8 +29,12 @@ from nao_trainer.core import bayes, evaluation, mdp, people
 from nao_trainer.core.objective import Objective
 from nao_trainer.errors import DataError
 from nao_trainer.core.psychometric import PooledModel
+from nao_trainer.core.simulation import UserSimulator
 from nao_trainer.experiments import adaptive
+from nao_trainer.experiments.personalisation import own_rates_user
 from nao_trainer.learn.bayes_cache import solve_cached
+from nao_trainer.learn.fitting import FitOptions, Turns, fit_cluster
+from nao_trainer.learn.users import beta_concentration, hold_out, leave_one_person_out, read_turns, session_user
 
 
 def level_rates(sim: Any) -> np.ndarray:
@@ -419,9 +423,6 @@ def multi_session(p: np.ndarray, obj: Objective, turns: int = 25, sessions: Sequ
 
 
 def _session_one(turns: Any, session: str, k: int, n_init: int, seed: int, session_prior: float | None) -> Any:
-    from nao_trainer.learn.fitting import FitOptions, fit_cluster
-    from nao_trainer.experiments.personalisation import own_rates_user
-    from nao_trainer.learn.users import hold_out, session_user
 
     split = hold_out(turns, session, k, n_init, seed)
     members = split.rest.subset(split.labels == split.cluster)
@@ -437,8 +438,6 @@ def session_users(source: Path, compat: str | None, k: int = 3, session_prior: f
                   workers: int = 2, n_init: int = 50) -> list[Any]:
     """The held-out per-session users of ``evaluate --personalise`` (same clustering and fits), without
     training any policy: ``session_prior`` None = the data prior, a number = own rates shrunk by it."""
-    from nao_trainer.learn.fitting import Turns
-    from nao_trainer.learn.users import leave_one_person_out, read_turns
 
     turns = Turns.from_columns(read_turns(Path(source), compat).columns)
     return leave_one_person_out(turns, _session_one, (k, n_init, seed, session_prior), k, source, workers)
@@ -470,7 +469,6 @@ def personalise_inputs(result: dict[str, Any]) -> tuple[dict[str, np.ndarray], d
     """Rates, training rates, clusters and the live priors per held-out user (``evaluate --personalise``):
     ``bayes`` with the fitted clusters, ``bayes-psychometric`` with the pooled psychometric model
     fitted on the other sessions."""
-    from nao_trainer.core.simulation import UserSimulator
 
     sims = [UserSimulator.from_dict(u) for u in result["users"]]
     rates = {s.name: level_rates(s) for s in sims}
@@ -501,7 +499,6 @@ def noise_corrected_oracle(counts: dict[str, np.ndarray], obj: Objective, turns:
                     independently: the gap that exists if people differ as much as the data say.
 
     ``counts[name]`` = (s1, f1, ..., s4, f4) of a session; ``V_l`` = ``obj.fixed_value``."""
-    from nao_trainer.learn.users import beta_concentration
 
     rng = rng or np.random.default_rng(0)
     per: dict[str, np.ndarray] = {}

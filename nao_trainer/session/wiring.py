@@ -24,8 +24,10 @@ from nao_trainer.answers.inputs import KeyboardAnswers, TactileAnswers
 from nao_trainer.answers.simulated import SimulatedParticipant, StandInButtons
 from nao_trainer.console.keys import KeyReader
 from nao_trainer import registry
+from nao_trainer.eeg.factory import open_monitor  # pylsl-free: it sets LSL's scope before loading pylsl
 from nao_trainer.errors import ConfigError, EEGUnavailable, Interrupted, RobotUnavailable, UserError
 from nao_trainer.files import PROJECT_ROOT, write_text_atomic
+from nao_trainer.learn.artifacts import load_simulator
 from nao_trainer.policies.factory import make_policy
 from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullHealth, NullMonitor, NullObserver,
                                NullUpkeep, Policy, Robot, RobotConnectionLost, RobotHealthWatch, RobotUpkeep,
@@ -124,10 +126,6 @@ def build_simulator(config: StudyConfig) -> UserSimulator:
     or the config's level rates."""
     spec = config.participant_model.user_model
     if spec:
-        try:
-            from nao_trainer.learn.artifacts import load_simulator
-        except ImportError as exc:
-            raise ConfigError(f"user model {spec!r}: data-driven simulators are not available in this install ({exc})") from None
         shipped = PROJECT_ROOT / spec
         if spec.endswith(".json") and not Path(spec).is_absolute() and not Path(spec).exists() and shipped.exists():
             spec = str(shipped)  # a file shipped with the project (e.g. the demo's sim/participants/level4.json)
@@ -148,8 +146,6 @@ def open_engagement_monitor(config: StudyConfig, session_dir: Path, rng: np.rand
     eeg = config.eeg
     if eeg.mode == "off":
         return NullMonitor()  # without importing pylsl
-    from nao_trainer.eeg.factory import open_monitor  # sets LSL's scope before its first stream object
-
     rest = {} if simulator is None else {"rest_target": simulator.rest_engagement()}
     return open_monitor(eeg.mode, eeg, session_dir, rng, config.participant.pseudonym,
                         record_xdf=True,  # session.xdf beside the session's files (eeg.xdf: false turns it off)

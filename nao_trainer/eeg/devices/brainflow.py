@@ -32,6 +32,8 @@ from nao_trainer.core.engagement import QualityThresholds
 from nao_trainer.core.montage import Montage
 from nao_trainer.core.settings import setting, settings
 from nao_trainer.eeg.device import EEGDevice, Source
+from nao_trainer.eeg.inlet import StreamQuery  # pylsl-free (pylsl loads when a stream is opened)
+from nao_trainer.eeg.lsl_scope import configure_lsl
 from nao_trainer.errors import EEGUnavailable
 
 log = logging.getLogger(__name__)
@@ -122,8 +124,6 @@ class BrainFlowDevice(EEGDevice):
                        prefer_name="BrainFlow", board=f"BrainFlow {title} board (id {board_id})")
 
     def open(self, eeg, rng, *, simulated: bool, rest_target: float = 0.5) -> Source:
-        from nao_trainer.eeg.inlet import StreamQuery
-
         montage = self.montage(simulated)
         bridge = BrainFlowBridge(self.board_id(simulated), self.settings, montage, eeg.lsl_scope)
         bridge.start(required=bool(eeg.required) or simulated)
@@ -226,8 +226,6 @@ class BrainFlowBridge:
         del board  # collected now, before a new session of the same board exists (see _read)
 
     def _open_outlet(self) -> None:
-        from nao_trainer.eeg.lsl_scope import configure_lsl
-
         configure_lsl(self.scope)
         import pylsl
 

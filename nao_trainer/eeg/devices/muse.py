@@ -10,11 +10,15 @@ from __future__ import annotations
 import itertools
 import os
 
+import numpy as np
+
 from nao_trainer.core.engagement import QualityThresholds
 from nao_trainer.core.eeg import CHANNELS
 from nao_trainer.core.montage import Montage
 from nao_trainer.core.settings import setting, settings
 from nao_trainer.eeg.device import EEGDevice, Source
+from nao_trainer.eeg.inlet import StreamQuery  # pylsl-free (pylsl loads when a stream is opened)
+from nao_trainer.eeg.simulated_muse import SimulatedMuse, fake_mac
 
 _SIM_COUNTER = itertools.count(1)
 MUSE_RATE_HZ = 256.0  # muselsl's nominal rate for the Muse 2016 / 2 / S EEG stream
@@ -57,15 +61,9 @@ class MuseDevice(EEGDevice):
                        prefer_name=s.prefer_name, board="simulated Muse" if simulated else "Muse via LSL (muselsl)")
 
     def open(self, eeg, rng, *, simulated: bool, rest_target: float = 0.5) -> Source:
-        from nao_trainer.eeg.inlet import StreamQuery  # pylsl-free module, numpy
-
         montage = self.montage(simulated)
         if not simulated:
             return Source(StreamQuery(eeg.stream_type, eeg.stream_name, eeg.source_id, montage.prefer_name), montage)
-        import numpy as np
-
-        from nao_trainer.eeg.simulated_muse import SimulatedMuse, fake_mac
-
         # The simulator draws from its own generator (seeded from the session's) in its own thread,
         # so the session's random stream stays reproducible.
         sim_rng = np.random.default_rng(int(rng.integers(0, 2**63 - 1)))
