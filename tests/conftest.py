@@ -87,6 +87,30 @@ def dataset_root(tmp_path_factory) -> Path:
     return _extract("clean_data_bands.tar.xz", tmp_path_factory, "bands")
 
 
+@pytest.fixture
+def own_cache(dataset_root, tmp_path_factory, tmp_path, monkeypatch) -> Path:
+    """``XDG_CACHE_HOME`` of this test alone (no Bayes plan or import cache of another test), holding a copy of
+    the run's one import of the published sessions: importing the 50 sessions costs ~6 s of CPU, paid once per
+    run (under ``pytest -n`` the workers take turns on a lock, as for the extraction)."""
+    from nao_trainer.data import dataset
+    from nao_trainer.learn.artifacts import load_manifest
+
+    compat = load_manifest(None).get("compat")
+    base = tmp_path_factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    name = dataset.cache_dir(dataset_root, compat).name
+    shared = root / "import-cache" / name
+    with open(root / "import-cache.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (shared / ".complete").exists():
+            dataset.import_dataset(dataset_root, compat=compat, cache_dir=shared)
+            (shared / ".complete").write_text("")
+    mine = tmp_path / "cache"
+    shutil.copytree(shared, mine / "nao-trainer" / "import" / name, ignore=shutil.ignore_patterns(".complete"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(mine))
+    return mine
+
+
 @pytest.fixture(scope="session")
 def raw_root(tmp_path_factory) -> Path:
     """The 4 published sessions with raw Muse recordings (``robot_N``, ``user_N``, ``intro``)."""

@@ -85,8 +85,7 @@ def test_a_torn_participant_state_is_refused_in_one_line_and_fresh_starts_over(t
     assert len(list(path.parent.glob("personalised.json.replaced-*"))) == 1 and path.exists()
 
 
-def test_evaluate_personalise_on_a_held_out_session(dataset_root, tmp_path, monkeypatch, capsys):
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+def test_evaluate_personalise_on_a_held_out_session(dataset_root, own_cache, tmp_path, capsys):
     out, users = tmp_path / "ev", tmp_path / "users"
     rc = main(["evaluate", "--personalise", "--users", "sessions", "--data", str(dataset_root), "--limit", "1",
                "--assessment", "0,3", "--episodes", "300", "--mc-episodes", "30", "--out", str(out), "--no-plots",
@@ -137,10 +136,9 @@ def test_evaluate_personalise_on_a_held_out_session(dataset_root, tmp_path, monk
 
 
 @pytest.mark.slow
-def test_the_engagement_measurements_do_not_depend_on_the_session_prior(dataset_root, tmp_path, monkeypatch):
+def test_the_engagement_measurements_do_not_depend_on_the_session_prior(dataset_root, own_cache):
     """What lets analysis/engagement_information.py recompute the own-rates outputs' engagement part with the
     default session prior: the held-out fits it uses are the same for every --session-prior."""
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     from nao_trainer.experiments import personalisation
     from nao_trainer.learn.artifacts import load_manifest
     from nao_trainer.learn.fitting import Turns

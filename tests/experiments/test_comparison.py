@@ -140,8 +140,7 @@ def test_leave_one_session_out_never_trains_on_the_user(dataset_root):
 
 
 @pytest.mark.slow
-def test_evaluate_on_sessions_of_a_dataset_root(dataset_root, tmp_path, monkeypatch, capsys):
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+def test_evaluate_on_sessions_of_a_dataset_root(dataset_root, own_cache, tmp_path, capsys):
     out = tmp_path / "ev"
     rc = main(["evaluate", "--users", str(dataset_root), "--limit", "2", "--seeds", "1", "--episodes", "100",
                "--policies", "fixed:2,best-fixed,usp:qaug,oracle", "--out", str(out), "--no-plots", "--json"])
