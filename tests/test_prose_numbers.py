@@ -97,6 +97,10 @@ def user_models(model: str) -> dict:
     return next(m for m in stored("docs/results/user-models/user_models.json")["models"] if m["model"] == model)
 
 
+def variant(i: int) -> dict:
+    return stored("docs/results/user_model_variants.json")["variants"][i]
+
+
 @lru_cache(maxsize=None)
 def eval_rows(users: str) -> list[dict]:
     with gzip.open(RESULTS / users / "evaluation_rows.csv.gz", "rt") as fh:
@@ -240,6 +244,27 @@ CASES: list[Quote] = [
     Quote(RESULTS_MD, "the learners score lower: performance {0:.2f}, shaping {1:.2f}, Q-augmentation {2:.2f} "
                       "(`docs/results/sessions-informed`)",
           lambda: tuple(evaluation("sessions-informed", p)["score"] for p in ("usp:performance", "usp:shaping", "usp:qaug"))),
+    # user models and their variants (docs/results/user-models, docs/results/user_model_variants.json)
+    *[Quote(RESULTS_MD, f"| {label} | {{0:.4f}} [{{1:.4f}}, {{2:.4f}}] |",
+            lambda m=model: (user_models(m)["log_lik_per_turn"], *user_models(m)["log_lik_ci"]))
+      for model, label in (("per-level", "per level (Beta prior per level from the other sessions)"),
+                           ("clusters", "clusters (posterior mixture of the 3 clusters' level rates)"))],
+    Quote(RESULTS_MD, "| **{0:.4f}** [{1:.4f}, {2:.4f}] | **{3:+.4f} [{4:+.4f}, {5:+.4f}]** | {6:.3f} |",
+          lambda: (user_models("psychometric")["log_lik_per_turn"], *user_models("psychometric")["log_lik_ci"],
+                   user_models("psychometric")["d_per_level"], *user_models("psychometric")["d_per_level_ci"],
+                   user_models("psychometric")["calibration"]["ece"])),
+    Quote(RESULTS_MD, "It is less well calibrated ({0:.3f} against {1:.3f}).",
+          lambda: (user_models("psychometric")["calibration"]["ece"], user_models("per-level")["calibration"]["ece"])),
+    *[Quote(RESULTS_MD, "| {0:.4f} [{1:.4f}, {2:.4f}] | ", lambda i=i: (variant(i)["ll"], *variant(i)["ll_ci"]))
+      for i in range(7)],
+    *[Quote(RESULTS_MD, "| {0:.3f}, {1:+.3f} [{2:.3f}, {3:.3f}] | {4:.3f}, {5:+.3f} [{6:.3f}, {7:.3f}] |",
+            lambda i=i: tuple(x for o in ("target-p:0.75", "target-rate:0.75")
+                              for x in (variant(i)[o]["own rates"]["value"], variant(i)[o]["own rates"]["d_level2"],
+                                        *variant(i)[o]["own rates"]["d_level2_ci"])))
+      for i in range(7)],
+    Quote(RESULTS_MD, "(own rates: {0:.3f} to {1:.3f} under `target-p:0.75`, {2:.3f} to {3:.3f} under `target-rate:0.75`)",
+          lambda: tuple(x for o in ("target-p:0.75", "target-rate:0.75")
+                        for x in spread(variant(i)[o]["own rates"]["value"] for i in range(7)))),
     # "What it shows" (personalisation)
     Quote(RESULTS_MD, "where there is something to win ({0:.1f} points between the best fixed level and the oracle), the "
                       "whole pipeline without an assessment beats the best fixed level by {1:.2f} points [{2:.2f}, {3:.2f}] "

@@ -160,3 +160,16 @@ def test_every_generated_table_names_the_command_that_made_it():
                 f"--out docs/results/ceiling-{users}-{objective.replace(':', '-')}`" in first, first
     for name in mod.EVAL_SETS:
         assert mod.eval_block(name).startswith("`nao-trainer evaluate --users "), name
+
+
+@pytest.mark.parametrize("path", sorted(ROOT.glob("docs/results/*/personalise.json")), ids=lambda p: p.parent.name)
+def test_the_stored_engagement_summaries_are_their_rows_over_people(path):
+    """Every stored `evaluate --personalise` output keeps its per-session engagement measurements, and its
+    "does engagement help the match?" table is their summary over people (48), not over the 50 sessions."""
+    from nao_trainer.experiments import personalisation, reports
+
+    report = json.loads(path.read_text())
+    meas = reports.read_engagement_rows(path.parent / report["engagement_rows_file"])
+    assert len({m["user"] for m in meas}) == report["n_users"]
+    assert personalisation.summarise_engagement(meas) == report["engagement_information"]
+    assert all(e["people"] == 48 and e["sessions"] == 50 for e in report["engagement_information"])
