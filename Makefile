@@ -35,7 +35,7 @@ os-packages:
 # 4 workers on 2 cores: most tests wait on robot time, LSL streams and child processes, not the CPU
 # (measured: 6 min 38 s with 4 workers against 9 min 10 s with 2, same machine and load, 2026-12-01).
 # Bytecode first. The tests start some hundreds of nao-trainer processes, and where PYTHONDONTWRITEBYTECODE is
-# set (CI containers, this project's own machine) each one compiled the package from source again, and each
+# set (as on the machine this was measured on) each one compiled the package from source again, and each
 # of the 4 workers rewrote every test module's asserts again: 0.4 s of CPU per process (a 1-turn
 # `nao-trainer run`: 1.3 s with the bytecode, 1.7 s without) and 3.4 s per worker (collection: 5.1 s, 1.7 s).
 # compileall writes the package's; one collection with bytecode allowed writes pytest's rewritten tests.
