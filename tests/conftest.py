@@ -62,14 +62,19 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+def _run_root(tmp_path_factory) -> Path:
+    """This run's temp root, shared by the xdist workers (each has <run>/popen-gwN of its own)."""
+    base = tmp_path_factory.getbasetemp()
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+
 def _extract(archive: str, tmp_path_factory, name: str) -> Path:
     """``archive`` extracted once per test run, also under ``pytest -n`` (the workers share this run's temp root
     and take turns on a lock: the first extracts, ~5 s for the bands, the others read). Tests only read it."""
     path = DATA / archive
     if not path.exists():
         pytest.fail(f"{path} is missing: the tests need ../shared/data/sequence-learning beside the repo")
-    base = tmp_path_factory.getbasetemp()
-    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # xdist: <run>/popen-gwN per worker
+    root = _run_root(tmp_path_factory)
     dest = root / name
     with open(root / f"{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
@@ -96,8 +101,7 @@ def own_cache(dataset_root, tmp_path_factory, tmp_path, monkeypatch) -> Path:
     from nao_trainer.learn.artifacts import load_manifest
 
     compat = load_manifest(None).get("compat")
-    base = tmp_path_factory.getbasetemp()
-    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    root = _run_root(tmp_path_factory)
     name = dataset.cache_dir(dataset_root, compat).name
     shared = root / "import-cache" / name
     with open(root / "import-cache.lock", "w") as lock:
