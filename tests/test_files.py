@@ -6,7 +6,7 @@ import json
 import pytest
 
 from nao_trainer.errors import DataError
-from nao_trainer.files import read_json, write_json_atomic
+from nao_trainer.files import json_text, read_json, write_json_atomic
 
 
 def test_write_json_refuses_nan_and_leaves_the_old_file(tmp_path):
@@ -18,6 +18,36 @@ def test_write_json_refuses_nan_and_leaves_the_old_file(tmp_path):
         write_json_atomic(path, {"v": float("nan")})
     assert json.loads(path.read_text()) == {"rows": [[1.0, 2.5], [3, 4]]}
     assert [p.name for p in tmp_path.iterdir()] == ["x.json"]  # no temporary file left
+
+
+def _dumps_with_rows_joined(data) -> str:
+    """The layout json_text keeps: json.dumps(indent=1), each list of numbers only then joined on one line."""
+    def join(value):
+        if isinstance(value, dict):
+            return {k: join(v) for k, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            if value and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+                return "\x00[" + ", ".join(json.dumps(v) for v in value) + "]\x00"
+            return [join(v) for v in value]
+        return value
+    return json.dumps(join(data), indent=1).replace('"\\u0000', "").replace('\\u0000"', "")
+
+
+@pytest.mark.parametrize("data", [
+    {"rows": [[1.0, 2.5, -0.0, 1e300, 3], [True, 1], [], {}], "é\n\"": None, 1: {"x": [None, "s"]}, 2.5: False},
+    [[[1, 2], [3]], [], "[1,2]", {"k": [{"v": [0.1, 7]}]}, 12345678901234567890],
+    {}, [], "text", 3, None,
+])
+def test_json_text_is_json_dumps_indented_with_number_rows_on_one_line(data):
+    assert json_text(data) == _dumps_with_rows_joined(data)
+    assert json.loads(json_text(data)) == json.loads(json.dumps(data))
+
+
+def test_json_text_keeps_a_string_that_looks_like_a_row_and_refuses_what_json_refuses():
+    assert json.loads(json_text({"note": "see [1,2]"})) == {"note": "see [1,2]"}  # a regex over the text did not
+    for bad in ({"v": [float("inf")]}, {"v": float("-inf")}, {(1, 2): 3}, {"v": object()}):
+        with pytest.raises((ValueError, TypeError)):
+            json_text(bad)
 
 
 def test_read_json_errors_name_the_file(tmp_path):

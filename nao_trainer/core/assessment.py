@@ -116,6 +116,24 @@ class Candidate:
     table: np.ndarray
 
 
+def _log_beta_ratio(a: np.ndarray, b: np.ndarray, k: int, j: int) -> np.ndarray:
+    """log B(a + k, b + j) - log B(a, b) for whole k, j >= 0: the log-probability of one ordered run of k
+    successes and j failures under a Beta(a, b) rate.
+
+    By B(a + 1, b) = B(a, b) a / (a + b) it is a sum of 2 (k + j) logs (k, j <= 3 here). It is the log-gamma
+    form to 1e-13 (whose differences lose digits at small a), without scipy.special: that cost each session
+    0.3 s of CPU to import for this one function.
+    """
+    out = np.zeros(np.broadcast(a, b).shape)
+    for i in range(k):
+        out += np.log(a + i)
+    for i in range(j):
+        out += np.log(b + i)
+    for i in range(k + j):
+        out -= np.log(a + b + i)
+    return out
+
+
 @dataclass
 class Personaliser:
     """The pipeline of the module docstring for ``n`` participants at once.
@@ -228,8 +246,6 @@ class Personaliser:
         choice among candidates alone never does. Needs a finite ``kappa`` (with the models as
         fitted nothing is learned about the participant's own rates).
         """
-        from scipy.special import gammaln as glab  # lazy: scipy is slow to import
-
         n_ep = self.log_w.shape[0]
         r = self.turns - turn
         out = np.full((n_ep, 4), -np.inf)
@@ -246,9 +262,8 @@ class Personaliser:
                 if m >= r:
                     continue
                 total = m * ((level + 1) * p_next - 1.0)
-                log_beta_ab = glab(a) + glab(b) - glab(a + b)
                 for k in range(m + 1):
-                    seq = glab(a + k) + glab(b + m - k) - glab(a + b + m) - log_beta_ab  # (n, K)
+                    seq = _log_beta_ratio(a, b, k, m - k)  # (n, K)
                     prob = comb(m, k) * (w * np.exp(seq)).sum(axis=1)
                     lw = self.log_w + seq
                     wins, played = self.wins.copy(), self.played.copy()
