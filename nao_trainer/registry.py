@@ -8,7 +8,7 @@ line. A separate package adds its own through Python entry points, one group per
 ``nao_trainer.robot_models``), read once, when a kind's names are first needed.
 
 The project's own plug-ins are the table ``BUILTIN`` at the end of this module: the one place a
-built-in kind string is written beside its home. No kind string is compared outside its registry:
+built-in kind string is written beside its home (and ``DEFAULTS``: the one a config gets when it names none). No kind string is compared outside its registry:
 callers ask ``spec(kind, name)`` / ``load(kind, name)`` and use what the plug-in declares.
 """
 from __future__ import annotations
@@ -203,6 +203,19 @@ BUILTIN: tuple[tuple[str, str, str], ...] = (
     ("robot_model", "pepper", "nao_trainer.robot.models.pepper:PepperModel"),
     ("eeg_device", "brainflow", "nao_trainer.eeg.devices.brainflow:BrainFlowDevice"),
 )
+
+
+#: The built-in a study config gets when it names none, per kind that has such a setting: the one place a
+#: default kind is written (``task.name``, ``eeg.device`` and ``robot.model`` declare theirs as ``default(kind)``).
+DEFAULTS: dict[str, str] = {"task": "sequence", "eeg_device": "muse", "robot_model": "nao"}
+
+
+def default(kind: str) -> str:
+    """The name of ``kind`` a config that names none gets (``DEFAULTS``); a kind without one is a ``ValueError``."""
+    _check_kind(kind)
+    if kind not in DEFAULTS:
+        raise ValueError(f"{WORDS[kind]} has no default: a config names it")
+    return DEFAULTS[kind]
 
 
 def _register_builtins() -> None:

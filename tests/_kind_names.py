@@ -8,9 +8,11 @@ of the package (the module list and parse of ``tests/test_layers.py``) and the n
 reports, outside the registry module and outside the name's own home:
 
 *comparisons*: ``x == "name"`` / ``!=`` / ``is``, ``x in ("name", ...)`` (a literal tuple, list, set or dict,
-or a module-level one, also one imported from another package module), ``"name" in x``,
-``x.startswith("name")``, ``case "name":``, and a literal table keyed by names looked up with
-``TABLE[x]`` / ``TABLE.get(x)``; a word matches a name also as a spec, ``name:argument``;
+or a module-level one, also one imported from another package module), ``x.startswith("name")``,
+``case "name":``, argparse's ``choices=(...)``, and a literal table keyed by names looked up with
+``TABLE[x]`` / ``TABLE.get(x)``; a word matches a name also as a spec, ``name:argument``. A kind is a value
+(``config.robot.model``, ``task.name``), so ``"word" in row`` and ``row["word"]``, which ask whether a row or
+a mapping holds a key (a turns.csv column such as ``sequence``), are not comparisons;
 
 *picks*: a name chosen in the code instead of asked for: ``registry.spec/load/make(kind, "name")`` or a
 function that passes its parameter to them (``make_device("muse")``), ``x if c else "name"``,
@@ -219,11 +221,8 @@ def walk(mods: dict[str, Path], root: Path, names: Registered,
                             compare(scope, left, m.words(right), node)
                         elif _is_str(m.resolve(left)):
                             compare(scope, right, m.words(left), node)
-                    elif isinstance(op, (ast.In, ast.NotIn)):
-                        if isinstance(m.resolve(right), COLLECTIONS):
-                            compare(scope, left, m.words(right), node)
-                        elif _is_str(left):
-                            compare(scope, right, [left.value], node)
+                    elif isinstance(op, (ast.In, ast.NotIn)) and isinstance(m.resolve(right), COLLECTIONS):
+                        compare(scope, left, m.words(right), node)
                     left = right
             elif isinstance(node, ast.Match):
                 compare(scope, node.subject, [p.value.value for case in node.cases for p in ast.walk(case.pattern)

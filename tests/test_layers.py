@@ -230,10 +230,10 @@ def test_the_walk_finds_a_planted_comparison_and_passes_the_legal_ones(tmp_path)
         "def legal(config, mode, row, kind):\n"
         "    a = mode in ('disabled', 'random', 'contextual')\n"  # NAOqi's speaking modes
         "    b = kind == 'random' or kind == 'oracle'\n"  # the evaluation's strategies
-        "    c = row['sequence']\n"  # a column
+        "    c = row['sequence'] if 'sequence' in row else None\n"  # a column
         "    d = setting('muse', kind=str)\n"  # the declared default
         "    return a, b, c, d\n\n"
-        "def planted(config, task, spec):\n"
+        "def planted(config, task, spec, parser):\n"
         "    if config.robot.model == 'pepper':  # pepper\n"
         "        pass\n"
         "    x = config.robot.model in MODELS  # nao pepper\n"
@@ -246,6 +246,8 @@ def test_the_walk_finds_a_planted_comparison_and_passes_the_legal_ones(tmp_path)
         "    v = config.task.name or 'sequence'  # sequence\n"
         "    u = {'nao': 1, 'pepper': 2}[config.robot.model]  # nao pepper\n"
         "    t = config.robot.model == tables.DEFAULT  # nao\n"
+        "    parser.add_argument('--model', choices=('nao', 'pepper'))  # nao pepper\n"
+        "    parser.add_argument('button', choices=('A', 'B', 'C'))\n"
         "    return x, y, z, w, v, u, t\n")
     (pkg / "session" / "wiring.py").write_text(wiring)
     (pkg / "tasks" / "sequence" / "__init__.py").write_text("def f(task):\n    return task == 'sequence'\n")
@@ -258,5 +260,5 @@ def test_the_walk_finds_a_planted_comparison_and_passes_the_legal_ones(tmp_path)
     found = {(h.where, h.name) for h in walk(mods, tmp_path, names)}
     planted = {(f"nao_trainer/session/wiring.py:{n}", name) for n, line in enumerate(wiring.splitlines(), 1)
                if "  # " in line for name in line.partition("  # ")[2].split()}
-    assert len(planted) == 12
+    assert len(planted) == 14
     assert found == planted, found ^ planted
