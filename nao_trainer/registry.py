@@ -8,7 +8,8 @@ line. A separate package adds its own through Python entry points, one group per
 ``nao_trainer.robot_models``), read once, when a kind's names are first needed.
 
 The project's own plug-ins are the table ``BUILTIN`` at the end of this module: the one place a
-built-in kind string is written beside its home (and ``DEFAULTS``: the one a config gets when it names none). No kind string is compared outside its registry:
+built-in kind string is written beside its home (and ``DEFAULTS``: the one a config gets when it names
+none). No kind string is compared outside its registry:
 callers ask ``spec(kind, name)`` / ``load(kind, name)`` and use what the plug-in declares.
 """
 from __future__ import annotations

@@ -67,18 +67,21 @@ class Hit:
 @dataclass(frozen=True)
 class Registered:
     """The registered names of every kind, each with the homes (folders, relative to the package's parent)
-    where it may be written: name -> homes (none for a plug-in of another distribution)."""
+    where it may be written: name -> homes."""
 
     homes: dict[str, tuple[str, ...]]
 
     @classmethod
     def read(cls, mods: dict[str, Path], root: Path) -> "Registered":
-        """From the registry: every group, built-in and installed; a home is the folder of the entry point's module."""
+        """From the registry, every group: the plug-ins whose entry point is a module of the package (``mods``);
+        a home is the folder of that module. The names of other distributions' plug-ins (and of those a test
+        registers for a while) are unknown to the package, so it cannot compare them."""
         homes: dict[str, list[str]] = {}
         for kind in registry.GROUPS:
             for found in registry.specs(kind):
                 path = mods.get(found.entry_point.partition(":")[0])
-                homes.setdefault(found.name, []).extend([path.parent.relative_to(root).as_posix()] if path else [])
+                if path is not None:
+                    homes.setdefault(found.name, []).append(path.parent.relative_to(root).as_posix())
         return cls({name: tuple(h) for name, h in homes.items()})
 
     def name_of(self, word: str) -> str | None:

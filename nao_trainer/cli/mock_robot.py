@@ -47,7 +47,8 @@ def register(sub) -> None:
     p.add_argument("--profile", metavar="FILE", help="answer as the robot recorded in FILE does (`nao-trainer "
                    "hardware-check --record FILE`; config/robot-profiles/naoqi-2.8-docs.json: the NAOqi 2.8 docs)")
     p.add_argument("--model", default=registry.default("robot_model"), type=_model, metavar="MODEL",
-                   help="the robot played: a robot model the stand-in has a body for (nao, pepper; default %(default)s)")
+                   help="the robot played: a robot model the stand-in has a body for "
+                        "(nao, pepper; default %(default)s)")
     p.set_defaults(func=_run)
     actions = p.add_subparsers(dest="mock_action", metavar="ACTION")
     press = actions.add_parser("press", help="touch a head button of a running stand-in (from another shell)",
@@ -68,7 +69,8 @@ def _model(name: str) -> str:
     from nao_trainer.robot.standin.services import MODEL_POSTURES, can_play  # imports qi
 
     if not can_play(name):
-        raise argparse.ArgumentTypeError(f"invalid choice: {name!r} (choose from {', '.join(map(repr, MODEL_POSTURES))})")
+        known = ", ".join(map(repr, MODEL_POSTURES))
+        raise argparse.ArgumentTypeError(f"invalid choice: {name!r} (choose from {known})")
     return name
 
 
