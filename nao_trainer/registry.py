@@ -130,9 +130,13 @@ def specs(kind: str) -> tuple[Spec, ...]:
 
 
 def spec(kind: str, name: str) -> Spec:
-    """The ``Spec`` of ``name``; an unknown name is one ``ConfigError`` line naming the installed ones."""
-    known = names(kind)
+    """The ``Spec`` of ``name``; an unknown name is one ``ConfigError`` line naming the installed ones. A name
+    registered already is answered without reading the entry points (a built-in keeps its name over theirs)."""
+    _check_kind(kind)
     found = _REGISTRY[kind].get(name)
+    if found is None:
+        known = names(kind)
+        found = _REGISTRY[kind].get(name)
     if found is None:
         near = difflib.get_close_matches(str(name), known, n=1)
         hint = f" (did you mean {near[0]!r}?)" if near else ""
