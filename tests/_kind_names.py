@@ -31,6 +31,10 @@ Two rules keep words that merely coincide with a name out, each stated here, non
 * **Stand-ins of hardware** (``STANDINS``): they play the device a plug-in drives, on the device's side of
   the wire, and know the robots they can play by name, as a lab's own stand-in would; the plug-in is what
   they check, so they cannot ask it.
+
+Not seen (a walk of literals): a name held in a local variable or built in an f-string, a list that mixes a
+kind's names with a word no plug-in is registered under (taken for another vocabulary), a branch on a
+plug-in's class (``isinstance``) or an import of its home, and files that are not Python.
 """
 from __future__ import annotations
 
