@@ -8,7 +8,8 @@ line. A separate package adds its own through Python entry points, one group per
 ``nao_trainer.robot_models``), read once, when a kind's names are first needed.
 
 The project's own plug-ins are the table ``BUILTIN`` at the end of this module: the one place a
-built-in kind string is written beside its home. No kind string is compared outside its registry:
+built-in kind string is written beside its home (and ``DEFAULTS``: the one a config gets when it names
+none). No kind string is compared outside its registry:
 callers ask ``spec(kind, name)`` / ``load(kind, name)`` and use what the plug-in declares.
 """
 from __future__ import annotations
@@ -129,9 +130,13 @@ def specs(kind: str) -> tuple[Spec, ...]:
 
 
 def spec(kind: str, name: str) -> Spec:
-    """The ``Spec`` of ``name``; an unknown name is one ``ConfigError`` line naming the installed ones."""
-    known = names(kind)
+    """The ``Spec`` of ``name``; an unknown name is one ``ConfigError`` line naming the installed ones. A name
+    registered already is answered without reading the entry points (a built-in keeps its name over theirs)."""
+    _check_kind(kind)
     found = _REGISTRY[kind].get(name)
+    if found is None:
+        known = names(kind)
+        found = _REGISTRY[kind].get(name)
     if found is None:
         near = difflib.get_close_matches(str(name), known, n=1)
         hint = f" (did you mean {near[0]!r}?)" if near else ""
@@ -203,6 +208,19 @@ BUILTIN: tuple[tuple[str, str, str], ...] = (
     ("robot_model", "pepper", "nao_trainer.robot.models.pepper:PepperModel"),
     ("eeg_device", "brainflow", "nao_trainer.eeg.devices.brainflow:BrainFlowDevice"),
 )
+
+
+#: The built-in a study config gets when it names none, per kind that has such a setting: the one place a
+#: default kind is written (``task.name``, ``eeg.device`` and ``robot.model`` declare theirs as ``default(kind)``).
+DEFAULTS: dict[str, str] = {"task": "sequence", "eeg_device": "muse", "robot_model": "nao"}
+
+
+def default(kind: str) -> str:
+    """The name of ``kind`` a config that names none gets (``DEFAULTS``); a kind without one is a ``ValueError``."""
+    _check_kind(kind)
+    if kind not in DEFAULTS:
+        raise ValueError(f"{WORDS[kind]} has no default: a config names it")
+    return DEFAULTS[kind]
 
 
 def _register_builtins() -> None:

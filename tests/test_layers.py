@@ -1,4 +1,5 @@
-"""The package's import graph: no cycle between modules, and every import points down the layers.
+"""The package's import graph: no cycle between modules, and every import points down the layers; and no
+kind string compared outside its registry (the walk: ``tests/_kind_names.py``).
 
 Every module is parsed (ast), so imports inside functions (the lazy ones) count too. A module
 may import its own layer and the layers below it; ``nao_trainer.x.y`` belongs to the layer of
@@ -8,9 +9,11 @@ from __future__ import annotations
 
 import ast
 import sys
+from functools import lru_cache
 from pathlib import Path
 
 import nao_trainer
+from _kind_names import STANDINS, Registered, walk
 
 PACKAGE = Path(nao_trainer.__file__).parent
 
@@ -43,11 +46,17 @@ def modules() -> dict[str, Path]:
     return {module_name(p): p for p in sorted(PACKAGE.rglob("*.py"))}
 
 
+@lru_cache(maxsize=None)
+def parsed(path: Path) -> ast.Module:
+    """A module's tree, parsed once per test process (the import graph and the kind-name walk read it)."""
+    return ast.parse(path.read_text(encoding="utf-8"), str(path))
+
+
 def imports_of(name: str, path: Path, known: set[str]) -> set[str]:
     """The package modules ``name`` imports (``from a import b`` counts ``a.b`` when it is a module)."""
     found: set[str] = set()
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+    for node in ast.walk(parsed(path)):
         if isinstance(node, ast.Import):
             targets = [alias.name for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -181,3 +190,75 @@ def test_a_free_local_import_is_found_and_a_heavy_one_is_not(tmp_path, monkeypat
     found = {s.path: s.reason for s in tool.sites()}
     assert found == {"nao_trainer/user.py:2": "", "nao_trainer/user.py:5": "loads numpy",
                      "nao_trainer/user.py:9": "extra: an optional extra, refused in one line when missing"}
+
+
+def test_no_kind_string_is_compared_outside_its_registry():
+    """Issue 26's build rule: outside ``registry.py`` and a plug-in's home, no code compares or picks a
+    registered kind's name; it asks the plug-in."""
+    names = Registered.read(modules(), PACKAGE.parent)
+    assert {"sequence", "nback", "usp", "bayes", "muse", "nao"} <= set(names.homes), names.homes
+    assert names.homes["nao"] == ("nao_trainer/robot/models",), names.homes["nao"]
+    for folder, reason in STANDINS.items():
+        print(f"outside the rule: {folder}/ ({reason})")
+    hits = walk(modules(), PACKAGE.parent, names, parsed)
+    assert not hits, (f"{len(hits)} kind names compared or picked outside the registry and the plug-in's home "
+                      "(ask the plug-in: an attribute it declares, registry.spec/load, the setting's declared "
+                      "default):\n" + "\n".join(map(str, hits))
+                      + "\nOutside the rule: " + "; ".join(f"{f}/: {r}" for f, r in STANDINS.items()))
+
+
+def test_the_walk_finds_a_planted_comparison_and_passes_the_legal_ones(tmp_path):
+    """The walk itself, on a package of its own: each planted comparison or pick of a registered name is found
+    with its line; the same words at home, in another vocabulary, as a column name, in a stand-in or in the
+    setting's declaration are not."""
+    pkg = tmp_path / "nao_trainer"
+    for folder in ("robot/models", "robot/standin", "session", "tasks/sequence"):
+        (pkg / folder).mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "robot" / "models" / "nao.py").write_text('def f(model):\n    return model == "pepper"\n')
+    (pkg / "robot" / "standin" / "body.py").write_text('BODIES = {"nao": 1, "pepper": 2}\n'
+                                                       'def f(m):\n    return BODIES[m]\n')
+    (pkg / "tables.py").write_text('MODELS = ("nao", "pepper")\nDEFAULT = "nao"\n')
+    (pkg / "devices.py").write_text("from nao_trainer import registry\n\n"
+                                    "def make_device(name, data=None):\n"
+                                    "    return registry.make('eeg_device', name, data)\n")
+    wiring = (
+        "from nao_trainer.tables import MODELS\n"
+        "from nao_trainer import tables\n"
+        "from nao_trainer.devices import make_device\n"
+        "from nao_trainer.settings import setting\n\n"
+        "def legal(config, mode, row, kind):\n"
+        "    a = mode in ('disabled', 'random', 'contextual')\n"  # NAOqi's speaking modes
+        "    b = kind == 'random' or kind == 'oracle'\n"  # the evaluation's strategies
+        "    c = row['sequence'] if 'sequence' in row else None\n"  # a column
+        "    d = setting('muse', kind=str)\n"  # the declared default
+        "    return a, b, c, d\n\n"
+        "def planted(config, task, spec, parser):\n"
+        "    if config.robot.model == 'pepper':  # pepper\n"
+        "        pass\n"
+        "    x = config.robot.model in MODELS  # nao pepper\n"
+        "    y = task.name != 'sequence'  # sequence\n"
+        "    z = spec.startswith('usp:')  # usp\n"
+        "    match config.eeg.device:  # muse brainflow\n"
+        "        case 'muse' | 'brainflow':\n"
+        "            pass\n"
+        "    w = make_device('muse')  # muse\n"
+        "    v = config.task.name or 'sequence'  # sequence\n"
+        "    u = {'nao': 1, 'pepper': 2}[config.robot.model]  # nao pepper\n"
+        "    t = config.robot.model == tables.DEFAULT  # nao\n"
+        "    parser.add_argument('--model', choices=('nao', 'pepper'))  # nao pepper\n"
+        "    parser.add_argument('button', choices=('A', 'B', 'C'))\n"
+        "    return x, y, z, w, v, u, t\n")
+    (pkg / "session" / "wiring.py").write_text(wiring)
+    (pkg / "tasks" / "sequence" / "__init__.py").write_text("def f(task):\n    return task == 'sequence'\n")
+    mods = {name: path for name, path in ((".".join(p.relative_to(tmp_path).with_suffix("").parts)
+                                           .removesuffix(".__init__"), p) for p in sorted(pkg.rglob("*.py")))}
+    names = Registered({"nao": ("nao_trainer/robot/models",), "pepper": ("nao_trainer/robot/models",),
+                        "sequence": ("nao_trainer/tasks/sequence",), "usp": ("nao_trainer/policies",),
+                        "random": ("nao_trainer/policies",), "muse": ("nao_trainer/eeg/devices",),
+                        "brainflow": ("nao_trainer/eeg/devices",)})
+    found = {(h.where, h.name) for h in walk(mods, tmp_path, names)}
+    planted = {(f"nao_trainer/session/wiring.py:{n}", name) for n, line in enumerate(wiring.splitlines(), 1)
+               if "  # " in line for name in line.partition("  # ")[2].split()}
+    assert len(planted) == 14
+    assert found == planted, found ^ planted

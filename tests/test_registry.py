@@ -55,3 +55,23 @@ def test_a_malformed_entry_point_is_refused(entry):
 def test_an_unknown_kind_is_refused():
     with pytest.raises(ValueError, match="registry kind"):
         registry.names("robot")
+
+
+def test_the_default_of_a_kind_is_written_once_and_the_settings_declare_it():
+    """A config that names no task, EEG device or robot model gets ``registry.default(kind)``: the settings
+    declare it (the config reference shows it), and a kind a config always names has none."""
+    from nao_trainer.core.settings import declared
+    from nao_trainer.eeg.settings import EEGSettings
+    from nao_trainer.session.config import RobotSection
+    from nao_trainer.tasks.settings import TaskSettings
+
+    assert {kind: registry.default(kind) for kind in registry.DEFAULTS} == {
+        "task": "sequence", "eeg_device": "muse", "robot_model": "nao"}
+    for cls, key, kind in ((TaskSettings, "name", "task"), (EEGSettings, "device", "eeg_device"),
+                           (RobotSection, "model", "robot_model")):
+        assert dict((k, d) for k, d, _ in declared(cls))[key] == registry.default(kind)
+        assert registry.default(kind) in registry.names(kind)
+    with pytest.raises(ValueError, match="policy has no default"):
+        registry.default("policy")
+    with pytest.raises(ValueError, match="registry kind must be one of"):
+        registry.default("headband")

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from nao_trainer import registry
 from nao_trainer.errors import ConfigError
 from nao_trainer.robot.address import credentials_from_env
 from nao_trainer.robot.profile import load_profile
@@ -45,7 +46,9 @@ def register(sub) -> None:
     p.add_argument("--no-keys", action="store_true", help="do not read head-button keys (a, b, c) from the terminal")
     p.add_argument("--profile", metavar="FILE", help="answer as the robot recorded in FILE does (`nao-trainer "
                    "hardware-check --record FILE`; config/robot-profiles/naoqi-2.8-docs.json: the NAOqi 2.8 docs)")
-    p.add_argument("--model", default="nao", choices=("nao", "pepper"), help="the robot played (default nao)")
+    p.add_argument("--model", default=registry.default("robot_model"), type=_model, metavar="MODEL",
+                   help="the robot played: a robot model the stand-in has a body for "
+                        "(nao, pepper; default %(default)s)")
     p.set_defaults(func=_run)
     actions = p.add_subparsers(dest="mock_action", metavar="ACTION")
     press = actions.add_parser("press", help="touch a head button of a running stand-in (from another shell)",
@@ -59,6 +62,16 @@ def register(sub) -> None:
                        help="keep the hand on the button S seconds (robot time: 3 s puts NAO to sleep with "
                             "Autonomous Life on)")
     press.set_defaults(func=_press)
+
+
+def _model(name: str) -> str:
+    """``--model``: a robot model the stand-in can play (it says which; read when parsed, not for ``--help``)."""
+    from nao_trainer.robot.standin.services import MODEL_POSTURES, can_play  # imports qi
+
+    if not can_play(name):
+        known = ", ".join(map(repr, MODEL_POSTURES))
+        raise argparse.ArgumentTypeError(f"invalid choice: {name!r} (choose from {known})")
+    return name
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -131,12 +131,13 @@ class OwnSession:
 
     @property
     def task(self) -> str:
-        """``task.name`` of the configuration the session ran with (``sequence`` when not recorded: older folders)."""
+        """``task.name`` of the configuration the session ran with; when not recorded (older folders, from before
+        the task was a setting) the setting's default, as for a config that names none (the sequence task)."""
         cfg = self.info.get("config") if isinstance(self.info.get("config"), dict) else {}
         values = cfg.get("values", cfg) if isinstance(cfg, dict) else {}
         section = values.get("task") if isinstance(values, dict) else None
         name = section.get("name") if isinstance(section, dict) else None
-        return str(name)[:100] if name else "sequence"
+        return str(name)[:100] if name else registry.default("task")
 
     @property
     def input(self) -> str:

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nao_trainer import registry
 from nao_trainer.core.montage import Montage
 from nao_trainer.eeg.device import make_device
 from nao_trainer.eeg.lsl_scope import configure_lsl
@@ -161,13 +162,13 @@ class EEGInlet:
              montage: Montage | None = None) -> "EEGInlet":
         """Open an inlet on ``info`` (from :func:`resolve_eeg`); ``recover=True`` reconnects by itself.
 
-        ``montage``: the device's (``eeg.device.EEGDevice.montage``), naming the scalp channels kept; a Muse's
-        when not given."""
+        ``montage``: the device's (``eeg.device.EEGDevice.montage``), naming the scalp channels kept; the default
+        device's (``eeg.device``'s default, the Muse) when not given."""
         configure_lsl(scope)
         import pylsl
 
         if montage is None:
-            montage = make_device("muse").montage()
+            montage = make_device(registry.default("eeg_device")).montage()
         inlet = pylsl.StreamInlet(info, max_buflen=60, recover=True)
         full = inlet.info(correction_timeout_s)
         labels = channel_labels(full)

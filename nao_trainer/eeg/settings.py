@@ -46,7 +46,7 @@ class EEGSettings:
 
     mode: str = setting("off", kind=str, choices=MODES,
                         doc="off | simulated (the device's simulation) | lsl (the live headband, read over LSL)")
-    device: str = setting("muse", kind=str, check=_registered_device,
+    device: str = setting(registry.default("eeg_device"), kind=str, check=_registered_device,
                           doc="the EEG device plug-in (nao-trainer plugins lists them): muse, brainflow, ...")
     device_settings: dict = setting(factory=dict, kind=dict, free=True,
                                     doc="the device's own settings (its Settings class; nao-trainer plugins)")

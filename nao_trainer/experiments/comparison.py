@@ -42,6 +42,10 @@ DEFAULT_POLICIES: tuple[str, ...] = (
     "usp:performance", "usp:shaping", "usp:qaug", "usp-learning:performance", "usp-learning:shaping",
     "usp-learning:qaug", "oracle",
 )
+#: The comparison's learned strategies: a user-specific Q-learner trained on the user's simulator, frozen (``usp``)
+#: or learning on (``usp-learning``). The comparison's strategy names (``fixed:N``, ``best-fixed``, ``random``,
+#: ``oracle``, ``staircase:...`` and these) are its own vocabulary, parsed here, not the live policy plug-ins.
+LEARNED: tuple[str, ...] = ("usp", "usp-learning")
 
 
 def parse_policy(spec: str) -> tuple[str, Any]:
@@ -56,7 +60,7 @@ def parse_policy(spec: str) -> tuple[str, Any]:
         rule, _, start = arg.partition("@")
         if rule in baselines.STAIRCASE_RULES and (start in ("", "1", "2", "3", "4")):
             return kind, (rule, int(start or 2))
-    if kind in ("usp", "usp-learning") and arg in METHODS:
+    if kind in LEARNED and arg in METHODS:
         return kind, arg
     raise ConfigError(f"--policies: unknown policy {text!r}; use fixed:1..4, best-fixed, random, oracle, "
                       f"staircase:1u1d[@L], staircase:2d1u[@L], usp:METHOD or usp-learning:METHOD "
@@ -120,7 +124,7 @@ def evaluate_user(user: User, spec: EvalSpec, given: dict[str, list[QLearner]] |
     p, e, T = truth.p_success, truth.engagement, spec.turns
     oracle = evaluation.optimal(p, T, proc)
     parsed = [(s, *parse_policy(s)) for s in spec.policies]
-    methods = sorted({arg for _, kind, arg in parsed if kind in ("usp", "usp-learning")}, key=METHODS.index)
+    methods = sorted({arg for _, kind, arg in parsed if kind in LEARNED}, key=METHODS.index)
     learners = dict(given or {})
     learners.update(train_learners(user, [m for m in methods if m not in learners], spec))
     rows = []
@@ -171,7 +175,7 @@ def policy_file_learners(users: Sequence[User], folder: Any, spec: EvalSpec) -> 
     Each file must be made for ``spec.process`` and trained on the user's training simulator
     (fingerprint); otherwise a one-line DataError.
     """
-    methods = sorted({arg for s in spec.policies for kind, arg in [parse_policy(s)] if kind.startswith("usp")},
+    methods = sorted({arg for s in spec.policies for kind, arg in [parse_policy(s)] if kind in LEARNED},
                      key=METHODS.index)
     out: dict[str, dict[str, list[QLearner]]] = {}
     for user in users:
@@ -259,7 +263,7 @@ def paired(rows: list[dict[str, Any]], a: str, b: str, by_person: bool = False) 
 def claims(rows: list[dict[str, Any]], by_person: bool = False) -> list[dict[str, Any]]:
     """The paper's engagement-feedback claim, retested: shaping and qaug vs the performance-only learner."""
     out = []
-    for kind in ("usp", "usp-learning"):
+    for kind in LEARNED:
         for method in ("shaping", "qaug"):
             d = paired(rows, f"{kind}:{method}", f"{kind}:performance", by_person)
             if d is not None:

@@ -21,6 +21,7 @@ from typing import Any, Callable, ClassVar
 
 from nao_trainer import registry
 from nao_trainer.core.settings import build
+from nao_trainer.errors import ConfigError
 
 
 @dataclass(frozen=True)
@@ -138,6 +139,20 @@ def make_model(name: str, data: Any = None, prefix: str = "robot.model_settings"
     return cls(name, build(cls.Settings, data if data is not None else {}, prefix))
 
 
+def model_called(type_name: str) -> str | None:
+    """The registered robot model whose ``type_names`` hold what the robot calls itself (ALMemory's
+    ``RobotConfig/Body/Type``: ``nao``; ``juliette``, Pepper's internal name), else None."""
+    for name in registry.names("robot_model"):
+        try:
+            cls = registry.load("robot_model", name)
+        except ConfigError:
+            continue  # a plug-in that cannot load here claims no robot
+        if type_name in getattr(cls, "type_names", ()):
+            return name
+    return None
+
+
 def default_model() -> RobotModel:
-    """The NAO with its default settings (a robot built without a study: tools, tests)."""
-    return make_model("nao")
+    """The default robot model (``robot.model``'s default, the NAO) with its default settings (a robot built
+    without a study: tools, tests)."""
+    return make_model(registry.default("robot_model"))

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from nao_trainer.errors import ConfigError
-from nao_trainer.robot.model import default_model
+from nao_trainer.robot.model import default_model, model_called
 
 FORMAT = "nao-trainer robot profile 1"
 #: Every NAOqi method the project calls, by service (robot.naoqi, robot.lifecycle, session.check, robot_setup).
@@ -75,7 +75,7 @@ class Profile:
         if self.languages:
             body.languages = list(self.languages)
         if self.body_type:
-            body.model = {"juliette": "pepper"}.get(self.body_type, self.body_type)
+            body.model = model_called(self.body_type) or self.body_type
         body.silent_events = {event for event, declared in self.events.items() if not declared}
 
     def apply_services(self, services: dict[str, Any]) -> None:

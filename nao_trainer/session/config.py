@@ -82,7 +82,7 @@ class RobotSection:
                                   doc="during an answer window, a cheap call this often (wall seconds)")
     link_deadline_s: float = setting(kind=NUMBER, min=0.2, max=30,
                                      doc="the watchdog call's deadline: no answer = a frozen link, the turn is replayed")
-    model: str = setting("nao", kind=str, check=rules.robot_model,
+    model: str = setting(registry.default("robot_model"), kind=str, check=rules.robot_model,
                          doc="the robot model plug-in (nao-trainer plugins lists them): nao, pepper, ...")
     model_settings: dict = setting(factory=dict, kind=dict, free=True,
                                    doc="the model's own settings (its Settings class; nao-trainer plugins)")

@@ -11,8 +11,7 @@ import numpy as np
 from nao_trainer.ports import (AnswerSource, CommandQueue, EngagementMonitor, NullHealth, NullMonitor, NullObserver,
                                NullUpkeep, Policy, Robot, RobotHealthWatch, RobotUpkeep, SessionObserver)
 from nao_trainer.session.behaviors import Behaviors
-from nao_trainer.tasks.base import Task
-from nao_trainer.tasks.sequence import SequenceTask
+from nao_trainer.tasks.base import Task, default_task
 from nao_trainer.session.dialogue import Dialogue
 
 
@@ -28,7 +27,7 @@ class SessionPorts:
     observer: SessionObserver = field(default_factory=NullObserver)
     upkeep: RobotUpkeep = field(default_factory=NullUpkeep)  # Autonomous Life and motors, between turns
     health: RobotHealthWatch = field(default_factory=NullHealth)  # falls, heat, battery, chest button (robot.health)
-    task: Task = field(default_factory=SequenceTask)  # what is trained (``tasks.base.Task``; the study's ``task``)
+    task: Task = field(default_factory=default_task)  # what is trained (``tasks.base.Task``; the study's ``task``)
 
 
 @dataclass(frozen=True)

@@ -31,21 +31,22 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from nao_trainer import registry
 from nao_trainer.core import task
-from nao_trainer.tasks.sequence import COLUMNS as SEQUENCE_COLUMNS, SequenceTask
+from nao_trainer.tasks.base import default_task
 from nao_trainer.errors import ConfigError, DataError
 from nao_trainer.files import WRITE_CAUSES, write_text_atomic
 
-#: The sequence task's turns.csv columns, declared once by the task (``tasks.sequence.COLUMNS``); a recorder
-#: writes its task's ``columns``.
-TURN_COLUMNS: tuple[str, ...] = SEQUENCE_COLUMNS
+#: The default task's turns.csv columns (the sequence task's), declared once by the task (``Task.columns``); a
+#: recorder writes its task's ``columns``.
+TURN_COLUMNS: tuple[str, ...] = registry.load("task", registry.default("task")).columns
 
 
 def row_problem(row: dict[str, str], task_: Any = None) -> str | None:
-    """Why a completed row of turns.csv (as read: strings) is not one a session of ``task_`` (the sequence task
-    by default) writes, or None: its level is one of the task's, its scores are the task's for its level and
+    """Why a completed row of turns.csv (as read: strings) is not one a session of ``task_`` (the default task,
+    the sequence task, when None) writes, or None: its level is one of the task's, its scores are the task's for its level and
     outcome (an edited score is refused), and the task's own fields agree (``Task.row_problem``, optional)."""
-    task_ = task_ if task_ is not None else SequenceTask()
+    task_ = task_ if task_ is not None else default_task()
     try:
         level, score, signed = int(row["level"]), int(row["score"]), int(row["signed_score"])
     except (TypeError, ValueError, KeyError):

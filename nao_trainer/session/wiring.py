@@ -387,9 +387,9 @@ def _start_standin(stack: ExitStack, config: StudyConfig) -> Any:
 
 def _standin_model(config: StudyConfig) -> str:
     """The robot the in-process stand-in plays: the study's model when the stand-in can play it, else a NAO."""
-    from nao_trainer.robot.standin.services import MODEL_POSTURES
+    from nao_trainer.robot.standin.services import played  # heavy: qi
 
-    return config.robot.model if config.robot.model in MODEL_POSTURES else "nao"
+    return played(config.robot.model)
 
 
 def _open_record(recorder: SessionRecorder, config: StudyConfig, seed: int, robot: Robot, standin: bool,

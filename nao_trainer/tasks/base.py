@@ -164,3 +164,8 @@ def published(task: Any) -> bool:
 def task_named(name: str) -> Task:
     """The registered task ``name``, built (one ``ConfigError`` line for an unknown or broken one)."""
     return registry.make("task", name)
+
+
+def default_task() -> Task:
+    """The task of a study that names none (``task.name``'s default, ``registry.default("task")``), built."""
+    return task_named(registry.default("task"))

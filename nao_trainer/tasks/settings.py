@@ -25,7 +25,7 @@ def _registered_task(value: str) -> str | None:
 class TaskSettings:
     """The ``task`` section of a study config, validated."""
 
-    name: str = setting("sequence", kind=str, check=_registered_task,
+    name: str = setting(registry.default("task"), kind=str, check=_registered_task,
                         doc="the task plug-in (nao-trainer plugins lists them): sequence, nback, ...")
     settings: dict = setting(factory=dict, kind=dict, free=True,
                              doc="the task's own settings (its Settings class; nao-trainer plugins)")

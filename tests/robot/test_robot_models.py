@@ -12,7 +12,11 @@ from nao_trainer import registry
 from nao_trainer.errors import ConfigError, RobotUnavailable
 from nao_trainer.robot.health import HealthWatch, read_event
 from nao_trainer.robot.lifecycle import TaskLife
-from nao_trainer.robot.model import make_model
+from nao_trainer.cli import main
+from nao_trainer.robot.model import default_model, make_model, model_called
+from nao_trainer.robot.profile import Profile
+from nao_trainer.robot.standin.body import Body
+from nao_trainer.robot.standin.services import played
 from nao_trainer.robot.naoqi import NaoqiRobot
 from nao_trainer.robot.standin import StandIn
 from nao_trainer.session.behaviors import load_behaviors
@@ -33,6 +37,24 @@ def test_the_registry_names_nao_and_pepper_and_a_study_chooses_one_with_its_sett
         load_config(None, {"robot.model_settings": {"cool_posture": "Stand"}})
     with pytest.raises(ConfigError, match="unknown robot model 'pepperr' .did you mean 'pepper'"):
         load_config(None, {"robot.model": "pepperr"})
+
+
+def test_the_robot_is_named_by_the_model_claiming_its_body_type_and_the_standin_says_what_it_plays(capsys):
+    """Issue 26 (no kind string compared outside its registry): what a robot calls itself is asked of the
+    models' ``type_names``, a robot built without a study is ``robot.model``'s default, and the stand-in says
+    which models it has a body for (``--robot mock``, ``mock-robot --model``)."""
+    assert (model_called("juliette"), model_called("nao"), model_called("romeo")) == ("pepper", "nao", None)
+    body = Body()
+    Profile(body_type="juliette").apply(body)
+    assert body.model == "pepper"
+    Profile(body_type="romeo").apply(body)
+    assert body.model == "romeo"  # a robot no model claims keeps its own name
+    assert default_model().name == registry.default("robot_model") == load_config(None, {}).robot.model == "nao"
+    assert (played("pepper"), played("nao"), played("romeo")) == ("pepper", "nao", "nao")
+    with pytest.raises(SystemExit) as exited:
+        main(["mock-robot", "--model", "romeo"])
+    assert exited.value.code == 2
+    assert "argument --model: invalid choice: 'romeo' (choose from 'nao', 'pepper')" in capsys.readouterr().err
 
 
 def test_the_behaviors_postures_must_exist_on_the_model(tmp_path):

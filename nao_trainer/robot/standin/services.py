@@ -35,6 +35,16 @@ PRESS_HOLD_S = 0.05
 _LETTER_BUTTONS = {letter: key for key, letter in BUTTON_LETTERS.items()}
 
 
+def can_play(model: str) -> bool:
+    """Whether the stand-in has a body for the robot model ``model`` (its postures and body type)."""
+    return model in MODEL_POSTURES
+
+
+def played(model: str) -> str:
+    """The robot the stand-in plays for ``model``: that model when it has its body, else a NAO."""
+    return model if can_play(model) else "nao"
+
+
 
 @qi.multiThreaded()
 class TextToSpeech:
