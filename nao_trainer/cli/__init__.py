@@ -9,10 +9,12 @@ import argparse
 import importlib
 import logging
 import os
+import signal
 import sys
+import threading
 
 from nao_trainer import __version__
-from nao_trainer.errors import DataError, Interrupted, UserError
+from nao_trainer.errors import DataError, Interrupted, UserError, note_interrupt
 from nao_trainer.files import DISK_ERRNOS, cannot_write
 
 #: Subcommand modules, in the order ``--help`` lists them.
@@ -47,7 +49,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
+        with _ctrl_c_noted():
+            return int(args.func(args) or 0)
     except UserError as exc:
         message = str(exc).replace("\r", "\\r").replace("\n", "\\n")  # always one line, whatever was echoed
         print(f"nao-trainer {args.command}: error: {message}", file=sys.stderr)
@@ -66,6 +69,27 @@ def main(argv: list[str] | None = None) -> int:
                                f"choose another output folder (--out) for {args.command}")
         print(f"nao-trainer {args.command}: error: {message}", file=sys.stderr)
         return DataError.exit_code
+
+
+class _ctrl_c_noted:
+    """Python's Ctrl-C handler, which also notes the Ctrl-C (``errors.raise_if_interrupted`` raises it again
+    where a library swallowed the first KeyboardInterrupt); only where Python's own handler is in place."""
+
+    def __enter__(self) -> None:
+        self.previous = None
+        note_interrupt(False)
+        if threading.current_thread() is threading.main_thread() and \
+                signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            self.previous = signal.signal(signal.SIGINT, _on_ctrl_c)
+
+    def __exit__(self, *exc: object) -> None:
+        if self.previous is not None:
+            signal.signal(signal.SIGINT, self.previous)
+
+
+def _on_ctrl_c(signum: int, frame: object) -> None:
+    note_interrupt()
+    raise KeyboardInterrupt
 
 
 def _command_parser(parser: argparse.ArgumentParser, command: str | None) -> argparse.ArgumentParser:

@@ -17,7 +17,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from nao_trainer.errors import ConfigError, UserError
+from nao_trainer.errors import ConfigError, UserError, raise_if_interrupted
 
 CONNECT_TIMEOUT_S = 10.0
 DASK_PREFIX = "dask://"
@@ -93,6 +93,7 @@ class _Progress:
         self.t0 = self.clock()
 
     def __call__(self, result: Any) -> Any:
+        raise_if_interrupted()  # a Ctrl-C that a library swallowed
         self.done += 1
         if self.label:
             import sys

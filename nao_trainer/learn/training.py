@@ -37,6 +37,7 @@ from nao_trainer.core import evaluation, mdp, processes
 from nao_trainer.core.batch import BatchLearner
 from nao_trainer.core.qlearning import METHODS, QConfig, QLearner, expected_scores
 from nao_trainer.core.simulation import UserSimulator
+from nao_trainer.errors import raise_if_interrupted
 from nao_trainer.files import write_json_atomic, write_text_atomic
 from nao_trainer.learn import policy_files
 from nao_trainer.learn.parallel import check_backend, fan_out
@@ -269,6 +270,7 @@ def _run_chunk(p: np.ndarray, e: np.ndarray, methods: list[str], config: QConfig
     last = [t0]
 
     def progress(done: int, total: int) -> None:
+        raise_if_interrupted()  # a Ctrl-C that a library swallowed
         now = time.perf_counter()
         if report and (now - last[0] >= 2.0 or done == total):
             last[0] = now

@@ -1,6 +1,8 @@
 """Grid training: reproducibility, summaries, outputs and `nao-trainer train --json`."""
 from __future__ import annotations
 
+import time
+
 import csv
 import gzip
 import json
@@ -239,15 +241,40 @@ def test_an_interrupted_or_failed_train_leaves_no_empty_folder(models_dir, tmp_p
 
     assert main(["train", "--models", str(tmp_path / "nowhere"), "--out", str(tmp_path / "new")]) == 2
     assert not (tmp_path / "new").exists()
-    out = tmp_path / "interrupted"
-    proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "train", "--models", str(models_dir), "--seeds", "4",
-                             "--episodes", "1000000", "--workers", "1", "--out", str(out), "--no-plots"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 60
-    while not out.exists() and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.05)
-    time.sleep(0.5)  # into the training loop
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130, err
-    assert "Traceback" not in err and not out.exists()
+    for after in (0.0, 0.5):  # at once (models loading, the kernel compiling) and in the training loop
+        out = tmp_path / f"interrupted-{after}"
+        proc = subprocess.Popen([sys.executable, "-m", "nao_trainer", "train", "--models", str(models_dir), "--seeds",
+                                 "4", "--episodes", "1000000", "--workers", "1", "--out", str(out), "--no-plots"],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 60
+        while not out.exists() and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.01)
+        time.sleep(after)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == 130, err
+        assert "Traceback" not in err and not out.exists()
+
+
+def test_a_ctrl_c_that_a_library_swallowed_is_raised_again():
+    """numpy's C loops (np.char.mod) and numpy.random's import swallowed a KeyboardInterrupt: `train` went on."""
+    import os
+    import signal
+
+    from nao_trainer import cli
+    from nao_trainer.errors import raise_if_interrupted
+
+    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        pytest.skip("Python's own Ctrl-C handler is not in place in this process")
+    with cli._ctrl_c_noted():
+        raise_if_interrupted()  # none yet
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1.0)  # the handler runs in this thread before the sleep ends
+        except KeyboardInterrupt:
+            pass  # what the library did
+        with pytest.raises(KeyboardInterrupt):
+            raise_if_interrupted()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    with cli._ctrl_c_noted():  # the next command starts without it
+        raise_if_interrupted()
