@@ -88,7 +88,8 @@ def open_monitor(mode: str, eeg_cfg: EEGSettings | Mapping[str, Any] | None, ses
             raise EEGUnavailable(refusal)
         if inlet is None:
             log.warning("EEG unavailable: %s", reason)
-        markers = MarkerOutlet(marker_source_id(pseudonym), scope=settings.lsl_scope)
+        folder = Path(session_dir).name if session_dir else None
+        markers = MarkerOutlet(marker_source_id(pseudonym, folder), scope=settings.lsl_scope)
         monitor = LslMonitor(settings, query, session_dir, inlet, markers, reason, simulator, record_xdf,
                              refuse_simulated=person, montage=source.montage)
         if simulator is not None:  # a simulated headband is "put on" before the greeting: fill one window

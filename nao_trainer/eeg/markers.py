@@ -1,7 +1,8 @@
 """Session events as an LSL marker stream, so EEG and events land in one synchronised recording.
 
 The outlet is named and typed ``Markers`` (what LabRecorder and ``muselsl record`` look for), has one
-string channel at an irregular rate and a stable source_id, so recorders reconnect after a restart.
+string channel at an irregular rate and a source_id stable for one session folder, so recorders reconnect after a
+restart (a resumption goes on in its folder) and never to another session's markers.
 Events are stamped with ``pylsl.local_clock()`` at the moment they are pushed. Names follow
 ``session_start``, ``turn_3_start``, ``turn_3_listening_start``, ``turn_3_listening_end``, ...
 """
@@ -16,10 +17,17 @@ from nao_trainer.eeg.lsl_scope import configure_lsl
 _SAFE = re.compile(r"[^A-Za-z0-9_.-]+")
 
 
-def marker_source_id(pseudonym: str | None = None) -> str:
-    """``nao-trainer-markers-<pseudonym or host>``: stable across runs for the same participant/host."""
+def marker_source_id(pseudonym: str | None = None, session: str | None = None) -> str:
+    """``nao-trainer-markers-<pseudonym or host>[-<session folder>]``.
+
+    With the session folder's name, two sessions of one pseudonym on one machine never share it: liblsl's
+    inlets recover a lost stream by its source_id, and a session's recorder whose inlet had found the other
+    session's outlet went over to its own when that one ended, with both sessions' markers in one file (seen
+    with two test suites side by side).
+    """
     who = pseudonym or socket.gethostname() or "host"
-    return f"nao-trainer-markers-{_SAFE.sub('-', who)}"
+    sid = f"nao-trainer-markers-{_SAFE.sub('-', who)}"
+    return f"{sid}-{_SAFE.sub('-', session)}" if session else sid
 
 
 def event_name(event: str, turn: int | None = None) -> str:

@@ -69,10 +69,10 @@ def test_a_recorded_profile_is_served_back_by_the_standin(tmp_path):
     path.write_text(lab.to_json())
     served = standin_profile(speed=10.0, profile=load_profile(path))
     assert (served.naoqi_version, served.languages) == ("2.8.6.23", ["English", "German"])
-    # Measured durations only overshoot on a loaded machine (a wait never ends early; the round trip is taken
-    # off), so the check is one-sided, with the lab's values far above the stand-in's own (0.06 s a character,
-    # no beep latency) for the defaults never to pass it
-    assert served.say_s_per_char >= 0.3 - 0.02 and served.play_sine_extra_s >= 1.5 - 0.05, served
+    # Measured durations mostly overshoot on a loaded machine (a wait never ends early), but the round trip taken
+    # off can be measured long too (1.44 s of a 1.5 s beep latency, seen with two suites side by side): the check
+    # is halfway between the lab's values and the stand-in's own (0.06 s a character, no beep latency)
+    assert served.say_s_per_char >= (0.3 + 0.06) / 2 and served.play_sine_extra_s >= 1.5 / 2, served
 
 
 def test_hardware_check_record_writes_the_profile_and_lists_the_differences(tmp_path):

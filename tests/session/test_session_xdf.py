@@ -66,7 +66,7 @@ def test_session_xdf_holds_the_eeg_and_every_turns_markers(tmp_path):
     eeg, mk = s["Muse"], s["Markers"]
     stream = json.loads((folder / "eeg" / "stream.json").read_text())
     assert eeg["info"]["source_id"][0] == stream["source_id"]
-    assert mk["info"]["source_id"][0] == f"nao-trainer-markers-{pseudonym}"
+    assert mk["info"]["source_id"][0] == f"nao-trainer-markers-{pseudonym}-{folder.name}"  # this session's alone
     assert int(eeg["info"]["channel_count"][0]) == 5 == eeg["time_series"].shape[1]
     assert int(mk["info"]["channel_count"][0]) == 1
     assert int(eeg["footer"]["info"]["sample_count"][0]) == len(eeg["time_stamps"])
