@@ -35,15 +35,22 @@ LAYERS: tuple[tuple[str, ...], ...] = (
 RANK = {name: rank for rank, names in enumerate(LAYERS) for name in names}
 
 
-def module_name(path: Path) -> str:
-    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
-    if parts[-1] == "__init__" and len(parts) > 1:
-        parts.pop()
-    return ".".join(parts)
+def _local_imports():
+    """tools/local_imports.py, loaded afresh (a test monkeypatches its package): its module walk is this file's too."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("local_imports", PACKAGE.parent / "tools" / "local_imports.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["local_imports"] = module  # its dataclass looks its module up
+    spec.loader.exec_module(module)
+    return module
+
+
+WALK = _local_imports()
 
 
 def modules() -> dict[str, Path]:
-    return {module_name(p): p for p in sorted(PACKAGE.rglob("*.py"))}
+    return dict(WALK.modules())
 
 
 @lru_cache(maxsize=None)
@@ -52,32 +59,14 @@ def parsed(path: Path) -> ast.Module:
     return ast.parse(path.read_text(encoding="utf-8"), str(path))
 
 
-def imports_of(name: str, path: Path, known: set[str]) -> set[str]:
+def imports_of(name: str, path: Path) -> set[str]:
     """The package modules ``name`` imports (``from a import b`` counts ``a.b`` when it is a module)."""
-    found: set[str] = set()
-    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-    for node in ast.walk(parsed(path)):
-        if isinstance(node, ast.Import):
-            targets = [alias.name for alias in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
-                base = ".".join(anchor + ([base] if base else []))
-            targets = [f"{base}.{alias.name}" if f"{base}.{alias.name}" in known else base for alias in node.names]
-        else:
-            continue
-        for target in targets:
-            while target and target not in known:  # `import nao_trainer.a.b` of a name inside a module
-                target = target.rpartition(".")[0]
-            if target and target != name and target.startswith("nao_trainer"):
-                found.add(target)
-    return found
+    return {target for node in ast.walk(parsed(path)) if isinstance(node, (ast.Import, ast.ImportFrom))
+            for target in WALK.targets(name, path, node) if target.startswith("nao_trainer") and target != name}
 
 
 def graph() -> dict[str, set[str]]:
-    mods = modules()
-    return {name: imports_of(name, path, set(mods)) for name, path in mods.items()}
+    return {name: imports_of(name, path) for name, path in modules().items()}
 
 
 def layer_of(module: str) -> str:
@@ -150,16 +139,6 @@ def modules_is_package(name: str) -> bool:
     return (PACKAGE.parent / Path(*name.split(".")) / "__init__.py").exists()
 
 
-def _local_imports():
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("local_imports", PACKAGE.parent / "tools" / "local_imports.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["local_imports"] = module  # its dataclass looks its module up
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_every_function_local_import_of_the_package_has_its_reason():
     """Issue 26: a function-local import of a package module is a cycle broken, a heavy package kept out of a
     module that loads none (``tools/local_imports.py`` works it out from the code), or an optional extra;
@@ -185,7 +164,7 @@ def test_a_free_local_import_is_found_and_a_heavy_one_is_not(tmp_path, monkeypat
                                  "def h():\n    try:\n        from nao_trainer import light\n"
                                  "    except ImportError:\n        raise SystemExit(2)\n")
     monkeypatch.setattr(tool, "PACKAGE", pkg)
-    for cached in (tool._modules, tool._parsed, tool.closure):
+    for cached in (tool.modules, tool._parsed, tool.closure):
         cached.cache_clear()
     found = {s.path: s.reason for s in tool.sites()}
     assert found == {"nao_trainer/user.py:2": "", "nao_trainer/user.py:5": "loads numpy",

@@ -45,7 +45,7 @@ class Site:
     reason: str  # "" when none
 
 
-def _module_name(path: Path) -> str:
+def module_name(path: Path) -> str:
     parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
     if parts[-1] == "__init__" and len(parts) > 1:
         parts.pop()
@@ -53,13 +53,13 @@ def _module_name(path: Path) -> str:
 
 
 @lru_cache(maxsize=None)
-def _modules() -> dict[str, Path]:
-    return {_module_name(p): p for p in sorted(PACKAGE.rglob("*.py"))}
+def modules() -> dict[str, Path]:
+    return {module_name(p): p for p in sorted(PACKAGE.rglob("*.py"))}
 
 
-def _targets(name: str, path: Path, node: ast.Import | ast.ImportFrom) -> list[str]:
+def targets(name: str, path: Path, node: ast.Import | ast.ImportFrom) -> list[str]:
     """Package modules and third-party top-level names an import statement names."""
-    known = _modules()
+    known = modules()
     if isinstance(node, ast.Import):
         names = [a.name for a in node.names]
     else:
@@ -97,7 +97,7 @@ def _guarded(node: ast.Try) -> bool:
 def _parsed(name: str) -> tuple[frozenset[str], frozenset[str], tuple[tuple[int, str, bool], ...]]:
     """(package modules imported at module level, third-party names imported at module level,
     function-local import statements of package modules as (line, first target, guarded by ImportError))."""
-    path = _modules()[name]
+    path = modules()[name]
     top_pkg: set[str] = set()
     top_ext: set[str] = set()
     local: list[tuple[int, str, bool]] = []
@@ -109,7 +109,7 @@ def _parsed(name: str) -> tuple[frozenset[str], frozenset[str], tuple[tuple[int,
             if isinstance(child, ast.Try) and _guarded(child) and not in_function:
                 continue
             if isinstance(child, (ast.Import, ast.ImportFrom)):
-                found = _targets(name, path, child)
+                found = targets(name, path, child)
                 if in_function:
                     mine = [t for t in found if t.startswith("nao_trainer")]
                     if mine:
@@ -127,7 +127,7 @@ def _parsed(name: str) -> tuple[frozenset[str], frozenset[str], tuple[tuple[int,
 def _with_parents(name: str) -> list[str]:
     """A module and the packages Python runs first to import it (``a.b.c``: ``a``, ``a.b``, ``a.b.c``)."""
     parts = name.split(".")
-    return [".".join(parts[: i + 1]) for i in range(len(parts)) if ".".join(parts[: i + 1]) in _modules()]
+    return [".".join(parts[: i + 1]) for i in range(len(parts)) if ".".join(parts[: i + 1]) in modules()]
 
 
 @lru_cache(maxsize=None)
@@ -152,7 +152,7 @@ def heavy_loaded(name: str) -> frozenset[str]:
 
 def sites() -> list[Site]:
     out = []
-    for name, path in _modules().items():
+    for name, path in modules().items():
         for line, target, guarded in _parsed(name)[2]:
             where = f"{path.relative_to(PACKAGE.parent)}:{line}"
             if name in closure(target):
