@@ -255,8 +255,10 @@ def test_the_clock_scales_every_wait_by_the_speed(tmp_path):
     assert fades and fades == pytest.approx([s.behaviors.led_fade_s / speed] * len(fades))
     assert answers.timeouts == [pytest.approx(t.response_timeout_s(3) / speed)]
     row = read_turns(path)[0]
-    assert float(row["reaction_time"]) == pytest.approx(0.1 * speed)  # recorded in session seconds
-    assert float(row["completion_time"]) == pytest.approx(0.3 * speed)
+    # recorded in session seconds from the beep; the beep is called after the window opens (where the scripted
+    # times start), so a busy machine that delays the call can only shorten it (0.959 for 1.0 was seen)
+    for column, scripted in (("reaction_time", 0.1), ("completion_time", 0.3)):
+        assert scripted * speed - 0.5 <= float(row[column]) <= scripted * speed + 1e-9, row
 
 
 def test_events_hold_every_utterance_and_each_press_with_its_time(tmp_path):
