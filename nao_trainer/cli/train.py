@@ -50,8 +50,8 @@ def run(args) -> int:
         raise ConfigError(f"--{exc}") from None
     require_matplotlib(not args.no_plots)
     created = not Path(args.out).exists()
-    make_output_dir(args.out)
-    try:
+    try:  # the folder is made inside: a Ctrl-C just after mkdir (a loaded machine, seen) leaves none behind
+        make_output_dir(args.out)
         models_dir = Path(args.models) if args.models else artifacts.default_models_dir()
         clusters = artifacts.available_models(models_dir)
         if not clusters:

@@ -367,9 +367,12 @@ class LslMonitor:
             self._lost = True
             start = self._last_stamp if np.isfinite(self._last_stamp) else self._clock()
             self.gaps.append(Gap(start))
+            # Logged and published before the lock goes, as ``_mark_restored`` does: the reader cannot close
+            # the gap (and publish "restored") before "lost" is out (seen on a loaded machine: the restored
+            # marker first, the lost one after the recorder had stopped).
+            log.warning("EEG stream %r lost (%s); waiting for it to return", self.inlet.name, why)
+            self._event("eeg_stream_lost", why)
             self._cond.notify_all()
-        log.warning("EEG stream %r lost (%s); waiting for it to return", self.inlet.name if self.inlet else "?", why)
-        self._event("eeg_stream_lost", why)
 
     def _mark_restored(self, first_stamp: float) -> None:
         """Called with ``_cond`` held when samples arrive again after a loss."""

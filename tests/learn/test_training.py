@@ -256,6 +256,23 @@ def test_an_interrupted_or_failed_train_leaves_no_empty_folder(models_dir, tmp_p
         assert "Traceback" not in err and not out.exists()
 
 
+def test_a_ctrl_c_just_after_the_folder_is_made_leaves_none(models_dir, tmp_path, monkeypatch):
+    """The window the loaded machine found: Ctrl-C handled on the first bytecode after mkdir."""
+    from nao_trainer.cli import _checks, train as train_cli
+
+    made = _checks.make_output_dir
+
+    def then_ctrl_c(path):
+        made(path)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(train_cli, "make_output_dir", then_ctrl_c)
+    out = tmp_path / "new"
+    assert main(["train", "--models", str(models_dir), "--seeds", "1", "--episodes", "10", "--out", str(out),
+                 "--no-plots"]) == 130
+    assert not out.exists()
+
+
 def test_a_ctrl_c_that_a_library_swallowed_is_raised_again():
     """numpy's C loops (np.char.mod) and numpy.random's import swallowed a KeyboardInterrupt: `train` went on."""
     import os
