@@ -28,7 +28,7 @@ PAGES = {
 }
 #: The control service's methods that steer the stand-in (timing, links, the transcript) rather than show what a
 #: robot does: nothing to cite.
-HARNESS = {"set_battery", "set_latency", "freeze", "freeze_after", "hold_after", "chest_after", "act_after", "body",
+HARNESS = {"set_battery", "set_latency", "freeze", "freeze_after", "freeze_at", "hold_after", "chest_after", "act_after", "body",
            "transcript", "clear", "set_speed", "speed"}
 
 

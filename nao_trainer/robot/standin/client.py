@@ -97,6 +97,9 @@ class StandInClient:
     def freeze_after(self, call: str, seconds: float) -> None:
         self._control.freeze_after(call, float(seconds))
 
+    def freeze_at(self, call: str, seconds: float) -> None:
+        self._control.freeze_at(call, float(seconds))
+
     def transcript(self) -> list[dict[str, Any]]:
         return [dict(e) for e in self._control.transcript()]
 

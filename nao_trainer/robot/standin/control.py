@@ -131,6 +131,15 @@ class Control:
         if link is not None:
             self._rec.arm(call, lambda: threading.Timer(0.02, link.freeze, (float(seconds),)).start())
 
+    @qi.bind(qi.Void, [qi.String, qi.Float])
+    def freeze_at(self, call: str, seconds: float) -> None:
+        """Freeze the link for ``seconds`` as the next ``call`` finishes, before its reply is sent: the robot
+        did it (the beep sounded), the laptop hears back late. A test hook, not NAOqi behaviour."""
+        self._rec.record("NaoTrainerStandIn", "freeze_at", [call, seconds])
+        link = self.link
+        if link is not None:
+            self._rec.arm(call, lambda: link.freeze(float(seconds)))
+
     @qi.bind(qi.Void, [qi.String, qi.String, qi.Float])
     def hold_after(self, call: str, button: str, seconds: float) -> None:
         """A hand held on the head for ``seconds`` (robot time), starting once the next ``call`` has

@@ -187,6 +187,10 @@ class StandIn:
         """Freeze the link for ``seconds`` once the next ``call`` ("ALAudioPlayer.playSine") has returned."""
         self._control.freeze_after(call, seconds)
 
+    def freeze_at(self, call: str, seconds: float) -> None:
+        """Freeze the link for ``seconds`` as the next ``call`` finishes, before its reply is sent."""
+        self._control.freeze_at(call, seconds)
+
     def transcript(self) -> list[dict[str, Any]]:
         """Every call the stand-in received so far: ``{"t", "service", "method", "args"}``."""
         return self._rec.snapshot()
