@@ -82,7 +82,7 @@ class Session:
         self.policy_rng = random.policy
         self.clock = Clock(config.timing.speed, sleep)
         self.stage = Stage(ports.robot, script.dialogue, script.behaviors, random.session, recorder, self.clock,
-                           config.timing, config.robot.posture_speed)
+                           config.timing, config.robot.posture_speed, config.robot.link_deadline_s)
         self.log = SessionLog(recorder, ports.observer, progress, self.clock)
         self.rows: list[dict[str, Any]] = self.log.rows  # the rows this run wrote (and those before a resumption)
         self.phases = PhaseClock(ports.monitor, self.stage, ports.answers, ports.robot, self.clock, config.timing,

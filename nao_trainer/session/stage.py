@@ -57,7 +57,8 @@ class Stage:
     """
 
     def __init__(self, robot: Robot, dialogue: Dialogue, behaviors: Behaviors, rng: np.random.Generator,
-                 recorder: SessionRecorder, clock: Clock, timing: TimingSection, posture_speed: float) -> None:
+                 recorder: SessionRecorder, clock: Clock, timing: TimingSection, posture_speed: float,
+                 link_deadline_s: float | None = None) -> None:
         self.robot = robot
         self.dialogue = dialogue
         self.behaviors = behaviors
@@ -66,6 +67,7 @@ class Stage:
         self.clock = clock
         self.timing = timing
         self.posture_speed = posture_speed
+        self.link_deadline_s = link_deadline_s  # robot.link_deadline_s: a beep reply later than this is a frozen link
         #: Publishes an EEG/XDF marker (the engine sets it to the monitor's ``mark``); a stream task marks each stimulus.
         self.mark: Callable[[str, int | None], None] = lambda event, turn=None: None
 
@@ -141,7 +143,10 @@ class Stage:
         """Beep (the answer window must be open already); returns the onset on the monotonic clock.
 
         The onset is the robot's estimate when it returns a ``BeepTiming`` (a NAO over qi), else the
-        moment the call was made (the laptop, fakes).
+        moment the call was made (the laptop, fakes). The beep is the one call of the window the link
+        watchdog cannot watch: a reply more than ``link_deadline_s`` later than the tone and the round
+        trip allow is a frozen link (``RobotConnectionLost``: the turn is replayed), since the window
+        and the onset estimate are then off by the freeze (seen: 8 s, and the turn scored as a failure).
         """
         t = self.timing
         start = self.clock.now()
@@ -150,6 +155,10 @@ class Stage:
             self.rec.event("beep", turn=turn, rtt_ms=round(timing.rtt_s * 1000, 2),
                            call_ms=round((timing.returned - timing.start) * 1000, 2),
                            onset_after_call_ms=round((timing.onset - timing.start) * 1000, 2))
+            late = timing.returned - timing.start - timing.duration_s - timing.rtt_s
+            if self.link_deadline_s is not None and late > self.link_deadline_s:
+                raise RobotConnectionLost(f"the link to the robot froze during the beep: its reply came {late:.1f} s "
+                                          f"late (robot.link_deadline_s is {self.link_deadline_s:g} s)")
             return timing.onset
         self.rec.event("beep", turn=turn)
         return start
