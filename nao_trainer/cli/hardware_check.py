@@ -5,7 +5,7 @@ import argparse
 from pathlib import Path
 import sys
 
-from nao_trainer.errors import ConfigError
+from nao_trainer.errors import ConfigError, RobotUnavailable
 from nao_trainer.files import PROJECT_ROOT, write_text_atomic
 from nao_trainer.session.config import DESKTOP, MOCK, load_config
 from nao_trainer.robot.profile import diff, load_profile, record_profile
@@ -56,8 +56,14 @@ def run(args: argparse.Namespace) -> int:
 
 def _record(robot, path: str) -> None:
     """The conformance profile of ``robot`` in ``path`` (written whole, then the differences from the docs')."""
+    from nao_trainer.ports import RobotCallFailed, RobotConnectionLost
+
     print("recording the robot's answers (it speaks, beeps, stands up and rests) ...", flush=True)
-    profile = record_profile(robot)
+    try:
+        profile = record_profile(robot)
+    except (RobotConnectionLost, RobotCallFailed) as exc:  # nothing is written: a profile is recorded whole or not
+        raise RobotUnavailable(f"--record {path}: the robot failed while being recorded ({exc}); nothing was "
+                               "written: check the robot and its network, then run again") from None
     try:
         write_text_atomic(Path(path), profile.to_json())
     except OSError as exc:

@@ -109,3 +109,19 @@ def test_without_a_robot_address_it_says_so_in_one_line():
     res = subprocess.run([sys.executable, "-m", "nao_trainer", "hardware-check"], capture_output=True, text=True,
                          timeout=60, env=dict(os.environ, QI_LOG_LEVEL="silent"))
     assert res.returncode == 2 and "needs a robot address" in res.stderr and "Traceback" not in res.stderr
+
+
+def test_a_robot_lost_while_recording_its_profile_is_one_line_and_no_file(standin, tmp_path, monkeypatch, capsys):
+    from nao_trainer.cli import hardware_check as command
+    from nao_trainer.cli import main
+    from nao_trainer.ports import RobotConnectionLost
+
+    def lost(robot, *args, **kwargs):
+        raise RobotConnectionLost("ALAudioPlayer.playSine did not answer within 10 s")
+
+    monkeypatch.setattr(command, "record_profile", lost)
+    path = tmp_path / "profile.json"
+    assert main(["hardware-check", "--robot", standin.url, "--record", str(path)]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--record" in err[0] and "did not answer" in err[0] and "nothing was written" in err[0]
+    assert not path.exists()
