@@ -411,3 +411,45 @@ def test_almemory_serves_only_what_naoqi_serves(client):
     names = {n for n in dir(client.service("ALMemory")) if not n.startswith("_")}
     assert {"raiseEvent", "insertData", "getData", "subscriber"} <= names
     assert not {"emit", "forget_subscribers"} & names
+
+
+def test_the_link_stops_quietly_with_connections_mid_relay():
+    """stop() cancelled the relay's tasks and stopped its loop at once: a connection still open printed
+    "Exception in callback ... CancelledError" (asyncio's stream callback) on a session's terminal
+    (seen with two suites side by side, and "_GatheringFuture exception was never retrieved")."""
+    import asyncio
+    import gc
+    import socket
+
+    from nao_trainer.robot.standin.link import Link
+
+    target = socket.create_server(("127.0.0.1", 0))
+    link = Link(target.getsockname()[1]).start()
+    said: list[dict] = []
+    link._loop.set_exception_handler(lambda loop, context: said.append(context))
+    clients = [socket.create_connection(("127.0.0.1", link.port), timeout=5) for _ in range(20)]
+    upstream = [target.accept()[0] for _ in clients]  # every relay connected both ways, its pumps running
+    for c in clients:
+        c.sendall(b"hello")
+    for u in upstream:
+        assert u.recv(5) == b"hello"
+    async def relays() -> list:
+        return [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+
+    tasks = asyncio.run_coroutine_threadsafe(relays(), link._loop).result(5)
+    assert len(tasks) >= len(clients) * 5  # per connection: the client's task, two pumps, their two senders
+    try:
+        link.stop()
+        gc.collect()  # a future never retrieved says so when it is collected
+    finally:
+        for s in (*clients, *upstream, target):
+            s.close()
+    assert not link._thread.is_alive()
+    # every relay task ended before the loop stopped (left pending, they end cancelled whenever the loop runs on,
+    # which is what printed the traceback) and the loop had nothing to complain of
+    assert [t for t in tasks if not t.done()] == []
+    # and no connection's task ended cancelled: asyncio's stream callback asks it for its exception, which for a
+    # cancelled task raises CancelledError inside the callback (the traceback seen)
+    handlers = [t for t in tasks if t.get_coro().__qualname__ == "Link._client"]
+    assert len(handlers) == len(clients) and not any(t.cancelled() for t in handlers)
+    assert said == []

@@ -85,7 +85,10 @@ class Link:
             return
         if first:
             up_writer.write(first)
-        await asyncio.gather(self._pump(reader, up_writer), self._pump(up_reader, writer), return_exceptions=True)
+        try:
+            await asyncio.gather(self._pump(reader, up_writer), self._pump(up_reader, writer), return_exceptions=True)
+        except asyncio.CancelledError:  # stop(): end normally, or asyncio's stream callback prints a traceback
+            pass
 
     async def _pump(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         queue: asyncio.Queue[tuple[float, bytes]] = asyncio.Queue()
@@ -129,8 +132,12 @@ class Link:
         async def close() -> None:
             assert self._server is not None
             self._server.close()
-            for task in [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]:
+            tasks = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+            for task in tasks:
                 task.cancel()
+            # Let them end before the loop stops: a task left cancelled mid-way printed "Exception in callback ...
+            # CancelledError" and "_GatheringFuture exception was never retrieved" on the operator's terminal.
+            await asyncio.gather(*tasks, return_exceptions=True)
 
         try:
             asyncio.run_coroutine_threadsafe(close(), self._loop).result(5)
