@@ -81,7 +81,8 @@ class RobotSection:
     link_check_s: float = setting(kind=NUMBER, min=0.2, max=10,
                                   doc="during an answer window, a cheap call this often (wall seconds)")
     link_deadline_s: float = setting(kind=NUMBER, min=0.2, max=30,
-                                     doc="the watchdog call's deadline: no answer = a frozen link, the turn is replayed")
+                                     doc="the watchdog call's deadline, and how late the beep's reply may come: "
+                                         "beyond it = a frozen link, the turn is replayed")
     model: str = setting(registry.default("robot_model"), kind=str, check=rules.robot_model,
                          doc="the robot model plug-in (nao-trainer plugins lists them): nao, pepper, ...")
     model_settings: dict = setting(factory=dict, kind=dict, free=True,
