@@ -58,7 +58,7 @@ class Stage:
 
     def __init__(self, robot: Robot, dialogue: Dialogue, behaviors: Behaviors, rng: np.random.Generator,
                  recorder: SessionRecorder, clock: Clock, timing: TimingSection, posture_speed: float,
-                 link_deadline_s: float | None = None) -> None:
+                 link_deadline_s: float) -> None:
         self.robot = robot
         self.dialogue = dialogue
         self.behaviors = behaviors
@@ -156,7 +156,7 @@ class Stage:
                            call_ms=round((timing.returned - timing.start) * 1000, 2),
                            onset_after_call_ms=round((timing.onset - timing.start) * 1000, 2))
             late = timing.returned - timing.start - timing.duration_s - timing.rtt_s
-            if self.link_deadline_s is not None and late > self.link_deadline_s:
+            if late > self.link_deadline_s:
                 raise RobotConnectionLost(f"the link to the robot froze during the beep: its reply came {late:.1f} s "
                                           f"late (robot.link_deadline_s is {self.link_deadline_s:g} s)")
             return timing.onset
