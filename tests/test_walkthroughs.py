@@ -2,10 +2,11 @@
 how-to guides runs in a fresh copy of the repository's data folders, with the shared data beside it
 (../shared, as in a checkout), on the stand-in, the simulated participant and the simulated Muse.
 
-One substitution, for speed: the pages' `tar -xJf .../X.tar.xz -C DIR` is run once per archive (the same command,
-into a cache) and each block links the result into its DIR (about 9 s of xz per extraction otherwise). Linked, not
-copied: the blocks' dataset roots are then one folder, so its import (keyed by the root's real path, about 3 s of
-CPU) is paid once per run, not by each block that reads the data. The pages read the data and write nothing into it."""
+One substitution, for speed: the pages' `tar -xJf .../X.tar.xz -C DIR` is the run's one extraction of that archive
+(the same command, made by tests/conftest.py for every test that reads the data: about 6 s of CPU for the bands) and
+each block links the result into its DIR. Linked, not copied: the blocks' dataset roots are then one folder, so its
+import (keyed by the root's real path, about 3 s of CPU) is paid once per run, not by each block that reads the data.
+The pages read the data and write nothing into it."""
 from __future__ import annotations
 
 import os
@@ -57,20 +58,19 @@ def _sandbox(where: Path) -> Path:
 TAR = re.compile(r"tar -xJf (\S+\.tar\.xz) -C ([\w./~-]+)")
 
 
-def _extract_once(script: str, cache: Path, repo: Path) -> str:
-    def copy(match: re.Match) -> str:
+def _extracted(script: str, archives: dict[str, Path], repo: Path) -> str:
+    """``script`` with each ``tar -xJf ARCHIVE -C DIR`` replaced by links to the run's extraction of ARCHIVE."""
+    def link(match: re.Match) -> str:
         archive = (repo / match.group(1)).resolve()
-        target = cache / archive.name
-        if not target.is_dir():
-            target.mkdir(parents=True)
-            subprocess.run(["tar", "-xJf", str(archive), "-C", str(target)], check=True)
-        return f"ln -s {target}/* {match.group(2)}/"
-    return TAR.sub(copy, script)
+        assert archive.exists(), f"a page extracts {match.group(1)}, which is not in ../shared"
+        assert archive.name in archives, f"a page extracts {archive.name}: add its fixture to archives() here"
+        return f"ln -s {archives[archive.name]}/* {match.group(2)}/"
+    return TAR.sub(link, script)
 
 
-def _run(name: str, script: str, where: Path, cache: Path) -> tuple[str, int, str]:
+def _run(name: str, script: str, where: Path, archives: dict[str, Path]) -> tuple[str, int, str]:
     repo = _sandbox(where)
-    script = _extract_once(script, cache, repo)
+    script = _extracted(script, archives, repo)
     env = dict(os.environ, PYTHONPATH=str(ROOT), PATH=f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}",
                NAO_TRAINER_SHARED=str(where / "shared"), NAO_TRAINER_KEYS=str(where / "keys"))
     done = subprocess.run(["bash", "-euo", "pipefail", "-c", script], cwd=repo, env=env, capture_output=True,
@@ -78,14 +78,17 @@ def _run(name: str, script: str, where: Path, cache: Path) -> tuple[str, int, st
     return name, done.returncode, (done.stdout + done.stderr)[-3000:]
 
 
+@pytest.fixture
+def archives(dataset_root, raw_root) -> dict[str, Path]:
+    """The run's extraction of each archive the pages may extract: the folder its ``tar -C`` would fill."""
+    return {"clean_data_bands.tar.xz": dataset_root.parent, "raw_sessions.tar.xz": raw_root.parent}
+
+
 @pytest.mark.slow
-def test_every_runnable_block_runs_as_written(tmp_path):
+def test_every_runnable_block_runs_as_written(tmp_path, archives):
     blocks = runnable_blocks()
-    cache = tmp_path / "extracted"
-    for _, script in blocks:  # extract before the pool: two blocks must not extract into the cache at once
-        _extract_once(script, cache, _sandbox(tmp_path / "first"))
-        shutil.rmtree(tmp_path / "first")
     with ThreadPoolExecutor(max_workers=2) as pool:
-        results = list(pool.map(lambda nb: _run(nb[0], nb[1], tmp_path / re.sub(r"\W", "_", nb[0]), cache), blocks))
+        results = list(pool.map(lambda nb: _run(nb[0], nb[1], tmp_path / re.sub(r"\W", "_", nb[0]), archives),
+                                blocks))
     failed = [f"{name} exited {rc}:\n{out}" for name, rc, out in results if rc != 0]
     assert not failed, "\n\n".join(failed)
