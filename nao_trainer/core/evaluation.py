@@ -29,7 +29,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from nao_trainer.core import mdp, processes
+from nao_trainer.core import distributions, mdp, processes
 
 #: Full states that are turns (not START), and their turn state and outcome.
 _X = np.arange(processes.N_FULL - 1)
@@ -287,9 +287,7 @@ def t_interval(values: np.ndarray) -> tuple[float, float] | None:
     v = np.asarray(values, dtype=float)
     if v.size < 2:
         return None
-    from scipy.stats import t as student_t  # lazy: scipy is slow to import
-
-    half = float(student_t.ppf(0.975, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size))
+    half = float(distributions.t_ppf(0.975, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size))
     return float(v.mean() - half), float(v.mean() + half)
 
 

@@ -21,6 +21,8 @@ from typing import Mapping
 
 import numpy as np
 
+from nao_trainer.core import distributions
+
 _SESSION = re.compile(r"^(?:session:)?([^/]+)/[^/]+$")
 
 
@@ -44,11 +46,7 @@ def by_person(values: Mapping[str, float]) -> dict[str, float]:
 
 
 def _t_quantile(q: float, df: int) -> float:
-    # lazy: scipy.stats costs ~1 s of CPU to import, and every session imports this module (through the
-    # personalised policy's users) without ever asking for an interval
-    from scipy.stats import t as student_t
-
-    return float(student_t.ppf(q, df))
+    return float(distributions.t_ppf(q, df))
 
 
 def t_interval(v: np.ndarray, level: float = 0.95) -> list[float] | None:

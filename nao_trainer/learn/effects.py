@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from nao_trainer.core import mdp
+from nao_trainer.core import distributions, mdp
 from nao_trainer.errors import DataError
 
 ALPHA = 0.05
@@ -96,8 +96,6 @@ class TestedPerformanceModel:
     tests: dict[str, dict[str, float | bool]] = field(default_factory=dict)
 
     def fit(self, states: np.ndarray, success: np.ndarray) -> "TestedPerformanceModel":
-        from scipy.stats import chi2
-
         s = np.asarray(states, dtype=int)
         y = np.asarray(success, dtype=float)
         x0 = _columns(s, None, ())
@@ -110,7 +108,7 @@ class TestedPerformanceModel:
             _, ll1 = _logistic(x1, y)
             df = x1.shape[1] - int(played.sum())
             stat = max(0.0, 2 * (ll1 - ll0))
-            p = float(chi2.sf(stat, df)) if df > 0 else 1.0
+            p = float(distributions.chi2_sf(stat, df)) if df > 0 else 1.0
             keep = p < self.alpha / len(SUCCESS_EFFECTS)
             self.tests[eff] = {"statistic": round(stat, 6), "df": df, "p": round(p, 6), "kept": bool(keep)}
             if keep:
@@ -142,8 +140,6 @@ class TestedEngagementModel:
     tests: dict[str, dict[str, float | bool]] = field(default_factory=dict)
 
     def fit(self, states: np.ndarray, success: np.ndarray, engagement: np.ndarray) -> "TestedEngagementModel":
-        from scipy.stats import f as f_dist
-
         ok = np.isfinite(np.asarray(engagement, dtype=float))
         s = np.asarray(states, dtype=int)[ok]
         o = np.asarray(success, dtype=float)[ok]
@@ -165,7 +161,7 @@ class TestedEngagementModel:
             df1, df2 = k1 - k0, len(e) - k1
             if df1 > 0 and df2 > 0 and rss1 > 0:
                 stat = max(0.0, (rss0 - rss1) / df1 / (rss1 / df2))
-                p = float(f_dist.sf(stat, df1, df2))
+                p = float(distributions.f_sf(stat, df1, df2))
             else:
                 stat, p = 0.0, 1.0
             keep = p < self.alpha / len(ENGAGEMENT_EFFECTS)

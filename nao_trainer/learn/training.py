@@ -33,7 +33,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from nao_trainer.core import evaluation, mdp, processes
+from nao_trainer.core import distributions, evaluation, mdp, processes
 from nao_trainer.core.batch import BatchLearner
 from nao_trainer.core.qlearning import METHODS, QConfig, QLearner, expected_scores
 from nao_trainer.core.simulation import UserSimulator
@@ -241,9 +241,7 @@ def diff_ci(a: np.ndarray, b: np.ndarray) -> dict[str, Any]:
     if se == 0:
         return {"diff": diff, "ci": [diff, diff], "significant": diff != 0}
     dof = (va + vb) ** 2 / (va**2 / (a.size - 1) + vb**2 / (b.size - 1))
-    from scipy.stats import t as student_t
-
-    half = float(student_t.ppf(0.975, dof) * se)
+    half = float(distributions.t_ppf(0.975, dof) * se)
     return {"diff": diff, "ci": [diff - half, diff + half], "significant": bool(abs(diff) > half)}
 
 
@@ -251,9 +249,7 @@ def _t_half_width(data: np.ndarray, axis: int) -> np.ndarray:
     n = data.shape[axis]
     if n < 2:
         return np.zeros(np.delete(data.shape, axis))
-    from scipy.stats import t as student_t  # lazy: scipy is slow to import
-
-    return student_t.ppf(0.975, n - 1) * data.std(axis=axis, ddof=1) / math.sqrt(n)
+    return distributions.t_ppf(0.975, n - 1) * data.std(axis=axis, ddof=1) / math.sqrt(n)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from nao_trainer.core import distributions
 from nao_trainer.data.study import study_session
 from nao_trainer.errors import DataError
 from nao_trainer.files import write_text_atomic
@@ -131,10 +132,8 @@ def fit_mixed(data: list[dict[str, Any]], outcome: str, terms: tuple[str, ...], 
 
 
 def _row(term: str, est: float, se: float, df: float, n_sessions: int, n_part: int) -> dict[str, Any]:
-    from scipy.stats import t as t_dist
-
-    half = float(t_dist.ppf(0.975, df)) * se
-    p = float(2 * t_dist.sf(abs(est) / se, df)) if se > 0 else (0.0 if est != 0 else 1.0)
+    half = float(distributions.t_ppf(0.975, df)) * se
+    p = float(2 * distributions.t_sf(abs(est) / se, df)) if se > 0 else (0.0 if est != 0 else 1.0)
     return {"term": term, "estimate": est, "se": se, "df": float(df), "ci_low": est - half, "ci_high": est + half,
             "p": p, "n_sessions": n_sessions, "n_participants": n_part}
 

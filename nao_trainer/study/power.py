@@ -48,7 +48,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from nao_trainer.core import evaluation, mdp, processes
+from nao_trainer.core import distributions, evaluation, mdp, processes
 from nao_trainer.errors import ConfigError
 from nao_trainer.files import write_json_atomic, write_text_atomic
 from nao_trainer.policies.factory import offline_policy
@@ -175,23 +175,19 @@ class PowerReport:
 
 
 def _z(q: float) -> float:
-    from scipy.stats import norm
-
-    return float(norm.ppf(q))
+    return float(distributions.norm_ppf(q))
 
 
 def welch(mu_a: np.ndarray, var_a: np.ndarray, n_a: np.ndarray, mu_r: np.ndarray, var_r: np.ndarray,
           n_r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(difference, standard error, Satterthwaite df, two-sided t p) of two groups' means from their
     own variances (``var_*``: sample variances with ddof 1, ``n_*``: sizes), vectorised."""
-    from scipy.stats import t as t_dist
-
     va, vr = var_a / n_a, var_r / n_r
     diff, se = mu_a - mu_r, np.sqrt(va + vr)
     with np.errstate(divide="ignore", invalid="ignore"):
         df = (va + vr) ** 2 / (va ** 2 / (n_a - 1) + vr ** 2 / (n_r - 1))
         df = np.where(np.isfinite(df), df, np.minimum(n_a, n_r) - 1.0)
-        pval = np.where(se > 0, 2 * t_dist.sf(np.abs(diff) / np.where(se > 0, se, 1), df),
+        pval = np.where(se > 0, 2 * distributions.t_sf(np.abs(diff) / np.where(se > 0, se, 1), df),
                         np.where(diff != 0, 0.0, 1.0))
     return diff, se, df, pval
 
