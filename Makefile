@@ -39,12 +39,13 @@ os-packages:
 # of the 4 workers rewrote every test module's asserts again: 0.4 s of CPU per process (a 1-turn
 # `nao-trainer run`: 1.3 s with the bytecode, 1.7 s without) and 3.4 s per worker (collection: 5.1 s, 1.7 s).
 # compileall writes the package's; one collection with bytecode allowed writes pytest's rewritten tests.
-# numba's kernels next (tools/compile_kernels.py): compiled once into their on-disk cache, where 4 workers
-# reaching them at once each compiled them (about 9 s of CPU a time).
+# numba's kernels beside that collection (tools/compile_kernels.py, on the other core): compiled once into their
+# on-disk cache, where 4 workers reaching them at once each compiled them (about 9 s of CPU a time).
 test: $(VENV)/.installed os-packages
 	$(BIN)/python -m compileall -q nao_trainer
-	env -u PYTHONDONTWRITEBYTECODE $(BIN)/python tools/compile_kernels.py
-	env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest -q --collect-only >/dev/null 2>&1 || true  # errors: shown by the run
+	env -u PYTHONDONTWRITEBYTECODE $(BIN)/python tools/compile_kernels.py & kernels=$$!; \
+	  env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest -q --collect-only >/dev/null 2>&1; \
+	  wait $$kernels  # collection errors: shown by the run
 	env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest -q -n 4 --dist loadfile
 
 # The documentation site (site/): a broken link, a missing anchor or a page left out of the nav fails the build.
