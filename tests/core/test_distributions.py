@@ -3,7 +3,6 @@ intervals and tests of the evaluation, the fits and the study analysis do not mo
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
 
 from nao_trainer.core import distributions
 
@@ -22,6 +21,8 @@ def _same(a, b) -> bool:
 
 
 def test_each_function_equals_scipy_stats_to_the_bit():
+    from scipy import stats  # here: every worker collects this file, and scipy.stats costs 1 s to import
+
     df, x, q, df2 = _grid()
     assert _same(distributions.t_ppf(q, df), stats.t.ppf(q, df))
     assert _same(distributions.t_ppf(0.975, df), stats.t.ppf(0.975, df))

@@ -4,12 +4,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from nao_trainer.core import mdp, processes
+from nao_trainer.core import mdp, processes, qkernel
 from nao_trainer.core.batch import BatchLearner
 from nao_trainer.core.qlearning import METHODS, QConfig, QLearner
 from nao_trainer.core.simulation import UserSimulator
 
-pytest.importorskip("numba")
+# numba found, not imported: collected by every worker, the import is paid where the tests run
+pytestmark = pytest.mark.skipif(not qkernel.available(), reason="the compiled learner needs numba")
 
 
 def _users():
