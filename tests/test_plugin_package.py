@@ -37,6 +37,10 @@ def installed(monkeypatch):
     registry.unregister("eeg_device", "tinyband")
     monkeypatch.undo()
     registry.reload_entry_points()
+    from nao_trainer.session import config
+
+    config.refresh_policies()  # the policy section composed without `alternate` again: a later test in this
+    # process that reads config.SECTIONS found policy.alternate_levels (seen under make test)
 
 
 def test_the_packages_plugins_are_found_through_entry_points(installed):
