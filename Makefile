@@ -14,9 +14,10 @@ export QI_LOG_LEVEL := silent
 export NAO_TRAINER_SHARED ?= $(abspath $(SHARED))
 
 # The install: uv (from PyPI, into the venv), with pip where uv cannot. The same versions as pip's resolution
-# (checked: pip freeze of both venvs), in 8 s of CPU where pip took 75 s, 45 s of it without its bytecode pass
-# (measured 2026-12-08). UV_FLAGS: bytecode written at install, so that the first commands start quickly (CI
-# passes UV_FLAGS= : the suite writes the bytecode of what it imports, a fraction of the 10,321 files).
+# (checked: pip freeze of both venvs); 51 s of CPU and 32 s with the bytecode pass where pip took 75 s and 78 s,
+# 8 s and 10 s without it where pip took 45 s (measured 2026-12-08). UV_FLAGS: bytecode written at install, so
+# that the first commands start quickly (CI passes UV_FLAGS= : the suite writes the bytecode of what it imports,
+# a fraction of the 10,321 files).
 UV_FLAGS ?= --compile-bytecode
 
 .PHONY: demo test docs docs-serve bench figures clean os-packages
