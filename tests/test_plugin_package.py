@@ -16,6 +16,7 @@ import pytest
 from nao_trainer import registry
 from nao_trainer.errors import ConfigError
 from nao_trainer.files import PROJECT_ROOT
+from nao_trainer.session import config as session_config
 
 PACKAGE = Path(__file__).parent / "plugin_package"  # an installed distribution: tiny_lab_plugins + its dist-info
 
@@ -37,10 +38,9 @@ def installed(monkeypatch):
     registry.unregister("eeg_device", "tinyband")
     monkeypatch.undo()
     registry.reload_entry_points()
-    from nao_trainer.session import config
-
-    config.refresh_policies()  # the policy section composed without `alternate` again: a later test in this
-    # process that reads config.SECTIONS found policy.alternate_levels (seen under make test)
+    # the policy section composed without `alternate` again: a later test in this process that reads
+    # config.SECTIONS found policy.alternate_levels (seen under make test)
+    session_config.refresh_policies()
 
 
 def test_the_packages_plugins_are_found_through_entry_points(installed):
